@@ -1,0 +1,337 @@
+"""The ``needlekit`` command line: a thin layer over the library.
+
+Every command returns an exit status; errors in the input print one line
+``error: <message>`` on stderr and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from needlekit import __version__
+from needlekit.errors import NeedlekitError
+
+__all__ = ["main"]
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``error: ...``, exit 2)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"error: {message}\n")
+
+
+def _numbers(count: int, what: str):
+    def parse(text: str) -> list[float]:
+        parts = [p for p in text.replace(",", " ").split() if p]
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        if not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
+        return values
+
+    return parse
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}")
+    return v
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="needlekit",
+        description="Planning and executing robot-assisted needle insertions.",
+        epilog="Units: mm, rad (degrees where an option says _deg), s. World frame: RAS.",
+    )
+    parser.add_argument("--version", action="version", version=f"needlekit {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    kin = sub.add_parser(
+        "kinematics", help="bevel-tip needle kinematics: forward and inverse steering"
+    )
+    kin_sub = kin.add_subparsers(dest="kin_command", metavar="MODE", parser_class=_Parser)
+
+    fwd = kin_sub.add_parser(
+        "forward",
+        help="tip trajectory of the 3D bevel-tip model for piecewise-constant inputs",
+        description=(
+            "Forward steering: propagate the tip pose exactly for segments of constant "
+            "insertion speed u1 (mm/s) and spin rate u2 (rad/s)."
+        ),
+    )
+    fwd.add_argument(
+        "--kappa-per-mm", type=_non_negative, required=True, help="needle curvature (1/mm)"
+    )
+    fwd.add_argument(
+        "--segment",
+        type=_numbers(3, "three numbers u1_mm_s,u2_rad_s,duration_s"),
+        action="append",
+        required=True,
+        metavar="U1,U2,T",
+        help="one input segment; repeat for several",
+    )
+    fwd.add_argument(
+        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
+    )
+    fwd.add_argument(
+        "--dt-s", type=_positive, default=None, help="sampling interval of the printed trajectory"
+    )
+    fwd.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    inv = kin_sub.add_parser(
+        "inverse",
+        help="single-arc inverse steering from a tip pose to target points",
+        description=(
+            "Inverse steering with the transformation-matrix method: the arc (alpha, r, "
+            "phi, l) from the tip through each target, and the shortest arc-then-line path "
+            "when --r-min-mm is given."
+        ),
+    )
+    inv.add_argument(
+        "--target",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        action="append",
+        required=True,
+        metavar="X,Y,Z",
+        help="target point in the world frame (mm); repeat for several",
+    )
+    inv.add_argument(
+        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
+    )
+    inv.add_argument(
+        "--r-min-mm", type=_positive, help="minimum radius of curvature; tighter arcs are an error"
+    )
+    inv.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
+    demo.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
+    )
+
+    bench = sub.add_parser(
+        "bench", help="benchmarks that record machine, versions, inputs and figures"
+    )
+    bench_sub = bench.add_subparsers(dest="bench_command", metavar="SUITE", parser_class=_Parser)
+    bk = bench_sub.add_parser("kinematics", help="arcs propagated and sampled per second")
+    bk.add_argument("--out", type=Path, help="write the record as JSON here")
+    bk.add_argument("--arcs", type=_positive_int, default=200_000, help="arcs per batch")
+    bk.add_argument(
+        "--samples", type=_positive_int, default=32, help="points per sampled arc (>= 2)"
+    )
+    bk.add_argument(
+        "--repeat", type=_positive_int, default=5, help="timed repetitions (best is kept)"
+    )
+    return parser
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def _start_pose(path: Path | None) -> np.ndarray:
+    if path is None:
+        return np.eye(4)
+    from needlekit.io.poses import read_pose_txt
+
+    return read_pose_txt(path)
+
+
+def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+    def cell(v: object) -> str:
+        if isinstance(v, float):
+            return "inf" if math.isinf(v) else f"{v:.4f}"
+        return str(v)
+
+    text = [[cell(v) for v in row] for row in rows]
+    widths = [
+        max(len(h), *(len(r[i]) for r in text)) if text else len(h) for i, h in enumerate(headers)
+    ]
+    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines.extend("  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in text)
+    return "\n".join(lines)
+
+
+def _cmd_forward(args: argparse.Namespace) -> int:
+    from needlekit.needle.bevel3d import propagate_bevel, simulate_bevel
+
+    g0 = _start_pose(args.start_pose)
+    segments = np.array(args.segment, dtype=float)
+    if np.any(segments[:, 2] < 0):
+        raise NeedlekitError("--segment: durations must be >= 0")
+    if args.dt_s is None:
+        ends = propagate_bevel(g0, segments, args.kappa_per_mm)
+        times = np.concatenate([[0.0], np.cumsum(segments[:, 2])])
+        poses = ends
+    else:
+        traj = simulate_bevel(g0, segments, args.kappa_per_mm, dt_s=args.dt_s)
+        times, poses = traj.time_s, traj.world_T_tip
+    if args.json:
+        out = {
+            "kappa_per_mm": args.kappa_per_mm,
+            "segments": [
+                {"u1_mm_s": float(a), "u2_rad_s": float(b), "duration_s": float(c)}
+                for a, b, c in segments
+            ],
+            "time_s": times.tolist(),
+            "points_mm": poses[:, :3, 3].tolist(),
+            "directions": poses[:, :3, 2].tolist(),
+            "final_pose": poses[-1].tolist(),
+        }
+        print(json.dumps(out, indent=2))
+        return EXIT_OK
+    rows = [
+        [float(t), *(float(v) for v in g[:3, 3]), *(float(v) for v in g[:3, 2])]
+        for t, g in zip(times, poses, strict=True)
+    ]
+    print(_fmt_table(["time_s", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"], rows))
+    print("\nfinal pose (world_T_tip):")
+    print(np.array2string(poses[-1], precision=6, suppress_small=True))
+    return EXIT_OK
+
+
+def _cmd_inverse(args: argparse.Namespace) -> int:
+    from needlekit.needle.reachability import shortest_arc_line
+    from needlekit.needle.transform_method import tm_inverse
+
+    g0 = _start_pose(args.start_pose)
+    targets = np.array(args.target, dtype=float)
+    sol = tm_inverse(targets, g0, r_min_mm=args.r_min_mm)
+    spin = sol.alpha_rad + 0.5 * np.pi  # twist-model spin, see needlekit.conventions
+    spin = np.mod(spin + np.pi, 2 * np.pi) - np.pi
+    arcline = shortest_arc_line(g0, targets, args.r_min_mm) if args.r_min_mm else None
+    records = []
+    for i, p in enumerate(targets):
+        rec = {
+            "target_mm": p.tolist(),
+            "alpha_rad": float(sol.alpha_rad[i]),
+            "spin_rad": float(spin[i]),
+            "radius_mm": None if math.isinf(sol.radius_mm[i]) else float(sol.radius_mm[i]),
+            "curvature_per_mm": float(sol.kappa_per_mm[i]),
+            "phi_rad": float(sol.phi_rad[i]),
+            "length_mm": float(sol.length_mm[i]),
+        }
+        if arcline is not None:
+            rec["shortest_arc_line_mm"] = float(arcline.length_mm[i])
+        records.append(rec)
+    if args.json:
+        print(json.dumps({"r_min_mm": args.r_min_mm, "arcs": records}, indent=2))
+        return EXIT_OK
+    headers = ["target", "alpha_deg", "spin_deg", "radius_mm", "phi_deg", "length_mm"]
+    if arcline is not None:
+        headers.append("arc+line_mm")
+    rows = []
+    for i, rec in enumerate(records):
+        row: list[object] = [
+            f"{i}",
+            math.degrees(rec["alpha_rad"]),
+            math.degrees(rec["spin_rad"]),
+            float(sol.radius_mm[i]),
+            math.degrees(rec["phi_rad"]),
+            rec["length_mm"],
+        ]
+        if arcline is not None:
+            row.append(rec["shortest_arc_line_mm"])
+        rows.append(row)
+    print(_fmt_table(headers, rows))
+    return EXIT_OK
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from needlekit.report.kinematics import write_kinematics_figures
+
+    paths = write_kinematics_figures(args.out)
+    for p in paths:
+        print(p)
+    return EXIT_OK
+
+
+def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    if args.bench_command != "kinematics":
+        parser.parse_args(["bench", "--help"])
+        return EXIT_USAGE
+    from needlekit.benchmarks.kinematics import run_kinematics_benchmark
+    from needlekit.benchmarks.record import format_record
+
+    if args.samples < 2:
+        raise NeedlekitError("--samples: expected a whole number >= 2")
+    record = run_kinematics_benchmark(n_arcs=args.arcs, n_samples=args.samples, repeat=args.repeat)
+    if args.out is not None:
+        from needlekit.io.files import write_json
+
+        write_json(args.out, record)
+    print(format_record(record))
+    return EXIT_OK
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(args.verbose, 2),
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        if args.command == "kinematics":
+            if args.kin_command == "forward":
+                return _cmd_forward(args)
+            if args.kin_command == "inverse":
+                return _cmd_inverse(args)
+            parser.parse_args(["kinematics", "--help"])
+        elif args.command == "demo":
+            return _cmd_demo(args)
+        elif args.command == "bench":
+            return _cmd_bench(args, parser)
+        else:
+            parser.print_help()
+            return EXIT_USAGE if argv else EXIT_OK
+    except NeedlekitError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,32 @@
+"""Tolerances and defaults, each in one place with the reason for its value.
+
+Algorithms import these instead of writing literals, so a tolerance can be found, argued
+about and changed once (the role of OMPL's ``MagicConstants.h`` or trimesh's
+``constants.py``).
+"""
+
+from __future__ import annotations
+
+#: Angles below this (rad) are treated as zero in closed forms such as the SE(3)
+#: exponential, where a Taylor series takes over. At 1e-6 rad the neglected series terms
+#: are below 1e-24 relative, far under double precision.
+SMALL_ANGLE_RAD: float = 1e-6
+
+#: Tolerance on a rotation matrix: ``|R^T R - I|`` and ``|det R - 1|`` must stay below it.
+#: Loose enough for matrices read from text files with ~9 significant digits.
+ROTATION_ORTHONORMAL_TOL: float = 1e-6
+
+#: Relative determinant of the Euler-rate map T(phi) below which the angles are treated
+#: as gimbal-locked: there ``|det T| = |cos|`` or ``|sin|`` of the middle angle, so 1e-9
+#: means within ~1e-9 rad of the singularity, where the inverse would amplify rates 1e9x.
+GIMBAL_LOCK_TOL: float = 1e-9
+
+#: Lateral offset (mm) below which a target counts as lying on the needle axis, so the
+#: steering arc degenerates to a straight line (radius treated as infinite). 1e-12 mm is
+#: far below any physical meaning and keeps the closed forms accurate to ~1e-9 mm for
+#: targets up to a metre away.
+ON_AXIS_TOL_MM: float = 1e-12
+
+#: Default spacing (mm) of points sampled densely along an arc for clearance checks and
+#: exported paths; plan files promise at most 0.5 mm.
+DEFAULT_SAMPLE_SPACING_MM: float = 0.5

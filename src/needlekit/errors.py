@@ -1,0 +1,55 @@
+"""Exceptions raised by needlekit.
+
+Every error needlekit raises on purpose derives from :class:`NeedlekitError`, so a caller
+(and the command line) can tell a problem with the input from a bug. Errors about user
+input name the argument, field or file they concern and say what was expected, in one
+line.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "InvalidInputError",
+    "NeedlekitError",
+    "SingularityError",
+    "UnreachableTargetError",
+]
+
+
+class NeedlekitError(Exception):
+    """Base class of every error needlekit raises deliberately."""
+
+
+class InvalidInputError(NeedlekitError, ValueError):
+    """An argument, field or file does not hold what was expected.
+
+    Parameters
+    ----------
+    field : str
+        Name of the argument, field or file at fault (shown first in the message).
+    message : str
+        What was wrong and what was expected, e.g. ``"must be finite, got NaN"``.
+    """
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")
+
+
+class UnreachableTargetError(NeedlekitError, ValueError):
+    """A target point cannot be reached under the given kinematic limits."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")
+
+
+class SingularityError(NeedlekitError, ArithmeticError):
+    """A map is singular at the given configuration (e.g. an Euler-angle gimbal lock)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")

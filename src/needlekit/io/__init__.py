@@ -1,0 +1,1 @@
+"""Reading and writing needlekit's inputs and outputs (poses, results, exports)."""

@@ -1,0 +1,181 @@
+"""The command line: outputs checked against the library, one-line errors with exit 2."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from needlekit import __version__
+from needlekit.cli import main
+from needlekit.needle.bevel3d import propagate_bevel
+from needlekit.needle.reachability import shortest_arc_line
+from needlekit.needle.transform_method import tm_inverse
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_help_and_version():
+    done = subprocess.run(
+        [sys.executable, "-m", "needlekit.cli", "--version"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0 and done.stdout.strip() == f"needlekit {__version__}"
+    done = subprocess.run(
+        [sys.executable, "-m", "needlekit.cli", "--help"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0
+    for word in ("kinematics", "demo", "bench"):
+        assert word in done.stdout
+
+
+def test_forward_json_matches_library(capsys):
+    code, out, _ = run(
+        capsys,
+        "kinematics",
+        "forward",
+        "--kappa-per-mm",
+        "0.02",
+        "--segment",
+        "5,0,4",
+        "--segment",
+        "0,3.14159,1",
+        "--segment",
+        "5,0.2,4",
+        "--json",
+    )
+    assert code == 0
+    data = json.loads(out)
+    ref = propagate_bevel(np.eye(4), [[5, 0, 4], [0, 3.14159, 1], [5, 0.2, 4]], 0.02)
+    assert np.allclose(data["final_pose"], ref[-1])
+    assert np.allclose(data["points_mm"], ref[:, :3, 3])
+    assert data["time_s"] == [0.0, 4.0, 5.0, 9.0]
+
+
+def test_forward_table_with_start_pose(capsys, tmp_path):
+    pose = tmp_path / "start.txt"
+    g = np.eye(4)
+    g[:3, 3] = [10.0, 20.0, 30.0]
+    np.savetxt(pose, g)
+    code, out, _ = run(
+        capsys,
+        "kinematics",
+        "forward",
+        "--kappa-per-mm",
+        "0",
+        "--segment",
+        "2,0,5",
+        "--start-pose",
+        str(pose),
+        "--dt-s",
+        "1",
+    )
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0].split()[:4] == ["time_s", "x_mm", "y_mm", "z_mm"]
+    last = next(line for line in lines if line.startswith("5.0000"))
+    assert last.split()[:4] == ["5.0000", "10.0000", "20.0000", "40.0000"]
+
+
+def test_inverse_json_matches_library(capsys):
+    code, out, _ = run(
+        capsys,
+        "kinematics",
+        "inverse",
+        "--target",
+        "10,20,80",
+        "--target",
+        "0,0,50",
+        "--r-min-mm",
+        "30",
+        "--json",
+    )
+    assert code == 0
+    data = json.loads(out)
+    sol = tm_inverse([[10, 20, 80], [0, 0, 50]])
+    arcs = data["arcs"]
+    assert arcs[0]["radius_mm"] == pytest.approx(sol.radius_mm[0])
+    assert arcs[1]["radius_mm"] is None and arcs[1]["curvature_per_mm"] == 0.0
+    assert arcs[0]["length_mm"] == pytest.approx(sol.length_mm[0])
+    short = shortest_arc_line(np.eye(4), [10, 20, 80], 30.0)
+    assert arcs[0]["shortest_arc_line_mm"] == pytest.approx(short.length_mm[0])
+
+
+def test_inverse_table(capsys):
+    code, out, _ = run(capsys, "kinematics", "inverse", "--target", "50,0,50")
+    assert code == 0
+    header, _, row = out.splitlines()[:3]
+    assert header.split() == [
+        "target",
+        "alpha_deg",
+        "spin_deg",
+        "radius_mm",
+        "phi_deg",
+        "length_mm",
+    ]
+    assert row.split()[3:5] == ["50.0000", "90.0000"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["kinematics", "inverse", "--target", "nan,0,5"], "--target"),
+        (["kinematics", "inverse", "--target", "1,2"], "--target"),
+        (["kinematics", "inverse", "--target", "1,2,3", "--r-min-mm", "0"], "--r-min-mm"),
+        (["kinematics", "inverse", "--target", "1,2,3", "--r-min-mm", "-3"], "--r-min-mm"),
+        (["kinematics", "inverse", "--target", "30,0,5", "--r-min-mm", "30"], "r_min_mm"),
+        (["kinematics", "inverse", "--target", "0,0,-5"], "behind"),
+        (
+            ["kinematics", "inverse", "--target", "1,2,3", "--start-pose", "/no/such/file.txt"],
+            "file.txt",
+        ),
+        (["kinematics", "forward", "--kappa-per-mm", "-1", "--segment", "1,0,1"], "--kappa-per-mm"),
+        (["kinematics", "forward", "--kappa-per-mm", "0.1", "--segment", "1,0,-1"], "duration"),
+        (["kinematics", "forward", "--kappa-per-mm", "0.1"], "--segment"),
+        (["bench", "kinematics", "--samples", "1"], "--samples"),
+        (["no-such-command"], "invalid choice"),
+    ],
+)
+def test_errors_are_one_line_with_exit_2(capsys, argv, needle):
+    with pytest.raises(SystemExit) as info:
+        code = main(argv)
+        raise SystemExit(code)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("error: ") and needle in lines[0]
+
+
+def test_bench_kinematics_writes_record(capsys, tmp_path):
+    out = tmp_path / "bench.json"
+    code, text, _ = run(
+        capsys,
+        "bench",
+        "kinematics",
+        "--arcs",
+        "2000",
+        "--samples",
+        "8",
+        "--repeat",
+        "1",
+        "--out",
+        str(out),
+    )
+    assert code == 0 and "M arcs/s" in text
+    rec = json.loads(out.read_text())
+    assert rec["benchmark"] == "kinematics"
+    assert rec["inputs"]["n_arcs"] == 2000
+    assert {"versions", "cpu", "python"} <= set(rec["machine"])
+    for row in rec["results"]:
+        assert row["arcs_per_s"] > 0 and row["max_abs_diff_mm"] < 1e-9
