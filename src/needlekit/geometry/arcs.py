@@ -130,7 +130,17 @@ def arc_transform(spin_rad, kappa_per_mm, length_mm):
 
 
 def propagate_arcs_reference(world_T_tip, spin_rad, kappa_per_mm, length_mm):
-    """Plain numpy version of :func:`propagate_arcs` (the test oracle)."""
+    """Plain numpy version of :func:`propagate_arcs` (the test oracle).
+
+    Parameters
+    ----------
+    world_T_tip : array_like, shape (4, 4) or (n, 4, 4)
+    spin_rad, kappa_per_mm, length_mm : float or array_like, shape (n,)
+
+    Returns
+    -------
+    ndarray, shape (4, 4) or (n, 4, 4)
+    """
     poses, spin, kappa, length, single = _broadcast_arc_batch(
         world_T_tip, spin_rad, kappa_per_mm, length_mm
     )
@@ -139,7 +149,18 @@ def propagate_arcs_reference(world_T_tip, spin_rad, kappa_per_mm, length_mm):
 
 
 def sample_arcs_reference(world_T_tip, spin_rad, kappa_per_mm, length_mm, n_samples: int):
-    """Plain numpy version of :func:`sample_arcs` (the test oracle)."""
+    """Plain numpy version of :func:`sample_arcs` (the test oracle).
+
+    Parameters
+    ----------
+    world_T_tip : array_like, shape (4, 4) or (n, 4, 4)
+    spin_rad, kappa_per_mm, length_mm : float or array_like, shape (n,)
+    n_samples : int
+
+    Returns
+    -------
+    ndarray, shape (n_samples, 3) or (n, n_samples, 3)
+    """
     m = _check_samples(n_samples)
     poses, spin, kappa, length, single = _broadcast_arc_batch(
         world_T_tip, spin_rad, kappa_per_mm, length_mm
@@ -162,7 +183,25 @@ def _check_samples(n_samples) -> int:
 
 
 def samples_for_spacing(length_mm: float, spacing_mm: float) -> int:
-    """Number of evenly spaced samples (ends included) so that gaps are <= spacing_mm."""
+    """Number of evenly spaced samples along an arc, ends included, with gaps <= spacing.
+
+    Parameters
+    ----------
+    length_mm : float
+        Arc length (>= 0).
+    spacing_mm : float
+        Largest allowed gap in arc length (> 0).
+
+    Returns
+    -------
+    int
+        At least 2.
+
+    Examples
+    --------
+    >>> samples_for_spacing(10.0, 0.5)
+    21
+    """
     if not (np.isfinite(spacing_mm) and spacing_mm > 0):
         raise InvalidInputError("spacing_mm", f"must be a finite number > 0, got {spacing_mm}")
     if not (np.isfinite(length_mm) and length_mm >= 0):

@@ -46,7 +46,16 @@ def hat6(twist):
 
 
 def vee6(matrix):
-    """Inverse of :func:`hat6`: the twist ``(v, omega)`` of a 4x4 se(3) matrix."""
+    """Inverse of :func:`hat6`: the twist ``(v, omega)`` of a 4x4 se(3) matrix.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (4, 4) or (n, 4, 4)
+
+    Returns
+    -------
+    ndarray, shape (6,) or (n, 6)
+    """
     m, single = as_batch(matrix, "matrix", (4, 4))
     w = 0.5 * np.stack(
         [m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=1
@@ -128,10 +137,14 @@ def se3_log(pose):
 
 
 def make_pose(rotation=None, translation=None):
-    """Build homogeneous poses from rotations ``(…, 3, 3)`` and translations ``(…, 3)``.
+    """Build homogeneous poses from rotations and translations.
 
-    Either argument may be omitted (identity rotation, zero translation). Shapes broadcast
-    over a leading batch axis.
+    Parameters
+    ----------
+    rotation : array_like, shape (3, 3) or (n, 3, 3), optional
+        Proper rotation matrices (default identity).
+    translation : array_like, shape (3,) or (n, 3), optional
+        Translations in mm (default zero). Shapes broadcast over the batch axis.
 
     Returns
     -------
@@ -149,7 +162,17 @@ def make_pose(rotation=None, translation=None):
 
 
 def pose_inverse(pose):
-    """Inverse of rigid poses, ``[[R^T, -R^T p], [0, 1]]``; shape as given."""
+    """Inverse of rigid poses: ``a_T_b`` to ``b_T_a``.
+
+    Parameters
+    ----------
+    pose : array_like, shape (4, 4) or (n, 4, 4)
+
+    Returns
+    -------
+    ndarray, shape (4, 4) or (n, 4, 4)
+        ``[[R^T, -R^T p], [0, 1]]``.
+    """
     g, single = as_poses(pose, "pose")
     out = np.zeros_like(g)
     rt = np.transpose(g[:, :3, :3], (0, 2, 1))
@@ -164,6 +187,10 @@ def adjoint(pose):
 
     ``Ad(g) @ xi_body`` is the same motion expressed as a spatial twist:
     ``hat6(Ad(g) xi) = g hat6(xi) g^-1``.
+
+    Parameters
+    ----------
+    pose : array_like, shape (4, 4) or (n, 4, 4)
 
     Returns
     -------
@@ -180,8 +207,20 @@ def adjoint(pose):
 
 
 def transform_points(pose, points):
-    """Apply one pose ``(4, 4)`` to points ``(3,)`` or ``(n, 3)`` (frames: ``a_T_b`` maps
-    b-coordinates to a-coordinates)."""
+    """Apply one pose to points.
+
+    Parameters
+    ----------
+    pose : array_like, shape (4, 4)
+        ``a_T_b``: maps coordinates in frame b to frame a.
+    points : array_like, shape (3,) or (n, 3)
+        Points in frame b (mm).
+
+    Returns
+    -------
+    ndarray, shape (3,) or (n, 3)
+        The points in frame a (mm).
+    """
     g, single_pose = as_poses(pose, "pose")
     if not single_pose:
         raise InvalidInputError("pose", f"expected one 4x4 pose, got a batch of {g.shape[0]}")

@@ -169,15 +169,45 @@ def _axis_rotation(angle, axis: int) -> np.ndarray:
 
 
 def rot_x(angle):
-    """Rotation matrix about x by ``angle`` (rad); shape (3, 3), or (n, 3, 3) for (n,)."""
+    """Rotation matrix about the x axis.
+
+    Parameters
+    ----------
+    angle : float or array_like, shape (n,)
+        Rotation angle (rad), right-handed.
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or (n, 3, 3)
+    """
     return _axis_rotation(angle, 0)
 
 
 def rot_y(angle):
-    """Rotation matrix about y by ``angle`` (rad); shape (3, 3), or (n, 3, 3) for (n,)."""
+    """Rotation matrix about the y axis.
+
+    Parameters
+    ----------
+    angle : float or array_like, shape (n,)
+        Rotation angle (rad), right-handed.
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or (n, 3, 3)
+    """
     return _axis_rotation(angle, 1)
 
 
 def rot_z(angle):
-    """Rotation matrix about z by ``angle`` (rad); shape (3, 3), or (n, 3, 3) for (n,)."""
+    """Rotation matrix about the z axis.
+
+    Parameters
+    ----------
+    angle : float or array_like, shape (n,)
+        Rotation angle (rad), right-handed.
+
+    Returns
+    -------
+    ndarray, shape (3, 3) or (n, 3, 3)
+    """
     return _axis_rotation(angle, 2)

@@ -227,9 +227,9 @@ def shortest_arc_line(world_T_tip, points, r_min_mm) -> ArcLinePath:
 
     Examples
     --------
-    >>> import numpy as np
     A point on the r_min circle is reached by a quarter circle alone (25 pi mm):
 
+    >>> import numpy as np
     >>> p = shortest_arc_line(np.eye(4), [0.0, -50.0, 50.0], 50.0)
     >>> round(float(p.length_mm[0]), 6), round(float(p.line_length_mm[0]), 6)
     (78.539816, 0.0)

@@ -51,6 +51,13 @@ def state_from_pose(world_T_tip, seq: str):
 def pose_from_state(state, seq: str):
     """Tip poses from minimal coordinates ``Q`` (inverse of :func:`state_from_pose`).
 
+    Parameters
+    ----------
+    state : array_like, shape (6,) or (n, 6)
+        ``(x_mm, y_mm, z_mm, phi1_rad, phi2_rad, phi3_rad)``.
+    seq : str
+        Orientation convention of the angles.
+
     Returns
     -------
     ndarray, shape (4, 4) or (n, 4, 4)

@@ -113,6 +113,15 @@ def tm_pose(alpha_rad, kappa_per_mm, length_mm):
     Same transform as :func:`tm_transform` with ``r = 1/kappa`` and ``phi = kappa l``,
     evaluated without cancellation for small ``kappa``.
 
+    Parameters
+    ----------
+    alpha_rad : float or array_like, shape (n,)
+        Bending-plane angle about z.
+    kappa_per_mm : float or array_like, shape (n,)
+        Curvature (1/mm), 0 for a straight segment.
+    length_mm : float or array_like, shape (n,)
+        Arc length (>= 0).
+
     Returns
     -------
     ndarray, shape (4, 4) or (n, 4, 4)
