@@ -284,6 +284,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     paths = write_kinematics_figures(args.out)
     for p in paths:
         print(p)
+    print(Path(args.out) / "demo.json")
     return EXIT_OK
 
 

@@ -12,6 +12,12 @@ from typing import Any
 __all__ = ["atomic_write", "write_json", "write_text"]
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over
     ``path``. On any error the temporary file is removed and ``path`` is untouched.
@@ -35,6 +41,8 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
     tmp = Path(tmp_name)
     try:
         write(tmp)
+        # mkstemp creates 0600 files; give the result the mode a plain open() would.
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, dest)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -48,6 +56,6 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write JSON atomically, indented, with a trailing newline; NaN is refused."""
-    text = json.dumps(data, indent=2, allow_nan=False) + "\n"
+    """Write JSON atomically (UTF-8, indented, trailing newline); NaN is refused."""
+    text = json.dumps(data, indent=2, allow_nan=False, ensure_ascii=False) + "\n"
     return write_text(path, text)

@@ -199,7 +199,11 @@ class PlanarSteering:
         return 0.0 if np.isinf(self.radius_mm) else 1.0 / self.radius_mm
 
     def inputs(self, sampling_time_s: float) -> np.ndarray:
-        """The segment ``(speed_mm_s, bevel, duration_s)`` for :func:`simulate_planar`."""
+        """The segment ``(speed_mm_s, bevel, duration_s)`` that follows this arc.
+
+        Pass it to :func:`simulate_planar` together with ``kappa_per_mm=self.kappa_per_mm``;
+        arcs of different radii need one call each, since the model's curvature is fixed.
+        """
         return np.array([[self.length_mm / sampling_time_s, self.bevel, sampling_time_s]])
 
 

@@ -8,7 +8,7 @@ Single arc
     The arc from the tip through ``p`` lies in the plane of ``e`` and ``p``, with radius
     ``r = (axial^2 + radial^2) / (2 radial)`` and turning angle
     ``theta = 2 atan2(radial, axial)``. It respects a minimum radius ``r_min`` exactly when
-    ``axial^2 + radial^2 >= 2 r_min radial``, i.e. ``p`` lies outside the spindle torus
+    ``axial^2 + radial^2 >= 2 r_min radial``, i.e. ``p`` lies outside the horn torus
     swept by the circle of radius ``r_min`` tangent to the axis. Requiring a forward arc
     (``theta <= pi``, ``axial >= 0``) gives the lecture's condition
     ``P_z >= sqrt(2 r_min rho - rho^2)`` for ``rho <= 2 r_min`` (and ``P_z >= 0`` beyond).
@@ -19,7 +19,10 @@ Arc then straight line
     CS path, planar in the same plane): length ``r_min beta + sqrt(d^2 - r_min^2)`` where
     ``d`` is the distance from the circle's centre to ``p`` and ``beta`` the turn. Points
     inside the torus are not reachable by any arc-then-line path (every tangent line of a
-    circle of radius >= r_min through the tip stays outside it).
+    circle of radius >= r_min through the tip stays outside it). They are not out of reach
+    for a needle that may spin mid-way: bending away first and back later (two arcs of
+    opposite sides) reaches them, so "unreachable" here always means "by an arc then a
+    line", and ``inf`` is not a lower bound on the length of such manoeuvres.
 """
 
 from __future__ import annotations
@@ -212,8 +215,10 @@ class ArcLinePath:
 def shortest_arc_line(world_T_tip, points, r_min_mm) -> ArcLinePath:
     """Shortest path of an r_min arc followed by a straight line to each point.
 
-    This is the shortest curvature-bounded path to the point (the Dubins CS path with free
-    final heading) wherever it exists, and so an admissible cost-to-go for planners.
+    Outside the r_min horn torus this is the shortest curvature-bounded path to the point
+    (the Dubins CS path with free final heading), and so an admissible cost-to-go for
+    planners there. Inside the torus no arc-then-line path exists (``inf``) although
+    two-arc manoeuvres do; a planner's lower bound there must come from elsewhere.
 
     Parameters
     ----------

@@ -1,0 +1,1 @@
+"""Figures and reports built from needlekit results (matplotlib Agg; no plotting elsewhere)."""
