@@ -10,6 +10,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -145,6 +146,31 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     inv.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
+    sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scenario files",
+        description="Print the JSON Schema (draft 2020-12) that scenario files are validated against.",
+    )
+
+    scene = sub.add_parser("scene", help="inspect and render the anatomy of a scenario")
+    scene_sub = scene.add_subparsers(dest="scene_command", metavar="ACTION", parser_class=_Parser)
+    info = scene_sub.add_parser(
+        "info", help="summarise the structures: role, extent, voxel size, volume"
+    )
+    info.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    render = scene_sub.add_parser(
+        "render", help="write a self-contained interactive 3D view (HTML)"
+    )
+    render.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    render.add_argument("--out", type=Path, required=True, help="output HTML file")
+    render.add_argument(
+        "--max-cells",
+        type=_positive_int,
+        default=160,
+        help="surface resolution: samples per axis (default 160)",
+    )
+
     demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
     demo.add_argument(
         "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
@@ -162,6 +188,31 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     bk.add_argument(
         "--repeat", type=_positive_int, default=5, help="timed repetitions (best is kept)"
+    )
+    bf = bench_sub.add_parser(
+        "fields", help="distance queries per second, field build times (incl. Med-RAD)"
+    )
+    bf.add_argument("--out", type=Path, help="write the record as JSON here")
+    bf.add_argument(
+        "--grid", type=_positive_int, default=256, help="edge of the cubic test grids (voxels)"
+    )
+    bf.add_argument(
+        "--queries", type=_positive_int, default=2_000_000, help="points per timed query batch"
+    )
+    bf.add_argument(
+        "--repeat", type=_positive_int, default=3, help="timed repetitions (best is kept)"
+    )
+    bf.add_argument(
+        "--patients",
+        type=_positive_int,
+        nargs="+",
+        default=[1],
+        help="Med-RAD lung patients to load (default 1)",
+    )
+    bf.add_argument(
+        "--medrad",
+        type=Path,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
     return parser
 
@@ -183,13 +234,27 @@ def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
             return "inf" if math.isinf(v) else f"{v:.4f}"
         return str(v)
 
+    def numeric(text: str) -> bool:
+        try:
+            float(text)
+        except ValueError:
+            return text in ("-", "inf")
+        return True
+
     text = [[cell(v) for v in row] for row in rows]
     widths = [
         max(len(h), *(len(r[i]) for r in text)) if text else len(h) for i, h in enumerate(headers)
     ]
-    lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))]
-    lines.append("  ".join("-" * w for w in widths))
-    lines.extend("  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in text)
+    # text columns align left, numbers right
+    left = [bool(text) and not all(numeric(r[i]) for r in text) for i in range(len(headers))]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(
+            c.ljust(w) if lft else c.rjust(w) for c, w, lft in zip(cells, widths, left, strict=True)
+        ).rstrip()
+
+    lines = [line(headers), "  ".join("-" * w for w in widths)]
+    lines.extend(line(r) for r in text)
     return "\n".join(lines)
 
 
@@ -278,6 +343,79 @@ def _cmd_inverse(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _cmd_schema() -> int:
+    from needlekit.io.scenario_schema import SCENARIO_SCHEMA
+
+    print(json.dumps(SCENARIO_SCHEMA, indent=2))
+    return EXIT_OK
+
+
+def _fmt_extent(extent: np.ndarray) -> str:
+    if not np.all(np.isfinite(extent)):
+        return "unbounded"
+    size = extent[1] - extent[0]
+    return " x ".join(f"{v:.1f}" for v in size)
+
+
+def _cmd_scene(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    from needlekit.io.scenario import load_scenario
+
+    if args.scene_command not in ("info", "render"):
+        parser.parse_args(["scene", "--help"])
+        return EXIT_USAGE
+    sc = load_scenario(args.scenario)
+    if args.scene_command == "info":
+        from needlekit.anatomy.summary import summarize_scene
+
+        rows = summarize_scene(sc.scene)
+        if args.json:
+            out = {
+                "scenario": str(args.scenario),
+                "name": sc.name,
+                "structures": [r.to_dict() for r in rows],
+            }
+            print(json.dumps(out, indent=2))
+            return EXIT_OK
+        print(
+            f"scene: {sc.scene.name or sc.name or args.scenario.name}  ({len(rows)} structures, RAS mm)"
+        )
+        table = [
+            [
+                r.name,
+                r.role,
+                r.kind,
+                _fmt_extent(r.extent_mm),
+                "-" if r.voxel_size_mm is None else " x ".join(f"{v:.2f}" for v in r.voxel_size_mm),
+                "inf" if not np.isfinite(r.volume_ml) else f"{r.volume_ml:.2f}",
+                f"{r.error_bound_mm:.3f}",
+            ]
+            for r in rows
+        ]
+        print(
+            _fmt_table(
+                ["name", "role", "field", "extent_mm", "voxel_mm", "volume_ml", "error_mm"], table
+            )
+        )
+        if sc.start is not None:
+            print(f"start: {sc.start.name} at {np.round(sc.start.point_mm, 2).tolist()} mm")
+        if sc.goal is not None:
+            print(
+                f"goal:  {sc.goal.name} at {np.round(sc.goal.point_mm, 2).tolist()} mm (tolerance {sc.goal.tolerance_mm:g} mm)"
+            )
+        return EXIT_OK
+    from needlekit.report.scene3d import scene_figure, write_scene_html
+
+    starts = None
+    if sc.start is not None and sc.start.world_T_tip is not None:
+        starts = sc.start.world_T_tip[None]
+    elif sc.base is not None and getattr(sc.base, "start_poses", None) is not None:
+        starts = sc.base.start_poses
+    targets = None if sc.goal is None else sc.goal.point_mm[None]
+    fig = scene_figure(sc.scene, start_poses=starts, targets_mm=targets, max_cells=args.max_cells)
+    print(write_scene_html(fig, args.out))
+    return EXIT_OK
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from needlekit.report.kinematics import write_kinematics_figures
 
@@ -289,15 +427,31 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    if args.bench_command != "kinematics":
-        parser.parse_args(["bench", "--help"])
-        return EXIT_USAGE
-    from needlekit.benchmarks.kinematics import run_kinematics_benchmark
     from needlekit.benchmarks.record import format_record
 
-    if args.samples < 2:
-        raise NeedlekitError("--samples: expected a whole number >= 2")
-    record = run_kinematics_benchmark(n_arcs=args.arcs, n_samples=args.samples, repeat=args.repeat)
+    if args.bench_command == "kinematics":
+        from needlekit.benchmarks.kinematics import run_kinematics_benchmark
+
+        if args.samples < 2:
+            raise NeedlekitError("--samples: expected a whole number >= 2")
+        record = run_kinematics_benchmark(
+            n_arcs=args.arcs, n_samples=args.samples, repeat=args.repeat
+        )
+    elif args.bench_command == "fields":
+        from needlekit.benchmarks.fields import run_fields_benchmark
+
+        if args.grid < 8:
+            raise NeedlekitError("--grid: expected a whole number >= 8")
+        record = run_fields_benchmark(
+            grid_size=args.grid,
+            n_queries=args.queries,
+            repeat=args.repeat,
+            medrad_dir=args.medrad,
+            medrad_patients=tuple(args.patients),
+        )
+    else:
+        parser.parse_args(["bench", "--help"])
+        return EXIT_USAGE
     if args.out is not None:
         from needlekit.io.files import write_json
 
@@ -321,6 +475,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if args.kin_command == "inverse":
                 return _cmd_inverse(args)
             parser.parse_args(["kinematics", "--help"])
+        elif args.command == "schema":
+            return _cmd_schema()
+        elif args.command == "scene":
+            return _cmd_scene(args, parser)
         elif args.command == "demo":
             return _cmd_demo(args)
         elif args.command == "bench":
@@ -331,6 +489,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # e.g. `needlekit schema | head`: the reader left early
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
     return EXIT_USAGE
 
 

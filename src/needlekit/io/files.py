@@ -51,11 +51,33 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write text atomically (UTF-8)."""
+    """Write text atomically (UTF-8).
+
+    Parameters
+    ----------
+    path : path-like
+    text : str
+
+    Returns
+    -------
+    Path
+    """
     return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write JSON atomically (UTF-8, indented, trailing newline); NaN is refused."""
+    """Write JSON atomically (UTF-8, indented, trailing newline).
+
+    Parameters
+    ----------
+    path : path-like
+    data : object
+        JSON-serialisable; NaN and infinity are refused (``ValueError``) before anything is
+        written.
+
+    Returns
+    -------
+    Path
+    """
     text = json.dumps(data, indent=2, allow_nan=False, ensure_ascii=False) + "\n"
     return write_text(path, text)

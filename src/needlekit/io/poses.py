@@ -51,6 +51,10 @@ def read_pose_txt(path: str | os.PathLike) -> np.ndarray:
 def read_point_txt(path: str | os.PathLike) -> np.ndarray:
     """Read one 3D point (RAS mm) from a text file of three numbers.
 
+    Parameters
+    ----------
+    path : path-like
+
     Returns
     -------
     ndarray, shape (3,)
@@ -64,7 +68,17 @@ def read_point_txt(path: str | os.PathLike) -> np.ndarray:
 
 
 def write_pose_txt(path: str | os.PathLike, pose) -> Path:
-    """Write a 4x4 pose as text, the form :func:`read_pose_txt` reads (atomically)."""
+    """Write a 4x4 pose as text, the form :func:`read_pose_txt` reads (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+    pose : array_like, shape (4, 4)
+
+    Returns
+    -------
+    Path
+    """
     g, single = as_poses(pose, "pose")
     if not single:
         raise InvalidInputError("pose", "expected one 4x4 pose")

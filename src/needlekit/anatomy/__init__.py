@@ -1,0 +1,1 @@
+"""Anatomy: distance fields, scenes of named structures, real segmentations and phantoms."""

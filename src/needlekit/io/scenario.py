@@ -1,0 +1,508 @@
+"""Scenario files: anatomy, needle, start, goal and planner settings in one YAML file.
+
+The format is described in ``docs/scenarios.md`` and by the JSON Schema in
+:mod:`needlekit.io.scenario_schema` (``needlekit schema`` prints it). A minimal file::
+
+    version: 1
+    base: {phantom: {name: lung, seed: 0}}
+    start: {case_start: 1}
+    goal: {case_target: 1, tolerance_mm: 1.0}
+
+Every error names the file, the field (``structures[2].sphere.radius_mm``) and what was
+expected, in one line; nothing but :class:`~needlekit.errors.NeedlekitError` comes out of
+:func:`load_scenario` for a bad file.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import numpy as np
+import yaml
+
+from needlekit._validation import as_poses
+from needlekit.anatomy.fields import ComplementField, DistanceField, TransformedField, union
+from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.errors import InvalidInputError
+from needlekit.io.scenario_schema import SCENARIO_SCHEMA, SOURCE_KINDS
+
+__all__ = [
+    "GoalSpec",
+    "NeedleSpec",
+    "Scenario",
+    "StartSpec",
+    "load_scenario",
+    "parse_scenario",
+]
+
+#: RAS <- LPS (and back): a rotation by pi about z.
+_LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+_VALIDATOR = jsonschema.Draft202012Validator(SCENARIO_SCHEMA)
+
+
+@dataclass(frozen=True)
+class NeedleSpec:
+    """The needle and its limits (defaults as in the schema).
+
+    Attributes
+    ----------
+    diameter_mm, r_min_mm, max_length_mm, safety_margin_mm : float
+    max_heading_change_deg : float
+        Largest change of direction along the path.
+    min_puncture_angle_deg : float
+        Smallest angle between the needle and the entry surface (Feng's alpha).
+    start_exclusion_mm : float
+        Obstacles within this distance of the start are ignored (the needle leaves the
+        airway through its wall).
+    """
+
+    diameter_mm: float = 1.0
+    r_min_mm: float = 50.0
+    max_length_mm: float = 150.0
+    safety_margin_mm: float = 0.0
+    max_heading_change_deg: float = 90.0
+    min_puncture_angle_deg: float = 0.0
+    start_exclusion_mm: float = 3.0
+
+    @property
+    def clearance_margin_mm(self) -> float:
+        """Needle radius plus safety margin: the clearance a path must keep (mm)."""
+        return 0.5 * self.diameter_mm + self.safety_margin_mm
+
+
+@dataclass(frozen=True)
+class StartSpec:
+    """Where the needle starts.
+
+    Attributes
+    ----------
+    point_mm : ndarray, shape (3,)
+        Start point (RAS mm).
+    world_T_tip : ndarray, shape (4, 4) or None
+        Full start pose when the direction is fixed; None for a start point only (the
+        planner sweeps directions).
+    name : str
+        Where it came from (``"start2"``, a file name, ``"pose"``).
+    """
+
+    point_mm: np.ndarray
+    world_T_tip: np.ndarray | None
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class GoalSpec:
+    """Target point (RAS mm) and tolerance (mm)."""
+
+    point_mm: np.ndarray
+    tolerance_mm: float = 1.0
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A loaded scenario.
+
+    Attributes
+    ----------
+    name, description : str
+    scene : Scene
+    needle : NeedleSpec
+    start : StartSpec or None
+    goal : GoalSpec or None
+    planner : dict
+        ``name``, ``time_limit_s``, ``seed``, ``options`` as given (validated by the
+        schema; interpreted by the planners).
+    path : Path or None
+        The file it was read from.
+    base : object or None
+        The phantom or Med-RAD case the scene was built from.
+    """
+
+    name: str
+    description: str
+    scene: Scene
+    needle: NeedleSpec
+    start: StartSpec | None
+    goal: GoalSpec | None
+    planner: dict = field(default_factory=dict)
+    path: Path | None = None
+    base: Any = None
+
+
+# ----------------------------------------------------------------------------------------
+# validation
+
+
+def _where(path) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _schema_message(err: jsonschema.ValidationError) -> tuple[str, str]:
+    where = _where(err.absolute_path)
+    v = err.validator
+    if v == "additionalProperties":
+        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+        allowed = ", ".join(err.schema.get("properties", {}))
+        return where, f"unknown field {', '.join(map(repr, extra))} (allowed: {allowed})"
+    if v == "required":
+        return where, err.message.replace("is a required property", "is missing")
+    if v == "enum":
+        return (
+            where,
+            f"expected one of {', '.join(map(str, err.validator_value))}, got {err.instance!r}",
+        )
+    if v == "const":
+        return where, f"expected {err.validator_value!r}, got {err.instance!r}"
+    if v == "type":
+        want = err.validator_value
+        want = " or ".join(want) if isinstance(want, list) else want
+        return where, f"expected {want}, got {type(err.instance).__name__} {err.instance!r:.60}"
+    if v in ("minItems", "maxItems"):
+        return (
+            where,
+            f"expected {err.schema.get('minItems')} to {err.schema.get('maxItems')} items, got {len(err.instance)}",
+        )
+    bounds = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
+    if v in bounds:
+        return where, f"expected a number {bounds[v]} {err.validator_value:g}, got {err.instance!r}"
+    if v in ("minProperties", "maxProperties"):
+        keys = ", ".join(err.schema.get("properties", {}))
+        n = err.schema.get("maxProperties")
+        return where, f"expected {'exactly one' if n == 1 else 'at least one'} of {keys}"
+    return where, err.message
+
+
+def _validate(data: Any, source: str) -> None:
+    errors = sorted(
+        _VALIDATOR.iter_errors(data),
+        key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))),
+    )
+    if errors:
+        best = jsonschema.exceptions.best_match(errors)
+        where, msg = _schema_message(best)
+        raise InvalidInputError(f"{source}: {where}", msg)
+
+
+# ----------------------------------------------------------------------------------------
+# building
+
+
+class _Ctx:
+    def __init__(self, source: str, base_dir: Path, frame: str) -> None:
+        self.source = source
+        self.base_dir = base_dir
+        self.lps = frame == "LPS"
+
+    def error(self, where: str, msg: str) -> InvalidInputError:
+        return InvalidInputError(f"{self.source}: {where}", msg)
+
+    def file(self, rel: str, where: str) -> Path:
+        p = Path(rel)
+        p = p if p.is_absolute() else self.base_dir / p
+        if not p.is_file():
+            raise self.error(where, f"file {p} not found")
+        return p
+
+    def point(self, v) -> np.ndarray:
+        p = np.asarray(v, dtype=np.float64)
+        return _LPS_TO_RAS[:3, :3] @ p if self.lps else p
+
+    def raw_pose(self, m, where: str) -> np.ndarray:
+        """A 4x4 rigid pose as written in the file's frame."""
+        try:
+            g, _ = as_poses(np.asarray(m, dtype=np.float64), where)
+        except InvalidInputError as exc:
+            raise self.error(where, exc.reason) from None
+        return g[0]
+
+    def pose(self, m, where: str) -> np.ndarray:
+        """A 4x4 rigid pose in RAS."""
+        g = self.raw_pose(m, where)
+        return _LPS_TO_RAS @ g if self.lps else g
+
+    def placed(self, f: DistanceField) -> DistanceField:
+        return TransformedField(f, _LPS_TO_RAS) if self.lps else f
+
+
+def _primitive(kind: str, spec: dict, ctx: _Ctx, where: str) -> DistanceField:
+    from needlekit.anatomy import primitives as P
+
+    # parameters and pose stay in the file's frame; placed() moves the shape to RAS
+    pose = ctx.raw_pose(spec["pose"], f"{where}.pose") if "pose" in spec else None
+    try:
+        if kind == "sphere":
+            f = P.Sphere(spec["center_mm"], spec["radius_mm"])
+        elif kind == "ellipsoid":
+            f = P.Ellipsoid(spec["semi_axes_mm"], pose)
+        elif kind == "capsule":
+            f = P.Capsule(spec["p0_mm"], spec["p1_mm"], spec["radius_mm"])
+        elif kind == "cylinder":
+            f = P.Cylinder(spec["p0_mm"], spec["p1_mm"], spec["radius_mm"])
+        elif kind == "box":
+            f = P.Box(spec["half_extents_mm"], pose)
+        elif kind == "half_space":
+            f = P.HalfSpace(spec["point_mm"], spec["normal_mm"])
+        else:
+            f = P.Superquadric(spec["semi_axes_mm"], spec["exponents"], pose)
+    except InvalidInputError as exc:
+        raise ctx.error(f"{where}.{exc.field}", exc.reason) from None
+    return ctx.placed(f)
+
+
+def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
+    where = f"structures[{i}]"
+    kinds = [k for k in SOURCE_KINDS if k in spec]
+    if len(kinds) != 1:
+        got = ", ".join(kinds) if kinds else "none"
+        raise ctx.error(where, f"needs exactly one source ({', '.join(SOURCE_KINDS)}); got {got}")
+    kind = kinds[0]
+    name = spec["name"]
+    if name in names:
+        raise ctx.error(f"{where}.name", f"duplicate structure name {name!r}")
+    names.add(name)
+    src = spec[kind]
+    sub = f"{where}.{kind}"
+    if kind == "mask":
+        from needlekit.anatomy.voxel import VoxelSDF
+        from needlekit.io.volumes import Mask, read_mask
+
+        path = ctx.file(src["path"], f"{sub}.path")
+        mask = read_mask(path, allow_empty="label" in src)
+        if "label" in src:
+            raise ctx.error(f"{sub}.label", "label maps are not supported yet; give a binary mask")
+        field_ = VoxelSDF.from_mask(Mask(mask.data, mask.affine, path))
+        source = str(path)
+    elif kind == "mesh":
+        from needlekit.anatomy.mesh import voxelize_mesh_sdf
+        from needlekit.io.meshes import read_mesh
+
+        path = ctx.file(src["path"], f"{sub}.path")
+        mesh = read_mesh(path)
+        kw = {k: src[k] for k in ("voxel_size_mm", "padding_mm") if k in src}
+        field_ = ctx.placed(voxelize_mesh_sdf(mesh, **kw))
+        source = str(path)
+    else:
+        field_ = _primitive(kind, src, ctx, sub)
+        source = f"{kind} {src}"
+    return Structure(
+        name, Role.parse(spec["role"], f"{where}.role"), field_, spec.get("color"), source
+    )
+
+
+def _base(spec: dict, ctx: _Ctx):
+    if "phantom" in spec:
+        from needlekit.anatomy.phantoms import make_phantom
+
+        p = spec["phantom"]
+        kw = {"voxel_size_mm": p["voxel_size_mm"]} if "voxel_size_mm" in p else {}
+        return make_phantom(p["name"], p.get("seed", 0), **kw)
+    from needlekit.io.medrad import load_medrad
+
+    m = spec["medrad"]
+    root = (
+        ctx.base_dir / m["root"]
+        if "root" in m and not Path(m["root"]).is_absolute()
+        else m.get("root")
+    )
+    return load_medrad(m["organ"], m["patient"], root)
+
+
+def _case_starts(base) -> list[tuple[str, np.ndarray]]:
+    if base is None:
+        return []
+    if hasattr(base, "starts"):  # Med-RAD case
+        return [(s.name, s.world_T_tip) for s in base.starts]
+    return [(f"start{i + 1}", g) for i, g in enumerate(base.start_poses)]
+
+
+def _case_targets(base) -> list[tuple[str, np.ndarray]]:
+    if base is None:
+        return []
+    if hasattr(base, "targets_mm") and isinstance(base.targets_mm, dict):
+        return sorted(base.targets_mm.items())
+    return [(f"target{i + 1}", p) for i, p in enumerate(np.atleast_2d(base.targets_mm))]
+
+
+def _pick(items: list[tuple[str, np.ndarray]], key, what: str, ctx: _Ctx, where: str):
+    if not items:
+        raise ctx.error(where, f"{what} needs a base (phantom or medrad) that defines them")
+    names = [n for n, _ in items]
+    if isinstance(key, int) and not isinstance(key, bool):
+        if not 1 <= key <= len(items):
+            raise ctx.error(where, f"expected 1 to {len(items)}, got {key}")
+        return items[key - 1]
+    for n, v in items:
+        if n == key:
+            return n, v
+    raise ctx.error(where, f"no {what} named {key!r} (have {', '.join(names)})")
+
+
+def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
+    given = [k for k in ("pose", "pose_file", "case_start", "point_mm") if k in spec]
+    if len(given) != 1:
+        raise ctx.error("start", "give exactly one of pose, pose_file, case_start, point_mm")
+    if "direction" in spec and given[0] != "point_mm":
+        raise ctx.error("start.direction", "only goes with start.point_mm")
+    k = given[0]
+    if k == "pose":
+        g = ctx.pose(spec["pose"], "start.pose")
+        return StartSpec(g[:3, 3].copy(), g, "pose")
+    if k == "pose_file":
+        from needlekit.io.poses import read_pose_txt
+
+        path = ctx.file(spec["pose_file"], "start.pose_file")
+        g = read_pose_txt(path)
+        g = _LPS_TO_RAS @ g if ctx.lps else g
+        return StartSpec(g[:3, 3].copy(), g, path.name)
+    if k == "case_start":
+        name, g = _pick(_case_starts(base), spec["case_start"], "start", ctx, "start.case_start")
+        return StartSpec(g[:3, 3].copy(), np.array(g), name)
+    point = ctx.point(spec["point_mm"])
+    if "direction" not in spec:
+        return StartSpec(point, None, "point")
+    from needlekit.geometry.se3 import make_pose
+
+    d = ctx.point(spec["direction"])
+    n = np.linalg.norm(d)
+    if not n > 1e-12:
+        raise ctx.error("start.direction", "must be a non-zero vector")
+    z = d / n
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    g = make_pose(np.column_stack([x, np.cross(z, x), z]), point)
+    return StartSpec(point, g, "point+direction")
+
+
+def _goal(spec: dict, ctx: _Ctx, base) -> GoalSpec:
+    given = [k for k in ("point_mm", "point_file", "case_target") if k in spec]
+    if len(given) != 1:
+        raise ctx.error("goal", "give exactly one of point_mm, point_file, case_target")
+    tol = float(spec.get("tolerance_mm", 1.0))
+    k = given[0]
+    if k == "point_mm":
+        return GoalSpec(ctx.point(spec["point_mm"]), tol, "point")
+    if k == "point_file":
+        from needlekit.io.poses import read_point_txt
+
+        path = ctx.file(spec["point_file"], "goal.point_file")
+        return GoalSpec(ctx.point(read_point_txt(path)), tol, path.name)
+    name, p = _pick(_case_targets(base), spec["case_target"], "target", ctx, "goal.case_target")
+    return GoalSpec(np.array(p, dtype=float), tol, name)
+
+
+def parse_scenario(
+    data: Any, *, base_dir: str | os.PathLike = ".", source: str = "scenario"
+) -> Scenario:
+    """Validate and build a scenario from already-parsed YAML/JSON data.
+
+    Parameters
+    ----------
+    data : dict
+        The document.
+    base_dir : path-like
+        Folder that relative file paths are resolved against.
+    source : str
+        Name used in error messages (usually the file name).
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    InvalidInputError
+        ``"<source>: <field>: <what was expected>"``.
+    """
+    _validate(data, source)
+    ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
+    base = _base(data["base"], ctx) if "base" in data else None
+    names: set[str] = set()
+    extra = [_structure(i, s, ctx, names) for i, s in enumerate(data.get("structures", []))]
+    if base is not None:
+        clash = names & set(base.scene.names)
+        if clash:
+            raise ctx.error(
+                "structures", f"names already in the base scene: {', '.join(sorted(clash))}"
+            )
+        structures = list(base.scene.structures) + extra
+        obstacle = _combined(base.scene, extra)
+    else:
+        structures, obstacle = extra, None
+    if not structures:
+        raise ctx.error("structures", "the scenario has no structures (add some or a base)")
+    scene = Scene(structures, name=data.get("name", ""), obstacle_field=obstacle)
+    needle = NeedleSpec(**data.get("needle", {}))
+    start = _start(data["start"], ctx, base) if "start" in data else None
+    goal = _goal(data["goal"], ctx, base) if "goal" in data else None
+    return Scenario(
+        data.get("name", ""),
+        data.get("description", ""),
+        scene,
+        needle,
+        start,
+        goal,
+        dict(data.get("planner", {})),
+        None,
+        base,
+    )
+
+
+def _combined(base_scene: Scene, extra: list[Structure]) -> DistanceField | None:
+    """The base's combined obstacle field extended by extra obstacles and regions."""
+    try:
+        base_field = base_scene.obstacle_field()
+    except InvalidInputError:
+        return None
+    parts = [s.field for s in extra if s.role is Role.OBSTACLE]
+    parts += [ComplementField(s.field) for s in extra if s.role is Role.ALLOWED_REGION]
+    return union(base_field, *parts)
+
+
+def load_scenario(path: str | os.PathLike) -> Scenario:
+    """Read a scenario file (YAML or JSON).
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    InvalidInputError
+        Missing or unreadable file, bad YAML, or any field not as the schema says; the
+        message names the file and the field.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(str(p), "scenario file not found")
+    try:
+        text = p.read_text(encoding="utf-8")
+        data = yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(str(p), f"cannot read the file ({exc})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise InvalidInputError(str(p), f"invalid YAML{at}: {problem}") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(
+            str(p), f"expected a mapping at the top level, got {type(data).__name__}"
+        )
+    sc = parse_scenario(data, base_dir=p.parent, source=p.name)
+    return Scenario(
+        sc.name, sc.description, sc.scene, sc.needle, sc.start, sc.goal, sc.planner, p, sc.base
+    )

@@ -1,0 +1,225 @@
+"""The JSON Schema of needlekit scenario files (``needlekit schema`` prints it).
+
+Written once here; :mod:`needlekit.io.scenario` validates every file against it before
+building anything, and adds the checks a schema cannot express (exactly one source per
+structure, unique names, files that exist, a 4x4 rigid pose).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["SCENARIO_SCHEMA", "SCENARIO_VERSION", "SOURCE_KINDS", "PRIMITIVE_KINDS"]
+
+SCENARIO_VERSION = 1
+
+_NUM: dict[str, Any] = {"type": "number"}
+_POS: dict[str, Any] = {"type": "number", "exclusiveMinimum": 0}
+_NONNEG: dict[str, Any] = {"type": "number", "minimum": 0}
+_VEC3: dict[str, Any] = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
+_POS3: dict[str, Any] = {"type": "array", "items": _POS, "minItems": 3, "maxItems": 3}
+_ROW4: dict[str, Any] = {"type": "array", "items": _NUM, "minItems": 4, "maxItems": 4}
+_POSE: dict[str, Any] = {
+    "type": "array",
+    "items": _ROW4,
+    "minItems": 4,
+    "maxItems": 4,
+    "description": "4x4 homogeneous rigid transform, rows (mm); z axis = insertion direction for needle poses",
+}
+_PATH: dict[str, Any] = {
+    "type": "string",
+    "minLength": 1,
+    "description": "relative to the scenario file",
+}
+
+
+def _obj(props: dict[str, Any], required: list[str], description: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "type": "object",
+        "properties": props,
+        "required": required,
+        "additionalProperties": False,
+    }
+    if description:
+        out["description"] = description
+    return out
+
+
+#: Analytic shapes, each with its parameters (all mm) and an optional local pose.
+PRIMITIVE_KINDS: dict[str, dict[str, Any]] = {
+    "sphere": _obj({"center_mm": _VEC3, "radius_mm": _POS}, ["center_mm", "radius_mm"], "ball"),
+    "ellipsoid": _obj(
+        {"semi_axes_mm": _POS3, "pose": _POSE},
+        ["semi_axes_mm"],
+        "ellipsoid centred at the local origin (exact Euclidean distance)",
+    ),
+    "capsule": _obj(
+        {"p0_mm": _VEC3, "p1_mm": _VEC3, "radius_mm": _POS},
+        ["p0_mm", "p1_mm", "radius_mm"],
+        "segment swept by a ball",
+    ),
+    "cylinder": _obj(
+        {"p0_mm": _VEC3, "p1_mm": _VEC3, "radius_mm": _POS},
+        ["p0_mm", "p1_mm", "radius_mm"],
+        "finite cylinder, flat caps",
+    ),
+    "box": _obj(
+        {"half_extents_mm": _POS3, "pose": _POSE},
+        ["half_extents_mm"],
+        "box centred at the local origin",
+    ),
+    "half_space": _obj(
+        {"point_mm": _VEC3, "normal_mm": _VEC3},
+        ["point_mm", "normal_mm"],
+        "everything behind the plane through point_mm (the normal points outside)",
+    ),
+    "superquadric": _obj(
+        {
+            "semi_axes_mm": _POS3,
+            "exponents": {
+                "type": "array",
+                "items": {"type": "number", "minimum": 2},
+                "minItems": 3,
+                "maxItems": 3,
+            },
+            "pose": _POSE,
+        },
+        ["semi_axes_mm", "exponents"],
+        "sum_i |x_i / a_i|^e_i <= 1 in the local frame (Liu et al. 2016, Eq. 4)",
+    ),
+}
+
+_MASK = _obj(
+    {
+        "path": _PATH,
+        "label": {"type": "integer", "description": "voxel value of the structure in a label map"},
+    },
+    ["path"],
+    "binary mask (or label map with 'label') in NIfTI (.nii, .nii.gz) or NRRD (.nrrd, .nhdr)",
+)
+_MESH = _obj(
+    {"path": _PATH, "voxel_size_mm": _POS, "padding_mm": _NONNEG},
+    ["path"],
+    "closed triangle mesh (STL, OBJ, PLY, VTK) turned into a voxel signed-distance grid",
+)
+
+#: Keys that name where a structure comes from (exactly one per structure).
+SOURCE_KINDS: tuple[str, ...] = ("mask", "mesh", *PRIMITIVE_KINDS)
+
+_STRUCTURE = {
+    "type": "object",
+    "description": "a named structure with a role and exactly one source key: "
+    + ", ".join(SOURCE_KINDS),
+    "properties": {
+        "name": {"type": "string", "minLength": 1},
+        "role": {"enum": ["obstacle", "target", "entry_surface", "allowed_region"]},
+        "color": {"type": "string"},
+        "mask": _MASK,
+        "mesh": _MESH,
+        **PRIMITIVE_KINDS,
+    },
+    "required": ["name", "role"],
+    "additionalProperties": False,
+}
+
+_BASE = {
+    "type": "object",
+    "description": "a whole scene to start from: a built-in phantom or a Med-RAD patient (exactly one)",
+    "properties": {
+        "phantom": _obj(
+            {
+                "name": {"enum": ["lung", "liver", "neck"]},
+                "seed": {"type": "integer", "minimum": 0},
+                "voxel_size_mm": _POS,
+            },
+            ["name"],
+        ),
+        "medrad": _obj(
+            {
+                "organ": {"enum": ["lung", "liver"]},
+                "patient": {"type": "integer", "minimum": 1},
+                "root": _PATH,
+            },
+            ["organ", "patient"],
+        ),
+    },
+    "additionalProperties": False,
+    "minProperties": 1,
+    "maxProperties": 1,
+}
+
+_NEEDLE = _obj(
+    {
+        "diameter_mm": _POS,
+        "r_min_mm": _POS,
+        "max_length_mm": _POS,
+        "safety_margin_mm": _NONNEG,
+        "max_heading_change_deg": {"type": "number", "exclusiveMinimum": 0, "maximum": 360},
+        "min_puncture_angle_deg": {"type": "number", "minimum": 0, "exclusiveMaximum": 90},
+        "start_exclusion_mm": _NONNEG,
+    },
+    [],
+    "needle and its limits; defaults: 1 mm, 50 mm, 150 mm, 0 mm, 90 deg, 0 deg, 3 mm",
+)
+
+_START = {
+    "type": "object",
+    "description": "one of: pose (4x4), pose_file, case_start (name or number of a base case's start), "
+    "or point_mm with an optional direction (no direction: the planner sweeps start directions)",
+    "properties": {
+        "pose": _POSE,
+        "pose_file": _PATH,
+        "case_start": {"type": ["string", "integer"]},
+        "point_mm": _VEC3,
+        "direction": _VEC3,
+    },
+    "additionalProperties": False,
+    "minProperties": 1,
+}
+
+_GOAL = {
+    "type": "object",
+    "description": "one of point_mm, point_file, case_target (a base case's target); and tolerance_mm",
+    "properties": {
+        "point_mm": _VEC3,
+        "point_file": _PATH,
+        "case_target": {"type": ["string", "integer"]},
+        "tolerance_mm": _POS,
+    },
+    "additionalProperties": False,
+    "minProperties": 1,
+}
+
+_PLANNER = _obj(
+    {
+        "name": {"enum": ["rrt", "rcs", "rcs_star"]},
+        "time_limit_s": _POS,
+        "seed": {"type": "integer", "minimum": 0},
+        "options": {"type": "object", "description": "planner-specific settings"},
+    },
+    [],
+)
+
+#: The JSON Schema (draft 2020-12) of a scenario file.
+SCENARIO_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "$id": "https://needlekit.dev/schema/scenario-1.json",
+    "title": "needlekit scenario",
+    "description": "Anatomy, needle, start, goal and planner settings of a needle-insertion problem. "
+    "Units: mm and degrees as the field names say; coordinates in the file's frame (RAS unless frame: LPS).",
+    "type": "object",
+    "properties": {
+        "version": {"const": SCENARIO_VERSION},
+        "name": {"type": "string"},
+        "description": {"type": "string"},
+        "frame": {"enum": ["RAS", "LPS"], "description": "frame of every coordinate in the file"},
+        "base": _BASE,
+        "structures": {"type": "array", "items": _STRUCTURE},
+        "needle": _NEEDLE,
+        "start": _START,
+        "goal": _GOAL,
+        "planner": _PLANNER,
+    },
+    "required": ["version"],
+    "additionalProperties": False,
+}

@@ -1,0 +1,130 @@
+"""Med-RAD reader on the real data (skips when it is absent)."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from needlekit.anatomy.scene import Role
+from needlekit.anatomy.voxel import VoxelSDF
+from needlekit.errors import InvalidInputError
+from needlekit.io.medrad import MEDRAD_ENV, list_patients, load_medrad, medrad_root
+from needlekit.io.volumes import read_mask
+
+
+def _root():
+    try:
+        return medrad_root()
+    except InvalidInputError:
+        return None
+
+
+ROOT = _root()
+needs_data = pytest.mark.skipif(
+    ROOT is None,
+    reason=f"Med-RAD data not found: set {MEDRAD_ENV} or place it at ../shared/data/med-rad",
+)
+pytestmark = [pytest.mark.realdata, needs_data]
+
+
+@pytest.fixture(scope="module")
+def lung1():
+    return load_medrad("lung", 1)
+
+
+def test_patients_are_listed():
+    assert list_patients("lung") == [1, 2, 3, 4, 5]
+    assert list_patients("liver") == [1, 2, 3, 4, 5]
+
+
+@pytest.mark.slow
+def test_lung_case_has_the_promised_structures(lung1):
+    roles = {s.name: s.role for s in lung1.scene.structures}
+    assert roles == {
+        "pleuralBoundary": Role.ALLOWED_REGION,
+        "bronchialTree": Role.OBSTACLE,
+        "vessels": Role.OBSTACLE,
+        "fissures": Role.OBSTACLE,
+        "nodule": Role.TARGET,
+    }
+    assert [s.name for s in lung1.starts] == [f"start{i}" for i in range(1, 6)]
+    assert set(lung1.targets_mm) == {"target"}
+    starts = np.array([s.world_T_tip[:3, 3] for s in lung1.starts])
+    # the combined obstacle field equals the minimum over the per-structure fields
+    rng = np.random.default_rng(0)
+    pts = starts[:, None, :] + rng.normal(0, 5, (5, 40, 3))
+    pts = pts.reshape(-1, 3)
+    combined = lung1.scene.obstacle_field().signed_distance(pts)
+    per = lung1.scene.signed_distance(pts, ["pleuralBoundary", "bronchialTree", "vessels", "fissures"])
+    ref = np.minimum.reduce([-per["pleuralBoundary"], per["bronchialTree"], per["vessels"], per["fissures"]])
+    tol = lung1.scene.obstacle_field().error_bound_mm + lung1.scene["vessels"].field.error_bound_mm
+    assert np.all(np.abs(combined - ref) <= tol)
+
+
+def _airway_and_nodule(folder: Path):
+    files = {p.name.lower(): p for p in folder.iterdir()}
+    return files
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("patient", [1, 2, 3, 4, 5])
+def test_lung_targets_in_nodule_and_starts_on_the_airway_wall(patient):
+    folder = ROOT / "Lungs" / "TumorTargetEnvironments" / f"Patient{patient}"
+    nodule = VoxelSDF.from_mask(read_mask(folder / "nodule.nii.gz"))
+    airway = VoxelSDF.from_mask(read_mask(folder / "bronchialTree.nii.gz"), padding_mm=5.0)
+    case_target = np.loadtxt(folder / "target.txt")
+    assert nodule.signed_distance(case_target) <= nodule.error_bound_mm
+    for i in range(1, 6):
+        pose = np.loadtxt(folder / f"start{i}.txt")
+        d = float(airway.signed_distance(pose[:3, 3]))
+        # on the wall: within 0.7 mm of the segmented airway (plus the field's bound)
+        assert abs(d) <= 0.7 + airway.error_bound_mm, (patient, i, d)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("patient", [1, 2, 3, 4, 5])
+def test_liver_targets_lie_in_their_nodules(patient):
+    folder = ROOT / "Liver" / f"Patient{patient}"
+    files = {p.name.lower(): p for p in folder.iterdir()}
+    targets = sorted(n for n in files if n.startswith("target") and n.endswith(".txt") and "_" not in n)
+    assert targets
+    nodules = {}
+    for t in targets:
+        suffix = t[len("target") : -len(".txt")]
+        name = f"nodule{suffix}.nii.gz"
+        if name not in nodules:
+            nodules[name] = VoxelSDF.from_mask(read_mask(files[name]))
+        field = nodules[name]
+        assert field.signed_distance(np.loadtxt(files[t])) <= field.error_bound_mm
+
+
+@pytest.mark.slow
+def test_liver_case_pairs_starts_with_targets():
+    case = load_medrad("liver", 2)
+    assert set(case.targets_mm) == {"target1", "target2"}
+    assert [(s.name, s.target) for s in case.starts] == [
+        ("target1_start1", "target1"),
+        ("target1_start2", "target1"),
+        ("target2_start1", "target2"),
+    ]
+    assert {s.name for s in case.scene.by_role("target")} == {"nodule1", "nodule2"}
+    assert case.start(2).name == "target1_start2"
+    with pytest.raises(InvalidInputError, match="start"):
+        case.start(9)
+
+
+def test_bad_arguments(tmp_path, monkeypatch):
+    with pytest.raises(InvalidInputError, match="organ"):
+        load_medrad("brain", 1)
+    with pytest.raises(InvalidInputError, match="patient"):
+        load_medrad("lung", 42)
+    with pytest.raises(InvalidInputError, match="root"):
+        medrad_root(tmp_path / "nope")
+    monkeypatch.setenv(MEDRAD_ENV, os.fspath(tmp_path / "missing"))
+    with pytest.raises(InvalidInputError, match=MEDRAD_ENV):
+        medrad_root()
+    empty = tmp_path / "Lungs" / "TumorTargetEnvironments" / "Patient1"
+    empty.mkdir(parents=True)
+    with pytest.raises(InvalidInputError, match="missing segmentation"):
+        load_medrad("lung", 1, tmp_path)
