@@ -448,6 +448,21 @@ def test_gradient_is_unit_and_matches_finite_differences(brute):
     assert np.abs(g[smooth] - fd[smooth]).max() < 1e-5
 
 
+@pytest.mark.parametrize("case", CASES, ids=CASE_IDS)
+def test_gradient_on_the_medial_axis_is_still_a_unit_vector(case):
+    field = case.make(None)
+    b = field.bounds()
+    finite = np.isfinite(b).all(axis=0)
+    centre = np.zeros(3)
+    centre[finite] = 0.5 * (b[0, finite] + b[1, finite])
+    pts = centre + np.vstack([np.zeros(3), 1e-9 * np.eye(3), -1e-9 * np.eye(3)])
+    g = field.gradient(pts)
+    assert np.all(np.isfinite(g))
+    assert np.allclose(np.linalg.norm(g, axis=1), 1.0, atol=1e-12)
+    c = field.closest_point(pts)
+    assert np.allclose(np.linalg.norm(c - pts, axis=1), np.abs(field.signed_distance(pts)))
+
+
 @pytest.mark.parametrize("case", [c for c in CASES if c.pose is not None], ids=lambda c: c.name)
 def test_posed_equals_unposed_on_transformed_points(case):
     rng = np.random.default_rng(3)
