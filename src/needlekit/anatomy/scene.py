@@ -7,7 +7,9 @@ Roles say what a planner does with a structure:
 * ``entry_surface``: the surface the needle enters through (airway wall, skin); its normal
   gives the puncture angle;
 * ``allowed_region``: the needle must stay inside it (the lung inside the pleura, the
-  liver). Its outside is treated as an obstacle.
+  body inside the skin). Its outside is treated as an obstacle;
+* ``context``: shown and measured, ignored by planners (e.g. the liver around a tumour
+  that a percutaneous needle reaches through the body wall).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ class Role(enum.Enum):
     TARGET = "target"
     ENTRY_SURFACE = "entry_surface"
     ALLOWED_REGION = "allowed_region"
+    CONTEXT = "context"
 
     @classmethod
     def parse(cls, value: str | Role, field_name: str = "role") -> Role:

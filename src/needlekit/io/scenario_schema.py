@@ -112,7 +112,7 @@ _STRUCTURE = {
     + ", ".join(SOURCE_KINDS),
     "properties": {
         "name": {"type": "string", "minLength": 1},
-        "role": {"enum": ["obstacle", "target", "entry_surface", "allowed_region"]},
+        "role": {"enum": ["obstacle", "target", "entry_surface", "allowed_region", "context"]},
         "color": {"type": "string"},
         "mask": _MASK,
         "mesh": _MESH,

@@ -24,6 +24,7 @@ _ROLE_STYLE = {
     Role.OBSTACLE: ("#d1495b", 0.75),
     Role.TARGET: ("#2a9d8f", 0.95),
     Role.ENTRY_SURFACE: ("#e9c46a", 0.35),
+    Role.CONTEXT: ("#c98474", 0.25),
 }
 
 
