@@ -440,7 +440,8 @@ def parse_scenario(
         structures, obstacle = extra, None
     if not structures:
         raise ctx.error("structures", "the scenario has no structures (add some or a base)")
-    scene = Scene(structures, name=data.get("name", ""), obstacle_field=obstacle)
+    scene_name = base.scene.name if base is not None else data.get("name", "")
+    scene = Scene(structures, name=scene_name, obstacle_field=obstacle)
     needle = NeedleSpec(**data.get("needle", {}))
     start = _start(data["start"], ctx, base) if "start" in data else None
     goal = _goal(data["goal"], ctx, base) if "goal" in data else None
