@@ -42,7 +42,9 @@ PUBLIC = [(m, n, f) for m in MODULES for n, f in _public(m)]
 @pytest.mark.parametrize(("module", "name", "fn"), PUBLIC, ids=[f"{m}.{n}" for m, n, _ in PUBLIC])
 def test_public_function_has_numpydoc_sections(module, name, fn):
     doc = inspect.getdoc(fn) or ""
-    assert "Returns\n-------" in doc or "Yields\n------" in doc, f"{module}.{name}: no Returns section"
+    assert "Returns\n-------" in doc or "Yields\n------" in doc, (
+        f"{module}.{name}: no Returns section"
+    )
     params = [p for p in inspect.signature(fn).parameters if p not in ("self", "cls")]
     if params:
         assert "Parameters\n----------" in doc, f"{module}.{name}: no Parameters section"

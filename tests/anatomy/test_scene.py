@@ -83,7 +83,11 @@ def test_arc_clearance_matches_dense_sampling():
     rng = np.random.default_rng(1)
     field = union(Sphere([0, -20, 40], 6.0), Capsule([-30, 0, 70], [30, 0, 70], 1.0))
     poses = se3_exp(np.column_stack([rng.normal(0, 5, (50, 3)), rng.normal(0, 0.3, (50, 3))]))
-    spin, kappa, length = rng.uniform(-np.pi, np.pi, 50), rng.uniform(0, 0.03, 50), rng.uniform(10, 100, 50)
+    spin, kappa, length = (
+        rng.uniform(-np.pi, np.pi, 50),
+        rng.uniform(0, 0.03, 50),
+        rng.uniform(10, 100, 50),
+    )
     c = arc_clearance(field, poses, spin, kappa, length, spacing_mm=1.0)
     dense = sample_arcs(poses, spin, kappa, length, 3001)
     truth = field.signed_distance(dense.reshape(-1, 3)).reshape(50, -1).min(axis=1)
@@ -109,7 +113,9 @@ def test_composites():
     g = se3_exp([5.0, -3.0, 2.0, 0.3, 0.2, -0.1])
     moved = TransformedField(Capsule([0, 0, 0], [0, 0, 20], 2.0), g)
     local = (p - g[:3, 3]) @ g[:3, :3]
-    assert np.allclose(moved.signed_distance(p), Capsule([0, 0, 0], [0, 0, 20], 2.0).signed_distance(local))
+    assert np.allclose(
+        moved.signed_distance(p), Capsule([0, 0, 0], [0, 0, 20], 2.0).signed_distance(local)
+    )
     calls = []
     lazy = LazyField(lambda: calls.append(1) or s, "ball")
     assert not lazy.built and "not built" in repr(lazy)
@@ -128,3 +134,16 @@ def test_precomputed_obstacle_field_is_used(scene):
     assert fast.obstacle_field() is combined
     p = np.array([[1.0, 2.0, 3.0]])
     assert np.allclose(fast.clearance(p, 1.0), scene.clearance(p, 1.0))
+
+
+def test_a_target_reaching_past_the_allowed_region_is_not_an_obstacle():
+    # a tumour that the organ's segmentation leaves out (as Med-RAD's liver masks do)
+    scene = Scene(
+        [
+            Structure("liver", Role.ALLOWED_REGION, Sphere([0, 0, 0], 50.0)),
+            Structure("tumour", Role.TARGET, Sphere([0, 0, 55.0], 10.0)),
+        ]
+    )
+    inside_tumour_outside_liver = np.array([0.0, 0.0, 58.0])
+    assert scene.clearance(inside_tumour_outside_liver) > 0
+    assert scene.clearance([0.0, 0.0, 80.0]) < 0  # outside both

@@ -56,8 +56,12 @@ def test_lung_case_has_the_promised_structures(lung1):
     pts = starts[:, None, :] + rng.normal(0, 5, (5, 40, 3))
     pts = pts.reshape(-1, 3)
     combined = lung1.scene.obstacle_field().signed_distance(pts)
-    per = lung1.scene.signed_distance(pts, ["pleuralBoundary", "bronchialTree", "vessels", "fissures"])
-    ref = np.minimum.reduce([-per["pleuralBoundary"], per["bronchialTree"], per["vessels"], per["fissures"]])
+    per = lung1.scene.signed_distance(
+        pts, ["pleuralBoundary", "bronchialTree", "vessels", "fissures"]
+    )
+    ref = np.minimum.reduce(
+        [-per["pleuralBoundary"], per["bronchialTree"], per["vessels"], per["fissures"]]
+    )
     tol = lung1.scene.obstacle_field().error_bound_mm + lung1.scene["vessels"].field.error_bound_mm
     assert np.all(np.abs(combined - ref) <= tol)
 
@@ -87,7 +91,9 @@ def test_lung_targets_in_nodule_and_starts_on_the_airway_wall(patient):
 def test_liver_targets_lie_in_their_nodules(patient):
     folder = ROOT / "Liver" / f"Patient{patient}"
     files = {p.name.lower(): p for p in folder.iterdir()}
-    targets = sorted(n for n in files if n.startswith("target") and n.endswith(".txt") and "_" not in n)
+    targets = sorted(
+        n for n in files if n.startswith("target") and n.endswith(".txt") and "_" not in n
+    )
     assert targets
     nodules = {}
     for t in targets:
@@ -128,3 +134,48 @@ def test_bad_arguments(tmp_path, monkeypatch):
     empty.mkdir(parents=True)
     with pytest.raises(InvalidInputError, match="missing segmentation"):
         load_medrad("lung", 1, tmp_path)
+
+
+def _world_points(mask):
+    idx = np.argwhere(mask.data)
+    return idx @ mask.affine[:3, :3].T + mask.affine[:3, 3]
+
+
+@pytest.mark.parametrize("kind", ["shift", "resample"])
+def test_masks_on_other_grids_are_aligned_through_their_affines(kind):
+    from needlekit.io.medrad import _align
+    from needlekit.io.volumes import Mask
+
+    ref = Mask(np.zeros((40, 30, 20), bool), np.diag([0.5, 0.5, 0.7, 1.0]))
+    data = np.zeros((25, 25, 25), bool)
+    data[5:9, 10:12, 3:6] = True
+    affine = np.diag([0.5, 0.5, 0.7, 1.0])
+    affine[:3, 3] = [3.0, 2.5, 2.1]  # 6, 5 and 3 voxels away from the reference grid
+    if kind == "resample":
+        affine[:3, :3] = np.diag([-0.5, 0.5, 0.7])  # flipped x: not a plain shift
+        affine[0, 3] = 15.0
+    other = Mask(data, affine)
+    got = _align(other, ref, "other")
+    assert got.shape == ref.shape and np.array_equal(got.affine, ref.affine)
+    # the same world points are set
+    a = np.array(sorted(map(tuple, np.round(_world_points(other), 6))))
+    b = np.array(sorted(map(tuple, np.round(_world_points(got), 6))))
+    assert np.allclose(a, b)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("organ", "patient"), [(o, p) for o in ("lung", "liver") for p in range(1, 6)]
+)
+def test_every_patient_loads_with_starts_targets_and_an_obstacle_field(organ, patient):
+    case = load_medrad(organ, patient)
+    assert case.starts and case.targets_mm
+    field = case.scene.obstacle_field()
+    starts = np.array([s.world_T_tip[:3, 3] for s in case.starts])
+    targets = np.array(list(case.targets_mm.values()))
+    # starts and targets lie inside the grid of the free space, near or in the free space
+    d = field.signed_distance(np.vstack([starts, targets]))
+    assert np.all(np.isfinite(d))
+    assert np.all(d[len(starts) :] > -5.0)  # targets in nodules are clear of the obstacles
+    for s in case.starts:
+        assert s.target in case.targets_mm

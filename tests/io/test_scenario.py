@@ -20,10 +20,22 @@ TOY = {
     "name": "toy lung",
     "structures": [
         {"name": "lung", "role": "allowed_region", "ellipsoid": {"semi_axes_mm": [80, 60, 100]}},
-        {"name": "vessel", "role": "obstacle", "capsule": {"p0_mm": [-40, 10, 0], "p1_mm": [40, 10, 20], "radius_mm": 4}},
-        {"name": "airway", "role": "obstacle", "cylinder": {"p0_mm": [0, -20, -90], "p1_mm": [0, -20, 90], "radius_mm": 8}},
+        {
+            "name": "vessel",
+            "role": "obstacle",
+            "capsule": {"p0_mm": [-40, 10, 0], "p1_mm": [40, 10, 20], "radius_mm": 4},
+        },
+        {
+            "name": "airway",
+            "role": "obstacle",
+            "cylinder": {"p0_mm": [0, -20, -90], "p1_mm": [0, -20, 90], "radius_mm": 8},
+        },
         {"name": "nodule", "role": "target", "sphere": {"center_mm": [20, 30, 40], "radius_mm": 7}},
-        {"name": "head", "role": "obstacle", "superquadric": {"semi_axes_mm": [40, 3, 3], "exponents": [8, 2, 2]}},
+        {
+            "name": "head",
+            "role": "obstacle",
+            "superquadric": {"semi_axes_mm": [40, 3, 3], "exponents": [8, 2, 2]},
+        },
     ],
     "needle": {"diameter_mm": 1.0, "r_min_mm": 60},
     "start": {"point_mm": [0, -12, 0], "direction": [0, 1, 0.3]},
@@ -121,20 +133,50 @@ def test_mask_and_mesh_sources(tmp_path):
     [
         (lambda d: d.update(version=2), "version", "expected 1"),
         (lambda d: d.update(colour="red"), "(top level)", "unknown field 'colour'"),
-        (lambda d: d["structures"][1]["capsule"].update(radius_mm=-1), "structures[1].capsule.radius_mm", "0"),
-        (lambda d: d["structures"][1]["capsule"].update(radius_mm="big"), "structures[1].capsule.radius_mm", "expected number"),
+        (
+            lambda d: d["structures"][1]["capsule"].update(radius_mm=-1),
+            "structures[1].capsule.radius_mm",
+            "0",
+        ),
+        (
+            lambda d: d["structures"][1]["capsule"].update(radius_mm="big"),
+            "structures[1].capsule.radius_mm",
+            "expected number",
+        ),
         (lambda d: d["structures"][0].update(role="wall"), "structures[0].role", "expected one of"),
         (lambda d: d["structures"][0].pop("name"), "structures[0]", "'name' is missing"),
-        (lambda d: d["structures"][2].update(sphere={"center_mm": [0, 0, 0], "radius_mm": 1}), "structures[2]", "exactly one source"),
+        (
+            lambda d: d["structures"][2].update(sphere={"center_mm": [0, 0, 0], "radius_mm": 1}),
+            "structures[2]",
+            "exactly one source",
+        ),
         (lambda d: d["structures"][2].pop("cylinder"), "structures[2]", "exactly one source"),
         (lambda d: d["structures"][3].update(name="lung"), "structures[3].name", "duplicate"),
-        (lambda d: d["structures"][3]["sphere"].update(center_mm=[1, 2]), "structures[3].sphere.center_mm", "3 to 3 items"),
+        (
+            lambda d: d["structures"][3]["sphere"].update(center_mm=[1, 2]),
+            "structures[3].sphere.center_mm",
+            "3 to 3 items",
+        ),
         (lambda d: d["start"].update(pose=np.eye(4).tolist()), "start", "exactly one"),
-        (lambda d: d.update(start={"pose": np.diag([2.0, 1.0, 1.0, 1.0]).tolist()}), "start.pose", "rotation"),
+        (
+            lambda d: d.update(start={"pose": np.diag([2.0, 1.0, 1.0, 1.0]).tolist()}),
+            "start.pose",
+            "rotation",
+        ),
         (lambda d: d.update(start={"case_start": 1}), "start.case_start", "base"),
         (lambda d: d.update(goal={"point_file": "nope.txt"}), "goal.point_file", "not found"),
-        (lambda d: d.update(structures=[{"name": "m", "role": "obstacle", "mask": {"path": "none.nii.gz"}}]), "structures[0].mask.path", "not found"),
-        (lambda d: d.update(base={"phantom": {"name": "kidney"}}), "base.phantom.name", "expected one of"),
+        (
+            lambda d: d.update(
+                structures=[{"name": "m", "role": "obstacle", "mask": {"path": "none.nii.gz"}}]
+            ),
+            "structures[0].mask.path",
+            "not found",
+        ),
+        (
+            lambda d: d.update(base={"phantom": {"name": "kidney"}}),
+            "base.phantom.name",
+            "expected one of",
+        ),
         (lambda d: d["needle"].update(r_min_mm=0), "needle.r_min_mm", "0"),
         (lambda d: d["planner"].update(name="astar"), "planner.name", "expected one of"),
     ],
@@ -168,7 +210,14 @@ def test_schema_is_valid_json_schema():
     import jsonschema
 
     jsonschema.Draft202012Validator.check_schema(SCENARIO_SCHEMA)
-    assert set(SCENARIO_SCHEMA["properties"]) >= {"base", "structures", "needle", "start", "goal", "planner"}
+    assert set(SCENARIO_SCHEMA["properties"]) >= {
+        "base",
+        "structures",
+        "needle",
+        "start",
+        "goal",
+        "planner",
+    }
 
 
 # ---------------------------------------------------------------------------------------
@@ -180,7 +229,9 @@ _leaf = st.one_of(
 )  # fmt: skip
 _value = st.recursive(
     _leaf,
-    lambda c: st.one_of(st.lists(c, max_size=5), st.dictionaries(st.text(max_size=10), c, max_size=5)),
+    lambda c: st.one_of(
+        st.lists(c, max_size=5), st.dictionaries(st.text(max_size=10), c, max_size=5)
+    ),
     max_leaves=12,
 )
 
@@ -238,7 +289,9 @@ def test_random_documents_raise_only_needlekit_errors(doc):
         assert str(exc).startswith("random.yaml: "), str(exc)
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(text=st.text(max_size=200))
 def test_random_text_files_raise_only_needlekit_errors(tmp_path, text):
     p = tmp_path / "t.yaml"

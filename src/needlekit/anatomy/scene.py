@@ -7,7 +7,7 @@ Roles say what a planner does with a structure:
 * ``entry_surface``: the surface the needle enters through (airway wall, skin); its normal
   gives the puncture angle;
 * ``allowed_region``: the needle must stay inside it (the lung inside the pleura, the
-  body inside the skin). Its outside is treated as an obstacle;
+  body inside the skin). Its outside is treated as an obstacle, except where a target is;
 * ``context``: shown and measured, ignored by planners (e.g. the liver around a tumour
   that a percutaneous needle reaches through the body wall).
 """
@@ -142,7 +142,8 @@ class Scene:
         if obstacle_field is not None:
             if not isinstance(obstacle_field, DistanceField):
                 raise InvalidInputError(
-                    "obstacle_field", f"expected a DistanceField, got {type(obstacle_field).__name__}"
+                    "obstacle_field",
+                    f"expected a DistanceField, got {type(obstacle_field).__name__}",
                 )
             self._obstacle_cache[(0.0, ())] = obstacle_field
 
@@ -211,7 +212,8 @@ class Scene:
         self, margin_mm: float = 0.0, *, exclude: Iterable[str] = ()
     ) -> DistanceField:
         """One field for everything the needle must avoid: the union of the obstacles and
-        of the outsides of the allowed regions, grown by ``margin_mm``.
+        of the outside of the allowed space (the allowed regions together with the
+        targets), grown by ``margin_mm``.
 
         Parameters
         ----------
@@ -240,7 +242,12 @@ class Scene:
                 parts: list[DistanceField] = [
                     s.field for s in self.by_role(Role.OBSTACLE) if s.name not in excluded
                 ]
-                parts += [ComplementField(s.field) for s in self.by_role(Role.ALLOWED_REGION)]
+                regions = [s.field for s in self.by_role(Role.ALLOWED_REGION)]
+                if regions:
+                    # targets are never obstacles: a tumour may reach past the organ's
+                    # segmentation (Med-RAD's liver masks leave the nodules out)
+                    targets = [s.field for s in self.by_role(Role.TARGET)]
+                    parts.append(ComplementField(union(*regions, *targets)))
                 if not parts:
                     raise InvalidInputError("scene", "has no obstacles and no allowed regions")
                 base = union(*parts)

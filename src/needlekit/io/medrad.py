@@ -17,12 +17,14 @@ Livers (``Liver/PatientN``)
     ``nodule2_start1.txt``); file names are matched case-insensitively.
 
 Distance fields are built for what planning needs first: one signed distance transform of
-the *free space* (allowed region minus all obstacles), whose complement is the scene's
-combined obstacle field. Each structure's own field is built lazily on first use.
+the *free space* (allowed region and nodules, minus all obstacles), whose complement is the
+scene's combined obstacle field. The nodules belong to it because Med-RAD's liver masks
+leave them out: a target must never count as an obstacle. Each structure's own field is built lazily on first use.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import re
 import time
@@ -66,6 +68,8 @@ _LIVER = {
     "portalvein": ("portalVein", Role.OBSTACLE, "#8e7dbe"),
 }
 _TARGET_COLOUR = "#2a9d8f"
+
+log = logging.getLogger(__name__)
 
 
 def _repo_candidates() -> list[Path]:
@@ -262,13 +266,56 @@ def _read_all(paths: dict[str, Path]) -> dict[str, Mask]:
     return {name: read_mask(path) for name, path in paths.items()}
 
 
-def _check_same_grid(masks: dict[str, Mask], folder: Path) -> None:
-    ref_name, ref = next(iter(masks.items()))
-    for name, m in masks.items():
-        if m.shape != ref.shape or not np.allclose(m.affine, ref.affine, atol=1e-4):
-            raise InvalidInputError(
-                str(folder), f"{name} and {ref_name} do not share one voxel grid and affine"
+def _align(mask: Mask, ref: Mask, name: str) -> Mask:
+    """``mask`` on ``ref``'s voxel grid, through their affines.
+
+    Med-RAD masks of one patient share a grid except for a few (Patient 4's fissures sit on
+    an offset grid with the same spacing): for those the voxels are shifted by the whole
+    number of voxels between the grids, exactly. Other grids are resampled by nearest
+    neighbour. Set voxels that fall outside the reference grid are reported.
+    """
+    if mask.shape == ref.shape and np.allclose(mask.affine, ref.affine, atol=1e-4):
+        return mask
+    ref_to_mask = np.linalg.inv(mask.affine) @ ref.affine  # ref index -> mask index
+    shift = ref_to_mask[:3, 3]
+    if np.allclose(ref_to_mask[:3, :3], np.eye(3), atol=1e-6) and np.allclose(
+        shift, np.round(shift), atol=1e-3
+    ):
+        off = np.round(shift).astype(np.int64)
+        src_shape, dst_shape = np.array(mask.shape), np.array(ref.shape)
+        lo = np.maximum(0, -off)
+        hi = np.minimum(dst_shape, src_shape - off)
+        out = np.zeros(ref.shape, dtype=bool)
+        if np.all(hi > lo):
+            out[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = mask.data[
+                lo[0] + off[0] : hi[0] + off[0],
+                lo[1] + off[1] : hi[1] + off[1],
+                lo[2] + off[2] : hi[2] + off[2],
+            ]
+    else:
+        from scipy.ndimage import map_coordinates
+
+        out = np.zeros(ref.shape, dtype=bool)
+        ii = np.arange(ref.shape[0])
+        for k0 in range(0, ref.shape[2], 32):  # slabs keep the index arrays small
+            kk = np.arange(k0, min(k0 + 32, ref.shape[2]))
+            grid = np.stack(
+                np.meshgrid(ii, np.arange(ref.shape[1]), kk, indexing="ij"), axis=0
+            ).reshape(3, -1)
+            idx = ref_to_mask[:3, :3] @ grid + ref_to_mask[:3, 3:4]
+            vals = map_coordinates(
+                mask.data.astype(np.uint8), idx, order=0, mode="constant", cval=0
             )
+            out[:, :, kk] = vals.reshape(ref.shape[0], ref.shape[1], len(kk)).astype(bool)
+    lost = int(mask.data.sum()) - int(out.sum())
+    if lost > 0:
+        log.warning("%s: %d set voxels lie outside the common grid and were dropped", name, lost)
+    return Mask(out, ref.affine, mask.path)
+
+
+def _on_one_grid(masks: dict[str, Mask], reference: str) -> dict[str, Mask]:
+    ref = masks[reference]
+    return {name: _align(m, ref, name) for name, m in masks.items()}
 
 
 def _lazy_sdf(mask: Mask, name: str) -> LazyField:
@@ -304,7 +351,8 @@ def load_medrad(
     ------
     InvalidInputError
         Unknown organ or patient, missing or malformed files (the message names the file),
-        masks on different grids, or no free space left.
+        or no free space left. Masks on different grids are aligned to the allowed
+        region's grid through their affines.
     """
     key = _organ(organ)
     if isinstance(patient, bool) or not isinstance(patient, (int, np.integer)):
@@ -333,13 +381,14 @@ def load_medrad(
     paths = {table[stem][0]: files[stem] for stem in table}
     nodule_names = {tk: ("nodule" if tk == "target" else f"nodule{tk[6:]}") for tk in target_masks}
     paths.update({nodule_names[tk]: p for tk, p in target_masks.items()})
-    masks = _read_all(paths)
-    _check_same_grid(masks, folder)
+    region = next(v for v in table.values() if v[1] is Role.ALLOWED_REGION)[0]
+    masks = _on_one_grid(_read_all(paths), region)
     t_load = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    region = next(v for v in table.values() if v[1] is Role.ALLOWED_REGION)[0]
     free = masks[region].data.copy()
+    for tk in target_masks:  # targets are never obstacles (liver masks leave nodules out)
+        free |= masks[nodule_names[tk]].data
     for name, role, _ in table.values():
         if role is Role.OBSTACLE:
             free &= ~masks[name].data
