@@ -66,14 +66,22 @@ class StructureSummary:
         """
 
         def clean(a):
-            return None if a is None else [[None if not np.isfinite(v) else float(v) for v in r] for r in np.atleast_2d(a)]
+            return (
+                None
+                if a is None
+                else [
+                    [None if not np.isfinite(v) else float(v) for v in r] for r in np.atleast_2d(a)
+                ]
+            )
 
         return {
             "name": self.name,
             "role": self.role,
             "kind": self.kind,
             "extent_mm": clean(self.extent_mm),
-            "voxel_size_mm": None if self.voxel_size_mm is None else [float(v) for v in self.voxel_size_mm],
+            "voxel_size_mm": None
+            if self.voxel_size_mm is None
+            else [float(v) for v in self.voxel_size_mm],
             "grid_shape": None if self.grid_shape is None else list(self.grid_shape),
             "volume_ml": None if not np.isfinite(self.volume_ml) else float(self.volume_ml),
             "error_bound_mm": float(self.error_bound_mm),
@@ -137,7 +145,10 @@ def summarize(structure: Structure) -> StructureSummary:
     if vox is not None:
         inside = int(np.count_nonzero(vox.values < 0.0))
         volume_mm3 = inside * float(np.prod(vox.spacing_mm))
-        voxel_size, shape = np.asarray(vox.spacing_mm, dtype=float), tuple(int(s) for s in vox.shape)
+        voxel_size, shape = (
+            np.asarray(vox.spacing_mm, dtype=float),
+            tuple(int(s) for s in vox.shape),
+        )
     elif np.all(np.isfinite(extent)):
         values, _, h = sample_grid(field, extent)
         volume_mm3 = float(np.count_nonzero(values < 0.0)) * h**3

@@ -37,6 +37,7 @@ Points outside the grid
     at least ``(D(x) - error_bound_mm) / sqrt(2)``, i.e. conservative (a clearance may be
     underestimated there, never overestimated beyond the bound).
 """
+
 from __future__ import annotations
 
 import os

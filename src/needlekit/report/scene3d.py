@@ -64,7 +64,9 @@ def scene_figure(
     box = scene.bounds()
     for s in scene.structures:
         colour, opacity = _ROLE_STYLE[s.role]
-        verts, faces = surface_mesh(s.field, max_cells=max_cells, bounds=box if np.all(np.isfinite(box)) else None)
+        verts, faces = surface_mesh(
+            s.field, max_cells=max_cells, bounds=box if np.all(np.isfinite(box)) else None
+        )
         if len(faces) == 0:
             continue
         fig.add_trace(
@@ -116,7 +118,9 @@ def scene_figure(
         p = np.asarray(p, dtype=float)
         name = path_names[i] if i < len(path_names) else f"path {i + 1}"
         fig.add_trace(
-            go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="lines", name=name, line={"width": 6})
+            go.Scatter3d(
+                x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="lines", name=name, line={"width": 6}
+            )
         )
     fig.update_layout(
         title=title if title is not None else (scene.name or "needlekit scene"),
