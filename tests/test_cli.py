@@ -179,3 +179,70 @@ def test_bench_kinematics_writes_record(capsys, tmp_path):
     assert {"versions", "cpu", "python"} <= set(rec["machine"])
     for row in rec["results"]:
         assert row["arcs_per_s"] > 0 and row["max_abs_diff_mm"] < 1e-9
+
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
+
+
+def test_schema_prints_the_json_schema(capsys):
+    from needlekit.io.scenario_schema import SCENARIO_SCHEMA
+
+    code, out, _ = run(capsys, "schema")
+    assert code == 0 and json.loads(out) == SCENARIO_SCHEMA
+
+
+def test_scene_info_table_and_json(capsys):
+    code, out, _ = run(capsys, "scene", "info", str(EXAMPLES / "toy.yaml"))
+    assert code == 0
+    lines = out.splitlines()
+    assert lines[0].startswith("scene: toy lung")
+    assert lines[1].split()[:3] == ["name", "role", "field"]
+    row = next(line for line in lines if line.startswith("nodule"))
+    assert row.split()[1] == "target" and row.split()[-2] == "1.44"  # 4/3 pi 7^3 mm^3
+    code, out, _ = run(capsys, "scene", "info", str(EXAMPLES / "toy.yaml"), "--json")
+    data = json.loads(out)
+    lung = next(s for s in data["structures"] if s["name"] == "lung")
+    assert lung["volume_ml"] == pytest.approx(4 / 3 * np.pi * 80 * 60 * 100 / 1000, rel=0.01)
+
+
+def test_scene_render_writes_self_contained_html(capsys, tmp_path):
+    out = tmp_path / "toy.html"
+    code, text, _ = run(
+        capsys,
+        "scene",
+        "render",
+        str(EXAMPLES / "toy.yaml"),
+        "--out",
+        str(out),
+        "--max-cells",
+        "40",
+    )
+    assert code == 0 and text.strip() == str(out)
+    html = out.read_text()
+    assert "plotly" in html and "<script src=" not in html  # plotly.js is inlined: opens offline
+    for name in ("lung", "vessel", "airway", "nodule"):
+        assert name in html
+
+
+def test_scene_errors_are_one_line(capsys, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "version: 1\nstructures: [{name: a, role: wall, sphere: {center_mm: [0,0,0], radius_mm: 1}}]\n"
+    )
+    code, _, err = run(capsys, "scene", "info", str(bad))
+    assert code == 2
+    assert (
+        err.strip()
+        == "error: bad.yaml: structures[0].role: expected one of obstacle, target, entry_surface, allowed_region, context, got 'wall'"
+    )
+
+
+@pytest.mark.slow
+def test_demo_writes_figures_and_phantom_views(capsys, tmp_path):
+    code, out, _ = run(capsys, "demo", "--out", str(tmp_path))
+    assert code == 0
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"demo.json", "phantoms.html", "phantoms.json", "reachability.png"} <= names
+    summary = json.loads((tmp_path / "phantoms.json").read_text())
+    assert set(summary) == {"lung", "liver", "neck"}
+    assert all(len(v["start_poses"]) >= 1 for v in summary.values())

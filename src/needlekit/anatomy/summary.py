@@ -212,7 +212,7 @@ def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None):
     vox = _voxel_of(field)
     if vox is not None:
         step = max(1, int(np.ceil(max(vox.shape) / max_cells)))
-        values = np.asarray(vox.values[::step, ::step, ::step], dtype=np.float32)
+        values = np.array(vox.values[::step, ::step, ::step], dtype=np.float32)  # writable copy
         affine = vox.affine.copy()
         affine[:3, :3] *= step
     else:
