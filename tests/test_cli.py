@@ -239,7 +239,7 @@ def test_scene_errors_are_one_line(capsys, tmp_path):
 
 @pytest.mark.slow
 def test_demo_writes_figures_and_phantom_views(capsys, tmp_path):
-    code, out, _ = run(capsys, "demo", "--out", str(tmp_path))
+    code, _out, _ = run(capsys, "demo", "--out", str(tmp_path))
     assert code == 0
     names = {p.name for p in tmp_path.iterdir()}
     assert {"demo.json", "phantoms.html", "phantoms.json", "reachability.png"} <= names
