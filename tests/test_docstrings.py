@@ -16,6 +16,8 @@ MODULES = [
     "needlekit.anatomy.mesh",
     "needlekit.io.meshes",
     "needlekit.anatomy.summary",
+    "needlekit.anatomy.occupancy",
+    "needlekit.planning.steerable.problem",
     "needlekit.io.files",
     "needlekit.io.poses",
     "needlekit.io.volumes",

@@ -179,3 +179,15 @@ def test_every_patient_loads_with_starts_targets_and_an_obstacle_field(organ, pa
     assert np.all(d[len(starts) :] > -5.0)  # targets in nodules are clear of the obstacles
     for s in case.starts:
         assert s.target in case.targets_mm
+
+
+@pytest.mark.slow
+def test_lung1_starts_clear_the_exact_collision_test_only_with_the_start_exclusion(lung1):
+    obs = lung1.voxel_obstacles(needle_diameter_mm=1.0)
+    assert obs.min_distance_mm == pytest.approx(1.0236, abs=1e-4)
+    for s in lung1.starts:
+        p = s.world_T_tip[:3, 3]
+        assert obs.collides(p)  # on the airway wall
+        assert not obs.collides(p, exclude_near=p, exclusion_mm=3.0)
+    target = lung1.targets_mm["target"]
+    assert not obs.collides(target)  # the nodule is not an obstacle

@@ -178,6 +178,10 @@ class MedradCase:
     folder : Path
     timings_s : dict of str to float
         ``load_s`` (reading masks) and ``obstacle_field_s`` (the free-space transform).
+    free_space : Mask or None
+        The free-space mask (allowed region and nodules, minus the obstacles) on the
+        allowed region's grid; its complement gives the exact voxel-centre collision test
+        of :class:`needlekit.anatomy.occupancy.VoxelObstacles`.
     """
 
     organ: str
@@ -187,6 +191,31 @@ class MedradCase:
     targets_mm: dict[str, np.ndarray]
     folder: Path
     timings_s: dict[str, float] = field(default_factory=dict)
+    free_space: Mask | None = None
+
+    def voxel_obstacles(self, needle_diameter_mm: float, safety_margin_mm: float = 0.0):
+        """Exact voxel-centre collision test over this case's obstacle voxels (everything
+        that is not free space, as the reference planner counts them).
+
+        Parameters
+        ----------
+        needle_diameter_mm : float
+        safety_margin_mm : float
+
+        Returns
+        -------
+        needlekit.anatomy.occupancy.VoxelObstacles
+        """
+        from needlekit.anatomy.occupancy import VoxelObstacles
+
+        if self.free_space is None:
+            raise InvalidInputError("free_space", "this case was built without its free-space mask")
+        return VoxelObstacles(
+            ~self.free_space.data,
+            self.free_space.affine,
+            needle_diameter_mm=needle_diameter_mm,
+            safety_margin_mm=safety_margin_mm,
+        )
 
     def start(self, name_or_index: str | int) -> StartPose:
         """A start by name (``"start2"``) or 1-based number (``2``).
@@ -419,4 +448,5 @@ def load_medrad(
         targets,
         folder,
         {"load_s": t_load, "obstacle_field_s": t_field},
+        Mask(free, masks[region].affine, None),
     )

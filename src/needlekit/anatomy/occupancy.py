@@ -1,0 +1,194 @@
+"""Exact collision tests against obstacle voxels: distances to voxel centres, no interpolation.
+
+A segmentation's obstacles are its obstacle voxels. :class:`VoxelObstacles` answers, for a
+point ``p``, whether some obstacle voxel centre lies closer than ``min_distance_mm`` (the
+needle radius plus half a voxel diagonal, plus any safety margin), or whether ``p`` is
+outside the image. This is the collision model of the reference steerable-needle planner
+used for the Med-RAD benchmarks (``docs/notes/steerable-reference-planner.md``, section 7):
+its certified plans clear the threshold by as little as a micrometre, so planners that must
+reproduce its verdicts use these exact distances, while :class:`~needlekit.anatomy.voxel.VoxelSDF`
+(interpolated, with an error bound) serves clearance figures and figures.
+
+Obstacle centres closer than ``exclusion_mm`` to an exclusion point (the needle's start on
+the airway wall) are ignored: the needle leaves the airway through its wall.
+
+The kernel visits only the voxels of the box of half-width ``min_distance_mm`` around each
+query point; :func:`nearest_obstacle_distance_reference` (a KD-tree over all obstacle
+centres) is the test oracle.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from needlekit._validation import as_points, as_positive, unbatch
+from needlekit.anatomy.grids import _orthogonal_affine
+from needlekit.errors import InvalidInputError
+
+__all__ = ["VoxelObstacles", "nearest_obstacle_distance_reference"]
+
+
+@numba.njit(cache=True)
+def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # pragma: no cover
+    ni, nj, nk = occ.shape
+    # the box of voxels around a point that can hold a centre within min_dist
+    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
+    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
+    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
+    r0 = math.ceil(min_dist / h0)
+    r1 = math.ceil(min_dist / h1)
+    r2 = math.ceil(min_dist / h2)
+    md2 = min_dist * min_dist
+    ex2 = excl_r * excl_r
+    for n in range(points.shape[0]):
+        x, y, z = points[n, 0], points[n, 1], points[n, 2]
+        u = inv[0, 0] * x + inv[0, 1] * y + inv[0, 2] * z + inv[0, 3]
+        v = inv[1, 0] * x + inv[1, 1] * y + inv[1, 2] * z + inv[1, 3]
+        w = inv[2, 0] * x + inv[2, 1] * y + inv[2, 2] * z + inv[2, 3]
+        # outside the image: a negative index, or one that rounds past the last voxel
+        if u < 0.0 or v < 0.0 or w < 0.0 or round(u) >= ni or round(v) >= nj or round(w) >= nk:
+            out[n] = True
+            continue
+        ci, cj, ck = int(round(u)), int(round(v)), int(round(w))
+        hit = False
+        for i in range(max(ci - r0, 0), min(ci + r0 + 1, ni)):
+            for j in range(max(cj - r1, 0), min(cj + r1 + 1, nj)):
+                for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
+                    if not occ[i, j, k]:
+                        continue
+                    cx = affine[0, 0] * i + affine[0, 1] * j + affine[0, 2] * k + affine[0, 3]
+                    cy = affine[1, 0] * i + affine[1, 1] * j + affine[1, 2] * k + affine[1, 3]
+                    cz = affine[2, 0] * i + affine[2, 1] * j + affine[2, 2] * k + affine[2, 3]
+                    d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
+                    if d2 >= md2:
+                        continue
+                    e2 = (
+                        (cx - excl_point[0]) ** 2
+                        + (cy - excl_point[1]) ** 2
+                        + (cz - excl_point[2]) ** 2
+                    )
+                    if e2 < ex2:
+                        continue
+                    hit = True
+                    break
+                if hit:
+                    break
+            if hit:
+                break
+        out[n] = hit
+
+
+class VoxelObstacles:
+    """Obstacle voxels of a segmentation, for exact point collision tests.
+
+    Parameters
+    ----------
+    occupancy : array_like of bool, shape (i, j, k)
+        True where a voxel is an obstacle (e.g. airway, vessels, fissures and everything
+        outside the pleura).
+    affine : array_like, shape (4, 4)
+        Voxel index -> RAS (mm) affine with orthogonal axes.
+    needle_diameter_mm : float
+        The needle's diameter; half of it is kept from the obstacle voxels.
+    safety_margin_mm : float
+        Extra clearance.
+
+    Attributes
+    ----------
+    min_distance_mm : float
+        ``needle_diameter_mm / 2 + half voxel diagonal + safety_margin_mm``: a point closer
+        than this to an obstacle voxel centre collides.
+
+    Examples
+    --------
+    >>> occ = np.zeros((10, 10, 10), bool); occ[5, 5, 5] = True
+    >>> obs = VoxelObstacles(occ, np.eye(4), needle_diameter_mm=1.0)
+    >>> round(obs.min_distance_mm, 4)   # 0.5 + sqrt(3) / 2
+    1.366
+    >>> obs.collides([[5.0, 5.0, 6.3], [5.0, 5.0, 6.4], [-1.0, 0.0, 0.0]]).tolist()
+    [True, False, True]
+    """
+
+    def __init__(
+        self, occupancy, affine, *, needle_diameter_mm: float, safety_margin_mm: float = 0.0
+    ):
+        occ = np.asarray(occupancy)
+        if occ.ndim != 3:
+            raise InvalidInputError("occupancy", f"expected a 3-D mask, got shape {occ.shape}")
+        self.occupancy = np.ascontiguousarray(occ, dtype=np.bool_)
+        a, spacing, _ = _orthogonal_affine(affine, "affine")
+        self.affine = np.ascontiguousarray(a)
+        self.inv_affine = np.ascontiguousarray(np.linalg.inv(a))
+        self.spacing_mm = spacing
+        d = as_positive(needle_diameter_mm, "needle_diameter_mm")
+        m = float(safety_margin_mm)
+        if not (np.isfinite(m) and m >= 0):
+            raise InvalidInputError(
+                "safety_margin_mm", f"must be a finite number >= 0, got {safety_margin_mm}"
+            )
+        self.voxel_radius_mm = 0.5 * float(np.linalg.norm(spacing))
+        self.min_distance_mm = 0.5 * d + self.voxel_radius_mm + m
+
+    def collides(self, points, *, exclude_near=None, exclusion_mm: float = 0.0):
+        """Whether points collide with the obstacle voxels (or lie outside the image).
+
+        Parameters
+        ----------
+        points : array_like, shape (3,) or (n, 3)
+            World points (RAS, mm).
+        exclude_near : array_like, shape (3,), optional
+            Obstacle voxels whose centres lie closer than ``exclusion_mm`` to this point are
+            ignored (the start of a transbronchial needle).
+        exclusion_mm : float
+
+        Returns
+        -------
+        bool or ndarray of bool, shape (n,)
+        """
+        p, single = as_points(points, "points")
+        ex = (
+            np.zeros(3)
+            if exclude_near is None
+            else np.asarray(exclude_near, dtype=np.float64).reshape(3)
+        )
+        r = 0.0 if exclude_near is None else float(exclusion_mm)
+        out = np.empty(p.shape[0], dtype=np.bool_)
+        _collides(self.occupancy, self.inv_affine, self.affine, self.min_distance_mm, ex, r, p, out)
+        return unbatch(out, single)
+
+
+def nearest_obstacle_distance_reference(
+    obstacles: VoxelObstacles, points, *, exclude_near=None, exclusion_mm=0.0
+):
+    """Distance from points to the nearest (non-excluded) obstacle voxel centre, by a
+    KD-tree over all obstacle centres: the oracle of :meth:`VoxelObstacles.collides`.
+
+    Parameters
+    ----------
+    obstacles : VoxelObstacles
+    points : array_like, shape (n, 3)
+    exclude_near : array_like, shape (3,), optional
+    exclusion_mm : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``inf`` where no obstacle centre remains.
+    """
+    from scipy.spatial import cKDTree
+
+    p, _ = as_points(points, "points")
+    idx = np.argwhere(obstacles.occupancy)
+    centres = idx @ obstacles.affine[:3, :3].T + obstacles.affine[:3, 3]
+    if exclude_near is not None:
+        keep = (
+            np.linalg.norm(centres - np.asarray(exclude_near, dtype=float), axis=1) >= exclusion_mm
+        )
+        centres = centres[keep]
+    if len(centres) == 0:
+        return np.full(p.shape[0], np.inf)
+    d, _ = cKDTree(centres).query(p)
+    return d

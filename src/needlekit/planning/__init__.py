@@ -1,0 +1,1 @@
+"""Needle path planning: steerable (curved) needles and straight multi-needle plans."""

@@ -1,0 +1,1 @@
+"""Curved (steerable) needle planning: problem, planners, verification, direction sweep."""

@@ -1,0 +1,64 @@
+"""Exact voxel-centre collision tests against a KD-tree over all obstacle centres."""
+
+import numpy as np
+import pytest
+
+from needlekit.anatomy.occupancy import VoxelObstacles, nearest_obstacle_distance_reference
+from needlekit.errors import InvalidInputError
+
+
+def _random_case(seed, affine):
+    rng = np.random.default_rng(seed)
+    occ = rng.random((30, 24, 18)) < 0.02
+    obs = VoxelObstacles(occ, affine, needle_diameter_mm=1.0)
+    lo = affine[:3, 3] - 3.0
+    hi = affine[:3, :3] @ np.array(occ.shape) + affine[:3, 3] + 3.0
+    pts = rng.uniform(np.minimum(lo, hi), np.maximum(lo, hi), (20000, 3))
+    return obs, pts, rng
+
+
+def _inside_image(obs, pts):
+    ijk = (pts - obs.affine[:3, 3]) @ obs.inv_affine[:3, :3].T
+    return np.all(ijk >= 0, axis=1) & np.all(np.round(ijk) < np.array(obs.occupancy.shape), axis=1)
+
+
+@pytest.mark.parametrize(
+    "affine",
+    [
+        np.diag([0.55, 0.55, 0.7, 1.0]),
+        np.array([[0.5, 0, 0, -10.0], [0, -0.6, 0, 20.0], [0, 0, 0.8, 5.0], [0, 0, 0, 1]]),
+        np.array([[0, 0.5, 0, 3.0], [0.7, 0, 0, -2.0], [0, 0, 0.6, 1.0], [0, 0, 0, 1]]),
+    ],
+    ids=["medrad", "flipped", "permuted"],
+)
+def test_collisions_match_the_kdtree_oracle(affine):
+    obs, pts, _ = _random_case(0, affine)
+    got = obs.collides(pts)
+    d = nearest_obstacle_distance_reference(obs, pts)
+    want = ~_inside_image(obs, pts) | (d < obs.min_distance_mm)
+    assert np.array_equal(got, want)
+    assert got.any() and not got.all()
+
+
+def test_exclusion_around_the_start():
+    obs, pts, _ = _random_case(1, np.diag([0.55, 0.55, 0.7, 1.0]))
+    start = np.array([8.0, 6.0, 6.0])
+    got = obs.collides(pts, exclude_near=start, exclusion_mm=3.0)
+    d = nearest_obstacle_distance_reference(obs, pts, exclude_near=start, exclusion_mm=3.0)
+    want = ~_inside_image(obs, pts) | (d < obs.min_distance_mm)
+    assert np.array_equal(got, want)
+    # the exclusion only ever removes collisions
+    assert np.all(obs.collides(pts)[got])
+
+
+def test_threshold_is_radius_plus_half_voxel_diagonal():
+    affine = np.diag([0.55078125, 0.55078125, 0.70001960, 1.0])
+    obs = VoxelObstacles(np.zeros((5, 5, 5), bool), affine, needle_diameter_mm=1.0)
+    assert obs.min_distance_mm == pytest.approx(
+        0.5 + 0.5 * np.linalg.norm([0.55078125, 0.55078125, 0.7000196])
+    )
+    assert obs.min_distance_mm == pytest.approx(1.0236, abs=1e-4)  # Med-RAD lung 1
+    with pytest.raises(InvalidInputError, match="needle_diameter_mm"):
+        VoxelObstacles(np.zeros((5, 5, 5), bool), affine, needle_diameter_mm=0.0)
+    with pytest.raises(InvalidInputError, match="occupancy"):
+        VoxelObstacles(np.zeros((5, 5)), affine, needle_diameter_mm=1.0)
