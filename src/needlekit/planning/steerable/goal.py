@@ -1,0 +1,105 @@
+"""Connecting a tip pose to the goal: turn at r_min, then go straight, stopping tau short.
+
+This is the connection resolution-optimal search tries from every node, and its length is
+the admissible cost-to-go (the shortest curvature-bounded path to a point outside the r_min
+horn torus, :func:`needlekit.needle.reachability.shortest_arc_line`, less the tolerance):
+
+- goal ahead and outside the turning circle: an r_min arc until the heading points at the
+  goal, then a straight segment that ends ``tau`` before the goal (or no segment when the
+  arc already ends within ``tau``);
+- goal inside the turning circle by at most ``tau``: an r_min arc alone, to the circle point
+  nearest the goal;
+- otherwise (behind the tip, or deeper inside the torus): no connection.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit._validation import as_points, as_poses, as_positive
+from needlekit.errors import InvalidInputError
+from needlekit.needle.reachability import shortest_arc_line
+
+__all__ = ["GoalConnection", "goal_connection"]
+
+
+@dataclass(frozen=True)
+class GoalConnection:
+    """An arc (then maybe a line) from a tip pose to within tau of the goal.
+
+    Attributes
+    ----------
+    primitives : ndarray, shape (k, 3)
+        ``(rotation_rad, curvature_per_mm, length_mm)`` rows: the arc, then the line if any.
+    length_mm : float
+    end_distance_mm : float
+        Distance from the connection's end to the goal (<= tau).
+    """
+
+    primitives: np.ndarray
+    length_mm: float
+    end_distance_mm: float
+
+
+def goal_connection(
+    world_T_tip, goal_mm, r_min_mm: float, tolerance_mm: float
+) -> GoalConnection | None:
+    """The shortest arc-then-line connection from a tip pose to within tau of the goal.
+
+    Parameters
+    ----------
+    world_T_tip : array_like, shape (4, 4)
+    goal_mm : array_like, shape (3,)
+    r_min_mm : float
+        Radius of the arc.
+    tolerance_mm : float
+        tau.
+
+    Returns
+    -------
+    GoalConnection or None
+        None when no such connection exists (goal behind the tip, or more than tau inside
+        the r_min horn torus).
+
+    Examples
+    --------
+    A goal 50 mm to the side of a 50 mm turning circle's quarter point:
+
+    >>> import numpy as np
+    >>> c = goal_connection(np.eye(4), [0.0, -50.0, 100.0], 50.0, 1.0)
+    >>> round(c.length_mm, 4), c.primitives.shape  # 30 deg arc (26.18) + 86.60 - 1 line
+    (111.7825, (2, 3))
+    """
+    g, single = as_poses(world_T_tip, "world_T_tip")
+    if not single:
+        raise InvalidInputError("world_T_tip", "expected one 4x4 pose")
+    p, single = as_points(goal_mm, "goal_mm")
+    if not single:
+        raise InvalidInputError("goal_mm", "expected one point (3,)")
+    r = as_positive(r_min_mm, "r_min_mm")
+    tau = float(tolerance_mm)
+    if not (np.isfinite(tau) and tau >= 0):
+        raise InvalidInputError("tolerance_mm", f"must be a finite number >= 0, got {tolerance_mm}")
+    path = shortest_arc_line(g[0], p[0], r)
+    kappa = 1.0 / r
+    spin = float(path.spin_rad[0])
+    if path.reachable[0]:
+        arc = float(path.arc_length_mm[0])
+        line = float(path.line_length_mm[0])
+        if line > tau:
+            rows = [[spin, kappa, arc], [0.0, 0.0, line - tau]]
+            return GoalConnection(np.array(rows), arc + line - tau, tau)
+        return GoalConnection(np.array([[spin, kappa, arc]]), arc, line)
+    # inside the torus: the arc to the circle point nearest the goal, if within tau
+    local = (p[0] - g[0, :3, 3]) @ g[0, :3, :3]
+    axial = local[2]
+    radial = float(np.hypot(local[0], local[1]))
+    if axial < 0.0:
+        return None
+    depth = r - float(np.hypot(radial - r, axial))  # how far inside the circle
+    if depth > tau:
+        return None
+    turn = float(np.arctan2(axial, r - radial))  # goal's angle seen from the centre
+    return GoalConnection(np.array([[spin, kappa, r * turn]]), r * turn, depth)
