@@ -74,7 +74,12 @@ class SteerablePlan:
         return out
 
     def end_pose(self) -> np.ndarray:
-        """Tip pose at the end, shape (4, 4)."""
+        """Tip pose at the end of the plan.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+        """
         return self.poses()[-1]
 
     def points_mm(self, spacing_mm: float = DEFAULT_SAMPLE_SPACING_MM) -> np.ndarray:
