@@ -74,3 +74,25 @@ def test_start2_direct_connection_collides(lung1, r_min):
     )
     assert not v.ok and v.violations[0].startswith("collision")
     assert np.isfinite(v.metrics["min_clearance_mm"])
+
+
+@pytest.mark.parametrize(("start", "r_min"), [*sorted(REFERENCE), (2, 50), (2, 100)])
+def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_min):
+    from needlekit.planning.result import PlanStatus
+    from needlekit.planning.steerable.rcs import solve_rcs
+
+    case, obstacles = lung1
+    s = case.start(start)
+    prob = SteerableProblem(
+        case.scene, goal_mm=case.targets_mm["target"], start_pose=s.world_T_tip, r_min_mm=r_min
+    )
+    res = solve_rcs(prob, time_limit_s=1.0, obstacles=obstacles)
+    expected = REFERENCE.get((start, r_min), "none")
+    if expected == "none":  # start 2: the reference finds no plan within 1 s
+        assert res.status is PlanStatus.TIMEOUT and res.plan is None
+    elif expected is None:
+        assert res.status is PlanStatus.INFEASIBLE
+    else:
+        assert res.status is PlanStatus.SOLVED and res.stats["certified"]
+        assert res.cost_mm <= expected + 0.5
+        assert verify_plan(prob, res.plan, obstacles=obstacles, spacing_mm=0.5).ok

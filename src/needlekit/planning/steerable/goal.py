@@ -22,7 +22,7 @@ from needlekit._validation import as_points, as_poses, as_positive
 from needlekit.errors import InvalidInputError
 from needlekit.needle.reachability import shortest_arc_line
 
-__all__ = ["GoalConnection", "goal_connection"]
+__all__ = ["GoalConnection", "goal_connection", "single_arc_connection"]
 
 
 @dataclass(frozen=True)
@@ -103,3 +103,45 @@ def goal_connection(
         return None
     turn = float(np.arctan2(axial, r - radial))  # goal's angle seen from the centre
     return GoalConnection(np.array([[spin, kappa, r * turn]]), r * turn, depth)
+
+
+def single_arc_connection(
+    world_T_tip, goal_mm, r_min_mm: float, tolerance_mm: float
+) -> GoalConnection | None:
+    """One constant-curvature arc from a tip pose to the goal itself (RCS and RRT's
+    connection): radius ``max(r_min, radius needed)``; when the goal needs a tighter arc,
+    the r_min arc to the circle point nearest the goal, accepted within tau.
+
+    Parameters
+    ----------
+    world_T_tip : array_like, shape (4, 4)
+    goal_mm : array_like, shape (3,)
+    r_min_mm, tolerance_mm : float
+
+    Returns
+    -------
+    GoalConnection or None
+    """
+    g, _ = as_poses(world_T_tip, "world_T_tip")
+    p, _ = as_points(goal_mm, "goal_mm")
+    r = as_positive(r_min_mm, "r_min_mm")
+    tau = float(tolerance_mm)
+    local = (p[0] - g[0, :3, 3]) @ g[0, :3, :3]
+    axial = float(local[2])
+    radial = float(np.hypot(local[0], local[1]))
+    if axial < 0.0 and radial <= 1e-12:
+        return None
+    spin = 0.0 if radial <= 1e-12 else float(np.arctan2(local[0], -local[1]))
+    if radial <= 1e-12:
+        return GoalConnection(np.array([[0.0, 0.0, axial]]), axial, 0.0)
+    needed = (axial**2 + radial**2) / (2.0 * radial)
+    turn = 2.0 * float(np.arctan2(radial, axial))
+    if turn > np.pi:  # the goal is behind: no forward arc reaches it
+        return None
+    if needed >= r:
+        return GoalConnection(np.array([[spin, 1.0 / needed, needed * turn]]), needed * turn, 0.0)
+    depth = r - float(np.hypot(radial - r, axial))
+    if depth > tau:
+        return None
+    t = float(np.arctan2(axial, r - radial))
+    return GoalConnection(np.array([[spin, 1.0 / r, r * t]]), r * t, depth)

@@ -1,0 +1,326 @@
+"""RCS and RCS*: resolution-complete and resolution-optimal search over needle motions.
+
+The search tree holds tip poses; an edge is a motion primitive ``(spin, curvature,
+length)`` with curvature 0 or ``1 / r_min``. Primitives come in resolution levels:
+
+- lengths: 16 mm (level 0), then refined by halving steps down to 0.125 mm (level 7):
+  8; 12, 4; 14, 10, 6, 2; ...;
+- spins (curved primitives only): {0, pi/2, pi, 3pi/2} (level 0), then refined by halving
+  the step down to pi/32 (level 4).
+
+Expanding a valid node adds its 5 coarsest children (4 curved, 1 straight, 16 mm). When a
+node is processed, its refinements are added as siblings: shorter, longer (by the next
+halving step), spun left and right (curved only). A node's rank is its parent's rank plus
+its length and spin levels plus one, so coarse motions come first.
+
+RCS processes the lowest rank first. RCS* orders by cost ``f = g + h``, with ``h`` the
+length of the shortest turn-then-straight connection to within tau of the goal
+(:func:`~needlekit.planning.steerable.goal.goal_connection`), among the ranks within
+:data:`LOOKAHEAD_RANKS` of the lowest one queued; it drops nodes whose parent cannot beat
+the best plan, skips expanding nodes that cannot, and treats the goal as unreachable from
+nodes with no connection (behind, or deep inside the r_min torus). When its queue empties,
+the best plan is certified optimal at the finest resolution; with no plan, the problem is
+infeasible at that resolution. Every node tries the goal connection (RCS*: turn then
+straight, ending tau short; RCS: one arc to the goal).
+
+The primitive scheme, ranking, look-ahead and connections follow the reference
+implementation of RCS* by its authors (notes in ``docs/notes/steerable-reference-planner.md``).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.errors import InvalidInputError
+from needlekit.geometry.arcs import propagate_arcs
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
+from needlekit.planning.steerable.plan import SteerablePlan
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.result import PlanResult
+from needlekit.planning.steerable.validity import MotionValidator
+from needlekit.planning.steerable.verify import verify_plan
+
+__all__ = ["LOOKAHEAD_RANKS", "solve_rcs"]
+
+log = logging.getLogger(__name__)
+
+#: Longest primitive (mm) and number of halving levels below it (finest 16 / 2^7 = 0.125 mm).
+MAX_LENGTH_MM, LENGTH_LEVELS = 16.0, 7
+#: Halving levels of the spin below pi/2 (finest pi/32).
+SPIN_LEVELS = 4
+#: RCS* compares f among the ranks within this many of the lowest queued rank.
+LOOKAHEAD_RANKS = 3
+#: Slack of the pruning comparisons (mm): rounding only.
+PRUNE_EPS_MM = 1e-10
+
+
+def _length_table() -> tuple[np.ndarray, np.ndarray]:
+    n = 2**LENGTH_LEVELS
+    lengths, levels = np.zeros(n), np.zeros(n, dtype=np.int64)
+    lengths[0], lengths[1], levels[1] = MAX_LENGTH_MM, MAX_LENGTH_MM / 2, 1
+    for i in range(2, n):
+        parent = i // 2
+        levels[i] = levels[parent] + 1
+        step = MAX_LENGTH_MM / 2 ** (levels[parent] + 1)
+        lengths[i] = lengths[parent] + (step if i % 2 == 0 else -step)
+    return lengths, levels
+
+
+def _spin_table() -> tuple[np.ndarray, np.ndarray]:
+    n = 4 * 2**SPIN_LEVELS
+    spins, levels = np.zeros(n), np.zeros(n, dtype=np.int64)
+    for i in range(4):
+        spins[i] = i * math.pi / 2
+    for i in range(4, 8):
+        spins[i], levels[i] = spins[i - 4] + math.pi / 4, 1
+    for i in range(8, n):
+        parent = i // 2
+        levels[i] = levels[parent] + 1
+        step = (math.pi / 2) / 2 ** (levels[parent] + 1)
+        spins[i] = spins[parent] + (step if i % 2 == 0 else -step)
+    return spins, levels
+
+
+_LENGTHS, _LENGTH_LEVEL = _length_table()
+_SPINS, _SPIN_LEVEL = _spin_table()
+
+
+@dataclass
+class _Node:
+    pose: np.ndarray
+    parent: int
+    g: float
+    h: float
+    rank: int
+    curved: bool
+    li: int
+    si: int
+    explored: set | None = None
+
+    @property
+    def f(self) -> float:
+        return self.g + self.h
+
+
+def _cost_to_go(pose, problem: SteerableProblem) -> float:
+    c = goal_connection(pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm)
+    return math.inf if c is None else c.length_mm
+
+
+def solve_rcs(
+    problem: SteerableProblem,
+    *,
+    time_limit_s: float = 1.0,
+    optimal: bool = True,
+    obstacles: VoxelObstacles | None = None,
+    max_iterations: int | None = None,
+) -> PlanResult:
+    """Plan with RCS* (``optimal=True``) or RCS.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        Needs a start pose.
+    time_limit_s : float
+        Budget; the best plan so far is returned when it runs out.
+    optimal : bool
+        RCS* (cost-ordered, certifies optimality at the finest resolution) or RCS.
+    obstacles : VoxelObstacles, optional
+        Exact voxel-centre collision test (default: the scene's obstacle field).
+    max_iterations : int, optional
+        Budget in processed nodes.
+
+    Returns
+    -------
+    PlanResult
+        ``SOLVED`` (``stats["certified"]`` when the search finished), ``INFEASIBLE`` (no
+        plan at the finest resolution, or the goal outside the start's reachable set),
+        ``TIMEOUT`` or ``INVALID_PROBLEM``.
+    """
+    if problem.start_pose is None:
+        raise InvalidInputError(
+            "start_pose", "RCS needs a start pose (sweep directions for a start point)"
+        )
+    if not (np.isfinite(time_limit_s) and time_limit_s > 0):
+        raise InvalidInputError("time_limit_s", f"must be a finite number > 0, got {time_limit_s}")
+    name = "rcs_star" if optimal else "rcs"
+    t0 = time.perf_counter()
+    validator = MotionValidator(problem, obstacles)
+    start, goal = problem.start_pose, problem.goal_mm
+
+    def result(status, plan=None, cost=math.inf, **stats):
+        return PlanResult(status, name, plan, cost, time.perf_counter() - t0, goal, stats)
+
+    if validator.points_collide(start[:3, 3][None]):
+        return result(
+            PlanStatus.INVALID_PROBLEM, reason="start collides beyond the start exclusion"
+        )
+    if validator.obstacles is not None and validator.obstacles.collides(goal):
+        return result(PlanStatus.INVALID_PROBLEM, reason="goal collides with an obstacle")
+    if np.linalg.norm(goal - start[:3, 3]) > problem.max_length_mm:
+        return result(PlanStatus.INFEASIBLE, reason="goal farther than the maximum length")
+    h0 = _cost_to_go(start, problem)
+    if not math.isfinite(h0):
+        return result(
+            PlanStatus.INFEASIBLE, reason="goal outside the start's reachable set (r_min torus)"
+        )
+
+    kappa = problem.kappa_max_per_mm
+    connect = goal_connection if optimal else single_arc_connection
+    nodes = [_Node(start, -1, 0.0, h0, 0, False, 0, 0, set())]
+    counter = itertools.count()
+    buckets: dict[int, list] = {}
+    best = math.inf
+    best_plan: SteerablePlan | None = None
+    iterations = 0
+    rejected = 0
+
+    def push(idx: int) -> None:
+        n = nodes[idx]
+        key = (n.f, next(counter)) if optimal else (next(counter),)
+        heapq.heappush(buckets.setdefault(n.rank, []), (*key, idx))
+
+    def pop() -> int:
+        r0 = min(buckets)
+        if optimal:
+            choice = min(
+                (r for r in range(r0, r0 + LOOKAHEAD_RANKS + 1) if r in buckets),
+                key=lambda r: (buckets[r][0][0], r),
+            )
+        else:
+            choice = r0
+        item = heapq.heappop(buckets[choice])
+        if not buckets[choice]:
+            del buckets[choice]
+        return item[-1]
+
+    def add_child(parent_idx: int, curved: bool, li: int, si: int) -> None:
+        parent = nodes[parent_idx]
+        key = (curved, li, si)
+        if key in parent.explored:
+            return
+        parent.explored.add(key)
+        spin = _SPINS[si] if curved else 0.0
+        length = _LENGTHS[li]
+        pose = propagate_arcs(parent.pose, spin, kappa if curved else 0.0, length)
+        rank = parent.rank + int(_LENGTH_LEVEL[li]) + (int(_SPIN_LEVEL[si]) if curved else 0) + 1
+        nodes.append(
+            _Node(
+                pose,
+                parent_idx,
+                parent.g + length,
+                _cost_to_go(pose, problem),
+                rank,
+                curved,
+                li,
+                si,
+                set(),
+            )
+        )
+        push(len(nodes) - 1)
+
+    def expand(idx: int) -> None:
+        for si in range(4):
+            add_child(idx, True, 0, si)
+        add_child(idx, False, 0, 0)
+
+    def refine(idx: int) -> None:
+        n = nodes[idx]
+        a, b = int(_LENGTH_LEVEL[n.li]), int(_SPIN_LEVEL[n.si])
+        if a < LENGTH_LEVELS:
+            add_child(n.parent, n.curved, 1 if a == 0 else 2 * n.li + 1, n.si)
+        if 0 < a < LENGTH_LEVELS:
+            add_child(n.parent, n.curved, 2 * n.li, n.si)
+        if n.curved and b < SPIN_LEVELS:
+            add_child(n.parent, True, n.li, n.si + 4 if b == 0 else 2 * n.si)
+        if n.curved and 0 < b < SPIN_LEVELS:
+            add_child(n.parent, True, n.li, 2 * n.si + 1)
+
+    def chain(idx: int) -> list:
+        prims = []
+        while nodes[idx].parent >= 0:
+            n = nodes[idx]
+            prims.append(
+                [_SPINS[n.si] if n.curved else 0.0, kappa if n.curved else 0.0, _LENGTHS[n.li]]
+            )
+            idx = n.parent
+        return prims[::-1]
+
+    def try_goal(idx: int) -> None:
+        nonlocal best, best_plan, rejected
+        n = nodes[idx]
+        conn = connect(n.pose, goal, problem.r_min_mm, problem.goal_tolerance_mm)
+        if conn is None:
+            return
+        cost = n.g + conn.length_mm
+        if cost >= best - PRUNE_EPS_MM or cost >= problem.max_length_mm:
+            return
+        if not validator.primitives_valid(n.pose, conn.primitives):
+            return
+        plan = SteerablePlan(start, np.array(chain(idx) + conn.primitives.tolist()).reshape(-1, 3))
+        check = verify_plan(problem, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm)
+        if not check.ok:  # never report a path the independent check refuses
+            rejected += 1
+            log.warning(
+                "%s: candidate plan refused by the check: %s", name, "; ".join(check.violations)
+            )
+            return
+        best, best_plan = cost, plan
+
+    try_goal(0)
+    expand(0)
+    reason = "search space exhausted"
+    while buckets:
+        if time.perf_counter() - t0 > time_limit_s:
+            reason = "time limit"
+            break
+        if max_iterations is not None and iterations >= max_iterations:
+            reason = "iteration limit"
+            break
+        iterations += 1
+        idx = pop()
+        n = nodes[idx]
+        parent = nodes[n.parent]
+        if optimal and best < parent.f + PRUNE_EPS_MM:
+            continue  # nothing in this family can beat the best plan
+        refine(idx)
+        # a spin-0 motion of the parent's kind after a shorter parent motion just extends it
+        if n.si == 0 and n.parent > 0 and n.curved == parent.curved and parent.li != 0:
+            continue
+        if n.g >= problem.max_length_mm or not math.isfinite(n.h):
+            continue
+        if optimal and best < n.f + PRUNE_EPS_MM:
+            continue
+        spin = _SPINS[n.si] if n.curved else 0.0
+        if not validator.motion_valid(
+            parent.pose, spin, kappa if n.curved else 0.0, _LENGTHS[n.li]
+        ):
+            continue
+        try_goal(idx)
+        expand(idx)
+
+    exhausted = not buckets
+    stats = {
+        "iterations": iterations,
+        "nodes": len(nodes),
+        "certified": bool(exhausted and optimal and best_plan is not None),
+        "exhausted": exhausted,
+        "reason": reason,
+        "refused_by_check": rejected,
+    }
+    if best_plan is not None:
+        return result(PlanStatus.SOLVED, best_plan, best, **stats)
+    if exhausted:
+        return result(
+            PlanStatus.INFEASIBLE, **{**stats, "reason": "no plan at the finest resolution"}
+        )
+    return result(PlanStatus.TIMEOUT, **stats)

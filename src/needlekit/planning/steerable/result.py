@@ -1,0 +1,87 @@
+"""What the steerable-needle planners return (``solve(problem, budget) -> PlanResult``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needlekit.constants import DEFAULT_SAMPLE_SPACING_MM
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.plan import SteerablePlan
+
+__all__ = ["PlanResult"]
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Outcome of a planning run.
+
+    Attributes
+    ----------
+    status : PlanStatus
+    planner : str
+        ``"rrt"``, ``"rcs"`` or ``"rcs_star"``.
+    plan : SteerablePlan or None
+        The best plan (it passed :func:`needlekit.planning.steerable.verify.verify_plan`).
+    cost_mm : float
+        Its cost (``inf`` without a plan).
+    time_s : float
+        Wall-clock time of the search (excluding the problem's set-up).
+    goal_mm : ndarray, shape (3,)
+    stats : dict
+        ``iterations``, ``nodes``, ``certified`` (the search space was exhausted at the
+        finest resolution), ``reason`` (why the run ended), and planner-specific counts.
+    """
+
+    status: PlanStatus
+    planner: str
+    plan: SteerablePlan | None
+    cost_mm: float
+    time_s: float
+    goal_mm: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def length_mm(self) -> float:
+        """Inserted length of the plan (``inf`` without one)."""
+        return self.plan.length_mm if self.plan is not None else float("inf")
+
+    def to_dict(self, spacing_mm: float = DEFAULT_SAMPLE_SPACING_MM) -> dict:
+        """JSON-ready record (the ``plan.json`` format).
+
+        Parameters
+        ----------
+        spacing_mm : float
+            Largest spacing of ``points_mm`` along the tip path.
+
+        Returns
+        -------
+        dict
+            ``status``, ``planner``, ``cost_mm``, ``length_mm``, ``time_s``, ``primitives``,
+            ``points_mm``, ``start_pose``, ``goal_mm`` and ``stats`` (``None`` for missing
+            numbers).
+        """
+
+        def num(x):
+            return None if x is None or not np.isfinite(x) else float(x)
+
+        out = {
+            "status": self.status.value,
+            "planner": self.planner,
+            "cost_mm": num(self.cost_mm),
+            "length_mm": num(self.length_mm),
+            "time_s": float(self.time_s),
+            "goal_mm": np.asarray(self.goal_mm, dtype=float).tolist(),
+            "stats": {
+                k: v
+                for k, v in self.stats.items()
+                if isinstance(v, (int, float, str, bool, type(None)))
+            },
+        }
+        if self.plan is not None:
+            out.update(self.plan.to_dict())
+            out["points_mm"] = np.round(self.plan.points_mm(spacing_mm), 6).tolist()
+        else:
+            out.update({"primitives": [], "points_mm": [], "start_pose": None})
+        return out

@@ -1,0 +1,126 @@
+"""Validity of needle motions for the planners (OMPL's ``StateValidityChecker``).
+
+A motion is valid when every sample along it (every ``spacing_mm`` of arc length, end
+included) is collision-free, outside the start exclusion ball where obstacles are ignored,
+and the direction stays within the heading limit. Collisions come either from an exact
+voxel-centre test (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`, the reference
+planner's model for Med-RAD) or from the scene's obstacle field grown by the needle radius
+plus margin.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.geometry.arcs import propagate_arcs, sample_arcs
+from needlekit.planning.steerable.problem import SteerableProblem
+
+__all__ = ["MotionValidator", "MOTION_SPACING_MM"]
+
+#: Spacing of the collision samples along motions (mm), as in the reference planner.
+MOTION_SPACING_MM: float = 0.5
+
+
+class MotionValidator:
+    """Checks motions (arcs from a pose) against a problem's obstacles and limits.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    obstacles : VoxelObstacles, optional
+        Exact voxel-centre collision test; default: the scene's obstacle field.
+    spacing_mm : float
+    """
+
+    def __init__(
+        self,
+        problem: SteerableProblem,
+        obstacles: VoxelObstacles | None = None,
+        spacing_mm: float = MOTION_SPACING_MM,
+    ) -> None:
+        self.problem = problem
+        self.obstacles = obstacles
+        self.spacing_mm = float(spacing_mm)
+        self.start = problem.start_pose
+        self.start_point = problem.start_point_mm
+        self.start_dir = None if problem.start_pose is None else problem.start_pose[:3, 2].copy()
+        self.cos_heading = float(np.cos(np.radians(problem.max_heading_change_deg)))
+        self._field = (
+            None
+            if obstacles is not None
+            else problem.scene.obstacle_field(problem.clearance_margin_mm)
+        )
+
+    def points_collide(self, points: np.ndarray) -> bool:
+        """Whether any of the points (n, 3) collides (start exclusion applied).
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+
+        Returns
+        -------
+        bool
+        """
+        if len(points) == 0:
+            return False
+        excl = self.problem.start_exclusion_mm
+        if self.obstacles is not None:
+            return bool(
+                self.obstacles.collides(
+                    points, exclude_near=self.start_point, exclusion_mm=excl
+                ).any()
+            )
+        far = np.linalg.norm(points - self.start_point, axis=1) >= excl
+        if not far.any():
+            return False
+        return bool((self._field.signed_distance(points[far]) < 0.0).any())
+
+    def motion_valid(self, pose: np.ndarray, spin: float, kappa: float, length: float) -> bool:
+        """Whether the motion ``(spin, kappa, length)`` from ``pose`` is valid.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        spin, kappa, length : float
+
+        Returns
+        -------
+        bool
+        """
+        if length <= 0.0:
+            return True
+        m = max(2, int(np.ceil(length / self.spacing_mm - 1e-9)) + 1)
+        pts = sample_arcs(pose, spin, kappa, length, m)[1:]
+        if kappa != 0.0 and self.start_dir is not None and self.cos_heading > -1.0:
+            s = np.linspace(0.0, length, m)[1:]
+            ends = propagate_arcs(pose, np.full(s.shape, spin), np.full(s.shape, kappa), s)
+            if (ends[:, :3, 2] @ self.start_dir).min() < self.cos_heading - 1e-12:
+                return False
+        elif (
+            self.start_dir is not None
+            and float(pose[:3, 2] @ self.start_dir) < self.cos_heading - 1e-12
+        ):
+            return False
+        return not self.points_collide(pts)
+
+    def primitives_valid(self, pose: np.ndarray, primitives: np.ndarray) -> bool:
+        """Whether a chain of primitives from ``pose`` is valid (heading not checked for the
+        goal connection's straight part beyond its arc).
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        primitives : ndarray, shape (k, 3)
+
+        Returns
+        -------
+        bool
+        """
+        g = pose
+        for spin, kappa, length in primitives:
+            if not self.motion_valid(g, spin, kappa, length):
+                return False
+            g = propagate_arcs(g, spin, kappa, length)
+        return True
