@@ -214,6 +214,43 @@ def _build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
+    bs = bench_sub.add_parser(
+        "steerable",
+        help="curved-needle planners on the Med-RAD lungs (status, cost, time per case)",
+    )
+    bs.add_argument("--out", type=Path, help="write the record as JSON here")
+    bs.add_argument(
+        "--patients",
+        type=_positive_int,
+        nargs="+",
+        default=[1, 2, 3, 4, 5],
+        help="lung patients (default 1-5)",
+    )
+    bs.add_argument(
+        "--radii",
+        type=_positive,
+        nargs="+",
+        default=[50.0, 100.0],
+        help="r_min values in mm (default 50 100)",
+    )
+    bs.add_argument(
+        "--planners",
+        nargs="+",
+        default=["rcs_star"],
+        choices=["rcs_star", "rcs"],
+        help="planners (default rcs_star)",
+    )
+    bs.add_argument(
+        "--time-limit-s",
+        type=_positive,
+        default=1.0,
+        help="budget per case and planner (default 1 s)",
+    )
+    bs.add_argument(
+        "--medrad",
+        type=Path,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
     return parser
 
 
@@ -474,6 +511,35 @@ def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int
             medrad_dir=args.medrad,
             medrad_patients=tuple(args.patients),
         )
+    elif args.bench_command == "steerable":
+        from tqdm import tqdm
+
+        from needlekit.benchmarks.steerable import run_steerable_benchmark
+
+        total = len(args.patients) * 5 * len(args.radii) * len(args.planners)
+        with tqdm(total=total, desc="bench steerable", unit="case", disable=None) as bar:
+            record = run_steerable_benchmark(
+                patients=tuple(args.patients),
+                radii_mm=tuple(args.radii),
+                planners=tuple(args.planners),
+                time_limit_s=args.time_limit_s,
+                medrad_dir=args.medrad,
+                progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
+            )
+        for row in record["results"]:
+            cost = "-" if row["cost_mm"] is None else f"{row['cost_mm']:.4f}"
+            row["name"] = (
+                f"lung{row['patient']} s{row['start']} r{row['r_min_mm']:g} {row['planner']}"
+            )
+            row["summary"] = (
+                f"{row['status']:<10} {cost:>9} mm {1000 * row['time_s']:8.1f} ms"
+                + (" certified" if row["certified"] else "")
+                + (
+                    ""
+                    if row["reference_cost_mm"] == "n/a"
+                    else f"  (reference {row['reference_cost_mm']})"
+                )
+            )
     else:
         parser.parse_args(["bench", "--help"])
         return EXIT_USAGE

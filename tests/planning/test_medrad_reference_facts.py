@@ -96,3 +96,19 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
         assert res.status is PlanStatus.SOLVED and res.stats["certified"]
         assert res.cost_mm <= expected + 0.5
         assert verify_plan(prob, res.plan, obstacles=obstacles, spacing_mm=0.5).ok
+
+
+def test_bench_steerable_records_cases_and_the_reference(tmp_path):
+    import json
+
+    from needlekit.cli import main
+
+    out = tmp_path / "bench.json"
+    assert main(["bench", "steerable", "--patients", "1", "--radii", "100", "--out", str(out)]) == 0
+    rec = json.loads(out.read_text())
+    assert rec["benchmark"] == "steerable" and len(rec["results"]) == 5
+    assert {"versions", "cpu"} <= set(rec["machine"]) and rec["fields"][0]["total_s"] > 0
+    by_start = {r["start"]: r for r in rec["results"]}
+    assert by_start[3]["status"] == "solved" and by_start[3]["certified"]
+    assert by_start[1]["status"] == "infeasible"
+    assert rec["summary"]["lung1_reference_agreement"] == "5/5"
