@@ -246,3 +246,57 @@ def test_demo_writes_figures_and_phantom_views(capsys, tmp_path):
     summary = json.loads((tmp_path / "phantoms.json").read_text())
     assert set(summary) == {"lung", "liver", "neck"}
     assert all(len(v["start_poses"]) >= 1 for v in summary.values())
+
+
+def test_plan_then_verify_round_trip(capsys, tmp_path):
+    out = tmp_path / "plan.json"
+    code, text, _ = run(capsys, "plan", str(EXAMPLES / "toy.yaml"), "--out", str(out))
+    assert code == 0 and text.startswith("rcs_star: solved")
+    data = json.loads(out.read_text())
+    for key in (
+        "status",
+        "planner",
+        "cost_mm",
+        "length_mm",
+        "time_s",
+        "primitives",
+        "points_mm",
+        "start_pose",
+        "goal_mm",
+    ):
+        assert key in data
+    assert data["goal_mm"] == [20.0, 30.0, 40.0]
+    code, text, _ = run(capsys, "verify", str(EXAMPLES / "toy.yaml"), str(out))
+    assert code == 0 and text.startswith("ok:")
+    # the same plan breaks a tighter curvature limit: exit 1 with the violation named
+    code, text, _ = run(
+        capsys, "verify", str(EXAMPLES / "toy.yaml"), str(out), "--r-min-mm", "500", "--json"
+    )
+    report = json.loads(text)
+    assert code == 1 and not report["ok"] and report["violations"][0].startswith("curvature")
+
+
+def test_plan_overrides_start_pose_and_goal(capsys, tmp_path):
+    pose = tmp_path / "start.txt"
+    g = np.eye(4)
+    g[:3, 3] = [0.0, -12.0, 0.0]
+    g[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]  # z axis along +y (toward the nodule)
+    np.savetxt(pose, g)
+    out = tmp_path / "plan.json"
+    code, _, _ = run(
+        capsys, "plan", str(EXAMPLES / "toy.yaml"), "--start-pose", str(pose), "--goal", "20,30,40",
+        "--r-min-mm", "60", "--needle-diameter-mm", "1.5", "--out", str(out),
+    )  # fmt: skip
+    data = json.loads(out.read_text())
+    assert np.allclose(data["start_pose"], g)
+    assert all(p["curvature_per_mm"] <= 1 / 60 + 1e-12 for p in data["primitives"])
+    assert code == (0 if data["status"] == "solved" else 1)
+
+
+def test_plan_and_verify_errors(capsys, tmp_path):
+    code, _, err = run(capsys, "plan", str(tmp_path / "missing.yaml"))
+    assert code == 2 and err.startswith("error: ") and "not found" in err
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    code, _, err = run(capsys, "verify", str(EXAMPLES / "toy.yaml"), str(bad))
+    assert code == 2 and "bad.json" in err and len(err.strip().splitlines()) == 1

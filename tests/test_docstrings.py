@@ -24,6 +24,8 @@ MODULES = [
     "needlekit.planning.steerable.validity",
     "needlekit.planning.steerable.result",
     "needlekit.planning.steerable.rcs",
+    "needlekit.planning.steerable.solve",
+    "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",
     "needlekit.io.volumes",

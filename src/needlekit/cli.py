@@ -79,6 +79,22 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _problem_overrides(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--start-pose",
+        type=Path,
+        help="4x4 start pose text file (RAS mm), instead of the scenario's",
+    )
+    p.add_argument(
+        "--goal",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        metavar="X,Y,Z",
+        help="goal point (RAS mm)",
+    )
+    p.add_argument("--r-min-mm", type=_positive, help="minimum radius of curvature (mm)")
+    p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="needlekit",
@@ -170,6 +186,36 @@ def _build_parser() -> argparse.ArgumentParser:
         default=160,
         help="surface resolution: samples per axis (default 160)",
     )
+
+    planp = sub.add_parser(
+        "plan",
+        help="plan a curved (steerable) needle path for a scenario",
+        description="Plan with RCS* or RCS and write plan.json; exit 0 with a plan, 1 without.",
+    )
+    planp.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    _problem_overrides(planp)
+    planp.add_argument(
+        "--planner",
+        choices=["rcs_star", "rcs"],
+        help="planner (default: the scenario's, else rcs_star)",
+    )
+    planp.add_argument(
+        "--out", type=Path, default=Path("plan.json"), help="plan file to write (default plan.json)"
+    )
+    planp.add_argument(
+        "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
+    )
+    planp.add_argument("--seed", type=int, help="seed of randomised planners")
+
+    ver = sub.add_parser(
+        "verify",
+        help="re-check a plan file independently; exit 1 on any violation",
+        description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
+    )
+    ver.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    ver.add_argument("plan", type=Path, help="plan file (plan.json)")
+    _problem_overrides(ver)
+    ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
     demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
     demo.add_argument(
@@ -453,6 +499,92 @@ def _cmd_scene(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int
     return EXIT_OK
 
 
+def _problem_and_obstacles(args: argparse.Namespace):
+    from needlekit.io.scenario import load_scenario
+    from needlekit.planning.steerable.problem import SteerableProblem
+
+    sc = load_scenario(args.scenario)
+    overrides: dict = {}
+    if args.start_pose is not None:
+        from needlekit.io.poses import read_pose_txt
+
+        overrides["start_pose"] = read_pose_txt(args.start_pose)
+        overrides["start_point_mm"] = None
+    if args.goal is not None:
+        overrides["goal_mm"] = np.array(args.goal)
+    if args.r_min_mm is not None:
+        overrides["r_min_mm"] = args.r_min_mm
+    if args.needle_diameter_mm is not None:
+        overrides["needle_diameter_mm"] = args.needle_diameter_mm
+    if sc.start is None and "start_pose" not in overrides:
+        raise NeedlekitError(
+            f"{args.scenario.name}: start: the scenario gives no start; pass --start-pose"
+        )
+    if sc.goal is None and "goal_mm" not in overrides:
+        raise NeedlekitError(f"{args.scenario.name}: goal: the scenario gives no goal; pass --goal")
+    if sc.start is None or sc.goal is None:  # fill what the scenario lacks
+        from needlekit.io.scenario import GoalSpec, StartSpec
+
+        start = sc.start or StartSpec(
+            overrides["start_pose"][:3, 3], overrides["start_pose"], "--start-pose"
+        )
+        goal = sc.goal or GoalSpec(overrides["goal_mm"], 1.0, "--goal")
+        sc = type(sc)(
+            sc.name, sc.description, sc.scene, sc.needle, start, goal, sc.planner, sc.path, sc.base
+        )
+    problem = SteerableProblem.from_scenario(sc, **overrides)
+    obstacles = None
+    if hasattr(sc.base, "voxel_obstacles"):  # Med-RAD: the reference's exact voxel-centre test
+        obstacles = sc.base.voxel_obstacles(problem.needle_diameter_mm, problem.safety_margin_mm)
+    return sc, problem, obstacles
+
+
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from needlekit.io.plans import write_plan_json
+    from needlekit.planning.steerable.solve import solve
+
+    sc, problem, obstacles = _problem_and_obstacles(args)
+    planner = args.planner or sc.planner.get("name") or "rcs_star"
+    budget = args.time_limit_s or sc.planner.get("time_limit_s") or 1.0
+    seed = args.seed if args.seed is not None else sc.planner.get("seed")
+    res = solve(problem, planner, time_limit_s=budget, obstacles=obstacles, seed=seed)
+    write_plan_json(args.out, res, scenario=str(args.scenario))
+    cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
+    cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
+    print(f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms) -> {args.out}")
+    if not res.status.has_plan and res.stats.get("reason"):
+        print(f"reason: {res.stats['reason']}")
+    return EXIT_OK if res.status.has_plan else 1
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from needlekit.io.plans import read_plan_json
+    from needlekit.planning.steerable.verify import verify_plan
+
+    _, problem, obstacles = _problem_and_obstacles(args)
+    plan, _, _ = read_plan_json(args.plan)
+    if plan is None:
+        raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
+    check = verify_plan(problem, plan, obstacles=obstacles)
+    if args.json:
+        print(
+            json.dumps(
+                {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics},
+                indent=2,
+            )
+        )
+    else:
+        m = check.metrics
+        print(
+            f"{'ok' if check.ok else 'VIOLATED'}: length {m['length_mm']:.3f} mm, goal distance "
+            f"{m['goal_distance_mm']:.3f} mm, max curvature {m['max_curvature_per_mm']:.5f} /mm, heading change "
+            f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm"
+        )
+        for v in check.violations:
+            print(f"  - {v}")
+    return EXIT_OK if check.ok else 1
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from needlekit.anatomy.phantoms import PHANTOMS, make_phantom
     from needlekit.anatomy.summary import summarize_scene
@@ -570,6 +702,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _cmd_schema()
         elif args.command == "scene":
             return _cmd_scene(args, parser)
+        elif args.command == "plan":
+            return _cmd_plan(args)
+        elif args.command == "verify":
+            return _cmd_verify(args)
         elif args.command == "demo":
             return _cmd_demo(args)
         elif args.command == "bench":

@@ -158,7 +158,7 @@ def solve_rcs(
     start, goal = problem.start_pose, problem.goal_mm
 
     def result(status, plan=None, cost=math.inf, **stats):
-        return PlanResult(status, name, plan, cost, time.perf_counter() - t0, goal, stats)
+        return PlanResult(status, name, plan, cost, time.perf_counter() - t0, goal, stats, start)
 
     if validator.points_collide(start[:3, 3][None]):
         return result(

@@ -32,6 +32,8 @@ class PlanResult:
     stats : dict
         ``iterations``, ``nodes``, ``certified`` (the search space was exhausted at the
         finest resolution), ``reason`` (why the run ended), and planner-specific counts.
+    start_pose : ndarray, shape (4, 4) or None
+        The problem's start pose (recorded also when there is no plan).
     """
 
     status: PlanStatus
@@ -41,6 +43,7 @@ class PlanResult:
     time_s: float
     goal_mm: np.ndarray
     stats: dict = field(default_factory=dict)
+    start_pose: np.ndarray | None = None
 
     @property
     def length_mm(self) -> float:
@@ -83,5 +86,6 @@ class PlanResult:
             out.update(self.plan.to_dict())
             out["points_mm"] = np.round(self.plan.points_mm(spacing_mm), 6).tolist()
         else:
-            out.update({"primitives": [], "points_mm": [], "start_pose": None})
+            start = None if self.start_pose is None else np.asarray(self.start_pose).tolist()
+            out.update({"primitives": [], "points_mm": [], "start_pose": start})
         return out

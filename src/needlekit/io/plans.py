@@ -1,0 +1,88 @@
+"""Plan files (``plan.json``): writing planner results and reading plans back to verify."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+from needlekit.io.files import write_json
+
+__all__ = ["read_plan_json", "write_plan_json"]
+
+
+def write_plan_json(path: str | os.PathLike, result, **extra) -> Path:
+    """Write a planner result as ``plan.json`` (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+    result : needlekit.planning.steerable.result.PlanResult
+    **extra
+        More top-level fields (e.g. ``scenario``).
+
+    Returns
+    -------
+    Path
+    """
+    return write_json(path, {**result.to_dict(), **extra})
+
+
+def read_plan_json(path: str | os.PathLike):
+    """Read a plan file back: the plan and the goal it was made for.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    plan : needlekit.planning.steerable.plan.SteerablePlan or None
+        None when the file holds no plan (e.g. status ``timeout``).
+    goal_mm : ndarray, shape (3,)
+    data : dict
+        The whole document.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing file, bad JSON or a field not as the format says (named).
+    """
+    from needlekit.planning.steerable.plan import SteerablePlan
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(str(p), "plan file not found")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInputError(str(p), f"not a JSON plan file ({exc})") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(str(p), "expected a JSON object at the top level")
+    try:
+        goal = np.asarray(data["goal_mm"], dtype=float).reshape(3)
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(f"{p.name}: goal_mm", "expected three numbers") from None
+    prims = data.get("primitives") or []
+    if data.get("start_pose") is None or not prims:
+        return None, goal, data
+    try:
+        rows = [
+            [float(q["rotation_rad"]), float(q["curvature_per_mm"]), float(q["length_mm"])]
+            for q in prims
+        ]
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(
+            f"{p.name}: primitives",
+            "expected objects with rotation_rad, curvature_per_mm, length_mm",
+        ) from None
+    try:
+        plan = SteerablePlan(np.asarray(data["start_pose"], dtype=float), np.array(rows))
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{p.name}: {exc.field}", exc.reason) from None
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{p.name}: start_pose", "expected a 4x4 matrix") from None
+    return plan, goal, data

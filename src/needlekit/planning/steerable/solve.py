@@ -1,0 +1,49 @@
+"""One entry point for the steerable-needle planners: ``solve(problem, planner, ...)``."""
+
+from __future__ import annotations
+
+from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.errors import InvalidInputError
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.result import PlanResult
+
+__all__ = ["PLANNERS", "solve"]
+
+#: Planner names accepted by :func:`solve`.
+PLANNERS: tuple[str, ...] = ("rcs_star", "rcs")
+
+
+def solve(
+    problem: SteerableProblem,
+    planner: str = "rcs_star",
+    *,
+    time_limit_s: float = 1.0,
+    obstacles: VoxelObstacles | None = None,
+    seed: int | None = None,
+) -> PlanResult:
+    """Plan with the named planner.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    planner : str
+        One of :data:`PLANNERS`.
+    time_limit_s : float
+    obstacles : VoxelObstacles, optional
+        Exact voxel-centre collision test (default: the scene's obstacle field).
+    seed : int, optional
+        For randomised planners (unused by the deterministic RCS and RCS*).
+
+    Returns
+    -------
+    PlanResult
+    """
+    from needlekit.planning.steerable.rcs import solve_rcs
+
+    if planner not in PLANNERS:
+        raise InvalidInputError(
+            "planner", f"expected one of {', '.join(PLANNERS)}, got {planner!r}"
+        )
+    return solve_rcs(
+        problem, time_limit_s=time_limit_s, optimal=planner == "rcs_star", obstacles=obstacles
+    )
