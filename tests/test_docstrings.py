@@ -25,6 +25,7 @@ MODULES = [
     "needlekit.planning.steerable.result",
     "needlekit.planning.steerable.rcs",
     "needlekit.planning.steerable.solve",
+    "needlekit.planning.steerable.rrt",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

@@ -190,13 +190,13 @@ def _build_parser() -> argparse.ArgumentParser:
     planp = sub.add_parser(
         "plan",
         help="plan a curved (steerable) needle path for a scenario",
-        description="Plan with RCS* or RCS and write plan.json; exit 0 with a plan, 1 without.",
+        description="Plan with RCS*, RCS or RRT and write plan.json; exit 0 with a plan, 1 without.",
     )
     planp.add_argument("scenario", type=Path, help="scenario file (YAML)")
     _problem_overrides(planp)
     planp.add_argument(
         "--planner",
-        choices=["rcs_star", "rcs"],
+        choices=["rcs_star", "rcs", "rrt"],
         help="planner (default: the scenario's, else rcs_star)",
     )
     planp.add_argument(
@@ -283,7 +283,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "--planners",
         nargs="+",
         default=["rcs_star"],
-        choices=["rcs_star", "rcs"],
+        choices=["rcs_star", "rcs", "rrt"],
         help="planners (default rcs_star)",
     )
     bs.add_argument(

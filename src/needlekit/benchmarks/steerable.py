@@ -56,7 +56,7 @@ def run_steerable_benchmark(
     radii_mm : sequence of float
         Minimum radii of curvature.
     planners : sequence of str
-        ``"rcs_star"``, ``"rcs"``.
+        ``"rcs_star"``, ``"rcs"``, ``"rrt"`` (seed 0).
     time_limit_s : float
         Budget per case and planner.
     medrad_dir : path-like, optional

@@ -242,8 +242,12 @@ def shortest_arc_line(world_T_tip, points, r_min_mm) -> ArcLinePath:
     r = as_positive(r_min_mm, "r_min_mm")
     g = _one_pose(world_T_tip)
     p, _ = as_points(points, "points")
-    d = p - g[:3, 3]
-    local = d @ g[:3, :3]
+    local = (p - g[:3, 3]) @ g[:3, :3]
+    return _arc_line(local, r)
+
+
+def _arc_line(local: np.ndarray, r: float) -> ArcLinePath:
+    """Shortest r-arc-then-line paths to points given in tip frames, shape (n, 3)."""
     axial = local[:, 2]
     radial = np.hypot(local[:, 0], local[:, 1])
     on_axis = radial <= ON_AXIS_TOL_MM
@@ -261,3 +265,25 @@ def shortest_arc_line(world_T_tip, points, r_min_mm) -> ArcLinePath:
     arc_len = np.where(reachable, r * turn, np.inf)
     line_len = np.where(reachable, tangent, np.inf)
     return ArcLinePath(arc_len + line_len, arc_len, line_len, turn, spin, reachable)
+
+
+def arc_line_lengths_from(poses, point, r_min_mm) -> np.ndarray:
+    """Shortest arc-then-line length from each of many tip poses to one point.
+
+    Parameters
+    ----------
+    poses : array_like, shape (n, 4, 4)
+        Tip poses (world, mm).
+    point : array_like, shape (3,)
+    r_min_mm : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``inf`` where the point lies inside a pose's r_min horn torus.
+    """
+    r = as_positive(r_min_mm, "r_min_mm")
+    g, _ = as_poses(poses, "poses")
+    q, _ = as_points(point, "point")
+    local = np.einsum("nji,nj->ni", g[:, :3, :3], q[0] - g[:, :3, 3])
+    return _arc_line(local, r).length_mm

@@ -10,7 +10,7 @@ from needlekit.planning.steerable.result import PlanResult
 __all__ = ["PLANNERS", "solve"]
 
 #: Planner names accepted by :func:`solve`.
-PLANNERS: tuple[str, ...] = ("rcs_star", "rcs")
+PLANNERS: tuple[str, ...] = ("rcs_star", "rcs", "rrt")
 
 
 def solve(
@@ -32,7 +32,7 @@ def solve(
     obstacles : VoxelObstacles, optional
         Exact voxel-centre collision test (default: the scene's obstacle field).
     seed : int, optional
-        For randomised planners (unused by the deterministic RCS and RCS*).
+        Seed of RRT's samples (RCS and RCS* are deterministic).
 
     Returns
     -------

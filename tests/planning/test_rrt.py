@@ -1,0 +1,70 @@
+"""RRT: seeded determinism, success over seeds, one tree to several targets, budgets."""
+
+import numpy as np
+import pytest
+
+from needlekit.anatomy.primitives import Capsule, Sphere
+from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.errors import InvalidInputError
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.rcs import solve_rcs
+from needlekit.planning.steerable.rrt import solve_rrt, solve_rrt_multi
+from needlekit.planning.steerable.verify import verify_plan
+
+GOAL = np.array([0.0, -20.0, 60.0])
+
+
+def _problem(*obstacles, goal=GOAL):
+    structures = [Structure("region", Role.ALLOWED_REGION, Sphere([0, 0, 30], 120.0))]
+    structures += [Structure(f"o{i}", Role.OBSTACLE, f) for i, f in enumerate(obstacles)]
+    return SteerableProblem(Scene(structures), goal_mm=goal, start_pose=np.eye(4), r_min_mm=50.0)
+
+
+BLOCKER = Capsule([-20.0, -8.0, 30.0], [20.0, -8.0, 30.0], 3.0)
+
+
+def test_same_seed_same_tree():
+    prob = _problem(BLOCKER)
+    a = solve_rrt(prob, time_limit_s=60.0, seed=7, max_iterations=300)
+    b = solve_rrt(prob, time_limit_s=60.0, seed=7, max_iterations=300)
+    assert a.status == b.status and a.stats["nodes"] == b.stats["nodes"]
+    if a.plan is not None:
+        assert np.array_equal(a.plan.primitives, b.plan.primitives)
+
+
+def test_success_over_seeds_and_every_plan_passes_the_check():
+    prob = _problem(BLOCKER)
+    star = solve_rcs(prob, time_limit_s=5.0)
+    results = [solve_rrt(prob, time_limit_s=60.0, seed=s, max_iterations=800) for s in range(8)]
+    solved = [r for r in results if r.status is PlanStatus.SOLVED]
+    assert len(solved) >= 6  # success rate over seeded runs
+    for r in solved:
+        assert verify_plan(prob, r.plan).ok
+        assert r.cost_mm >= star.cost_mm - 1.0 - 1e-6  # RCS* ends tau short; RRT at the goal
+
+
+def test_one_tree_reaches_several_targets():
+    goals = np.array([[0.0, -20.0, 60.0], [15.0, 5.0, 55.0], [-10.0, 10.0, 70.0]])
+    prob = _problem()
+    results = solve_rrt_multi(prob, goals, time_limit_s=60.0, seed=1, max_iterations=1500)
+    assert len(results) == 3
+    for g, r in zip(goals, results, strict=True):
+        assert r.status is PlanStatus.SOLVED
+        assert np.allclose(r.goal_mm, g)
+        assert np.linalg.norm(r.plan.end_pose()[:3, 3] - g) <= 1.0 + 1e-9
+        # all plans start on the same tree: the same start pose
+        assert np.allclose(r.plan.start_pose, np.eye(4))
+
+
+def test_budget_and_bad_input():
+    wall = [
+        Capsule([x, -130.0, 40.0], [x, 130.0, 40.0], 1.6) for x in np.arange(-130.0, 131.0, 3.0)
+    ]
+    res = solve_rrt(_problem(*wall), time_limit_s=0.5, seed=0)
+    assert res.status is PlanStatus.TIMEOUT and res.time_s < 1.5
+    assert solve_rrt(_problem(goal=np.array([0.0, -40.0, 10.0]))).status is PlanStatus.INFEASIBLE
+    with pytest.raises(InvalidInputError, match="goals_mm"):
+        solve_rrt_multi(_problem(), np.zeros((0, 3)))
+    with pytest.raises(InvalidInputError, match="time_limit_s"):
+        solve_rrt(_problem(), time_limit_s=-1.0)
