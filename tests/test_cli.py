@@ -300,3 +300,25 @@ def test_plan_and_verify_errors(capsys, tmp_path):
     bad.write_text("{not json")
     code, _, err = run(capsys, "verify", str(EXAMPLES / "toy.yaml"), str(bad))
     assert code == 2 and "bad.json" in err and len(err.strip().splitlines()) == 1
+
+
+def test_sweep_writes_the_direction_table(capsys, tmp_path):
+    out = tmp_path / "sweep.json"
+    code, text, _ = run(
+        capsys,
+        "sweep",
+        str(EXAMPLES / "toy.yaml"),
+        "--directions",
+        "60",
+        "--time-limit-s",
+        "0.05",
+        "--out",
+        str(out),
+    )
+    data = json.loads(out.read_text())
+    assert len(data["directions"]) == 60 and data["planner"] == "rcs_star"
+    summary = data["summary"]
+    # the start lies on the airway wall: its outward normal halves the sphere (alpha = 0)
+    assert summary["n_effective"] == pytest.approx(30, abs=3)
+    assert code == (0 if summary["n_solved"] else 1)
+    assert "directions effective" in text

@@ -26,6 +26,7 @@ MODULES = [
     "needlekit.planning.steerable.rcs",
     "needlekit.planning.steerable.solve",
     "needlekit.planning.steerable.rrt",
+    "needlekit.planning.steerable.sweep",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

@@ -207,6 +207,37 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     planp.add_argument("--seed", type=int, help="seed of randomised planners")
 
+    sw = sub.add_parser(
+        "sweep",
+        help="plan over the start directions of the effective puncture region (Feng et al.)",
+        description="Sample start directions around the scenario's start point, keep those at least "
+        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
+    )
+    sw.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    _problem_overrides(sw)
+    sw.add_argument(
+        "--planner",
+        choices=["rcs_star", "rcs", "rrt"],
+        default="rcs_star",
+        help="planner (default rcs_star)",
+    )
+    sw.add_argument(
+        "--out",
+        type=Path,
+        default=Path("sweep.json"),
+        help="sweep table to write (default sweep.json)",
+    )
+    sw.add_argument(
+        "--directions",
+        type=_positive_int,
+        default=544,
+        help="candidate directions on the sphere (default 544)",
+    )
+    sw.add_argument(
+        "--time-limit-s", type=_positive, default=0.5, help="budget per direction (default 0.5 s)"
+    )
+    sw.add_argument("--seed", type=int, default=0, help="seed of randomised planners")
+
     ver = sub.add_parser(
         "verify",
         help="re-check a plan file independently; exit 1 on any violation",
@@ -557,6 +588,38 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK if res.status.has_plan else 1
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from needlekit.io.files import write_json
+    from needlekit.planning.steerable.sweep import sphere_directions, sweep
+
+    _, problem, obstacles = _problem_and_obstacles(args)
+    dirs = sphere_directions(args.directions)
+    with tqdm(desc=f"sweep {args.planner}", unit="direction", disable=None) as bar:
+        result = sweep(
+            problem,
+            args.planner,
+            directions=dirs,
+            time_limit_s=args.time_limit_s,
+            obstacles=obstacles,
+            seed=args.seed,
+            progress=lambda _: bar.update(1),
+        )
+    write_json(args.out, {"scenario": str(args.scenario), **result.to_dict()})
+    st = result.stats
+
+    def mm(v):
+        return "-" if v is None else f"{v:.4f}"
+
+    print(
+        f"{args.planner}: {st['n_effective']} of {st['n_directions']} directions effective, "
+        f"{st['n_solved']} solved; best {mm(st['best_cost_mm'])} mm, mean {mm(st['mean_cost_mm'])} mm, "
+        f"cost before the lowest {mm(st['cost_before_lowest_mm'])} mm -> {args.out}"
+    )
+    return EXIT_OK if st["n_solved"] else 1
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
     from needlekit.io.plans import read_plan_json
     from needlekit.planning.steerable.verify import verify_plan
@@ -704,6 +767,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _cmd_scene(args, parser)
         elif args.command == "plan":
             return _cmd_plan(args)
+        elif args.command == "sweep":
+            return _cmd_sweep(args)
         elif args.command == "verify":
             return _cmd_verify(args)
         elif args.command == "demo":

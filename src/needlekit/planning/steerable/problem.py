@@ -69,7 +69,8 @@ class SteerableProblem:
         alpha; 0 disables the check).
     entry_surface : str or None
         Structure whose surface the needle punctures at the start (its normal is the
-        distance gradient); default: the scene's entry surface, else none.
+        distance gradient); default: the scene's entry surface, else the obstacle the start
+        lies on (within the start exclusion; the airway of a transbronchial start).
     max_heading_change_deg : float
         Largest angle between the start direction and any later direction.
     start_exclusion_mm : float
@@ -140,13 +141,25 @@ class SteerableProblem:
                 f"must lie in (0, 360], got {self.max_heading_change_deg!r}",
             )
         if self.entry_surface is None:
-            surfaces = self.scene.by_role(Role.ENTRY_SURFACE)
-            object.__setattr__(self, "entry_surface", surfaces[0].name if surfaces else None)
+            object.__setattr__(self, "entry_surface", self._default_entry_surface())
         elif self.entry_surface not in self.scene:
             raise InvalidInputError(
                 "entry_surface", f"no structure named {self.entry_surface!r} in the scene"
             )
         object.__setattr__(self, "cost", CostKind(self.cost))
+
+    def _default_entry_surface(self) -> str | None:
+        """The scene's entry surface; else the obstacle the start lies on (within the start
+        exclusion), e.g. the airway a transbronchial needle leaves through its wall."""
+        surfaces = self.scene.by_role(Role.ENTRY_SURFACE)
+        if surfaces:
+            return surfaces[0].name
+        obstacles = self.scene.by_role(Role.OBSTACLE)
+        if not obstacles:
+            return None
+        d = self.scene.signed_distance(self.start_point_mm, [s.name for s in obstacles])
+        name, dist = min(((n, abs(float(v[0]))) for n, v in d.items()), key=lambda t: t[1])
+        return name if dist <= max(self.start_exclusion_mm, 1e-9) else None
 
     @property
     def kappa_max_per_mm(self) -> float:

@@ -1,0 +1,268 @@
+"""The effective puncture region: plan from one start point over many start directions.
+
+Feng et al. (2023) sample candidate directions on a small sphere around the start point
+(544 of them) and keep those whose angle to the punctured surface is at least the minimum
+physiological puncture angle alpha: in polar coordinates about the surface normal,
+``theta in [0, pi/2 - alpha]``, ``phi in [0, 2 pi)`` (their Eq. 1-3; the printed y
+components read ``sin(theta) cos(phi)`` where ``sin(theta) sin(phi)`` is meant). A planner
+then runs from every effective direction, and the lowest-cost plan gives the best
+direction (their Algorithm 1 and Tables 2-4).
+
+Here the directions are a Fibonacci lattice on the unit sphere (near-uniform for any
+count), the surface normal is the entry surface's outward normal at the start (the
+distance gradient; for a transbronchial start, out of the airway into the tissue), and the
+needle's angle to the surface is ``90 deg - angle(direction, normal)``.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Executor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.errors import InvalidInputError
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.result import PlanResult
+
+__all__ = [
+    "DEFAULT_DIRECTIONS",
+    "SweepResult",
+    "effective_directions",
+    "pose_from_direction",
+    "sphere_directions",
+    "sweep",
+]
+
+#: Candidate start directions, as in Feng et al. (2023).
+DEFAULT_DIRECTIONS: int = 544
+
+
+def sphere_directions(n: int = DEFAULT_DIRECTIONS) -> np.ndarray:
+    """Near-uniform unit vectors on the sphere (Fibonacci lattice).
+
+    Parameters
+    ----------
+    n : int
+        Number of directions (>= 1).
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+
+    Examples
+    --------
+    >>> d = sphere_directions(544)
+    >>> d.shape, bool(np.allclose(np.linalg.norm(d, axis=1), 1.0))
+    ((544, 3), True)
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise InvalidInputError("n", f"expected a whole number >= 1, got {n!r}")
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * i
+    rho = np.sqrt(1.0 - z * z)
+    return np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z])
+
+
+def effective_directions(directions, normal, min_puncture_angle_deg: float) -> np.ndarray:
+    """Which directions make at least alpha with the surface (Feng's effective region).
+
+    Parameters
+    ----------
+    directions : array_like, shape (n, 3)
+        Unit vectors.
+    normal : array_like, shape (3,)
+        Outward unit normal of the punctured surface (pointing into the tissue entered).
+    min_puncture_angle_deg : float
+        alpha, in [0, 90).
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        ``90 deg - angle(direction, normal) >= alpha``, i.e. ``theta <= 90 deg - alpha``.
+    """
+    d = np.asarray(directions, dtype=float).reshape(-1, 3)
+    n = np.asarray(normal, dtype=float).reshape(3)
+    n = n / np.linalg.norm(n)
+    alpha = float(min_puncture_angle_deg)
+    if not (0.0 <= alpha < 90.0):
+        raise InvalidInputError("min_puncture_angle_deg", f"must lie in [0, 90), got {alpha}")
+    angle_to_surface = np.degrees(np.arcsin(np.clip(d @ n, -1.0, 1.0)))
+    return angle_to_surface >= alpha - 1e-12
+
+
+def pose_from_direction(point, direction) -> np.ndarray:
+    """A start pose at ``point`` whose z axis is ``direction`` (spin about it arbitrary but
+    fixed: the planners choose their own spins).
+
+    Parameters
+    ----------
+    point : array_like, shape (3,)
+    direction : array_like, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
+    z = np.asarray(direction, dtype=float)
+    z = z / np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    g = np.eye(4)
+    g[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    g[:3, 3] = point
+    return g
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """Plans over the effective start directions (Feng's Tables 2-4 for one case).
+
+    Attributes
+    ----------
+    directions : ndarray, shape (n, 3)
+        All candidate directions.
+    effective : ndarray of bool, shape (n,)
+        Inside the effective puncture region.
+    results : list of PlanResult or None
+        Per candidate direction (None outside the effective region).
+    planner : str
+    stats : dict
+        ``n_directions``, ``n_effective``, ``n_solved``, ``best_index``,
+        ``best_cost_mm``, ``mean_cost_mm`` (over solved directions), ``cost_before_lowest_mm``
+        (mean cost of the solved directions swept before the best one, Feng's planning
+        rapidity figure) and ``time_s``.
+    """
+
+    directions: np.ndarray
+    effective: np.ndarray
+    results: list
+    planner: str
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def best(self) -> PlanResult | None:
+        """The lowest-cost result, or None."""
+        i = self.stats.get("best_index")
+        return None if i is None else self.results[i]
+
+    def to_dict(self) -> dict:
+        """JSON-ready table: one row per candidate direction, and the summary.
+
+        Returns
+        -------
+        dict
+        """
+        rows = []
+        for i, (d, eff) in enumerate(zip(self.directions, self.effective, strict=True)):
+            r = self.results[i]
+            rows.append(
+                {
+                    "index": i,
+                    "direction": [float(v) for v in d],
+                    "effective": bool(eff),
+                    "status": None if r is None else r.status.value,
+                    "cost_mm": None
+                    if r is None or not np.isfinite(r.cost_mm)
+                    else float(r.cost_mm),
+                    "time_s": None if r is None else float(r.time_s),
+                }
+            )
+        return {"planner": self.planner, "summary": dict(self.stats), "directions": rows}
+
+
+def _plan_one(args):
+    problem, direction, planner, time_limit_s, obstacles, seed = args
+    from needlekit.planning.steerable.solve import solve
+
+    p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
+    return solve(p, planner, time_limit_s=time_limit_s, obstacles=obstacles, seed=seed)
+
+
+def sweep(
+    problem: SteerableProblem,
+    planner: str = "rcs_star",
+    *,
+    directions=None,
+    normal=None,
+    time_limit_s: float = 1.0,
+    obstacles: VoxelObstacles | None = None,
+    executor: Executor | None = None,
+    seed: int = 0,
+    progress=None,
+) -> SweepResult:
+    """Plan from the start point over every effective start direction.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        Start point, goal and limits (its start direction, if any, is ignored).
+    planner : str
+        ``"rcs_star"``, ``"rcs"`` or ``"rrt"``.
+    directions : array_like, shape (n, 3), optional
+        Candidates (default: :func:`sphere_directions` with :data:`DEFAULT_DIRECTIONS`).
+    normal : array_like, shape (3,), optional
+        Outward normal of the punctured surface (default: the problem's entry surface's
+        normal at the start point; without one, every direction is effective).
+    time_limit_s : float
+        Budget per direction.
+    obstacles : VoxelObstacles, optional
+    executor : concurrent.futures.Executor, optional
+        Runs the directions (e.g. a process pool or a Dask client's executor); the tasks
+        must then be picklable. Default: one after the other in this process.
+    seed : int
+        Seed of randomised planners (the same for every direction).
+    progress : callable, optional
+        Called once per finished direction.
+
+    Returns
+    -------
+    SweepResult
+    """
+    import time
+
+    t0 = time.perf_counter()
+    dirs = (
+        sphere_directions()
+        if directions is None
+        else np.asarray(directions, dtype=float).reshape(-1, 3)
+    )
+    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    if normal is None and problem.entry_surface is not None:
+        normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
+    if normal is not None and np.all(np.isfinite(normal)):
+        eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
+    else:
+        eff = np.ones(len(dirs), dtype=bool)
+    tasks = [(problem, d, planner, time_limit_s, obstacles, seed) for d in dirs[eff]]
+    mapper = map if executor is None else executor.map
+    done = []
+    for res in mapper(_plan_one, tasks):
+        done.append(res)
+        if progress is not None:
+            progress(res)
+    results: list = [None] * len(dirs)
+    for i, res in zip(np.flatnonzero(eff), done, strict=True):
+        results[i] = res
+    costs = np.array(
+        [r.cost_mm if r is not None and r.status is PlanStatus.SOLVED else np.inf for r in results]
+    )
+    solved = np.isfinite(costs)
+    best = int(np.argmin(costs)) if solved.any() else None
+    before = [c for c in costs[: best if best is not None else 0] if np.isfinite(c)]
+    stats = {
+        "n_directions": len(dirs),
+        "n_effective": int(eff.sum()),
+        "n_solved": int(solved.sum()),
+        "best_index": best,
+        "best_cost_mm": None if best is None else float(costs[best]),
+        "best_direction": None if best is None else [float(v) for v in dirs[best]],
+        "mean_cost_mm": float(costs[solved].mean()) if solved.any() else None,
+        "cost_before_lowest_mm": float(np.mean(before)) if before else None,
+        "time_s": time.perf_counter() - t0,
+    }
+    return SweepResult(dirs, eff, results, planner, stats)

@@ -1,0 +1,71 @@
+"""The effective puncture region and the start-direction sweep (Feng et al. 2023)."""
+
+import numpy as np
+import pytest
+
+from needlekit.errors import InvalidInputError
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.sweep import (
+    effective_directions,
+    pose_from_direction,
+    sphere_directions,
+    sweep,
+)
+
+
+def test_sphere_directions_are_unit_and_spread():
+    d = sphere_directions(544)
+    assert d.shape == (544, 3) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert np.linalg.norm(d.mean(axis=0)) < 0.01  # no preferred side
+    # nearest-neighbour angles are all close to the ideal spacing for 544 points
+    cos = d @ d.T
+    np.fill_diagonal(cos, -1.0)
+    nn = np.degrees(np.arccos(cos.max(axis=1)))
+    assert nn.min() > 0.6 * nn.mean() and nn.max() < 1.4 * nn.mean()
+    with pytest.raises(InvalidInputError, match="n"):
+        sphere_directions(0)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 20.0, 45.0, 70.0])
+def test_effective_region_is_the_spherical_cap_theta_below_90_minus_alpha(alpha):
+    d = sphere_directions(20000)
+    n = np.array([0.3, -0.4, 0.866])
+    eff = effective_directions(d, n, alpha)
+    # cap of polar angle 90 - alpha: area fraction (1 - cos(90 - alpha)) / 2 = (1 - sin alpha) / 2
+    assert eff.mean() == pytest.approx((1 - np.sin(np.radians(alpha))) / 2, abs=0.002)
+    theta = np.degrees(np.arccos(np.clip(d @ (n / np.linalg.norm(n)), -1, 1)))
+    assert np.all(theta[eff] <= 90 - alpha + 1e-9)
+
+
+def test_pose_from_direction():
+    g = pose_from_direction([1.0, 2.0, 3.0], [0.0, 3.0, 4.0])
+    assert np.allclose(g[:3, 2], [0, 0.6, 0.8]) and np.allclose(g[:3, 3], [1, 2, 3])
+    assert np.allclose(g[:3, :3].T @ g[:3, :3], np.eye(3)) and np.linalg.det(
+        g[:3, :3]
+    ) == pytest.approx(1.0)
+
+
+@pytest.mark.slow
+def test_lung_phantom_sweep_orders_planners_as_feng_table4():
+    from needlekit.anatomy.phantoms import lung_phantom
+
+    ph = lung_phantom(0)
+    prob = SteerableProblem(
+        ph.scene, goal_mm=ph.targets_mm[0], start_pose=ph.start_poses[0], r_min_mm=50.0,
+        max_length_mm=100.0, min_puncture_angle_deg=20.0, entry_surface="airways",
+    )  # fmt: skip
+    runs = {p: sweep(prob, p, time_limit_s=0.2) for p in ("rcs_star", "rcs", "rrt")}
+    for s in runs.values():
+        assert s.stats["n_effective"] == pytest.approx(
+            544 * (1 - np.sin(np.radians(20))) / 2, abs=3
+        )
+        assert s.stats["n_solved"] > 0
+    mean = {p: s.stats["mean_cost_mm"] for p, s in runs.items()}
+    assert mean["rcs_star"] <= mean["rcs"] + 1e-9 <= mean["rrt"] + 2e-9
+    best = runs["rcs_star"].best
+    assert best.plan is not None and best.stats["certified"]
+    table = runs["rcs_star"].to_dict()
+    assert (
+        len(table["directions"]) == 544
+        and table["summary"]["best_index"] == runs["rcs_star"].stats["best_index"]
+    )
