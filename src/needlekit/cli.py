@@ -313,9 +313,9 @@ def _build_parser() -> argparse.ArgumentParser:
     bs.add_argument(
         "--planners",
         nargs="+",
-        default=["rcs_star"],
+        default=["rcs_star", "rcs", "rrt"],
         choices=["rcs_star", "rcs", "rrt"],
-        help="planners (default rcs_star)",
+        help="planners (default all three)",
     )
     bs.add_argument(
         "--time-limit-s",

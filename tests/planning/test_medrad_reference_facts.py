@@ -104,7 +104,23 @@ def test_bench_steerable_records_cases_and_the_reference(tmp_path):
     from needlekit.cli import main
 
     out = tmp_path / "bench.json"
-    assert main(["bench", "steerable", "--patients", "1", "--radii", "100", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "steerable",
+                "--patients",
+                "1",
+                "--radii",
+                "100",
+                "--planners",
+                "rcs_star",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rec = json.loads(out.read_text())
     assert rec["benchmark"] == "steerable" and len(rec["results"]) == 5
     assert {"versions", "cpu"} <= set(rec["machine"]) and rec["fields"][0]["total_s"] > 0

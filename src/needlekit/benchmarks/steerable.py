@@ -42,7 +42,7 @@ def _solve(planner: str, problem, obstacles, time_limit_s: float):
 def run_steerable_benchmark(
     patients: Sequence[int] = (1, 2, 3, 4, 5),
     radii_mm: Sequence[float] = (50.0, 100.0),
-    planners: Sequence[str] = ("rcs_star",),
+    planners: Sequence[str] = ("rcs_star", "rcs", "rrt"),
     time_limit_s: float = 1.0,
     medrad_dir=None,
     progress=None,

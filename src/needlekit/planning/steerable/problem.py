@@ -24,14 +24,10 @@ class CostKind(enum.Enum):
     """What a plan's cost measures.
 
     PATH_LENGTH
-        Inserted length (mm).
-    CLEARANCE
-        Integral along the path of ``1 + weight * exp(-clearance / scale)`` (mm): length,
-        plus a penalty for passing close to obstacles.
+        Inserted length (mm), the only cost the planners support so far.
     """
 
     PATH_LENGTH = "path_length"
-    CLEARANCE = "clearance"
 
 
 def _nonneg(value, name: str) -> float:
@@ -76,8 +72,6 @@ class SteerableProblem:
     start_exclusion_mm : float
         Obstacles within this distance of the start are ignored.
     cost : CostKind
-    cost_weight, cost_scale_mm : float
-        Parameters of the clearance cost.
     """
 
     scene: Scene
@@ -94,8 +88,6 @@ class SteerableProblem:
     max_heading_change_deg: float = 90.0
     start_exclusion_mm: float = 3.0
     cost: CostKind = CostKind.PATH_LENGTH
-    cost_weight: float = 1.0
-    cost_scale_mm: float = 2.0
     metadata: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -123,10 +115,9 @@ class SteerableProblem:
             "r_min_mm",
             "max_length_mm",
             "needle_diameter_mm",
-            "cost_scale_mm",
         ):
             object.__setattr__(self, name, as_positive(getattr(self, name), name))
-        for name in ("safety_margin_mm", "start_exclusion_mm", "cost_weight"):
+        for name in ("safety_margin_mm", "start_exclusion_mm"):
             object.__setattr__(self, name, _nonneg(getattr(self, name), name))
         alpha = float(self.min_puncture_angle_deg)
         if not (np.isfinite(alpha) and 0.0 <= alpha < 90.0):
