@@ -30,13 +30,9 @@ REFERENCE_LUNG1: dict[tuple[int, int], float | str | None] = {
 
 
 def _solve(planner: str, problem, obstacles, time_limit_s: float):
-    from needlekit.planning.steerable.rcs import solve_rcs
+    from needlekit.planning.steerable.solve import solve
 
-    if planner in ("rcs_star", "rcs"):
-        return solve_rcs(
-            problem, time_limit_s=time_limit_s, optimal=planner == "rcs_star", obstacles=obstacles
-        )
-    raise ValueError(f"unknown planner {planner!r}")
+    return solve(problem, planner, time_limit_s=time_limit_s, obstacles=obstacles, seed=0)
 
 
 def run_steerable_benchmark(
