@@ -13,7 +13,7 @@ from needlekit.anatomy.fields import DistanceField
 from needlekit.anatomy.phantoms._atoms import (
     AtomField,
 )
-from needlekit.anatomy.scene import Scene
+from needlekit.anatomy.scene import Scene, Structure
 from needlekit.errors import InvalidInputError
 
 # ----------------------------------------------------------------------------------------
@@ -185,3 +185,40 @@ def region_extent(region: DistanceField, step_mm: float = 1.0) -> np.ndarray:
         if len(inside):
             lo, hi = np.minimum(lo, inside.min(axis=0)), np.maximum(hi, inside.max(axis=0))
     return np.stack([lo, hi])
+
+
+def assemble_scene(
+    name: str, seed: int, roles: dict, layout, baked: dict, colours: dict, obstacle_field
+) -> Scene:
+    """The phantom's scene: each structure baked or exact, with its role, colour and the
+    representation and error bound it carries.
+
+    Parameters
+    ----------
+    name : str
+        Phantom name (``"lung"``, ...).
+    seed : int
+    roles : dict of str to Role
+        Structures in order.
+    layout : mapping of str to DistanceField
+        Exact geometry by name.
+    baked : dict of str to VoxelSDF
+        The structures baked into grids.
+    colours : dict of str to str
+    obstacle_field : DistanceField
+        The combined obstacle field.
+
+    Returns
+    -------
+    Scene
+    """
+    src = f"needlekit {name} phantom (seed {seed})"
+    structures = []
+    for key, role in roles.items():
+        fld = baked.get(key, layout[key])
+        meta = {
+            "representation": "voxel" if key in baked else "exact",
+            "error_bound_mm": float(fld.error_bound_mm),
+        }
+        structures.append(Structure(key, role, fld, colours[key], src, meta))
+    return Scene(structures, name=f"{name} phantom {seed}", obstacle_field=obstacle_field)

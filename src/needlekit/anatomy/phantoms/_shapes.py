@@ -84,6 +84,7 @@ from needlekit.anatomy.phantoms._atoms import (  # noqa: F401
 )
 from needlekit.anatomy.phantoms._record import (  # noqa: F401
     Phantom,
+    assemble_scene,
     ball_union_diameter,
     check_seed,
     check_voxel_size,

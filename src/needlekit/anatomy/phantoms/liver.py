@@ -39,6 +39,7 @@ from needlekit.anatomy.phantoms._shapes import (
     AtomField,
     EllipticCylinderSkin,
     Phantom,
+    assemble_scene,
     bake_structures,
     ball_union_diameter,
     check_seed,
@@ -58,7 +59,7 @@ from needlekit.anatomy.phantoms._trees import (
     grow_forest,
     sample_in_region,
 )
-from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.anatomy.scene import Role
 from needlekit.errors import NeedlekitError
 
 __all__ = ["DEFAULT_VOXEL_SIZE_MM", "VOXEL_SIZE_RANGE_MM", "liver_phantom"]
@@ -368,7 +369,6 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
     )
     layout = {**layout, "body": layout["skin"]}
     combined = union(obstacles, ComplementField(layout["body"]))
-    src = f"needlekit liver phantom (seed {seed})"
     roles = {
         "skin": Role.ENTRY_SURFACE,
         "body": Role.ALLOWED_REGION,
@@ -379,15 +379,7 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
         "vena_cava": Role.OBSTACLE,
         "tumour": Role.TARGET,
     }
-    structures = []
-    for name, role in roles.items():
-        fld = baked.get(name, layout[name])
-        meta = {
-            "representation": "voxel" if name in baked else "exact",
-            "error_bound_mm": float(fld.error_bound_mm),
-        }
-        structures.append(Structure(name, role, fld, _COLOURS[name], src, meta))
-    scene = Scene(structures, name=f"liver phantom {seed}", obstacle_field=combined)
+    scene = assemble_scene("liver", seed, roles, layout, baked, _COLOURS, combined)
     skin = layout["skin"]
     portal, hepatic = layout["portal"], layout["hepatic"]
     ext = region_extent(layout["liver"])

@@ -38,6 +38,7 @@ import numpy as np
 from needlekit.anatomy.phantoms._shapes import (
     AtomField,
     Phantom,
+    assemble_scene,
     bake_structures,
     ball_outside,
     ball_union_diameter,
@@ -62,7 +63,7 @@ from needlekit.anatomy.phantoms._trees import (
     sample_in_region,
     segment_ok,
 )
-from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.anatomy.scene import Role
 from needlekit.errors import NeedlekitError
 
 __all__ = ["DEFAULT_VOXEL_SIZE_MM", "NEEDLE", "VOXEL_SIZE_RANGE_MM", "lung_phantom"]
@@ -434,7 +435,6 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
         region="pleura",
         obstacles=("airways", "vessels", "fissures"),
     )
-    src = f"needlekit lung phantom (seed {seed})"
     roles = {
         "pleura": Role.ALLOWED_REGION,
         "airways": Role.OBSTACLE,
@@ -443,15 +443,7 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
         "ribs": Role.OBSTACLE,
         "nodule": Role.TARGET,
     }
-    structures = []
-    for name, role in roles.items():
-        fld = baked.get(name, layout[name])
-        meta = {
-            "representation": "voxel" if name in baked else "exact",
-            "error_bound_mm": float(fld.error_bound_mm),
-        }
-        structures.append(Structure(name, role, fld, _COLOURS[name], src, meta))
-    scene = Scene(structures, name=f"lung phantom {seed}", obstacle_field=combined)
+    scene = assemble_scene("lung", seed, roles, layout, baked, _COLOURS, combined)
     airways, arteries, veins = layout["airway_tree"], layout["arteries"], layout["veins"]
     bounds = region_extent(layout["pleura"])
     ad = airways.diameters_mm()

@@ -33,6 +33,7 @@ from needlekit.anatomy.phantoms._shapes import (
     AtomField,
     EllipticCylinderSkin,
     Phantom,
+    assemble_scene,
     bake_structures,
     check_seed,
     check_voxel_size,
@@ -41,7 +42,7 @@ from needlekit.anatomy.phantoms._shapes import (
     round_cone,
 )
 from needlekit.anatomy.phantoms._trees import chain_atoms, rotate
-from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.anatomy.scene import Role
 from needlekit.errors import NeedlekitError
 
 __all__ = ["DEFAULT_VOXEL_SIZE_MM", "VOXEL_SIZE_RANGE_MM", "neck_phantom"]
@@ -253,7 +254,6 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
         obstacles=obstacles,
         own_grids=True,
     )
-    src = f"needlekit neck phantom (seed {seed})"
     roles = {
         "skin": Role.ENTRY_SURFACE,
         "trachea_lumen": Role.TARGET,
@@ -263,15 +263,7 @@ def _build(seed: int, voxel_size_mm: float) -> Phantom:
         "oesophagus": Role.OBSTACLE,
         "spine": Role.OBSTACLE,
     }
-    structures = []
-    for name, role in roles.items():
-        fld = baked.get(name, layout[name])
-        meta = {
-            "representation": "voxel" if name in baked else "exact",
-            "error_bound_mm": float(fld.error_bound_mm),
-        }
-        structures.append(Structure(name, role, fld, _COLOURS[name], src, meta))
-    scene = Scene(structures, name=f"neck phantom {seed}", obstacle_field=combined)
+    scene = assemble_scene("neck", seed, roles, layout, baked, _COLOURS, combined)
     entry, target, d = layout["entry"], layout["target"], layout["direction"]
     skin = layout["skin"]
     info = {
