@@ -68,3 +68,13 @@ def test_budget_and_bad_input():
         solve_rrt_multi(_problem(), np.zeros((0, 3)))
     with pytest.raises(InvalidInputError, match="time_limit_s"):
         solve_rrt(_problem(), time_limit_s=-1.0)
+
+
+def test_solve_dispatches_to_each_planner():
+    from needlekit.planning.steerable.solve import solve
+
+    prob = _problem()
+    for name in ("rcs_star", "rcs", "rrt"):
+        assert solve(prob, name, time_limit_s=60.0, seed=0, max_iterations=50).planner == name
+    with pytest.raises(InvalidInputError, match="planner"):
+        solve(prob, "astar")

@@ -69,3 +69,20 @@ def test_lung_phantom_sweep_orders_planners_as_feng_table4():
         len(table["directions"]) == 544
         and table["summary"]["best_index"] == runs["rcs_star"].stats["best_index"]
     )
+
+
+@pytest.mark.parametrize("nside", [1, 2, 7, 16])
+def test_healpix_directions_are_equal_area(nside):
+    from needlekit.planning.steerable.sweep import healpix_directions
+
+    d = healpix_directions(nside)
+    assert d.shape == (12 * nside**2, 3) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert np.allclose(d.mean(axis=0), 0.0, atol=1e-12)  # symmetric sets
+    if nside >= 7:  # equal areas: the share in a cap is its area fraction
+        for alpha in (0.0, 20.0, 45.0):
+            eff = effective_directions(d, [0.0, 0.0, 1.0], alpha)
+            assert eff.mean() == pytest.approx(
+                (1 - np.sin(np.radians(alpha))) / 2, abs=3.0 / nside**2
+            )
+    with pytest.raises(InvalidInputError, match="nside"):
+        healpix_directions(0)

@@ -20,6 +20,7 @@ def solve(
     time_limit_s: float = 1.0,
     obstacles: VoxelObstacles | None = None,
     seed: int | None = None,
+    max_iterations: int | None = None,
 ) -> PlanResult:
     """Plan with the named planner.
 
@@ -33,17 +34,32 @@ def solve(
         Exact voxel-centre collision test (default: the scene's obstacle field).
     seed : int, optional
         Seed of RRT's samples (RCS and RCS* are deterministic).
+    max_iterations : int, optional
+        Budget in iterations, beside the time limit (makes anytime runs reproducible).
 
     Returns
     -------
     PlanResult
     """
     from needlekit.planning.steerable.rcs import solve_rcs
+    from needlekit.planning.steerable.rrt import solve_rrt
 
     if planner not in PLANNERS:
         raise InvalidInputError(
             "planner", f"expected one of {', '.join(PLANNERS)}, got {planner!r}"
         )
+    if planner == "rrt":
+        return solve_rrt(
+            problem,
+            time_limit_s=time_limit_s,
+            seed=seed,
+            obstacles=obstacles,
+            max_iterations=max_iterations,
+        )
     return solve_rcs(
-        problem, time_limit_s=time_limit_s, optimal=planner == "rcs_star", obstacles=obstacles
+        problem,
+        time_limit_s=time_limit_s,
+        optimal=planner == "rcs_star",
+        obstacles=obstacles,
+        max_iterations=max_iterations,
     )
