@@ -54,7 +54,10 @@ def test_lung_phantom_sweep_orders_planners_as_feng_table4():
         ph.scene, goal_mm=ph.targets_mm[0], start_pose=ph.start_poses[0], r_min_mm=50.0,
         max_length_mm=100.0, min_puncture_angle_deg=20.0, entry_surface="airways",
     )  # fmt: skip
-    runs = {p: sweep(prob, p, time_limit_s=0.2) for p in ("rcs_star", "rcs", "rrt")}
+    # iteration budgets, not time, so the anytime planners' results do not depend on load
+    runs = {
+        p: sweep(prob, p, time_limit_s=60.0, max_iterations=200) for p in ("rcs_star", "rcs", "rrt")
+    }
     for s in runs.values():
         assert s.stats["n_effective"] == pytest.approx(
             544 * (1 - np.sin(np.radians(20))) / 2, abs=3

@@ -220,11 +220,18 @@ class SweepResult:
 
 
 def _plan_one(args):
-    problem, direction, planner, time_limit_s, obstacles, seed = args
+    problem, direction, planner, time_limit_s, obstacles, seed, max_iterations = args
     from needlekit.planning.steerable.solve import solve
 
     p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
-    return solve(p, planner, time_limit_s=time_limit_s, obstacles=obstacles, seed=seed)
+    return solve(
+        p,
+        planner,
+        time_limit_s=time_limit_s,
+        obstacles=obstacles,
+        seed=seed,
+        max_iterations=max_iterations,
+    )
 
 
 def sweep(
@@ -237,6 +244,7 @@ def sweep(
     obstacles: VoxelObstacles | None = None,
     executor: Executor | None = None,
     seed: int = 0,
+    max_iterations: int | None = None,
     progress=None,
 ) -> SweepResult:
     """Plan from the start point over every effective start direction.
@@ -260,6 +268,8 @@ def sweep(
         must then be picklable. Default: one after the other in this process.
     seed : int
         Seed of randomised planners (the same for every direction).
+    max_iterations : int, optional
+        Iteration budget per direction, beside the time limit (reproducible sweeps).
     progress : callable, optional
         Called once per finished direction.
 
@@ -282,7 +292,9 @@ def sweep(
         eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
     else:
         eff = np.ones(len(dirs), dtype=bool)
-    tasks = [(problem, d, planner, time_limit_s, obstacles, seed) for d in dirs[eff]]
+    tasks = [
+        (problem, d, planner, time_limit_s, obstacles, seed, max_iterations) for d in dirs[eff]
+    ]
     mapper = map if executor is None else executor.map
     done = []
     for res in mapper(_plan_one, tasks):
