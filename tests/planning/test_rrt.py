@@ -78,3 +78,29 @@ def test_solve_dispatches_to_each_planner():
         assert solve(prob, name, time_limit_s=60.0, seed=0, max_iterations=50).planner == name
     with pytest.raises(InvalidInputError, match="planner"):
         solve(prob, "astar")
+
+
+@pytest.mark.slow
+def test_success_rates_from_the_lung_phantoms_start_poses():
+    """From every start pose of the lung phantom (seed 0): RCS* certifies a plan, RRT
+    succeeds on seeded runs, and every plan passes the independent check."""
+    from needlekit.anatomy.phantoms import lung_phantom
+    from needlekit.planning.steerable.solve import solve
+
+    ph = lung_phantom(0)
+    rrt_ok = rrt_runs = 0
+    for pose in ph.start_poses:
+        prob = SteerableProblem(
+            ph.scene, goal_mm=ph.targets_mm[0], start_pose=pose, r_min_mm=50.0, max_length_mm=100.0
+        )
+        star = solve(prob, "rcs_star", time_limit_s=60.0, max_iterations=300)
+        assert star.status is PlanStatus.SOLVED and star.stats["certified"]
+        assert verify_plan(prob, star.plan).ok
+        for seed in range(3):
+            res = solve(prob, "rrt", time_limit_s=60.0, seed=seed, max_iterations=300)
+            rrt_runs += 1
+            if res.status is PlanStatus.SOLVED:
+                rrt_ok += 1
+                assert verify_plan(prob, res.plan).ok
+                assert res.cost_mm >= star.cost_mm  # RCS* is optimal at its resolution here
+    assert rrt_ok / rrt_runs >= 0.9
