@@ -153,8 +153,9 @@ def solve_rcs(
     if not (np.isfinite(time_limit_s) and time_limit_s > 0):
         raise InvalidInputError("time_limit_s", f"must be a finite number > 0, got {time_limit_s}")
     name = "rcs_star" if optimal else "rcs"
-    t0 = time.perf_counter()
     validator = MotionValidator(problem, obstacles)
+    setup_s = validator.warm_up()  # JIT compilation is not search time
+    t0 = time.perf_counter()
     start, goal = problem.start_pose, problem.goal_mm
 
     def result(status, plan=None, cost=math.inf, **stats):
@@ -316,6 +317,7 @@ def solve_rcs(
         "exhausted": exhausted,
         "reason": reason,
         "refused_by_check": rejected,
+        "setup_s": setup_s,
     }
     if best_plan is not None:
         return result(PlanStatus.SOLVED, best_plan, best, **stats)

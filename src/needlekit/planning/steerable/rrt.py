@@ -110,10 +110,11 @@ def solve_rrt_multi(
     if len(goals) == 0 or not np.all(np.isfinite(goals)):
         raise InvalidInputError("goals_mm", "expected one or more finite points (k, 3)")
     rng = np.random.default_rng(seed)
-    t0 = time.perf_counter()
     start = problem.start_pose
     r, tau, kappa = problem.r_min_mm, problem.goal_tolerance_mm, problem.kappa_max_per_mm
     validator = MotionValidator(problem, obstacles)
+    validator.warm_up()  # JIT compilation is not search time
+    t0 = time.perf_counter()
     k = len(goals)
 
     def finish(i, status, plan=None, cost=math.inf, **stats):
