@@ -1,0 +1,7 @@
+"""``python -m needlekit.cli``."""
+
+import sys
+
+from needlekit.cli import main
+
+sys.exit(main())

@@ -1,0 +1,120 @@
+"""Shared pieces of the command line: the parser class, argument types, tables."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``error: ...``, exit 2)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(EXIT_USAGE, f"error: {message}\n")
+
+
+def _numbers(count: int, what: str):
+    def parse(text: str) -> list[float]:
+        parts = [p for p in text.replace(",", " ").split() if p]
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        if not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
+        return values
+
+    return parse
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}") from None
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}")
+    return v
+
+
+def _problem_overrides(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--start-pose",
+        type=Path,
+        help="4x4 start pose text file (RAS mm), instead of the scenario's",
+    )
+    p.add_argument(
+        "--goal",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        metavar="X,Y,Z",
+        help="goal point (RAS mm)",
+    )
+    p.add_argument("--r-min-mm", type=_positive, help="minimum radius of curvature (mm)")
+    p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
+
+
+def _start_pose(path: Path | None) -> np.ndarray:
+    if path is None:
+        return np.eye(4)
+    from needlekit.io.poses import read_pose_txt
+
+    return read_pose_txt(path)
+
+
+def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+    def cell(v: object) -> str:
+        if isinstance(v, float):
+            return "inf" if math.isinf(v) else f"{v:.4f}"
+        return str(v)
+
+    def numeric(text: str) -> bool:
+        try:
+            float(text)
+        except ValueError:
+            return text in ("-", "inf")
+        return True
+
+    text = [[cell(v) for v in row] for row in rows]
+    widths = [
+        max(len(h), *(len(r[i]) for r in text)) if text else len(h) for i, h in enumerate(headers)
+    ]
+    # text columns align left, numbers right
+    left = [bool(text) and not all(numeric(r[i]) for r in text) for i in range(len(headers))]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(
+            c.ljust(w) if lft else c.rjust(w) for c, w, lft in zip(cells, widths, left, strict=True)
+        ).rstrip()
+
+    lines = [line(headers), "  ".join("-" * w for w in widths)]
+    lines.extend(line(r) for r in text)
+    return "\n".join(lines)

@@ -1,0 +1,252 @@
+"""The argument parser of every ``needlekit`` command."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from needlekit import __version__
+from needlekit.cli._common import (
+    _non_negative,
+    _numbers,
+    _Parser,
+    _positive,
+    _positive_int,
+    _problem_overrides,
+)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="needlekit",
+        description="Planning and executing robot-assisted needle insertions.",
+        epilog="Units: mm, rad (degrees where an option says _deg), s. World frame: RAS.",
+    )
+    parser.add_argument("--version", action="version", version=f"needlekit {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    kin = sub.add_parser(
+        "kinematics", help="bevel-tip needle kinematics: forward and inverse steering"
+    )
+    kin_sub = kin.add_subparsers(dest="kin_command", metavar="MODE", parser_class=_Parser)
+
+    fwd = kin_sub.add_parser(
+        "forward",
+        help="tip trajectory of the 3D bevel-tip model for piecewise-constant inputs",
+        description=(
+            "Forward steering: propagate the tip pose exactly for segments of constant "
+            "insertion speed u1 (mm/s) and spin rate u2 (rad/s)."
+        ),
+    )
+    fwd.add_argument(
+        "--kappa-per-mm", type=_non_negative, required=True, help="needle curvature (1/mm)"
+    )
+    fwd.add_argument(
+        "--segment",
+        type=_numbers(3, "three numbers u1_mm_s,u2_rad_s,duration_s"),
+        action="append",
+        required=True,
+        metavar="U1,U2,T",
+        help="one input segment; repeat for several",
+    )
+    fwd.add_argument(
+        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
+    )
+    fwd.add_argument(
+        "--dt-s", type=_positive, default=None, help="sampling interval of the printed trajectory"
+    )
+    fwd.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    inv = kin_sub.add_parser(
+        "inverse",
+        help="single-arc inverse steering from a tip pose to target points",
+        description=(
+            "Inverse steering with the transformation-matrix method: the arc (alpha, r, "
+            "phi, l) from the tip through each target, and the shortest arc-then-line path "
+            "when --r-min-mm is given."
+        ),
+    )
+    inv.add_argument(
+        "--target",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        action="append",
+        required=True,
+        metavar="X,Y,Z",
+        help="target point in the world frame (mm); repeat for several",
+    )
+    inv.add_argument(
+        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
+    )
+    inv.add_argument(
+        "--r-min-mm", type=_positive, help="minimum radius of curvature; tighter arcs are an error"
+    )
+    inv.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scenario files",
+        description="Print the JSON Schema (draft 2020-12) that scenario files are validated against.",
+    )
+
+    scene = sub.add_parser("scene", help="inspect and render the anatomy of a scenario")
+    scene_sub = scene.add_subparsers(dest="scene_command", metavar="ACTION", parser_class=_Parser)
+    info = scene_sub.add_parser(
+        "info", help="summarise the structures: role, extent, voxel size, volume"
+    )
+    info.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    render = scene_sub.add_parser(
+        "render", help="write a self-contained interactive 3D view (HTML)"
+    )
+    render.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    render.add_argument("--out", type=Path, required=True, help="output HTML file")
+    render.add_argument(
+        "--max-cells",
+        type=_positive_int,
+        default=160,
+        help="surface resolution: samples per axis (default 160)",
+    )
+
+    planp = sub.add_parser(
+        "plan",
+        help="plan a curved (steerable) needle path for a scenario",
+        description="Plan with RCS*, RCS or RRT and write plan.json; exit 0 with a plan, 1 without.",
+    )
+    planp.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    _problem_overrides(planp)
+    planp.add_argument(
+        "--planner",
+        choices=["rcs_star", "rcs", "rrt"],
+        help="planner (default: the scenario's, else rcs_star)",
+    )
+    planp.add_argument(
+        "--out", type=Path, default=Path("plan.json"), help="plan file to write (default plan.json)"
+    )
+    planp.add_argument(
+        "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
+    )
+    planp.add_argument("--seed", type=int, help="seed of randomised planners")
+
+    sw = sub.add_parser(
+        "sweep",
+        help="plan over the start directions of the effective puncture region (Feng et al.)",
+        description="Sample start directions around the scenario's start point, keep those at least "
+        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
+    )
+    sw.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    _problem_overrides(sw)
+    sw.add_argument(
+        "--planner",
+        choices=["rcs_star", "rcs", "rrt"],
+        default="rcs_star",
+        help="planner (default rcs_star)",
+    )
+    sw.add_argument(
+        "--out",
+        type=Path,
+        default=Path("sweep.json"),
+        help="sweep table to write (default sweep.json)",
+    )
+    sw.add_argument(
+        "--directions",
+        type=_positive_int,
+        default=544,
+        help="candidate directions on the sphere (default 544)",
+    )
+    sw.add_argument(
+        "--time-limit-s", type=_positive, default=0.5, help="budget per direction (default 0.5 s)"
+    )
+    sw.add_argument("--seed", type=int, default=0, help="seed of randomised planners")
+
+    ver = sub.add_parser(
+        "verify",
+        help="re-check a plan file independently; exit 1 on any violation",
+        description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
+    )
+    ver.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    ver.add_argument("plan", type=Path, help="plan file (plan.json)")
+    _problem_overrides(ver)
+    ver.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
+    demo.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
+    )
+
+    bench = sub.add_parser(
+        "bench", help="benchmarks that record machine, versions, inputs and figures"
+    )
+    bench_sub = bench.add_subparsers(dest="bench_command", metavar="SUITE", parser_class=_Parser)
+    bk = bench_sub.add_parser("kinematics", help="arcs propagated and sampled per second")
+    bk.add_argument("--out", type=Path, help="write the record as JSON here")
+    bk.add_argument("--arcs", type=_positive_int, default=200_000, help="arcs per batch")
+    bk.add_argument(
+        "--samples", type=_positive_int, default=32, help="points per sampled arc (>= 2)"
+    )
+    bk.add_argument(
+        "--repeat", type=_positive_int, default=5, help="timed repetitions (best is kept)"
+    )
+    bf = bench_sub.add_parser(
+        "fields", help="distance queries per second, field build times (incl. Med-RAD)"
+    )
+    bf.add_argument("--out", type=Path, help="write the record as JSON here")
+    bf.add_argument(
+        "--grid", type=_positive_int, default=256, help="edge of the cubic test grids (voxels)"
+    )
+    bf.add_argument(
+        "--queries", type=_positive_int, default=2_000_000, help="points per timed query batch"
+    )
+    bf.add_argument(
+        "--repeat", type=_positive_int, default=3, help="timed repetitions (best is kept)"
+    )
+    bf.add_argument(
+        "--patients",
+        type=_positive_int,
+        nargs="+",
+        default=[1],
+        help="Med-RAD lung patients to load (default 1)",
+    )
+    bf.add_argument(
+        "--medrad",
+        type=Path,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
+    bs = bench_sub.add_parser(
+        "steerable",
+        help="curved-needle planners on the Med-RAD lungs (status, cost, time per case)",
+    )
+    bs.add_argument("--out", type=Path, help="write the record as JSON here")
+    bs.add_argument(
+        "--patients",
+        type=_positive_int,
+        nargs="+",
+        default=[1, 2, 3, 4, 5],
+        help="lung patients (default 1-5)",
+    )
+    bs.add_argument(
+        "--radii",
+        type=_positive,
+        nargs="+",
+        default=[50.0, 100.0],
+        help="r_min values in mm (default 50 100)",
+    )
+    bs.add_argument(
+        "--planners",
+        nargs="+",
+        default=["rcs_star", "rcs", "rrt"],
+        choices=["rcs_star", "rcs", "rrt"],
+        help="planners (default all three)",
+    )
+    bs.add_argument(
+        "--time-limit-s",
+        type=_positive,
+        default=1.0,
+        help="budget per case and planner (default 1 s)",
+    )
+    bs.add_argument(
+        "--medrad",
+        type=Path,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
+    return parser

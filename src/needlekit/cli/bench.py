@@ -1,0 +1,71 @@
+"""``needlekit bench kinematics|fields|steerable``."""
+
+from __future__ import annotations
+
+import argparse
+
+from needlekit.cli._common import EXIT_OK, EXIT_USAGE
+from needlekit.errors import NeedlekitError
+
+
+def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    from needlekit.benchmarks.record import format_record
+
+    if args.bench_command == "kinematics":
+        from needlekit.benchmarks.kinematics import run_kinematics_benchmark
+
+        if args.samples < 2:
+            raise NeedlekitError("--samples: expected a whole number >= 2")
+        record = run_kinematics_benchmark(
+            n_arcs=args.arcs, n_samples=args.samples, repeat=args.repeat
+        )
+    elif args.bench_command == "fields":
+        from needlekit.benchmarks.fields import run_fields_benchmark
+
+        if args.grid < 8:
+            raise NeedlekitError("--grid: expected a whole number >= 8")
+        record = run_fields_benchmark(
+            grid_size=args.grid,
+            n_queries=args.queries,
+            repeat=args.repeat,
+            medrad_dir=args.medrad,
+            medrad_patients=tuple(args.patients),
+        )
+    elif args.bench_command == "steerable":
+        from tqdm import tqdm
+
+        from needlekit.benchmarks.steerable import run_steerable_benchmark
+
+        total = len(args.patients) * 5 * len(args.radii) * len(args.planners)
+        with tqdm(total=total, desc="bench steerable", unit="case", disable=None) as bar:
+            record = run_steerable_benchmark(
+                patients=tuple(args.patients),
+                radii_mm=tuple(args.radii),
+                planners=tuple(args.planners),
+                time_limit_s=args.time_limit_s,
+                medrad_dir=args.medrad,
+                progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
+            )
+        for row in record["results"]:
+            cost = "-" if row["cost_mm"] is None else f"{row['cost_mm']:.4f}"
+            row["name"] = (
+                f"lung{row['patient']} s{row['start']} r{row['r_min_mm']:g} {row['planner']}"
+            )
+            row["summary"] = (
+                f"{row['status']:<10} {cost:>9} mm {1000 * row['time_s']:8.1f} ms"
+                + (" certified" if row["certified"] else "")
+                + (
+                    ""
+                    if row["reference_cost_mm"] == "n/a"
+                    else f"  (reference {row['reference_cost_mm']})"
+                )
+            )
+    else:
+        parser.parse_args(["bench", "--help"])
+        return EXIT_USAGE
+    if args.out is not None:
+        from needlekit.io.files import write_json
+
+        write_json(args.out, record)
+    print(format_record(record))
+    return EXIT_OK

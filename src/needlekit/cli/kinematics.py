@@ -1,0 +1,97 @@
+"""``needlekit kinematics forward|inverse``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+
+from needlekit.cli._common import EXIT_OK, _fmt_table, _start_pose
+from needlekit.errors import NeedlekitError
+
+
+def _cmd_forward(args: argparse.Namespace) -> int:
+    from needlekit.needle.bevel3d import propagate_bevel, simulate_bevel
+
+    g0 = _start_pose(args.start_pose)
+    segments = np.array(args.segment, dtype=float)
+    if np.any(segments[:, 2] < 0):
+        raise NeedlekitError("--segment: durations must be >= 0")
+    if args.dt_s is None:
+        ends = propagate_bevel(g0, segments, args.kappa_per_mm)
+        times = np.concatenate([[0.0], np.cumsum(segments[:, 2])])
+        poses = ends
+    else:
+        traj = simulate_bevel(g0, segments, args.kappa_per_mm, dt_s=args.dt_s)
+        times, poses = traj.time_s, traj.world_T_tip
+    if args.json:
+        out = {
+            "kappa_per_mm": args.kappa_per_mm,
+            "segments": [
+                {"u1_mm_s": float(a), "u2_rad_s": float(b), "duration_s": float(c)}
+                for a, b, c in segments
+            ],
+            "time_s": times.tolist(),
+            "points_mm": poses[:, :3, 3].tolist(),
+            "directions": poses[:, :3, 2].tolist(),
+            "final_pose": poses[-1].tolist(),
+        }
+        print(json.dumps(out, indent=2))
+        return EXIT_OK
+    rows = [
+        [float(t), *(float(v) for v in g[:3, 3]), *(float(v) for v in g[:3, 2])]
+        for t, g in zip(times, poses, strict=True)
+    ]
+    print(_fmt_table(["time_s", "x_mm", "y_mm", "z_mm", "dir_x", "dir_y", "dir_z"], rows))
+    print("\nfinal pose (world_T_tip):")
+    print(np.array2string(poses[-1], precision=6, suppress_small=True))
+    return EXIT_OK
+
+
+def _cmd_inverse(args: argparse.Namespace) -> int:
+    from needlekit.needle.reachability import shortest_arc_line
+    from needlekit.needle.transform_method import tm_inverse
+
+    g0 = _start_pose(args.start_pose)
+    targets = np.array(args.target, dtype=float)
+    sol = tm_inverse(targets, g0, r_min_mm=args.r_min_mm)
+    spin = sol.alpha_rad + 0.5 * np.pi  # twist-model spin, see needlekit.conventions
+    spin = np.mod(spin + np.pi, 2 * np.pi) - np.pi
+    arcline = shortest_arc_line(g0, targets, args.r_min_mm) if args.r_min_mm else None
+    records = []
+    for i, p in enumerate(targets):
+        rec = {
+            "target_mm": p.tolist(),
+            "alpha_rad": float(sol.alpha_rad[i]),
+            "spin_rad": float(spin[i]),
+            "radius_mm": None if math.isinf(sol.radius_mm[i]) else float(sol.radius_mm[i]),
+            "curvature_per_mm": float(sol.kappa_per_mm[i]),
+            "phi_rad": float(sol.phi_rad[i]),
+            "length_mm": float(sol.length_mm[i]),
+        }
+        if arcline is not None:
+            rec["shortest_arc_line_mm"] = float(arcline.length_mm[i])
+        records.append(rec)
+    if args.json:
+        print(json.dumps({"r_min_mm": args.r_min_mm, "arcs": records}, indent=2))
+        return EXIT_OK
+    headers = ["target", "alpha_deg", "spin_deg", "radius_mm", "phi_deg", "length_mm"]
+    if arcline is not None:
+        headers.append("arc+line_mm")
+    rows = []
+    for i, rec in enumerate(records):
+        row: list[object] = [
+            f"{i}",
+            math.degrees(rec["alpha_rad"]),
+            math.degrees(rec["spin_rad"]),
+            float(sol.radius_mm[i]),
+            math.degrees(rec["phi_rad"]),
+            rec["length_mm"],
+        ]
+        if arcline is not None:
+            row.append(rec["shortest_arc_line_mm"])
+        rows.append(row)
+    print(_fmt_table(headers, rows))
+    return EXIT_OK

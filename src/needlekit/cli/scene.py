@@ -1,0 +1,83 @@
+"""``needlekit schema`` and ``needlekit scene info|render``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from needlekit.cli._common import EXIT_OK, EXIT_USAGE, _fmt_table
+
+
+def _cmd_schema() -> int:
+    from needlekit.io.scenario_schema import SCENARIO_SCHEMA
+
+    print(json.dumps(SCENARIO_SCHEMA, indent=2))
+    return EXIT_OK
+
+
+def _fmt_extent(extent: np.ndarray) -> str:
+    if not np.all(np.isfinite(extent)):
+        return "unbounded"
+    size = extent[1] - extent[0]
+    return " x ".join(f"{v:.1f}" for v in size)
+
+
+def _cmd_scene(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    from needlekit.io.scenario import load_scenario
+
+    if args.scene_command not in ("info", "render"):
+        parser.parse_args(["scene", "--help"])
+        return EXIT_USAGE
+    sc = load_scenario(args.scenario)
+    if args.scene_command == "info":
+        from needlekit.anatomy.summary import summarize_scene
+
+        rows = summarize_scene(sc.scene)
+        if args.json:
+            out = {
+                "scenario": str(args.scenario),
+                "name": sc.name,
+                "structures": [r.to_dict() for r in rows],
+            }
+            print(json.dumps(out, indent=2))
+            return EXIT_OK
+        print(
+            f"scene: {sc.scene.name or sc.name or args.scenario.name}  ({len(rows)} structures, RAS mm)"
+        )
+        table = [
+            [
+                r.name,
+                r.role,
+                r.kind,
+                _fmt_extent(r.extent_mm),
+                "-" if r.voxel_size_mm is None else " x ".join(f"{v:.2f}" for v in r.voxel_size_mm),
+                "inf" if not np.isfinite(r.volume_ml) else f"{r.volume_ml:.2f}",
+                f"{r.error_bound_mm:.3f}",
+            ]
+            for r in rows
+        ]
+        print(
+            _fmt_table(
+                ["name", "role", "field", "extent_mm", "voxel_mm", "volume_ml", "error_mm"], table
+            )
+        )
+        if sc.start is not None:
+            print(f"start: {sc.start.name} at {np.round(sc.start.point_mm, 2).tolist()} mm")
+        if sc.goal is not None:
+            print(
+                f"goal:  {sc.goal.name} at {np.round(sc.goal.point_mm, 2).tolist()} mm (tolerance {sc.goal.tolerance_mm:g} mm)"
+            )
+        return EXIT_OK
+    from needlekit.report.scene3d import scene_figure, write_scene_html
+
+    starts = None
+    if sc.start is not None and sc.start.world_T_tip is not None:
+        starts = sc.start.world_T_tip[None]
+    elif sc.base is not None and getattr(sc.base, "start_poses", None) is not None:
+        starts = sc.base.start_poses
+    targets = None if sc.goal is None else sc.goal.point_mm[None]
+    fig = scene_figure(sc.scene, start_poses=starts, targets_mm=targets, max_cells=args.max_cells)
+    print(write_scene_html(fig, args.out))
+    return EXIT_OK
