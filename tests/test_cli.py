@@ -316,9 +316,31 @@ def test_sweep_writes_the_direction_table(capsys, tmp_path):
         str(out),
     )
     data = json.loads(out.read_text())
-    assert len(data["directions"]) == 60 and data["planner"] == "rcs_star"
-    summary = data["summary"]
+    assert len(data["directions"]) == 60 and data["planners"] == ["rcs_star"]
+    summary = data["summary"]["rcs_star"]
     # the start lies on the airway wall: its outward normal halves the sphere (alpha = 0)
     assert summary["n_effective"] == pytest.approx(30, abs=3)
     assert code == (0 if summary["n_solved"] else 1)
     assert "directions effective" in text
+    costs = [r["cost_mm"]["rcs_star"] for r in data["directions"]]
+    assert sum(c is not None for c in costs) == summary["n_solved"]
+    if summary["n_solved"]:
+        best = data["best_plans"]["rcs_star"]
+        assert best["cost_mm"] == pytest.approx(summary["best_cost_mm"]) == min(
+            c for c in costs if c is not None
+        )
+
+
+@pytest.mark.slow
+def test_sweep_compares_planners_on_a_process_pool(capsys, tmp_path):
+    out = tmp_path / "sweep.json"
+    args = ["sweep", str(EXAMPLES / "toy.yaml"), "--healpix", "2", "--max-iterations", "50"]
+    args += ["--planner", "rcs_star", "rrt", "--time-limit-s", "10", "--out", str(out)]
+    code, text, _ = run(capsys, *args, "--executor", "process", "--workers", "2")
+    data = json.loads(out.read_text())
+    assert data["planners"] == ["rcs_star", "rrt"] and len(data["directions"]) == 48
+    assert text.count("directions effective") == 2
+    serial_out = tmp_path / "serial.json"
+    run(capsys, *args[:-1], str(serial_out))
+    serial = json.loads(serial_out.read_text())
+    assert [r["cost_mm"] for r in serial["directions"]] == [r["cost_mm"] for r in data["directions"]]

@@ -27,6 +27,8 @@ MODULES = [
     "needlekit.planning.steerable.solve",
     "needlekit.planning.steerable.rrt",
     "needlekit.planning.steerable.sweep",
+    "needlekit.planning.steerable.source",
+    "needlekit.batch",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

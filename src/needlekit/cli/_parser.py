@@ -16,6 +16,21 @@ from needlekit.cli._common import (
 )
 
 
+def _executor_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--executor",
+        choices=["serial", "process", "dask"],
+        default="serial",
+        help="where tasks run: this process, a local process pool, or Dask (default serial)",
+    )
+    p.add_argument("--workers", type=_positive_int, help="worker processes (default: one per CPU)")
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="Dask scheduler to connect to (default: start a local cluster)",
+    )
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="needlekit",
@@ -138,9 +153,10 @@ def _build_parser() -> argparse.ArgumentParser:
     _problem_overrides(sw)
     sw.add_argument(
         "--planner",
+        nargs="+",
         choices=["rcs_star", "rcs", "rrt"],
-        default="rcs_star",
-        help="planner (default rcs_star)",
+        default=["rcs_star"],
+        help="planner(s) to compare (default rcs_star)",
     )
     sw.add_argument(
         "--out",
@@ -158,6 +174,18 @@ def _build_parser() -> argparse.ArgumentParser:
         "--time-limit-s", type=_positive, default=0.5, help="budget per direction (default 0.5 s)"
     )
     sw.add_argument("--seed", type=int, default=0, help="seed of randomised planners")
+    sw.add_argument(
+        "--healpix",
+        type=_positive_int,
+        metavar="NSIDE",
+        help="use the 12 NSIDE^2 equal-area HEALPix directions instead of --directions",
+    )
+    sw.add_argument(
+        "--max-iterations",
+        type=_positive_int,
+        help="iteration budget per direction besides the time limit (reproducible sweeps)",
+    )
+    _executor_options(sw)
 
     ver = sub.add_parser(
         "verify",

@@ -5,50 +5,40 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from needlekit.cli._common import EXIT_OK
 from needlekit.errors import NeedlekitError
 
 
+def _pose_override(args: argparse.Namespace):
+    if args.start_pose is None:
+        return None
+    from needlekit.io.poses import read_pose_txt
+
+    return read_pose_txt(args.start_pose)
+
+
+def _source(args: argparse.Namespace):
+    from needlekit.planning.steerable.source import ScenarioSource
+
+    return ScenarioSource.of(
+        args.scenario,
+        start_pose=_pose_override(args),
+        goal_mm=args.goal,
+        r_min_mm=args.r_min_mm,
+        needle_diameter_mm=args.needle_diameter_mm,
+    )
+
+
 def _problem_and_obstacles(args: argparse.Namespace):
-    from needlekit.io.scenario import load_scenario
-    from needlekit.planning.steerable.problem import SteerableProblem
+    from needlekit.planning.steerable.source import load_problem
 
-    sc = load_scenario(args.scenario)
-    overrides: dict = {}
-    if args.start_pose is not None:
-        from needlekit.io.poses import read_pose_txt
-
-        overrides["start_pose"] = read_pose_txt(args.start_pose)
-        overrides["start_point_mm"] = None
-    if args.goal is not None:
-        overrides["goal_mm"] = np.array(args.goal)
-    if args.r_min_mm is not None:
-        overrides["r_min_mm"] = args.r_min_mm
-    if args.needle_diameter_mm is not None:
-        overrides["needle_diameter_mm"] = args.needle_diameter_mm
-    if sc.start is None and "start_pose" not in overrides:
-        raise NeedlekitError(
-            f"{args.scenario.name}: start: the scenario gives no start; pass --start-pose"
-        )
-    if sc.goal is None and "goal_mm" not in overrides:
-        raise NeedlekitError(f"{args.scenario.name}: goal: the scenario gives no goal; pass --goal")
-    if sc.start is None or sc.goal is None:  # fill what the scenario lacks
-        from needlekit.io.scenario import GoalSpec, StartSpec
-
-        start = sc.start or StartSpec(
-            overrides["start_pose"][:3, 3], overrides["start_pose"], "--start-pose"
-        )
-        goal = sc.goal or GoalSpec(overrides["goal_mm"], 1.0, "--goal")
-        sc = type(sc)(
-            sc.name, sc.description, sc.scene, sc.needle, start, goal, sc.planner, sc.path, sc.base
-        )
-    problem = SteerableProblem.from_scenario(sc, **overrides)
-    obstacles = None
-    if hasattr(sc.base, "voxel_obstacles"):  # Med-RAD: the reference's exact voxel-centre test
-        obstacles = sc.base.voxel_obstacles(problem.needle_diameter_mm, problem.safety_margin_mm)
-    return sc, problem, obstacles
+    return load_problem(
+        args.scenario,
+        start_pose=_pose_override(args),
+        goal_mm=args.goal,
+        r_min_mm=args.r_min_mm,
+        needle_diameter_mm=args.needle_diameter_mm,
+    )
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -72,33 +62,60 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from needlekit.batch import open_executor
     from needlekit.io.files import write_json
-    from needlekit.planning.steerable.sweep import sphere_directions, sweep
+    from needlekit.planning.steerable.sweep import (
+        healpix_directions,
+        sphere_directions,
+        sweep,
+        sweeps_to_dict,
+    )
 
     _, problem, obstacles = _problem_and_obstacles(args)
-    dirs = sphere_directions(args.directions)
-    with tqdm(desc=f"sweep {args.planner}", unit="direction", disable=None) as bar:
-        result = sweep(
-            problem,
-            args.planner,
-            directions=dirs,
-            time_limit_s=args.time_limit_s,
-            obstacles=obstacles,
-            seed=args.seed,
-            progress=lambda _: bar.update(1),
-        )
-    write_json(args.out, {"scenario": str(args.scenario), **result.to_dict()})
-    st = result.stats
+    if args.healpix is not None:
+        dirs = healpix_directions(args.healpix)
+    else:
+        dirs = sphere_directions(args.directions)
+    planners = list(dict.fromkeys(args.planner))
+    sweeps = {}
+    with open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
+        for planner in planners:
+            with tqdm(desc=f"sweep {planner}", unit="direction", disable=None) as bar:
+                sweeps[planner] = sweep(
+                    problem,
+                    planner,
+                    directions=dirs,
+                    time_limit_s=args.time_limit_s,
+                    obstacles=obstacles,
+                    seed=args.seed,
+                    max_iterations=args.max_iterations,
+                    executor=None if args.executor == "serial" else ex,
+                    source=_source(args),
+                    progress=lambda _, bar=bar: bar.update(1),
+                )
+    record = {
+        "scenario": str(args.scenario),
+        "executor": args.executor,
+        "time_limit_s": args.time_limit_s,
+        "max_iterations": args.max_iterations,
+        "seed": args.seed,
+        **sweeps_to_dict(sweeps),
+    }
+    write_json(args.out, record)
 
     def mm(v):
         return "-" if v is None else f"{v:.4f}"
 
-    print(
-        f"{args.planner}: {st['n_effective']} of {st['n_directions']} directions effective, "
-        f"{st['n_solved']} solved; best {mm(st['best_cost_mm'])} mm, mean {mm(st['mean_cost_mm'])} mm, "
-        f"cost before the lowest {mm(st['cost_before_lowest_mm'])} mm -> {args.out}"
-    )
-    return EXIT_OK if st["n_solved"] else 1
+    for planner, result in sweeps.items():
+        st = result.stats
+        print(
+            f"{planner}: {st['n_effective']} of {st['n_directions']} directions effective, "
+            f"{st['n_solved']} solved; best {mm(st['best_cost_mm'])} mm, "
+            f"mean {mm(st['mean_cost_mm'])} mm, cost before the lowest "
+            f"{mm(st['cost_before_lowest_mm'])} mm ({st['time_s']:.1f} s)"
+        )
+    print(f"-> {args.out}")
+    return EXIT_OK if any(r.stats["n_solved"] for r in sweeps.values()) else 1
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:

@@ -35,6 +35,7 @@ __all__ = [
     "pose_from_direction",
     "sphere_directions",
     "sweep",
+    "sweeps_to_dict",
 ]
 
 #: Candidate start directions, as in Feng et al. (2023).
@@ -219,10 +220,13 @@ class SweepResult:
         return {"planner": self.planner, "summary": dict(self.stats), "directions": rows}
 
 
-def _plan_one(args):
-    problem, direction, planner, time_limit_s, obstacles, seed, max_iterations = args
+def _plan_one(task):
+    """One direction of a sweep (module level, so process and Dask workers can run it)."""
     from needlekit.planning.steerable.solve import solve
 
+    problem, obstacles, source, direction, planner, time_limit_s, seed, max_iterations = task
+    if source is not None:  # built once per worker, reused for its other directions
+        _, problem, obstacles = source.cached()
     p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
     return solve(
         p,
@@ -234,6 +238,28 @@ def _plan_one(args):
     )
 
 
+#: Largest pickled problem a remote task may carry (bytes); larger scenes need a source.
+MAX_TASK_BYTES: int = 8 * 2**20
+
+
+def _check_task_size(problem, obstacles) -> None:
+    import pickle
+
+    try:
+        size = len(pickle.dumps((problem, obstacles), protocol=pickle.HIGHEST_PROTOCOL))
+    except Exception as exc:
+        raise InvalidInputError(
+            "source",
+            f"the problem cannot be sent to workers ({exc}); pass source=ScenarioSource.of(...)",
+        ) from exc
+    if size > MAX_TASK_BYTES:
+        raise InvalidInputError(
+            "source",
+            f"the problem pickles to {size / 2**20:.0f} MB per task; pass "
+            "source=ScenarioSource.of(...) so that each worker builds it once",
+        )
+
+
 def sweep(
     problem: SteerableProblem,
     planner: str = "rcs_star",
@@ -243,6 +269,7 @@ def sweep(
     time_limit_s: float = 1.0,
     obstacles: VoxelObstacles | None = None,
     executor: Executor | None = None,
+    source=None,
     seed: int = 0,
     max_iterations: int | None = None,
     progress=None,
@@ -264,8 +291,12 @@ def sweep(
         Budget per direction.
     obstacles : VoxelObstacles, optional
     executor : concurrent.futures.Executor, optional
-        Runs the directions (e.g. a process pool or a Dask client's executor); the tasks
-        must then be picklable. Default: one after the other in this process.
+        Runs the directions (see :func:`needlekit.batch.open_executor`: a process pool or
+        a Dask cluster). Default: one after the other in this process.
+    source : ScenarioSource, optional
+        How workers rebuild ``problem`` (and ``obstacles``): tasks then carry this small
+        recipe instead of the scene, and each worker builds it once. Without it, tasks
+        carry ``problem`` and ``obstacles`` themselves (fine for small analytic scenes).
     seed : int
         Seed of randomised planners (the same for every direction).
     max_iterations : int, optional
@@ -292,13 +323,33 @@ def sweep(
         eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
     else:
         eff = np.ones(len(dirs), dtype=bool)
+    from needlekit.batch import SerialExecutor
+
+    remote = executor is not None and not isinstance(executor, SerialExecutor)
+    if remote and source is None:
+        _check_task_size(problem, obstacles)
+    carry = (None, None) if remote and source is not None else (problem, obstacles)
     tasks = [
-        (problem, d, planner, time_limit_s, obstacles, seed, max_iterations) for d in dirs[eff]
+        (
+            *carry,
+            source if carry[0] is None else None,
+            d,
+            planner,
+            time_limit_s,
+            seed,
+            max_iterations,
+        )
+        for d in dirs[eff]
     ]
-    mapper = map if executor is None else executor.map
-    done = []
-    for res in mapper(_plan_one, tasks):
-        done.append(res)
+    done: list = [None] * len(tasks)
+    if executor is None:
+        finished = enumerate(map(_plan_one, tasks))
+    else:
+        from needlekit.batch import as_completed_indexed
+
+        finished = as_completed_indexed(executor, _plan_one, tasks)
+    for k, res in finished:
+        done[k] = res
         if progress is not None:
             progress(res)
     results: list = [None] * len(dirs)
@@ -322,3 +373,60 @@ def sweep(
         "time_s": time.perf_counter() - t0,
     }
     return SweepResult(dirs, eff, results, planner, stats)
+
+
+def sweeps_to_dict(sweeps, *, spacing_mm: float = 0.5) -> dict:
+    """Feng's Tables 2-4 for one case as a JSON-ready record (the ``sweep.json`` format).
+
+    Parameters
+    ----------
+    sweeps : mapping of str to SweepResult
+        One sweep per planner, all over the same candidate directions.
+    spacing_mm : float
+        Spacing of the best plans' ``points_mm``.
+
+    Returns
+    -------
+    dict
+        ``planners``; ``summary`` (per planner: the :class:`SweepResult` stats, Feng's
+        Table 4); ``directions`` (one row per candidate: ``index``, ``direction``,
+        ``effective``, and per planner ``status``, ``cost_mm`` and ``time_s``, Feng's
+        Tables 2-3); ``best_plans`` (per planner, the lowest-cost plan in the
+        ``plan.json`` format, or None).
+
+    Raises
+    ------
+    InvalidInputError
+        No sweeps, or sweeps over different directions.
+    """
+    if not sweeps:
+        raise InvalidInputError("sweeps", "expected at least one sweep")
+    names = list(sweeps)
+    first = sweeps[names[0]]
+    for name in names[1:]:
+        other = sweeps[name]
+        if other.directions.shape != first.directions.shape or not np.allclose(
+            other.directions, first.directions
+        ):
+            raise InvalidInputError("sweeps", f"{name!r} swept other directions than {names[0]!r}")
+    tables = {name: sweeps[name].to_dict()["directions"] for name in names}
+    rows = []
+    for i, (d, eff) in enumerate(zip(first.directions, first.effective, strict=True)):
+        rows.append(
+            {
+                "index": i,
+                "direction": [float(v) for v in d],
+                "effective": bool(eff),
+                "status": {n: tables[n][i]["status"] for n in names},
+                "cost_mm": {n: tables[n][i]["cost_mm"] for n in names},
+                "time_s": {n: tables[n][i]["time_s"] for n in names},
+            }
+        )
+    return {
+        "planners": names,
+        "summary": {n: dict(sweeps[n].stats) for n in names},
+        "directions": rows,
+        "best_plans": {
+            n: None if sweeps[n].best is None else sweeps[n].best.to_dict(spacing_mm) for n in names
+        },
+    }

@@ -1,0 +1,215 @@
+"""Batch execution: one interface for running many independent tasks in this process, on a
+local process pool, or on a Dask cluster.
+
+Studies (direction sweeps, many cases, many trials) are lists of independent tasks. They
+run through a :class:`concurrent.futures.Executor`, so the same code scales from a laptop
+to a cluster:
+
+- ``"serial"``: one after the other in this process (debuggable, no pickling);
+- ``"process"``: a local process pool (``spawn`` start method, safe with numba's and
+  BLAS's threads);
+- ``"dask"``: a Dask ``distributed`` client, either connected to a running scheduler
+  (``address="tcp://host:8786"``) or to a local cluster it starts and stops itself
+  (``pip install 'needlekit[dask]'``).
+
+Tasks that need heavy shared inputs (a patient's distance fields) should not carry them:
+pass a small picklable *source* and let each worker build the input once through
+:func:`worker_cached`.
+
+Examples
+--------
+>>> with open_executor("serial") as ex:
+...     [i for i, _ in as_completed_indexed(ex, abs, [-2, 3])]
+[0, 1]
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, Future, as_completed
+from contextlib import contextmanager
+from typing import Any
+
+from needlekit.errors import InvalidInputError
+
+__all__ = [
+    "EXECUTORS",
+    "SerialExecutor",
+    "as_completed_indexed",
+    "clear_worker_cache",
+    "open_executor",
+    "worker_cached",
+]
+
+#: Names accepted by :func:`open_executor`.
+EXECUTORS = ("serial", "process", "dask")
+
+
+class SerialExecutor(Executor):
+    """An executor that runs every task at submission, in the calling thread.
+
+    Exceptions are stored in the returned future, as with a pool.
+    """
+
+    def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
+        """Run ``fn(*args, **kwargs)`` now.
+
+        Parameters
+        ----------
+        fn : callable
+        *args, **kwargs
+            Its arguments.
+
+        Returns
+        -------
+        concurrent.futures.Future
+            Already done.
+        """
+        fut: Future = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:
+            fut.set_exception(exc)
+        return fut
+
+
+def _check_workers(workers) -> int | None:
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InvalidInputError("workers", f"expected a whole number >= 1, got {workers!r}")
+    return workers
+
+
+@contextmanager
+def open_executor(
+    kind: str = "serial", *, workers: int | None = None, address: str | None = None
+) -> Iterator[Executor]:
+    """An executor of the given kind, shut down on leaving the ``with`` block.
+
+    Parameters
+    ----------
+    kind : {"serial", "process", "dask"}
+    workers : int, optional
+        Worker processes (default: the machine's CPU count; ignored for ``"serial"`` and
+        for a remote Dask scheduler).
+    address : str, optional
+        Dask scheduler address; without one, ``"dask"`` starts a local cluster of
+        ``workers`` single-threaded processes.
+
+    Yields
+    ------
+    concurrent.futures.Executor
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown kind, bad worker count, or Dask not installed.
+    """
+    workers = _check_workers(workers)
+    if kind == "serial":
+        yield SerialExecutor()
+    elif kind == "process":
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(
+            max_workers=workers or os.cpu_count() or 1,
+            mp_context=multiprocessing.get_context("spawn"),
+        ) as pool:
+            yield pool
+    elif kind == "dask":
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as exc:
+            raise InvalidInputError(
+                "executor", "'dask' needs Dask distributed: pip install 'needlekit[dask]'"
+            ) from exc
+        if address is not None:
+            with Client(address) as client:
+                yield client.get_executor()
+        else:
+            with (
+                LocalCluster(
+                    n_workers=workers or os.cpu_count() or 1,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.WARNING,
+                ) as cluster,
+                Client(cluster) as client,
+            ):
+                yield client.get_executor()
+    else:
+        raise InvalidInputError("executor", f"expected one of {', '.join(EXECUTORS)}, got {kind!r}")
+
+
+def as_completed_indexed(
+    executor: Executor, fn: Callable, items: Iterable
+) -> Iterator[tuple[int, Any]]:
+    """Submit ``fn(item)`` for every item and yield ``(index, result)`` as tasks finish.
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor
+    fn : callable
+        Must be picklable (a module-level function) for process and Dask executors.
+    items : iterable
+        Task arguments (picklable).
+
+    Yields
+    ------
+    tuple of (int, object)
+        The item's position and ``fn``'s result, in completion order. A task's exception
+        propagates when its result is reached; the remaining tasks are cancelled.
+    """
+    futures = {executor.submit(fn, item): i for i, item in enumerate(items)}
+    try:
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
+    finally:
+        for fut in futures:
+            fut.cancel()
+
+
+_CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def worker_cached(key, build: Callable[[], Any]) -> Any:
+    """The value built for ``key`` in this process, building it on first use.
+
+    Workers of a pool live across tasks, so a task that needs a heavy input (a scenario's
+    scene and distance fields) builds it once per worker, not once per task.
+
+    Parameters
+    ----------
+    key : hashable
+        Identifies the input (e.g. a scenario path and its overrides).
+    build : callable
+        Makes the value; called at most once per key and process.
+
+    Returns
+    -------
+    object
+    """
+    with _CACHE_LOCK:
+        if key in _CACHE:
+            return _CACHE[key]
+        value = build()
+        _CACHE[key] = value
+        return value
+
+
+def clear_worker_cache() -> None:
+    """Forget every value :func:`worker_cached` holds in this process.
+
+    Returns
+    -------
+    None
+    """
+    with _CACHE_LOCK:
+        _CACHE.clear()

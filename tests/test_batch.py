@@ -1,0 +1,127 @@
+"""Batch execution: serial, process-pool and Dask executors give the same study results."""
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from needlekit.batch import (
+    SerialExecutor,
+    as_completed_indexed,
+    clear_worker_cache,
+    open_executor,
+    worker_cached,
+)
+from needlekit.errors import InvalidInputError
+from needlekit.planning.steerable.source import ScenarioSource, load_problem
+from needlekit.planning.steerable.sweep import sphere_directions, sweep
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _square(x):
+    return x * x
+
+
+def _fail_on_three(x):
+    if x == 3:
+        raise ValueError("three")
+    return x
+
+
+def test_serial_executor_runs_at_submission_and_keeps_exceptions():
+    ex = SerialExecutor()
+    assert ex.submit(_square, 4).result() == 16
+    fut = ex.submit(_fail_on_three, 3)
+    assert fut.done() and isinstance(fut.exception(), ValueError)
+
+
+@pytest.mark.parametrize("kind", ["serial", "process"])
+def test_as_completed_indexed_returns_every_task_once(kind):
+    with open_executor(kind, workers=2) as ex:
+        got = dict(as_completed_indexed(ex, _square, range(10)))
+    assert got == {i: i * i for i in range(10)}
+
+
+def test_as_completed_indexed_propagates_a_task_error():
+    with pytest.raises(ValueError, match="three"):
+        dict(as_completed_indexed(SerialExecutor(), _fail_on_three, range(5)))
+
+
+@pytest.mark.parametrize(
+    ("kind", "workers", "field"),
+    [("threads", None, "executor"), ("process", 0, "workers"), ("serial", 1.5, "workers")],
+)
+def test_open_executor_rejects_bad_arguments(kind, workers, field):
+    with pytest.raises(InvalidInputError, match=field), open_executor(kind, workers=workers):
+        pass
+
+
+def test_worker_cache_builds_once_per_key():
+    clear_worker_cache()
+    calls = []
+
+    def build():
+        calls.append(1)
+        return object()
+
+    a = worker_cached("k", build)
+    b = worker_cached("k", build)
+    worker_cached("other", build)
+    assert a is b and len(calls) == 2
+    clear_worker_cache()
+    assert worker_cached("k", build) is not a
+
+
+def test_scenario_source_is_a_small_hashable_recipe():
+    src = ScenarioSource.of(EXAMPLES / "toy.yaml", goal_mm=[1, 2, 3], r_min_mm=80)
+    assert Path(src.scenario_path).is_absolute()
+    assert hash(src) == hash(pickle.loads(pickle.dumps(src)))
+    assert len(pickle.dumps(src)) < 1000
+    _, problem, _ = src.load()
+    np.testing.assert_allclose(problem.goal_mm, [1, 2, 3])
+    assert problem.r_min_mm == 80
+
+
+def test_load_problem_errors_name_the_field(tmp_path):
+    with pytest.raises(InvalidInputError, match="start_pose"):
+        load_problem(EXAMPLES / "toy.yaml", start_pose=np.eye(3))
+
+
+@pytest.fixture(scope="module")
+def lung():
+    src = ScenarioSource.of(EXAMPLES / "lung_phantom.yaml")
+    _, problem, obstacles = src.load()
+    return src, problem, obstacles
+
+
+def _costs(result):
+    return [None if r is None else (r.status.value, round(r.cost_mm, 9)) for r in result.results]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["process", "dask"])
+def test_parallel_sweep_equals_the_serial_sweep(lung, kind):
+    src, problem, obstacles = lung
+    dirs = sphere_directions(96)
+    kw = {"directions": dirs, "time_limit_s": 30.0, "max_iterations": 150, "obstacles": obstacles}
+    serial = sweep(problem, "rcs_star", **kw)
+    seen = []
+    with open_executor(kind, workers=2) as ex:
+        parallel = sweep(problem, "rcs_star", executor=ex, source=src, progress=seen.append, **kw)
+    assert len(seen) == serial.stats["n_effective"] > 0
+    assert _costs(parallel) == _costs(serial)
+    assert parallel.stats["best_index"] == serial.stats["best_index"]
+
+
+def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
+    _, problem, obstacles = lung
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    with (
+        pytest.raises(InvalidInputError, match="source"),
+        ThreadPoolExecutor(1) as ex,
+    ):
+        sweep(problem, "rcs_star", directions=sphere_directions(8), executor=ex)
