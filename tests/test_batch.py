@@ -116,7 +116,7 @@ def test_parallel_sweep_equals_the_serial_sweep(lung, kind):
 
 
 def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
-    _, problem, obstacles = lung
+    _, problem, _ = lung
 
     from concurrent.futures import ThreadPoolExecutor
 

@@ -246,6 +246,27 @@ def test_demo_writes_figures_and_phantom_views(capsys, tmp_path):
     summary = json.loads((tmp_path / "phantoms.json").read_text())
     assert set(summary) == {"lung", "liver", "neck"}
     assert all(len(v["start_poses"]) >= 1 for v in summary.values())
+    # the main job: the lung phantom's effective-region sweep, its best plan and report
+    lung = tmp_path / "lung"
+    assert {"scenario.yaml", "sweep.json", "plan.json", "report.html"} <= {
+        p.name for p in lung.iterdir()
+    }
+    sweep = json.loads((lung / "sweep.json").read_text())
+    assert sweep["planners"] == ["rcs_star", "rcs", "rrt"]
+    st = sweep["summary"]
+    assert st["rcs_star"]["n_effective"] == pytest.approx(
+        544 * (1 - np.sin(np.radians(20))) / 2, abs=3
+    )
+    assert st["rcs_star"]["n_solved"] > 0
+    mean = [st[p]["mean_cost_mm"] for p in ("rcs_star", "rcs", "rrt")]
+    assert mean[0] <= mean[1] + 1e-9 <= mean[2] + 2e-9  # Feng's Table 4 order
+    plan = json.loads((lung / "plan.json").read_text())
+    assert plan["cost_mm"] == pytest.approx(st["rcs_star"]["best_cost_mm"]) and plan["check"]["ok"]
+    assert np.linalg.norm(np.diff(plan["points_mm"], axis=0), axis=1).max() <= 0.5 + 1e-9
+    code, text, _ = run(capsys, "verify", str(lung / "scenario.yaml"), str(lung / "plan.json"))
+    assert code == 0 and text.startswith("ok:")
+    html = (lung / "report.html").read_text()
+    assert html.count("plotly.js v") == 1 and "Fig. 8" in html and "Fig. 9" in html
 
 
 def test_plan_then_verify_round_trip(capsys, tmp_path):
@@ -326,8 +347,10 @@ def test_sweep_writes_the_direction_table(capsys, tmp_path):
     assert sum(c is not None for c in costs) == summary["n_solved"]
     if summary["n_solved"]:
         best = data["best_plans"]["rcs_star"]
-        assert best["cost_mm"] == pytest.approx(summary["best_cost_mm"]) == min(
-            c for c in costs if c is not None
+        assert (
+            best["cost_mm"]
+            == pytest.approx(summary["best_cost_mm"])
+            == min(c for c in costs if c is not None)
         )
 
 
@@ -338,9 +361,38 @@ def test_sweep_compares_planners_on_a_process_pool(capsys, tmp_path):
     args += ["--planner", "rcs_star", "rrt", "--time-limit-s", "10", "--out", str(out)]
     code, text, _ = run(capsys, *args, "--executor", "process", "--workers", "2")
     data = json.loads(out.read_text())
+    assert code == (0 if any(v["n_solved"] for v in data["summary"].values()) else 1)
     assert data["planners"] == ["rcs_star", "rrt"] and len(data["directions"]) == 48
     assert text.count("directions effective") == 2
     serial_out = tmp_path / "serial.json"
     run(capsys, *args[:-1], str(serial_out))
     serial = json.loads(serial_out.read_text())
-    assert [r["cost_mm"] for r in serial["directions"]] == [r["cost_mm"] for r in data["directions"]]
+    assert [r["cost_mm"] for r in serial["directions"]] == [
+        r["cost_mm"] for r in data["directions"]
+    ]
+
+
+def test_clearance_cost_from_the_scenario_plans_and_verifies(capsys, tmp_path):
+    text = (
+        (EXAMPLES / "toy.yaml")
+        .read_text()
+        .replace(
+            "planner: {name: rcs_star, time_limit_s: 1.0, seed: 0}",
+            "planner: {name: rrt, time_limit_s: 5.0, seed: 0,"
+            " cost: {kind: clearance, weight: 2.0, reach_mm: 3.0}}",
+        )
+    )
+    assert "clearance" in text
+    scenario = tmp_path / "toy_clearance.yaml"
+    scenario.write_text(text)
+    out = tmp_path / "plan.json"
+    code, _, _ = run(capsys, "plan", str(scenario), "--out", str(out))
+    data = json.loads(out.read_text())
+    assert code == 0 and data["cost_mm"] > data["length_mm"]  # every mm costs at least 1
+    code, text, _ = run(capsys, "verify", str(scenario), str(out))
+    assert code == 0 and text.startswith("ok: cost")
+    # a plan file whose cost was tampered with fails the check
+    data["cost_mm"] = data["length_mm"]
+    out.write_text(json.dumps(data))
+    code, text, _ = run(capsys, "verify", str(scenario), str(out))
+    assert code == 1 and "cost: the plan claims" in text

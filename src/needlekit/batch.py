@@ -19,8 +19,8 @@ pass a small picklable *source* and let each worker build the input once through
 Examples
 --------
 >>> with open_executor("serial") as ex:
-...     [i for i, _ in as_completed_indexed(ex, abs, [-2, 3])]
-[0, 1]
+...     sorted(as_completed_indexed(ex, abs, [-2, 3]))
+[(0, 2), (1, 3)]
 """
 
 from __future__ import annotations

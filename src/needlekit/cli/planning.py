@@ -123,10 +123,10 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from needlekit.planning.steerable.verify import verify_plan
 
     _, problem, obstacles = _problem_and_obstacles(args)
-    plan, _, _ = read_plan_json(args.plan)
+    plan, _, data = read_plan_json(args.plan)
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
-    check = verify_plan(problem, plan, obstacles=obstacles)
+    check = verify_plan(problem, plan, obstacles=obstacles, expected_cost_mm=data.get("cost_mm"))
     if args.json:
         print(
             json.dumps(
@@ -137,7 +137,7 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     else:
         m = check.metrics
         print(
-            f"{'ok' if check.ok else 'VIOLATED'}: length {m['length_mm']:.3f} mm, goal distance "
+            f"{'ok' if check.ok else 'VIOLATED'}: cost {m['cost']:.4f}, length {m['length_mm']:.3f} mm, goal distance "
             f"{m['goal_distance_mm']:.3f} mm, max curvature {m['max_curvature_per_mm']:.5f} /mm, heading change "
             f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm"
         )

@@ -66,6 +66,11 @@ def read_plan_json(path: str | os.PathLike):
         goal = np.asarray(data["goal_mm"], dtype=float).reshape(3)
     except (KeyError, TypeError, ValueError):
         raise InvalidInputError(f"{p.name}: goal_mm", "expected three numbers") from None
+    cost = data.get("cost_mm")
+    if cost is not None and (
+        isinstance(cost, bool) or not isinstance(cost, (int, float)) or not np.isfinite(cost)
+    ):
+        raise InvalidInputError(f"{p.name}: cost_mm", f"expected a number or null, got {cost!r}")
     prims = data.get("primitives") or []
     if data.get("start_pose") is None or not prims:
         return None, goal, data

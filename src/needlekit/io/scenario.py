@@ -372,10 +372,11 @@ def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
     from needlekit.geometry.se3 import make_pose
 
     d = ctx.point(spec["direction"])
-    n = np.linalg.norm(d)
-    if not n > 1e-12:
+    big = float(np.max(np.abs(d)))
+    if not big > 1e-12:
         raise ctx.error("start.direction", "must be a non-zero vector")
-    z = d / n
+    d = d / big  # scaled first: the norm of a huge vector would overflow
+    z = d / np.linalg.norm(d)
     helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     x = np.cross(helper, z)
     x /= np.linalg.norm(x)

@@ -196,6 +196,16 @@ _PLANNER = _obj(
         "time_limit_s": _POS,
         "seed": {"type": "integer", "minimum": 0},
         "options": {"type": "object", "description": "planner-specific settings"},
+        "cost": _obj(
+            {
+                "kind": {"enum": ["path_length", "clearance"]},
+                "weight": {"type": "number", "minimum": 0},
+                "reach_mm": _POS,
+            },
+            ["kind"],
+            "what plans minimise: path length, or the integral of the clearance cost map "
+            "1 + weight * max(0, 1 - clearance / reach_mm) along the path",
+        ),
     },
     [],
 )

@@ -24,10 +24,15 @@ class CostKind(enum.Enum):
     """What a plan's cost measures.
 
     PATH_LENGTH
-        Inserted length (mm), the only cost the planners support so far.
+        Inserted length (mm).
+    CLEARANCE
+        Integral along the path of the clearance cost map
+        ``1 + cost_weight * max(0, 1 - clearance / cost_reach_mm)`` (mm-equivalents, never
+        below the length; :mod:`needlekit.planning.steerable.cost`).
     """
 
     PATH_LENGTH = "path_length"
+    CLEARANCE = "clearance"
 
 
 def _nonneg(value, name: str) -> float:
@@ -72,6 +77,11 @@ class SteerableProblem:
     start_exclusion_mm : float
         Obstacles within this distance of the start are ignored.
     cost : CostKind
+        What plans minimise.
+    cost_weight : float
+        ``w`` of the clearance cost map (>= 0; extra cost per mm when touching an obstacle).
+    cost_reach_mm : float
+        ``R`` of the clearance cost map (> 0): beyond this clearance a mm costs 1.
     """
 
     scene: Scene
@@ -88,6 +98,8 @@ class SteerableProblem:
     max_heading_change_deg: float = 90.0
     start_exclusion_mm: float = 3.0
     cost: CostKind = CostKind.PATH_LENGTH
+    cost_weight: float = 1.0
+    cost_reach_mm: float = 5.0
     metadata: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -115,9 +127,10 @@ class SteerableProblem:
             "r_min_mm",
             "max_length_mm",
             "needle_diameter_mm",
+            "cost_reach_mm",
         ):
             object.__setattr__(self, name, as_positive(getattr(self, name), name))
-        for name in ("safety_margin_mm", "start_exclusion_mm"):
+        for name in ("safety_margin_mm", "start_exclusion_mm", "cost_weight"):
             object.__setattr__(self, name, _nonneg(getattr(self, name), name))
         alpha = float(self.min_puncture_angle_deg)
         if not (np.isfinite(alpha) and 0.0 <= alpha < 90.0):
@@ -137,7 +150,11 @@ class SteerableProblem:
             raise InvalidInputError(
                 "entry_surface", f"no structure named {self.entry_surface!r} in the scene"
             )
-        object.__setattr__(self, "cost", CostKind(self.cost))
+        try:
+            object.__setattr__(self, "cost", CostKind(self.cost))
+        except ValueError:
+            kinds = ", ".join(k.value for k in CostKind)
+            raise InvalidInputError("cost", f"expected one of {kinds}, got {self.cost!r}") from None
 
     def _default_entry_surface(self) -> str | None:
         """The scene's entry surface; else the obstacle the start lies on (within the start
@@ -215,6 +232,12 @@ class SteerableProblem:
             "max_heading_change_deg": n.max_heading_change_deg,
             "start_exclusion_mm": n.start_exclusion_mm,
         }
+        cost = (scenario.planner or {}).get("cost")
+        if cost:
+            kw["cost"] = cost.get("kind", CostKind.PATH_LENGTH.value)
+            for key, name in (("weight", "cost_weight"), ("reach_mm", "cost_reach_mm")):
+                if key in cost:
+                    kw[name] = cost[key]
         kw.update(overrides)
         if kw.get("start_pose") is not None and "start_point_mm" not in overrides:
             kw["start_point_mm"] = None

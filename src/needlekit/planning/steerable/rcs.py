@@ -13,6 +13,13 @@ node is processed, its refinements are added as siblings: shorter, longer (by th
 halving step), spun left and right (curved only). A node's rank is its parent's rank plus
 its length and spin levels plus one, so coarse motions come first.
 
+Duplicates: a motion is defined by its *spun start pose* (the parent's pose turned by the
+spin) and its kind and length, so a child whose spun start pose another parent reaches
+(within :data:`DUPLICATE_TOL`, SE(3) metric ``10 * angle + distance``) is dropped: in
+RCS whenever another parent holds the pose, in RCS* when that parent got there no more
+expensively. Motions that only extend their parent's (same kind, spin 0, after a refined
+length) are not expanded either.
+
 RCS processes the lowest rank first. RCS* orders by cost ``f = g + h``, with ``h`` the
 length of the shortest turn-then-straight connection to within tau of the goal
 (:func:`~needlekit.planning.steerable.goal.goal_connection`), among the ranks within
@@ -29,6 +36,7 @@ implementation of RCS* by its authors (notes in ``docs/notes/steerable-reference
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 import logging
@@ -42,6 +50,7 @@ from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
@@ -49,49 +58,135 @@ from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
 from needlekit.planning.steerable.verify import verify_plan
 
-__all__ = ["LOOKAHEAD_RANKS", "solve_rcs"]
+__all__ = ["LOOKAHEAD_RANKS", "Resolution", "solve_rcs"]
 
 log = logging.getLogger(__name__)
 
-#: Longest primitive (mm) and number of halving levels below it (finest 16 / 2^7 = 0.125 mm).
-MAX_LENGTH_MM, LENGTH_LEVELS = 16.0, 7
-#: Halving levels of the spin below pi/2 (finest pi/32).
-SPIN_LEVELS = 4
 #: RCS* compares f among the ranks within this many of the lowest queued rank.
 LOOKAHEAD_RANKS = 3
 #: Slack of the pruning comparisons (mm): rounding only.
 PRUNE_EPS_MM = 1e-10
+#: Two spun start poses are the same within this SE(3) distance (10 * angle + distance):
+#: numerically identical poses only, as in the reference planner.
+DUPLICATE_TOL = 1e-6
 
 
-def _length_table() -> tuple[np.ndarray, np.ndarray]:
-    n = 2**LENGTH_LEVELS
-    lengths, levels = np.zeros(n), np.zeros(n, dtype=np.int64)
-    lengths[0], lengths[1], levels[1] = MAX_LENGTH_MM, MAX_LENGTH_MM / 2, 1
+@dataclass(frozen=True)
+class Resolution:
+    """The motion primitives' resolution levels.
+
+    Attributes
+    ----------
+    max_length_mm : float
+        Longest primitive (level 0).
+    length_levels : int
+        Halving levels below it (finest step ``max_length_mm / 2**length_levels``).
+    spin_levels : int
+        Halving levels of the spin below pi/2 (finest ``pi / 2**(spin_levels + 1)``).
+
+    Examples
+    --------
+    >>> r = Resolution(max_length_mm=8.0, length_levels=2, spin_levels=1)
+    >>> sorted(r.lengths().tolist()), len(r.spins())
+    ([2.0, 4.0, 6.0, 8.0], 8)
+    """
+
+    max_length_mm: float = 16.0
+    length_levels: int = 7
+    spin_levels: int = 4
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.max_length_mm) and self.max_length_mm > 0):
+            raise InvalidInputError("max_length_mm", f"must be > 0, got {self.max_length_mm}")
+        for name in ("length_levels", "spin_levels"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 12:
+                raise InvalidInputError(name, f"expected a whole number in [0, 12], got {v!r}")
+
+    def lengths(self) -> np.ndarray:
+        """Primitive lengths by index (index ``i`` refines index ``i // 2``).
+
+        Returns
+        -------
+        ndarray, shape (2**length_levels,)
+        """
+        return _tables(self)[0]
+
+    def spins(self) -> np.ndarray:
+        """Spins by index (indices 0-3: multiples of pi/2; ``i`` refines ``i // 2``).
+
+        Returns
+        -------
+        ndarray, shape (4 * 2**spin_levels,)
+        """
+        return _tables(self)[2]
+
+
+@functools.lru_cache(maxsize=16)
+def _tables(res: Resolution):
+    n = 2**res.length_levels
+    top = res.max_length_mm
+    lengths, llev = np.zeros(n), np.zeros(n, dtype=np.int64)
+    lengths[0] = top
+    if n > 1:
+        lengths[1], llev[1] = top / 2, 1
     for i in range(2, n):
         parent = i // 2
-        levels[i] = levels[parent] + 1
-        step = MAX_LENGTH_MM / 2 ** (levels[parent] + 1)
+        llev[i] = llev[parent] + 1
+        step = top / 2 ** (llev[parent] + 1)
         lengths[i] = lengths[parent] + (step if i % 2 == 0 else -step)
-    return lengths, levels
-
-
-def _spin_table() -> tuple[np.ndarray, np.ndarray]:
-    n = 4 * 2**SPIN_LEVELS
-    spins, levels = np.zeros(n), np.zeros(n, dtype=np.int64)
+    m = 4 * 2**res.spin_levels
+    spins, slev = np.zeros(m), np.zeros(m, dtype=np.int64)
     for i in range(4):
         spins[i] = i * math.pi / 2
-    for i in range(4, 8):
-        spins[i], levels[i] = spins[i - 4] + math.pi / 4, 1
-    for i in range(8, n):
+    for i in range(4, min(8, m)):
+        spins[i], slev[i] = spins[i - 4] + math.pi / 4, 1
+    for i in range(8, m):
         parent = i // 2
-        levels[i] = levels[parent] + 1
-        step = (math.pi / 2) / 2 ** (levels[parent] + 1)
+        slev[i] = slev[parent] + 1
+        step = (math.pi / 2) / 2 ** (slev[parent] + 1)
         spins[i] = spins[parent] + (step if i % 2 == 0 else -step)
-    return spins, levels
+    return lengths, llev, spins, slev
 
 
-_LENGTHS, _LENGTH_LEVEL = _length_table()
-_SPINS, _SPIN_LEVEL = _spin_table()
+class _DuplicateIndex:
+    """Spun start poses by position cell; finds another parent's pose within the tolerance."""
+
+    def __init__(self, tol: float = DUPLICATE_TOL) -> None:
+        self.tol = tol
+        self.cell = 1e3 * tol
+        self.cells: dict[tuple, list] = {}
+
+    def _key(self, p) -> tuple:
+        return tuple(int(v) for v in np.floor(p / self.cell))
+
+    def check_and_add(self, pose: np.ndarray, parent: int, g_parent: float, optimal: bool) -> bool:
+        """False when another parent holds this pose (no more expensively, for RCS*)."""
+        p, rot = pose[:3, 3], pose[:3, :3]
+        k = self._key(p)
+        mine = False
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                for dz in (-1, 0, 1):
+                    for q, other, g_other in self.cells.get((k[0] + dx, k[1] + dy, k[2] + dz), ()):
+                        d = 10.0 * float(np.linalg.norm(rot - q[:3, :3])) / math.sqrt(2.0)
+                        d += float(np.linalg.norm(p - q[:3, 3]))
+                        if d > self.tol:
+                            continue
+                        if other == parent:
+                            mine = True
+                        elif not optimal or g_other < g_parent + PRUNE_EPS_MM:
+                            return False
+        if not mine:
+            self.cells.setdefault(k, []).append((pose, parent, g_parent))
+        return True
+
+
+def _spin_matrix(spin: float) -> np.ndarray:
+    c, sn = math.cos(spin), math.sin(spin)
+    m = np.eye(4)
+    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = c, -sn, sn, c
+    return m
 
 
 @dataclass
@@ -100,6 +195,7 @@ class _Node:
     parent: int
     g: float
     h: float
+    s: float
     rank: int
     curved: bool
     li: int
@@ -112,6 +208,7 @@ class _Node:
 
 
 def _cost_to_go(pose, problem: SteerableProblem) -> float:
+    # shortest turn-then-straight length: a lower bound of any cost (every mm costs >= 1)
     c = goal_connection(pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm)
     return math.inf if c is None else c.length_mm
 
@@ -123,6 +220,7 @@ def solve_rcs(
     optimal: bool = True,
     obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
+    resolution: Resolution | None = None,
 ) -> PlanResult:
     """Plan with RCS* (``optimal=True``) or RCS.
 
@@ -138,6 +236,8 @@ def solve_rcs(
         Exact voxel-centre collision test (default: the scene's obstacle field).
     max_iterations : int, optional
         Budget in processed nodes.
+    resolution : Resolution, optional
+        Primitive resolution (default: 16 mm to 0.125 mm, spins down to pi/32).
 
     Returns
     -------
@@ -175,9 +275,16 @@ def solve_rcs(
             PlanStatus.INFEASIBLE, reason="goal outside the start's reachable set (r_min torus)"
         )
 
+    res = Resolution() if resolution is None else resolution
+    if not isinstance(res, Resolution):
+        raise InvalidInputError("resolution", f"expected a Resolution, got {type(res).__name__}")
+    lengths, length_level, spins, spin_level = _tables(res)
+    length_levels, spin_levels = res.length_levels, res.spin_levels
     kappa = problem.kappa_max_per_mm
+    duplicates = _DuplicateIndex()
+    n_duplicates = 0
     connect = goal_connection if optimal else single_arc_connection
-    nodes = [_Node(start, -1, 0.0, h0, 0, False, 0, 0, set())]
+    nodes = [_Node(start, -1, 0.0, h0, 0.0, 0, False, 0, 0, set())]
     counter = itertools.count()
     buckets: dict[int, list] = {}
     best = math.inf
@@ -205,21 +312,29 @@ def solve_rcs(
         return item[-1]
 
     def add_child(parent_idx: int, curved: bool, li: int, si: int) -> None:
+        nonlocal n_duplicates
         parent = nodes[parent_idx]
         key = (curved, li, si)
         if key in parent.explored:
             return
         parent.explored.add(key)
-        spin = _SPINS[si] if curved else 0.0
-        length = _LENGTHS[li]
-        pose = propagate_arcs(parent.pose, spin, kappa if curved else 0.0, length)
-        rank = parent.rank + int(_LENGTH_LEVEL[li]) + (int(_SPIN_LEVEL[si]) if curved else 0) + 1
+        spin = spins[si] if curved else 0.0
+        if curved and not duplicates.check_and_add(
+            parent.pose @ _spin_matrix(spin), parent_idx, parent.g, optimal
+        ):
+            n_duplicates += 1
+            return
+        length = lengths[li]
+        k = kappa if curved else 0.0
+        pose = propagate_arcs(parent.pose, spin, k, length)
+        rank = parent.rank + int(length_level[li]) + (int(spin_level[si]) if curved else 0) + 1
         nodes.append(
             _Node(
                 pose,
                 parent_idx,
-                parent.g + length,
+                parent.g + motion_cost(problem, parent.pose, spin, k, length),
                 _cost_to_go(pose, problem),
+                parent.s + length,
                 rank,
                 curved,
                 li,
@@ -236,14 +351,14 @@ def solve_rcs(
 
     def refine(idx: int) -> None:
         n = nodes[idx]
-        a, b = int(_LENGTH_LEVEL[n.li]), int(_SPIN_LEVEL[n.si])
-        if a < LENGTH_LEVELS:
+        a, b = int(length_level[n.li]), int(spin_level[n.si])
+        if a < length_levels:
             add_child(n.parent, n.curved, 1 if a == 0 else 2 * n.li + 1, n.si)
-        if 0 < a < LENGTH_LEVELS:
+        if 0 < a < length_levels:
             add_child(n.parent, n.curved, 2 * n.li, n.si)
-        if n.curved and b < SPIN_LEVELS:
+        if n.curved and b < spin_levels:
             add_child(n.parent, True, n.li, n.si + 4 if b == 0 else 2 * n.si)
-        if n.curved and 0 < b < SPIN_LEVELS:
+        if n.curved and 0 < b < spin_levels:
             add_child(n.parent, True, n.li, 2 * n.si + 1)
 
     def chain(idx: int) -> list:
@@ -251,7 +366,7 @@ def solve_rcs(
         while nodes[idx].parent >= 0:
             n = nodes[idx]
             prims.append(
-                [_SPINS[n.si] if n.curved else 0.0, kappa if n.curved else 0.0, _LENGTHS[n.li]]
+                [spins[n.si] if n.curved else 0.0, kappa if n.curved else 0.0, lengths[n.li]]
             )
             idx = n.parent
         return prims[::-1]
@@ -262,10 +377,14 @@ def solve_rcs(
         conn = connect(n.pose, goal, problem.r_min_mm, problem.goal_tolerance_mm)
         if conn is None:
             return
-        cost = n.g + conn.length_mm
-        if cost >= best - PRUNE_EPS_MM or cost >= problem.max_length_mm:
+        if n.s + conn.length_mm >= problem.max_length_mm:
+            return
+        if n.g + conn.length_mm >= best - PRUNE_EPS_MM:  # the cost is at least the length
             return
         if not validator.primitives_valid(n.pose, conn.primitives):
+            return
+        cost = n.g + chain_cost(problem, n.pose, conn.primitives)
+        if cost >= best - PRUNE_EPS_MM:
             return
         plan = SteerablePlan(start, np.array(chain(idx) + conn.primitives.tolist()).reshape(-1, 3))
         check = verify_plan(problem, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm)
@@ -297,14 +416,12 @@ def solve_rcs(
         # a spin-0 motion of the parent's kind after a shorter parent motion just extends it
         if n.si == 0 and n.parent > 0 and n.curved == parent.curved and parent.li != 0:
             continue
-        if n.g >= problem.max_length_mm or not math.isfinite(n.h):
+        if n.s >= problem.max_length_mm or not math.isfinite(n.h):
             continue
         if optimal and best < n.f + PRUNE_EPS_MM:
             continue
-        spin = _SPINS[n.si] if n.curved else 0.0
-        if not validator.motion_valid(
-            parent.pose, spin, kappa if n.curved else 0.0, _LENGTHS[n.li]
-        ):
+        spin = spins[n.si] if n.curved else 0.0
+        if not validator.motion_valid(parent.pose, spin, kappa if n.curved else 0.0, lengths[n.li]):
             continue
         try_goal(idx)
         expand(idx)
@@ -317,6 +434,7 @@ def solve_rcs(
         "exhausted": exhausted,
         "reason": reason,
         "refused_by_check": rejected,
+        "duplicates": n_duplicates,
         "setup_s": setup_s,
     }
     if best_plan is not None:

@@ -24,6 +24,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
 from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
@@ -147,6 +148,7 @@ def solve_rrt_multi(
     parents = [-1]
     prims = [np.zeros(3)]
     costs = [0.0]
+    lengths = [0.0]
     best = [math.inf] * k
     best_plans: list[SteerablePlan | None] = [None] * k
     iterations = refused = 0
@@ -164,10 +166,14 @@ def solve_rrt_multi(
             conn = single_arc_connection(poses[idx], goals[i], r, tau)
             if conn is None or conn.primitives[0, 1] > kappa * (1 + 1e-12):
                 continue
-            cost = costs[idx] + conn.length_mm
-            if cost >= best[i] or cost >= problem.max_length_mm:
+            if lengths[idx] + conn.length_mm >= problem.max_length_mm:
+                continue
+            if costs[idx] + conn.length_mm >= best[i]:  # the cost is at least the length
                 continue
             if not validator.primitives_valid(poses[idx], conn.primitives):
+                continue
+            cost = costs[idx] + chain_cost(problem, poses[idx], conn.primitives)
+            if cost >= best[i]:
                 continue
             plan = SteerablePlan(
                 start, np.array(chain(idx) + conn.primitives.tolist()).reshape(-1, 3)
@@ -210,7 +216,7 @@ def solve_rrt_multi(
         if ext is None:
             continue
         spin, kap, length = ext.primitives[0]
-        if length <= 1e-9 or costs[near] + length >= problem.max_length_mm:
+        if length <= 1e-9 or lengths[near] + length >= problem.max_length_mm:
             continue
         if not validator.motion_valid(poses[near], spin, kap, length):
             continue
@@ -218,7 +224,8 @@ def solve_rrt_multi(
         poses.append(new_pose)
         parents.append(near)
         prims.append(np.array([spin, kap, length]))
-        costs.append(costs[near] + length)
+        costs.append(costs[near] + motion_cost(problem, poses[near], spin, kap, length))
+        lengths.append(lengths[near] + length)
         try_goals(len(poses) - 1)
 
     out = []

@@ -35,6 +35,7 @@ __all__ = [
     "pose_from_direction",
     "sphere_directions",
     "sweep",
+    "sweep_stats",
     "sweeps_to_dict",
 ]
 
@@ -179,8 +180,8 @@ class SweepResult:
     stats : dict
         ``n_directions``, ``n_effective``, ``n_solved``, ``best_index``,
         ``best_cost_mm``, ``mean_cost_mm`` (over solved directions), ``cost_before_lowest_mm``
-        (mean cost of the solved directions swept before the best one, Feng's planning
-        rapidity figure) and ``time_s``.
+        (Feng's planning-rapidity figure of Table 4: the sum of the solved directions'
+        costs in sweep order up to and including the lowest) and ``time_s``.
     """
 
     directions: np.ndarray
@@ -355,13 +356,51 @@ def sweep(
     results: list = [None] * len(dirs)
     for i, res in zip(np.flatnonzero(eff), done, strict=True):
         results[i] = res
+    stats = sweep_stats(dirs, eff, results, time.perf_counter() - t0)
+    return SweepResult(dirs, eff, results, planner, stats)
+
+
+def sweep_stats(directions, effective, results, time_s: float = 0.0) -> dict:
+    """The summary of a sweep (Feng's Table 4 and the best direction).
+
+    Parameters
+    ----------
+    directions : ndarray, shape (n, 3)
+    effective : ndarray of bool, shape (n,)
+    results : sequence of PlanResult or None
+        Per direction, in sweep order; only ``SOLVED`` results count.
+    time_s : float
+        Wall-clock time of the sweep.
+
+    Returns
+    -------
+    dict
+        See :class:`SweepResult`.
+
+    Examples
+    --------
+    Feng's Table 2, RCS*: the lowest cost is the 6th solved direction, and the costs up to
+    it sum to Table 4's 365.1960 ("before lowest").
+
+    >>> from needlekit.planning.steerable.result import PlanResult
+    >>> costs = [63.1118, 61.3853, 60.6194, 60.0265, 60.1770, 59.8760, 60.6104, 60.2192,
+    ...          63.0487, 62.3829]
+    >>> res = [PlanResult(PlanStatus.SOLVED, "rcs_star", None, c, 0.0, np.zeros(3)) for c in costs]
+    >>> st = sweep_stats(np.eye(3)[[0] * 10], np.ones(10, bool), res)
+    >>> round(st["cost_before_lowest_mm"], 4), round(st["mean_cost_mm"], 4), st["best_index"]
+    (365.196, 61.1457, 5)
+    """
+    dirs = np.asarray(directions, dtype=float).reshape(-1, 3)
+    eff = np.asarray(effective, dtype=bool)
     costs = np.array(
         [r.cost_mm if r is not None and r.status is PlanStatus.SOLVED else np.inf for r in results]
     )
     solved = np.isfinite(costs)
     best = int(np.argmin(costs)) if solved.any() else None
-    before = [c for c in costs[: best if best is not None else 0] if np.isfinite(c)]
-    stats = {
+    # Feng's Table 4 "before lowest": the sum of the solved directions' costs, in sweep
+    # order, up to and including the lowest
+    before = costs[: 0 if best is None else best + 1]
+    return {
         "n_directions": len(dirs),
         "n_effective": int(eff.sum()),
         "n_solved": int(solved.sum()),
@@ -369,10 +408,9 @@ def sweep(
         "best_cost_mm": None if best is None else float(costs[best]),
         "best_direction": None if best is None else [float(v) for v in dirs[best]],
         "mean_cost_mm": float(costs[solved].mean()) if solved.any() else None,
-        "cost_before_lowest_mm": float(np.mean(before)) if before else None,
-        "time_s": time.perf_counter() - t0,
+        "cost_before_lowest_mm": None if best is None else float(before[np.isfinite(before)].sum()),
+        "time_s": float(time_s),
     }
-    return SweepResult(dirs, eff, results, planner, stats)
 
 
 def sweeps_to_dict(sweeps, *, spacing_mm: float = 0.5) -> dict:

@@ -10,6 +10,9 @@ plan files. It re-derives the path from the plan's primitives alone and checks:
   densely) stays within the limit;
 - puncture angle: the angle between the start direction and the entry surface (90 degrees
   minus the angle to its outward normal) is at least alpha;
+- cost: when the caller states the plan's cost (a plan file's ``cost_mm``), it matches
+  the cost recomputed from the primitives (path length, or the clearance cost map's
+  integral);
 - clearance: no sample of the path (every ``spacing_mm``) collides. With
   :class:`~needlekit.anatomy.occupancy.VoxelObstacles` this is the exact voxel-centre test
   with the start exclusion; otherwise the scene's obstacle field must keep the needle
@@ -24,6 +27,7 @@ import numpy as np
 
 from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
+from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 
@@ -44,7 +48,7 @@ class Verification:
     violations : tuple of str
         One line per broken rule, naming it and the measured value.
     metrics : dict
-        ``length_mm``, ``goal_distance_mm``, ``max_curvature_per_mm``,
+        ``cost`` (recomputed), ``length_mm``, ``goal_distance_mm``, ``max_curvature_per_mm``,
         ``max_heading_change_deg``, ``puncture_angle_deg`` (or None),
         ``min_clearance_mm`` (the obstacle field's, outside the start exclusion) and
         ``colliding_samples``.
@@ -73,6 +77,7 @@ def verify_plan(
     *,
     obstacles: VoxelObstacles | None = None,
     spacing_mm: float = 0.25,
+    expected_cost_mm: float | None = None,
 ) -> Verification:
     """Check a plan against every constraint of its problem.
 
@@ -85,6 +90,9 @@ def verify_plan(
         scene's obstacle field is used.
     spacing_mm : float
         Spacing of the samples along the path.
+    expected_cost_mm : float, optional
+        The cost the plan claims; a violation when the recomputed cost differs by more
+        than 1e-6 mm (relative 1e-9).
 
     Returns
     -------
@@ -146,7 +154,13 @@ def verify_plan(
                 f"collision: clearance {min_clear:.4f} mm below the needle's "
                 f"{problem.clearance_margin_mm:g} mm outside the start exclusion"
             )
+    cost = plan_cost(problem, plan)
+    if expected_cost_mm is not None and not (
+        abs(float(expected_cost_mm) - cost) <= 1e-6 + 1e-9 * abs(cost)
+    ):
+        bad.append(f"cost: the plan claims {float(expected_cost_mm):.6f}, recomputed {cost:.6f}")
     metrics = {
+        "cost": cost,
         "length_mm": length,
         "goal_distance_mm": goal_dist,
         "max_curvature_per_mm": max_kappa,

@@ -1,0 +1,185 @@
+"""One self-contained HTML page of plotly figures, tables and text (opens offline).
+
+:func:`write_report_html` inlines plotly.js once, with the first figure, escapes all text,
+formats table numbers by their column's unit suffix, and writes the page atomically.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+from needlekit.io.files import atomic_write
+
+__all__ = ["FigureSection", "TableSection", "TextSection", "write_report_html"]
+
+_MINUS, _DASH = "\N{MINUS SIGN}", "\N{EN DASH}"
+
+
+@dataclass(frozen=True)
+class FigureSection:
+    """A plotly figure under a heading, with an optional caption below it."""
+
+    heading: str
+    figure: object
+    caption: str | None = None
+
+
+@dataclass(frozen=True)
+class TableSection:
+    """A table of rows (mappings; columns in order of first appearance) under a heading."""
+
+    heading: str
+    rows: Sequence[Mapping]
+    caption: str | None = None
+
+
+@dataclass(frozen=True)
+class TextSection:
+    """A paragraph of plain text, with an optional heading."""
+
+    text: str
+    heading: str | None = None
+
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,"Helvetica Neue",Arial,sans-serif;
+margin:0;background:#f4f5f7;color:#222;line-height:1.5}
+main{max-width:1280px;margin:0 auto;padding:1.5rem 2.5rem 3rem;background:#fff;min-height:100vh}
+h1{font-weight:600;font-size:1.7rem;margin:.3rem 0 1rem;border-bottom:2px solid #e5e5e5;
+padding-bottom:.4rem}h2{font-weight:600;font-size:1.2rem;margin:2rem 0 .6rem}
+p{max-width:60rem}p.caption{color:#555;font-size:.9rem;margin-top:.3rem}
+table{border-collapse:collapse;font-size:.92rem;font-variant-numeric:tabular-nums}
+th,td{padding:.35rem .8rem;border-bottom:1px solid #e3e3e3;text-align:left;white-space:nowrap}
+th{background:#f3f5f7;font-weight:600;border-bottom:2px solid #cfd4da}td.num{text-align:right}
+tbody tr:nth-child(even){background:#fafbfc}tbody tr:hover{background:#eef4fb}
+.figure{border:1px solid #eee;border-radius:6px;padding:.3rem}
+footer{margin-top:2.5rem;color:#888;font-size:.8rem}
+"""
+
+
+def _header(key: str) -> str:
+    for suffix, unit in (("_mm", "mm"), ("_s", "s"), ("_deg", "°"), ("_rad", "rad")):
+        if key.endswith(suffix):
+            return f"{key[: -len(suffix)].replace('_', ' ')} ({unit})"
+    return key.replace("_", " ")
+
+
+def _cell(key: str, value) -> tuple[str, bool]:
+    """Text of a table cell and whether it is a number (right-aligned)."""
+    decimals = ".3f" if key.endswith(("_mm", "_s", "_deg", "_rad", "direction")) else ".4g"
+    if value is None or (isinstance(value, (float, np.floating)) and not math.isfinite(value)):
+        return _DASH, True
+    if isinstance(value, str):
+        return value, False
+    if isinstance(value, (bool, np.bool_)):
+        return ("yes" if value else "no"), False
+    if isinstance(value, (int, np.integer)):
+        return str(int(value)), True
+    if isinstance(value, (float, np.floating)):
+        return format(float(value), decimals).replace("-", _MINUS), True
+    arr = np.asarray(value) if isinstance(value, (list, tuple, np.ndarray)) else None
+    if arr is not None and arr.dtype.kind in "iuf" and arr.ndim == 1:
+        return "(" + ", ".join(_cell(key, float(a))[0] for a in arr) + ")", True
+    return str(value), False
+
+
+def _table_html(rows: Sequence[Mapping]) -> str:
+    keys = list(dict.fromkeys(str(k) for r in rows for k in r))
+    head = "".join(f"<th>{html.escape(_header(k))}</th>" for k in keys)
+    body = []
+    for r in rows:
+        cells = [_cell(k, r.get(k)) for k in keys]
+        tds = "".join(f"<td{' class=num' * num}>{html.escape(t)}</td>" for t, num in cells)
+        body.append(f"<tr>{tds}</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _check_sections(sections) -> list:
+    import plotly.graph_objects as go
+
+    if isinstance(sections, (str, bytes)) or not isinstance(sections, Sequence):
+        raise InvalidInputError("sections", "expected a sequence of sections")
+    out = []
+    for i, s in enumerate(sections):
+        s = TextSection(s) if isinstance(s, str) else s
+        if isinstance(s, FigureSection) and not isinstance(s.figure, go.Figure):
+            msg = f"expected a plotly Figure, got {type(s.figure).__name__}"
+            raise InvalidInputError(f"sections[{i}].figure", msg)
+        if isinstance(s, TableSection) and (
+            isinstance(s.rows, (str, bytes, Mapping))
+            or not all(isinstance(r, Mapping) for r in s.rows)
+        ):
+            raise InvalidInputError(f"sections[{i}].rows", "expected a sequence of dicts")
+        if not isinstance(s, (FigureSection, TableSection, TextSection)):
+            kinds = "a FigureSection, TableSection, TextSection or str"
+            raise InvalidInputError(f"sections[{i}]", f"expected {kinds}, got {type(s).__name__}")
+        for name in ("heading", "text", "caption"):
+            value = getattr(s, name, None)
+            if value is not None and not isinstance(value, str):
+                raise InvalidInputError(f"sections[{i}].{name}", "expected text (str)")
+        out.append(s)
+    return out
+
+
+def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
+    """Write figures, tables and text as one self-contained HTML page, atomically.
+
+    plotly.js is inlined once, with the first figure, so the page needs no network. The
+    page is written to a temporary file that replaces ``path`` only when complete: on any
+    error ``path`` keeps its old content.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination (``.html``); its directory is created if missing.
+    title : str
+        Page title and top heading (plain text, escaped).
+    sections : sequence of FigureSection, TableSection, TextSection or str
+        In page order; a plain string is a paragraph. Headings, text and table cells are
+        plain text (escaped). Table numbers are formatted: 3 decimals in ``*_mm``, ``*_s``,
+        ``*_deg`` and ``*direction`` columns, 4 significant digits elsewhere, missing
+        values (None, NaN, inf) as an en dash.
+
+    Returns
+    -------
+    Path
+        The destination.
+    """
+    from needlekit import __version__
+
+    if not isinstance(title, str):
+        raise InvalidInputError("title", f"expected text (str), got {type(title).__name__}")
+    items, esc = _check_sections(sections), html.escape
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>")
+            f.write("<meta name='viewport' content='width=device-width, initial-scale=1'>")
+            f.write(f"<title>{esc(title)}</title><style>{_CSS}</style></head>\n")
+            f.write(f"<body><main><h1>{esc(title)}</h1>\n")
+            with_js = True
+            for s in items:
+                f.write(f"<section><h2>{esc(s.heading)}</h2>" if s.heading else "<section>")
+                if isinstance(s, TextSection):
+                    f.write(f"<p>{esc(s.text)}</p>")
+                elif isinstance(s, TableSection):
+                    f.write(_table_html(s.rows))
+                else:
+                    config = {"displaylogo": False, "responsive": True}
+                    div = s.figure.to_html(full_html=False, include_plotlyjs=with_js, config=config)
+                    f.write(f"<div class='figure'>{div}</div>")
+                    with_js = False
+                if getattr(s, "caption", None):
+                    f.write(f"<p class='caption'>{esc(s.caption)}</p>")
+                f.write("</section>\n")
+            f.write(f"<footer>needlekit {esc(__version__)}</footer></main></body></html>\n")
+
+    return atomic_write(path, write)

@@ -1,0 +1,1 @@
+"""Studies: whole jobs that run many plans and write their files (tables, plans, reports)."""

@@ -1,0 +1,192 @@
+"""The effective-puncture-region study of one case: sweep, best plan, tables and report.
+
+:func:`run_sweep_study` sweeps the start directions of a scenario with one or more
+planners (Feng et al. 2023, Algorithm 1), re-checks the best plan independently and
+writes:
+
+- ``sweep.json``: Feng's Tables 2-4 (:func:`~needlekit.planning.steerable.sweep.sweeps_to_dict`);
+- ``plan.json``: the best plan of the first planner (the ``needlekit plan`` format, with
+  its check);
+- ``report.html``: one self-contained page with the summary table, the direction spheres
+  (Fig. 8), the cost per direction (Fig. 9), the best paths in the 3D scene and the best
+  plan's primitives and check.
+
+``needlekit sweep`` and ``needlekit demo`` run it.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+
+__all__ = ["SweepStudy", "run_sweep_study"]
+
+
+@dataclass(frozen=True)
+class SweepStudy:
+    """What :func:`run_sweep_study` did.
+
+    Attributes
+    ----------
+    sweeps : dict of str to SweepResult
+        Per planner, in the order run.
+    best : PlanResult or None
+        The first planner's best plan.
+    check : Verification or None
+        Its independent check.
+    files : dict of str to Path
+        ``sweep``, ``plan`` (when there is a best plan) and ``report``.
+    """
+
+    sweeps: dict
+    best: object
+    check: object
+    files: dict = field(default_factory=dict)
+
+
+def _plan_rows(plan) -> list[dict]:
+    rows = []
+    for i, (spin, kappa, length) in enumerate(plan.primitives):
+        rows.append(
+            {
+                "step": i + 1,
+                "rotation_deg": float(np.degrees(spin)),
+                "curvature_per_mm": float(kappa),
+                "length_mm": float(length),
+            }
+        )
+    return rows
+
+
+def run_sweep_study(
+    source,
+    out_dir: str | os.PathLike,
+    *,
+    planners: Sequence[str] = ("rcs_star",),
+    directions=None,
+    time_limit_s: float = 1.0,
+    max_iterations: int | None = None,
+    seed: int = 0,
+    executor=None,
+    progress: Callable[[str], Callable] | None = None,
+    title: str | None = None,
+) -> SweepStudy:
+    """Sweep a scenario's start directions, check the best plan, write the files.
+
+    Parameters
+    ----------
+    source : ScenarioSource
+        The scenario and its overrides (workers rebuild the problem from it).
+    out_dir : str or path
+        Folder for ``sweep.json``, ``plan.json`` and ``report.html`` (created).
+    planners : sequence of str
+        Planners to compare; the first one gives the best plan.
+    directions : array_like, shape (n, 3), optional
+        Candidate directions (default: Feng's 544 on a Fibonacci sphere).
+    time_limit_s : float
+        Budget per direction and planner.
+    max_iterations : int, optional
+        Iteration budget per direction besides the time limit (reproducible results).
+    seed : int
+        Seed of randomised planners.
+    executor : concurrent.futures.Executor, optional
+        Runs the directions (:func:`needlekit.batch.open_executor`); default: this process.
+    progress : callable, optional
+        ``progress(planner)`` returns a callable that is called once per finished
+        direction (e.g. a progress bar's update).
+    title : str, optional
+        Report title.
+
+    Returns
+    -------
+    SweepStudy
+
+    Raises
+    ------
+    InvalidInputError
+        No planners, or an unknown one.
+    """
+    from needlekit.io.files import write_json
+    from needlekit.io.plans import write_plan_json
+    from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
+    from needlekit.planning.steerable.verify import verify_plan
+    from needlekit.report.html_page import TableSection, TextSection
+    from needlekit.report.sweep_report import sweep_sections, write_report_html
+
+    planners = list(dict.fromkeys(planners))
+    if not planners:
+        raise InvalidInputError("planners", "expected at least one planner")
+    for name in planners:
+        if name not in ("rcs_star", "rcs", "rrt"):
+            raise InvalidInputError("planners", f"unknown planner {name!r}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sc, problem, obstacles = source.cached()
+    dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
+    sweeps = {}
+    for name in planners:
+        sweeps[name] = sweep(
+            problem,
+            name,
+            directions=dirs,
+            time_limit_s=time_limit_s,
+            obstacles=obstacles,
+            seed=seed,
+            max_iterations=max_iterations,
+            executor=executor,
+            source=source,
+            progress=None if progress is None else progress(name),
+        )
+    best = sweeps[planners[0]].best
+    check = None
+    files = {}
+    record = {
+        "scenario": source.scenario_path,
+        "time_limit_s": time_limit_s,
+        "max_iterations": max_iterations,
+        "seed": seed,
+        **sweeps_to_dict(sweeps),
+    }
+    files["sweep"] = write_json(out / "sweep.json", record)
+    if best is not None:
+        p = problem.with_start_pose(best.start_pose)
+        check = verify_plan(p, best.plan, obstacles=obstacles, expected_cost_mm=best.cost_mm)
+        files["plan"] = write_plan_json(
+            out / "plan.json",
+            best,
+            scenario=source.scenario_path,
+            check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
+        )
+    normal = None
+    if problem.entry_surface is not None:
+        normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
+    sections = sweep_sections(sweeps, normal=normal, scene=problem.scene)
+    if best is not None:
+        m = check.metrics
+        cert = (
+            " and certified optimal at the finest resolution" if best.stats.get("certified") else ""
+        )
+        sections.append(
+            TextSection(
+                f"Best {planners[0]} plan: cost {best.cost_mm:.3f}, length {m['length_mm']:.3f} mm, "
+                f"{len(best.plan.primitives)} motions{cert}. Independent check: "
+                + ("passed" if check.ok else "FAILED: " + "; ".join(check.violations))
+                + f" (goal distance {m['goal_distance_mm']:.3f} mm, min clearance "
+                f"{m['min_clearance_mm']:.3f} mm, heading change {m['max_heading_change_deg']:.1f} deg, "
+                f"puncture angle {m['puncture_angle_deg'] or float('nan'):.1f} deg).",
+                heading="Best plan",
+            )
+        )
+        sections.append(TableSection("Best plan: motions", _plan_rows(best.plan)))
+    files["report"] = write_report_html(
+        out / "report.html",
+        title=title or f"Effective puncture region: {sc.name}",
+        sections=sections,
+    )
+    return SweepStudy(sweeps, best, check, files)
