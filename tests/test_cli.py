@@ -335,9 +335,14 @@ def test_sweep_writes_the_direction_table(capsys, tmp_path):
         "0.05",
         "--out",
         str(out),
+        "--plan",
+        str(tmp_path / "best.json"),
+        "--report",
+        str(tmp_path / "report.html"),
     )
     data = json.loads(out.read_text())
     assert len(data["directions"]) == 60 and data["planners"] == ["rcs_star"]
+    assert "Fig. 8" in (tmp_path / "report.html").read_text()
     summary = data["summary"]["rcs_star"]
     # the start lies on the airway wall: its outward normal halves the sphere (alpha = 0)
     assert summary["n_effective"] == pytest.approx(30, abs=3)
@@ -352,6 +357,8 @@ def test_sweep_writes_the_direction_table(capsys, tmp_path):
             == pytest.approx(summary["best_cost_mm"])
             == min(c for c in costs if c is not None)
         )
+        plan = json.loads((tmp_path / "best.json").read_text())
+        assert plan["check"]["ok"] and plan["cost_mm"] == best["cost_mm"]
 
 
 @pytest.mark.slow

@@ -164,6 +164,10 @@ def _build_parser() -> argparse.ArgumentParser:
         default=Path("sweep.json"),
         help="sweep table to write (default sweep.json)",
     )
+    sw.add_argument("--plan", type=Path, help="also write the first planner's best plan here")
+    sw.add_argument(
+        "--report", type=Path, help="also write a self-contained HTML report (Fig. 8, Fig. 9)"
+    )
     sw.add_argument(
         "--directions",
         type=_positive_int,

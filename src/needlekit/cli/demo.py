@@ -46,7 +46,9 @@ def _lung_sweep(out: Path) -> int:
     try:
         study = run_sweep_study(
             ScenarioSource.of(scenario),
-            case,
+            case / "sweep.json",
+            plan_path=case / "plan.json",
+            report_path=case / "report.html",
             planners=DEMO_PLANNERS,
             time_limit_s=DEMO_TIME_LIMIT_S,
             max_iterations=DEMO_MAX_ITERATIONS,

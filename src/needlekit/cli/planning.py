@@ -63,50 +63,45 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
-    from needlekit.io.files import write_json
-    from needlekit.planning.steerable.sweep import (
-        healpix_directions,
-        sphere_directions,
-        sweep,
-        sweeps_to_dict,
-    )
+    from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
+    from needlekit.studies.sweep_study import run_sweep_study
 
-    _, problem, obstacles = _problem_and_obstacles(args)
+    source = _source(args)
+    source.cached()  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
         dirs = healpix_directions(args.healpix)
     else:
         dirs = sphere_directions(args.directions)
-    planners = list(dict.fromkeys(args.planner))
-    sweeps = {}
-    with open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
-        for planner in planners:
-            with tqdm(desc=f"sweep {planner}", unit="direction", disable=None) as bar:
-                sweeps[planner] = sweep(
-                    problem,
-                    planner,
-                    directions=dirs,
-                    time_limit_s=args.time_limit_s,
-                    obstacles=obstacles,
-                    seed=args.seed,
-                    max_iterations=args.max_iterations,
-                    executor=None if args.executor == "serial" else ex,
-                    source=_source(args),
-                    progress=lambda _, bar=bar: bar.update(1),
-                )
-    record = {
-        "scenario": str(args.scenario),
-        "executor": args.executor,
-        "time_limit_s": args.time_limit_s,
-        "max_iterations": args.max_iterations,
-        "seed": args.seed,
-        **sweeps_to_dict(sweeps),
-    }
-    write_json(args.out, record)
+    bars: list = []
+
+    def progress(planner):
+        bar = tqdm(desc=f"sweep {planner:8s}", unit="dir", disable=None)
+        bars.append(bar)
+        return lambda _: bar.update(1)
+
+    try:
+        with open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
+            study = run_sweep_study(
+                source,
+                args.out,
+                plan_path=args.plan,
+                report_path=args.report,
+                planners=args.planner,
+                directions=dirs,
+                time_limit_s=args.time_limit_s,
+                max_iterations=args.max_iterations,
+                seed=args.seed,
+                executor=None if args.executor == "serial" else ex,
+                progress=progress,
+            )
+    finally:
+        for bar in bars:
+            bar.close()
 
     def mm(v):
         return "-" if v is None else f"{v:.4f}"
 
-    for planner, result in sweeps.items():
+    for planner, result in study.sweeps.items():
         st = result.stats
         print(
             f"{planner}: {st['n_effective']} of {st['n_directions']} directions effective, "
@@ -114,8 +109,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             f"mean {mm(st['mean_cost_mm'])} mm, cost before the lowest "
             f"{mm(st['cost_before_lowest_mm'])} mm ({st['time_s']:.1f} s)"
         )
-    print(f"-> {args.out}")
-    return EXIT_OK if any(r.stats["n_solved"] for r in sweeps.values()) else 1
+    for path in study.files.values():
+        print(f"-> {path}")
+    if study.check is not None and not study.check.ok:
+        print("error: the best plan failed its check: " + "; ".join(study.check.violations))
+        return 1
+    return EXIT_OK if any(r.stats["n_solved"] for r in study.sweeps.values()) else 1
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:

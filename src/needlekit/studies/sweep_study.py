@@ -19,7 +19,6 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -41,7 +40,7 @@ class SweepStudy:
     check : Verification or None
         Its independent check.
     files : dict of str to Path
-        ``sweep``, ``plan`` (when there is a best plan) and ``report``.
+        ``sweep``, and ``plan`` (when there is a best plan) and ``report`` when asked for.
     """
 
     sweeps: dict
@@ -66,8 +65,10 @@ def _plan_rows(plan) -> list[dict]:
 
 def run_sweep_study(
     source,
-    out_dir: str | os.PathLike,
+    sweep_path: str | os.PathLike,
     *,
+    plan_path: str | os.PathLike | None = None,
+    report_path: str | os.PathLike | None = None,
     planners: Sequence[str] = ("rcs_star",),
     directions=None,
     time_limit_s: float = 1.0,
@@ -83,8 +84,10 @@ def run_sweep_study(
     ----------
     source : ScenarioSource
         The scenario and its overrides (workers rebuild the problem from it).
-    out_dir : str or path
-        Folder for ``sweep.json``, ``plan.json`` and ``report.html`` (created).
+    sweep_path : str or path
+        Where to write the sweep table (``sweep.json``).
+    plan_path, report_path : str or path, optional
+        Where to write the best plan (``plan.json``) and the report (``report.html``).
     planners : sequence of str
         Planners to compare; the first one gives the best plan.
     directions : array_like, shape (n, 3), optional
@@ -125,8 +128,6 @@ def run_sweep_study(
     for name in planners:
         if name not in ("rcs_star", "rcs", "rrt"):
             raise InvalidInputError("planners", f"unknown planner {name!r}")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     sc, problem, obstacles = source.cached()
     dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
     sweeps = {}
@@ -153,16 +154,19 @@ def run_sweep_study(
         "seed": seed,
         **sweeps_to_dict(sweeps),
     }
-    files["sweep"] = write_json(out / "sweep.json", record)
+    files["sweep"] = write_json(sweep_path, record)
     if best is not None:
         p = problem.with_start_pose(best.start_pose)
         check = verify_plan(p, best.plan, obstacles=obstacles, expected_cost_mm=best.cost_mm)
+    if best is not None and plan_path is not None:
         files["plan"] = write_plan_json(
-            out / "plan.json",
+            plan_path,
             best,
             scenario=source.scenario_path,
             check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
         )
+    if report_path is None:
+        return SweepStudy(sweeps, best, check, files)
     normal = None
     if problem.entry_surface is not None:
         normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
@@ -185,7 +189,7 @@ def run_sweep_study(
         )
         sections.append(TableSection("Best plan: motions", _plan_rows(best.plan)))
     files["report"] = write_report_html(
-        out / "report.html",
+        report_path,
         title=title or f"Effective puncture region: {sc.name}",
         sections=sections,
     )
