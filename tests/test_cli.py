@@ -259,7 +259,7 @@ def test_demo_writes_figures_and_phantom_views(capsys, tmp_path):
     )
     assert st["rcs_star"]["n_solved"] > 0
     mean = [st[p]["mean_cost_mm"] for p in ("rcs_star", "rcs", "rrt")]
-    assert mean[0] <= mean[1] + 1e-9 <= mean[2] + 2e-9  # Feng's Table 4 order
+    assert mean[0] <= min(mean[1], mean[2]) + 1e-9  # RCS* is optimal per direction
     plan = json.loads((lung / "plan.json").read_text())
     assert plan["cost_mm"] == pytest.approx(st["rcs_star"]["best_cost_mm"]) and plan["check"]["ok"]
     assert np.linalg.norm(np.diff(plan["points_mm"], axis=0), axis=1).max() <= 0.5 + 1e-9

@@ -104,3 +104,24 @@ def test_success_rates_from_the_lung_phantoms_start_poses():
                 assert verify_plan(prob, res.plan).ok
                 assert res.cost_mm >= star.cost_mm  # RCS* is optimal at its resolution here
     assert rrt_ok / rrt_runs >= 0.9
+
+
+def test_greedy_connections_arc_then_line_and_single_arc():
+    from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
+    from needlekit.planning.steerable.solve import solve
+
+    prob = _problem()  # nothing in the way: the start's own connection is the plan
+    arc_line = solve_rrt(prob, time_limit_s=60.0, seed=0, max_iterations=50)
+    arc = solve_rrt(prob, time_limit_s=60.0, seed=0, max_iterations=50, connection="arc")
+    shortest = goal_connection(np.eye(4), GOAL, 50.0, 1.0).length_mm
+    assert arc_line.cost_mm == pytest.approx(shortest, abs=1e-9)
+    # one arc to the target itself: no better than the start's own arc, worse than arc+line
+    one_arc = single_arc_connection(np.eye(4), GOAL, 50.0, 1.0).length_mm
+    assert arc_line.cost_mm < arc.cost_mm <= one_arc + 1e-9
+    assert arc_line.stats["connection"] == "arc_line" and arc.stats["connection"] == "arc"
+    via_solve = solve(prob, "rrt", seed=0, max_iterations=50, options={"connection": "arc"})
+    assert via_solve.cost_mm == arc.cost_mm
+    with pytest.raises(InvalidInputError, match="connection"):
+        solve_rrt(prob, connection="line")
+    with pytest.raises(InvalidInputError, match="options"):
+        solve(prob, "rcs_star", options={"connection": "arc"})

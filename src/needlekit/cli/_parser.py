@@ -31,6 +31,15 @@ def _executor_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _rrt_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--rrt-connection",
+        choices=["arc_line", "arc"],
+        help="RRT's greedy goal connection: arc then line (default) or one arc to the target "
+        "(the reference implementation's rule, behind Feng et al.'s tables)",
+    )
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="needlekit",
@@ -142,6 +151,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
     )
     planp.add_argument("--seed", type=int, help="seed of randomised planners")
+    _rrt_option(planp)
 
     sw = sub.add_parser(
         "sweep",
@@ -190,6 +200,7 @@ def _build_parser() -> argparse.ArgumentParser:
         help="iteration budget per direction besides the time limit (reproducible sweeps)",
     )
     _executor_options(sw)
+    _rrt_option(sw)
 
     ver = sub.add_parser(
         "verify",

@@ -49,7 +49,17 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     planner = args.planner or sc.planner.get("name") or "rcs_star"
     budget = args.time_limit_s or sc.planner.get("time_limit_s") or 1.0
     seed = args.seed if args.seed is not None else sc.planner.get("seed")
-    res = solve(problem, planner, time_limit_s=budget, obstacles=obstacles, seed=seed)
+    options = dict(sc.planner.get("options") or {})
+    if planner == "rrt" and args.rrt_connection is not None:
+        options["connection"] = args.rrt_connection
+    res = solve(
+        problem,
+        planner,
+        time_limit_s=budget,
+        obstacles=obstacles,
+        seed=seed,
+        options=options if planner == "rrt" else None,
+    )
     write_plan_json(args.out, res, scenario=str(args.scenario))
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
@@ -93,6 +103,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 executor=None if args.executor == "serial" else ex,
                 progress=progress,
+                options={"rrt": {"connection": args.rrt_connection or "arc_line"}},
             )
     finally:
         for bar in bars:

@@ -77,6 +77,7 @@ def run_sweep_study(
     executor=None,
     progress: Callable[[str], Callable] | None = None,
     title: str | None = None,
+    options: dict | None = None,
 ) -> SweepStudy:
     """Sweep a scenario's start directions, check the best plan, write the files.
 
@@ -105,6 +106,8 @@ def run_sweep_study(
         direction (e.g. a progress bar's update).
     title : str, optional
         Report title.
+    options : dict, optional
+        Per planner name, its settings (e.g. ``{"rrt": {"connection": "arc"}}``).
 
     Returns
     -------
@@ -143,6 +146,7 @@ def run_sweep_study(
             executor=executor,
             source=source,
             progress=None if progress is None else progress(name),
+            options=(options or {}).get(name),
         )
     best = sweeps[planners[0]].best
     check = None
@@ -152,6 +156,7 @@ def run_sweep_study(
         "time_limit_s": time_limit_s,
         "max_iterations": max_iterations,
         "seed": seed,
+        "options": options or {},
         **sweeps_to_dict(sweeps),
     }
     files["sweep"] = write_json(sweep_path, record)

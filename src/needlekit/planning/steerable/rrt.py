@@ -7,8 +7,10 @@ start (the lecture's condition, :func:`~needlekit.needle.reachability.is_reachab
 nearest node is the one with the shortest turn-then-straight path to the sample
 (reachability-guided), and the tree is extended by one constant-curvature arc toward the
 sample (radius at least r_min; cut at the sample's bearing when the sample needs a tighter
-turn). Every new node tries a greedy connection to every target: one arc to the target
-itself (RCS's connection). The search is anytime: it keeps going until the budget runs out
+turn). Every new node tries a greedy connection to every target, by default an arc then a
+line (turn at r_min, then straight into the tau-ball: the shortest forward connection,
+``connection="arc_line"``); ``connection="arc"`` uses one arc to the target itself, as
+the reference implementation of RCS*'s authors does (and so Feng et al.'s tables). The search is anytime: it keeps going until the budget runs out
 and reports the cheapest plan found per target. There is no rewiring.
 """
 
@@ -47,6 +49,7 @@ def solve_rrt(
     seed: int | None = 0,
     obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
+    connection: str = "arc_line",
 ) -> PlanResult:
     """Plan to the problem's goal with RRT (see :func:`solve_rrt_multi`).
 
@@ -57,6 +60,7 @@ def solve_rrt(
     seed : int, optional
     obstacles : VoxelObstacles, optional
     max_iterations : int, optional
+    connection : {"arc_line", "arc"}
 
     Returns
     -------
@@ -69,6 +73,7 @@ def solve_rrt(
         seed=seed,
         obstacles=obstacles,
         max_iterations=max_iterations,
+        connection=connection,
     )[0]
 
 
@@ -80,6 +85,7 @@ def solve_rrt_multi(
     seed: int | None = 0,
     obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
+    connection: str = "arc_line",
 ) -> list[PlanResult]:
     """Grow one tree and plan to several targets.
 
@@ -96,6 +102,9 @@ def solve_rrt_multi(
     obstacles : VoxelObstacles, optional
         Exact voxel-centre collision test (default: the scene's obstacle field).
     max_iterations : int, optional
+    connection : {"arc_line", "arc"}
+        Greedy connection from every new node to the targets: turn at r_min then straight
+        into the tau-ball, or one arc to the target itself (the reference's rule).
 
     Returns
     -------
@@ -110,6 +119,9 @@ def solve_rrt_multi(
     goals = np.asarray(goals_mm, dtype=float).reshape(-1, 3)
     if len(goals) == 0 or not np.all(np.isfinite(goals)):
         raise InvalidInputError("goals_mm", "expected one or more finite points (k, 3)")
+    if connection not in ("arc_line", "arc"):
+        raise InvalidInputError("connection", f"expected 'arc_line' or 'arc', got {connection!r}")
+    connect = goal_connection if connection == "arc_line" else single_arc_connection
     rng = np.random.default_rng(seed)
     start = problem.start_pose
     r, tau, kappa = problem.r_min_mm, problem.goal_tolerance_mm, problem.kappa_max_per_mm
@@ -163,7 +175,7 @@ def solve_rrt_multi(
     def try_goals(idx: int) -> None:
         nonlocal refused
         for i in open_goals:
-            conn = single_arc_connection(poses[idx], goals[i], r, tau)
+            conn = connect(poses[idx], goals[i], r, tau)
             if conn is None or conn.primitives[0, 1] > kappa * (1 + 1e-12):
                 continue
             if lengths[idx] + conn.length_mm >= problem.max_length_mm:
@@ -235,6 +247,7 @@ def solve_rrt_multi(
             "nodes": len(poses),
             "reason": reason,
             "refused_by_check": refused,
+            "connection": connection,
         }
         if i not in open_goals:
             out.append(

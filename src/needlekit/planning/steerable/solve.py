@@ -21,6 +21,7 @@ def solve(
     obstacles: VoxelObstacles | None = None,
     seed: int | None = None,
     max_iterations: int | None = None,
+    options: dict | None = None,
 ) -> PlanResult:
     """Plan with the named planner.
 
@@ -36,6 +37,10 @@ def solve(
         Seed of RRT's samples (RCS and RCS* are deterministic).
     max_iterations : int, optional
         Budget in iterations, beside the time limit (makes anytime runs reproducible).
+    options : dict, optional
+        Planner settings: RRT's ``connection`` (``"arc_line"`` or ``"arc"``); RCS's and
+        RCS*'s ``resolution`` (a :class:`~needlekit.planning.steerable.rcs.Resolution` or
+        a dict of its fields).
 
     Returns
     -------
@@ -48,6 +53,14 @@ def solve(
         raise InvalidInputError(
             "planner", f"expected one of {', '.join(PLANNERS)}, got {planner!r}"
         )
+    opts = dict(options or {})
+    allowed = {"connection"} if planner == "rrt" else {"resolution"}
+    unknown = sorted(set(opts) - allowed)
+    if unknown:
+        raise InvalidInputError(
+            "options",
+            f"{planner} takes {', '.join(sorted(allowed))}; unknown: {', '.join(unknown)}",
+        )
     if planner == "rrt":
         return solve_rrt(
             problem,
@@ -55,11 +68,17 @@ def solve(
             seed=seed,
             obstacles=obstacles,
             max_iterations=max_iterations,
+            **opts,
         )
+    from needlekit.planning.steerable.rcs import Resolution
+
+    if isinstance(opts.get("resolution"), dict):
+        opts["resolution"] = Resolution(**opts["resolution"])
     return solve_rcs(
         problem,
         time_limit_s=time_limit_s,
         optimal=planner == "rcs_star",
         obstacles=obstacles,
         max_iterations=max_iterations,
+        **opts,
     )

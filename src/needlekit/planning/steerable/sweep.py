@@ -225,7 +225,7 @@ def _plan_one(task):
     """One direction of a sweep (module level, so process and Dask workers can run it)."""
     from needlekit.planning.steerable.solve import solve
 
-    problem, obstacles, source, direction, planner, time_limit_s, seed, max_iterations = task
+    problem, obstacles, source, direction, planner, time_limit_s, seed, max_iterations, opts = task
     if source is not None:  # built once per worker, reused for its other directions
         _, problem, obstacles = source.cached()
     p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
@@ -236,6 +236,7 @@ def _plan_one(task):
         obstacles=obstacles,
         seed=seed,
         max_iterations=max_iterations,
+        options=opts,
     )
 
 
@@ -274,6 +275,7 @@ def sweep(
     seed: int = 0,
     max_iterations: int | None = None,
     progress=None,
+    options: dict | None = None,
 ) -> SweepResult:
     """Plan from the start point over every effective start direction.
 
@@ -304,6 +306,8 @@ def sweep(
         Iteration budget per direction, beside the time limit (reproducible sweeps).
     progress : callable, optional
         Called once per finished direction.
+    options : dict, optional
+        Planner settings (see :func:`~needlekit.planning.steerable.solve.solve`).
 
     Returns
     -------
@@ -339,6 +343,7 @@ def sweep(
             time_limit_s,
             seed,
             max_iterations,
+            options,
         )
         for d in dirs[eff]
     ]
