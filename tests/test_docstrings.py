@@ -33,6 +33,8 @@ MODULES = [
     "needlekit.report.sweep_report",
     "needlekit.report.html_page",
     "needlekit.studies.sweep_study",
+    "needlekit.control.dq",
+    "needlekit.control.panda",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",
