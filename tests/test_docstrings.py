@@ -35,6 +35,7 @@ MODULES = [
     "needlekit.studies.sweep_study",
     "needlekit.control.dq",
     "needlekit.control.panda",
+    "needlekit.control.vfi",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",
