@@ -36,6 +36,7 @@ MODULES = [
     "needlekit.control.dq",
     "needlekit.control.panda",
     "needlekit.control.vfi",
+    "needlekit.control.qp",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",
