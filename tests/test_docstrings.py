@@ -37,6 +37,7 @@ MODULES = [
     "needlekit.control.panda",
     "needlekit.control.vfi",
     "needlekit.control.qp",
+    "needlekit.control.controller",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

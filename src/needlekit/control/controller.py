@@ -1,0 +1,247 @@
+"""The constrained velocity controller of Tang et al. (their Eq. 1) for the three puncture
+steps.
+
+At every control step the joint velocities solve
+
+    min ||J q_dot + eta e - x_d_dot||^2 + lambda^2 ||q_dot||^2   s.t.   B q_dot <= b
+
+with the task of the current step (the task vector is the needle tip position and the
+needle's insertion axis, world frame):
+
+- ``Step.ALIGN``: axis onto the insertion direction ``u = -l_g`` of the guide line (roll
+  about the needle free); VFIs: robot points outside the patient cylinder (Eq. 4);
+- ``Step.APPROACH``: tip to the start point ``p_s = p_p + d_s l_g`` with the axis kept on
+  ``u``; VFIs as in ALIGN;
+- ``Step.PUNCTURE``: tip along the desired trajectory (with its velocity fed forward); VFIs:
+  tip inside the guide cylinder (Eq. 5), needle within the cone about ``u`` (Eq. 6), tip not
+  past the plane through the target (Eq. 7).
+
+Joint position and velocity limits hold in every step. The guide line's ``l_g`` points out
+of the patient (the start point lies along it), as in the paper; the needle's axis points
+into the patient (``needlekit.conventions``: tip z = insertion direction).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needlekit.control.panda import ArmState, PandaModel
+from needlekit.control.qp import QPStatus, solve_qp
+from needlekit.control.vfi import (
+    Line,
+    Plane,
+    Zone,
+    joint_limit_bounds,
+    line_angle_distance,
+    point_line_sq_distance,
+    point_plane_distance,
+    vfi_row,
+)
+from needlekit.errors import InvalidInputError
+
+__all__ = ["ControlOutput", "ControllerSettings", "GuideLine", "Step", "control_step"]
+
+
+class Step(enum.Enum):
+    """The procedure step a control law serves."""
+
+    ALIGN = "align"
+    APPROACH = "approach"
+    PUNCTURE = "puncture"
+
+
+@dataclass(frozen=True)
+class GuideLine:
+    """The puncture guide line: the target ``p_p`` and the unit direction ``l_g`` pointing out
+    of the patient (the needle goes in along ``-l_g``).
+
+    Attributes
+    ----------
+    target_mm : ndarray, shape (3,)
+    direction : ndarray, shape (3,)
+    """
+
+    target_mm: np.ndarray
+    direction: np.ndarray
+
+    def __post_init__(self) -> None:
+        line = Line(self.target_mm, self.direction)  # validates both
+        object.__setattr__(self, "target_mm", line.point_mm)
+        object.__setattr__(self, "direction", line.direction)
+
+    @property
+    def insertion_direction(self) -> np.ndarray:
+        """``u = -l_g``, the direction the needle must point."""
+        return -self.direction
+
+    def start_point(self, distance_mm: float) -> np.ndarray:
+        """``p_s = p_p + distance l_g``.
+
+        Parameters
+        ----------
+        distance_mm : float
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        return self.target_mm + float(distance_mm) * self.direction
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """Gains, radii and angles of the controller (mm, rad, 1/s).
+
+    Attributes
+    ----------
+    eta : float
+        Task gain (the paper uses 0.2 to 0.5 in different steps).
+    damping : float
+        lambda: joint-velocity damping (the paper does not give it).
+    axis_scale_mm : float
+        Weight of the axis rows in the APPROACH task (turns a unit-vector error into mm).
+    patient_axis : ndarray, shape (3,)
+        Direction of the patient cylinder's axis (through the target; head to foot).
+    patient_radius_mm : float
+        R_p (200 mm in the paper).
+    guide_radius_mm : float
+        R_g (1.5 mm).
+    cone_angle_rad : float
+        theta_o (0.5 deg).
+    robot_points : tuple of int
+        Joint-frame origins (indices into ``ArmState.origins``) kept outside the patient
+        cylinder: the elbow, the wrist and the flange-side frame.
+    eta_patient, eta_guide, eta_cone, eta_plane, eta_joints : float
+        VFI gains (not given in the paper).
+    """
+
+    eta: float = 0.5
+    damping: float = 1e-3
+    axis_scale_mm: float = 100.0
+    patient_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    patient_radius_mm: float = 200.0
+    guide_radius_mm: float = 1.5
+    cone_angle_rad: float = float(np.radians(0.5))
+    robot_points: tuple = (3, 4, 5, 6, 7)
+    eta_patient: float = 1.0
+    eta_guide: float = 1.0
+    eta_cone: float = 1.0
+    eta_plane: float = 1.0
+    eta_joints: float = 1.0
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One control step's result.
+
+    Attributes
+    ----------
+    q_dot : ndarray, shape (7,)
+        Joint velocities (zero when the QP failed).
+    status : QPStatus
+    task_error : ndarray
+    distances : dict
+        The VFI distances of the step (``patient_sq_mm2`` (smallest), ``guide_sq_mm2``,
+        ``cone_f``, ``plane_mm``).
+    """
+
+    q_dot: np.ndarray
+    status: QPStatus
+    task_error: np.ndarray
+    distances: dict
+
+
+def _task(state: ArmState, step: Step, guide: GuideLine, settings, p_d, v_d):
+    u = guide.insertion_direction
+    if step is Step.ALIGN:
+        return state.axis_jacobian, state.needle_axis - u, np.zeros(3)
+    if step is Step.APPROACH:
+        w = settings.axis_scale_mm
+        jac = np.vstack([state.tip_jacobian, w * state.axis_jacobian])
+        err = np.concatenate([state.tip_mm - p_d, w * (state.needle_axis - u)])
+        return jac, err, np.concatenate([v_d, np.zeros(3)])
+    return state.tip_jacobian, state.tip_mm - p_d, v_d
+
+
+def control_step(
+    model: PandaModel,
+    q,
+    step: Step,
+    guide: GuideLine,
+    settings: ControllerSettings | None = None,
+    *,
+    desired_mm=None,
+    desired_velocity_mm_s=None,
+    state: ArmState | None = None,
+) -> ControlOutput:
+    """Joint velocities for one control step (Tang et al.'s Eq. 1 with the step's VFIs).
+
+    Parameters
+    ----------
+    model : PandaModel
+        The (estimated) arm and needle.
+    q : array_like, shape (7,)
+    step : Step
+    guide : GuideLine
+    settings : ControllerSettings, optional
+    desired_mm : array_like, shape (3,), optional
+        Desired tip position (APPROACH: the start point; PUNCTURE: the trajectory's).
+    desired_velocity_mm_s : array_like, shape (3,), optional
+        Its velocity (fed forward; default zero).
+    state : ArmState, optional
+        ``model.state(q)`` when the caller has it already.
+
+    Returns
+    -------
+    ControlOutput
+
+    Raises
+    ------
+    InvalidInputError
+        A step that needs a desired position without one.
+    """
+    cfg = settings or ControllerSettings()
+    s = model.state(q) if state is None else state
+    if step is not Step.ALIGN and desired_mm is None:
+        raise InvalidInputError("desired_mm", f"step {step.value} needs a desired tip position")
+    p_d = None if desired_mm is None else np.asarray(desired_mm, dtype=float)
+    v_d = np.zeros(3) if desired_velocity_mm_s is None else np.asarray(desired_velocity_mm_s)
+    jac, err, ff = _task(s, step, guide, cfg, p_d, v_d)
+    n = len(s.q)
+    H = 2.0 * (jac.T @ jac + cfg.damping**2 * np.eye(n))
+    f = 2.0 * jac.T @ (cfg.eta * err - ff)
+    rows, rhs, dist = [], [], {}
+    if step is Step.PUNCTURE:
+        axis = Line(guide.target_mm, guide.direction)
+        d, j = point_line_sq_distance(s.tip_mm, s.tip_jacobian, axis)
+        r, b = vfi_row(d, j, cfg.guide_radius_mm**2, Zone.INSIDE, cfg.eta_guide)
+        rows.append(r), rhs.append(b)
+        dist["guide_sq_mm2"] = d
+        fval, j = line_angle_distance(s.needle_axis, s.axis_jacobian, guide.insertion_direction)
+        r, b = vfi_row(fval, j, 2.0 - 2.0 * np.cos(cfg.cone_angle_rad), Zone.INSIDE, cfg.eta_cone)
+        rows.append(r), rhs.append(b)
+        dist["cone_f"] = fval
+        d, j = point_plane_distance(
+            s.tip_mm, s.tip_jacobian, Plane(guide.target_mm, guide.direction)
+        )
+        r, b = vfi_row(d, j, 0.0, Zone.OUTSIDE, cfg.eta_plane)
+        rows.append(r), rhs.append(b)
+        dist["plane_mm"] = d
+    else:
+        cyl = Line(guide.target_mm, cfg.patient_axis)
+        smallest = np.inf
+        for k in cfg.robot_points:
+            d, j = point_line_sq_distance(s.origins[k], s.point_jacobian(k), cyl)
+            r, b = vfi_row(d, j, cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient)
+            rows.append(r), rhs.append(b)
+            smallest = min(smallest, d)
+        dist["patient_sq_mm2"] = smallest
+    lower, upper = joint_limit_bounds(
+        s.q, model.q_min, model.q_max, model.q_dot_max, cfg.eta_joints
+    )
+    sol = solve_qp(H, f, np.array(rows), np.array(rhs), lower, upper)
+    q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
+    return ControlOutput(q_dot, sol.status, err, dist)
