@@ -71,6 +71,35 @@ class GuideLine:
         line = Line(self.target_mm, self.direction)  # validates both
         object.__setattr__(self, "target_mm", line.point_mm)
         object.__setattr__(self, "direction", line.direction)
+        object.__setattr__(self, "_line", line)
+        object.__setattr__(self, "_plane", Plane(line.point_mm, line.direction))
+        object.__setattr__(self, "_cylinders", {})
+
+    @property
+    def line(self) -> Line:
+        """The guide line (axis of the guide cylinder)."""
+        return self._line
+
+    @property
+    def plane(self) -> Plane:
+        """The plane through the target, normal ``l_g`` (the tip stays on its positive side)."""
+        return self._plane
+
+    def patient_line(self, axis) -> Line:
+        """The patient cylinder's axis: through the target along ``axis`` (cached).
+
+        Parameters
+        ----------
+        axis : array_like, shape (3,)
+
+        Returns
+        -------
+        Line
+        """
+        key = tuple(np.asarray(axis, dtype=float).tolist())
+        if key not in self._cylinders:
+            self._cylinders[key] = Line(self.target_mm, axis)
+        return self._cylinders[key]
 
     @property
     def insertion_direction(self) -> np.ndarray:
@@ -215,8 +244,7 @@ def control_step(
     f = 2.0 * jac.T @ (cfg.eta * err - ff)
     rows, rhs, dist = [], [], {}
     if step is Step.PUNCTURE:
-        axis = Line(guide.target_mm, guide.direction)
-        d, j = point_line_sq_distance(s.tip_mm, s.tip_jacobian, axis)
+        d, j = point_line_sq_distance(s.tip_mm, s.tip_jacobian, guide.line)
         r, b = vfi_row(d, j, cfg.guide_radius_mm**2, Zone.INSIDE, cfg.eta_guide)
         rows.append(r), rhs.append(b)
         dist["guide_sq_mm2"] = d
@@ -224,14 +252,12 @@ def control_step(
         r, b = vfi_row(fval, j, 2.0 - 2.0 * np.cos(cfg.cone_angle_rad), Zone.INSIDE, cfg.eta_cone)
         rows.append(r), rhs.append(b)
         dist["cone_f"] = fval
-        d, j = point_plane_distance(
-            s.tip_mm, s.tip_jacobian, Plane(guide.target_mm, guide.direction)
-        )
+        d, j = point_plane_distance(s.tip_mm, s.tip_jacobian, guide.plane)
         r, b = vfi_row(d, j, 0.0, Zone.OUTSIDE, cfg.eta_plane)
         rows.append(r), rhs.append(b)
         dist["plane_mm"] = d
     else:
-        cyl = Line(guide.target_mm, cfg.patient_axis)
+        cyl = guide.patient_line(cfg.patient_axis)
         smallest = np.inf
         for k in cfg.robot_points:
             d, j = point_line_sq_distance(s.origins[k], s.point_jacobian(k), cyl)
@@ -242,6 +268,6 @@ def control_step(
     lower, upper = joint_limit_bounds(
         s.q, model.q_min, model.q_max, model.q_dot_max, cfg.eta_joints
     )
-    sol = solve_qp(H, f, np.array(rows), np.array(rhs), lower, upper)
+    sol = solve_qp(H, f, np.array(rows), np.array(rhs), lower, upper, check=False)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
     return ControlOutput(q_dot, sol.status, err, dist)

@@ -136,6 +136,24 @@ def dq_translation(x: np.ndarray) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True)
+def _dq_to_matrix(x):
+    w, a, b, c = x[0], x[1], x[2], x[3]
+    g = np.eye(4)
+    g[0, 0] = 1.0 - 2.0 * (b * b + c * c)
+    g[0, 1] = 2.0 * (a * b - w * c)
+    g[0, 2] = 2.0 * (a * c + w * b)
+    g[1, 0] = 2.0 * (a * b + w * c)
+    g[1, 1] = 1.0 - 2.0 * (a * a + c * c)
+    g[1, 2] = 2.0 * (b * c - w * a)
+    g[2, 0] = 2.0 * (a * c - w * b)
+    g[2, 1] = 2.0 * (b * c + w * a)
+    g[2, 2] = 1.0 - 2.0 * (a * a + b * b)
+    t = dq_translation(x)
+    g[0, 3], g[1, 3], g[2, 3] = t[0], t[1], t[2]
+    return g
+
+
 def dq_to_matrix(x) -> np.ndarray:
     """4x4 homogeneous transform of a unit dual quaternion.
 
@@ -147,13 +165,7 @@ def dq_to_matrix(x) -> np.ndarray:
     -------
     ndarray, shape (4, 4)
     """
-    from scipy.spatial.transform import Rotation
-
-    x = np.asarray(x, dtype=float)
-    g = np.eye(4)
-    g[:3, :3] = Rotation.from_quat(x[[1, 2, 3, 0]]).as_matrix()
-    g[:3, 3] = dq_translation(x)
-    return g
+    return _dq_to_matrix(np.ascontiguousarray(x, dtype=float))
 
 
 def dq_from_matrix(g) -> np.ndarray:

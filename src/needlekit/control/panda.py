@@ -125,9 +125,17 @@ def chain_kinematics(q, mdh, base, tool):
     return x, jac, axes, origins
 
 
+@nb.njit(cache=True)
 def _cross_columns(axes: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Columns ``axes[i] x v[i]`` as a (3, n) matrix."""
-    return np.cross(axes, v).T
+    """Columns ``axes[i] x v[i]`` as a (3, n) matrix (``v`` broadcast when it is one row)."""
+    n = axes.shape[0]
+    out = np.empty((3, n))
+    for i in range(n):
+        k = i if v.shape[0] == n else 0
+        out[0, i] = axes[i, 1] * v[k, 2] - axes[i, 2] * v[k, 1]
+        out[1, i] = axes[i, 2] * v[k, 0] - axes[i, 0] * v[k, 2]
+        out[2, i] = axes[i, 0] * v[k, 1] - axes[i, 1] * v[k, 0]
+    return out
 
 
 @dataclass(frozen=True)
@@ -257,7 +265,7 @@ class PandaModel:
         tip = dq_to_matrix(x)
         p, axis = tip[:3, 3], tip[:3, 2]
         jt = _cross_columns(axes, p - origins[:7])
-        ja = _cross_columns(axes, np.broadcast_to(axis, axes.shape))
+        ja = _cross_columns(axes, axis.reshape(1, 3))
         return ArmState(q, x, jac, p, axis, jt, ja, axes, origins)
 
     def tip_pose(self, q) -> np.ndarray:

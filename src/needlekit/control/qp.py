@@ -48,7 +48,7 @@ class QPSolution:
     exitflag: int
 
 
-def solve_qp(H, f, A=None, b=None, lower=None, upper=None) -> QPSolution:
+def solve_qp(H, f, A=None, b=None, lower=None, upper=None, *, check: bool = True) -> QPSolution:
     """Solve a small dense QP.
 
     Parameters
@@ -60,6 +60,9 @@ def solve_qp(H, f, A=None, b=None, lower=None, upper=None) -> QPSolution:
     b : ndarray, shape (m,), optional
     lower, upper : ndarray, shape (n,), optional
         Bounds on x.
+    check : bool
+        Validate shapes and finiteness (the controller, which builds its QPs itself,
+        skips this in its 1 kHz loop).
 
     Returns
     -------
@@ -76,20 +79,20 @@ def solve_qp(H, f, A=None, b=None, lower=None, upper=None) -> QPSolution:
     H = np.ascontiguousarray(H, dtype=float)
     f = np.ascontiguousarray(f, dtype=float).reshape(-1)
     n = f.shape[0]
-    if H.shape != (n, n):
+    if check and H.shape != (n, n):
         raise InvalidInputError("H", f"expected shape ({n}, {n}), got {H.shape}")
     if A is None:
         A = np.zeros((0, n))
         b = np.zeros(0)
     A = np.ascontiguousarray(A, dtype=float).reshape(-1, n)
     b = np.asarray(b, dtype=float).reshape(-1)
-    if b.shape[0] != A.shape[0]:
+    if check and b.shape[0] != A.shape[0]:
         raise InvalidInputError("b", f"expected {A.shape[0]} values, got {b.shape[0]}")
     lo = np.full(n, -_INF) if lower is None else np.asarray(lower, dtype=float)
     hi = np.full(n, _INF) if upper is None else np.asarray(upper, dtype=float)
-    if not (np.all(np.isfinite(H)) and np.all(np.isfinite(f)) and np.all(np.isfinite(A))):
+    if check and not (np.isfinite(H).all() and np.isfinite(f).all() and np.isfinite(A).all()):
         raise InvalidInputError("H", "the QP data must be finite")
-    if np.any(lo > hi):
+    if (lo > hi).any():
         return QPSolution(None, QPStatus.INFEASIBLE, -1)
     bupper = np.concatenate([hi, b])
     blower = np.concatenate([lo, np.full(b.shape[0], -_INF)])
