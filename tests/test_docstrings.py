@@ -38,6 +38,7 @@ MODULES = [
     "needlekit.control.vfi",
     "needlekit.control.qp",
     "needlekit.control.controller",
+    "needlekit.control.parameters",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

@@ -1,0 +1,198 @@
+"""The uncertain parameters of the arm: base pose and needle-tip pose (12 numbers).
+
+``a = [t_b (3, mm), angles_b (3, rad), t_n (3, mm), angles_n (3, rad)]``:
+
+- ``world_T_base = Trans(t_b) Rot(angles_b)``: the robot base in the EM transmitter frame;
+- ``flange_T_tip = Trans(t_n) Rot(angles_n)``: the needle tip in the flange frame.
+
+Rotations use intrinsic x-y-z Euler angles, ``Rot = R_x(a) R_y(b) R_z(c)`` (as the
+adaptive-control reference code does); the uncertainty ranges (+-10 deg, +-5 deg) stay far
+from gimbal lock. :func:`parameter_jacobians` gives the tip position's, the tip
+orientation's (angular velocity) and the link points' derivatives with respect to ``a`` at
+a joint configuration: what the adaptation law (Eq. 3) and the VFIs under adaptation need.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit.control.panda import ArmState, PandaModel
+from needlekit.errors import InvalidInputError
+
+__all__ = [
+    "N_PARAMETERS",
+    "ParameterJacobians",
+    "model_from_parameters",
+    "parameter_jacobians",
+    "parameters_from_model",
+    "pose_from_parameters",
+    "xyz_euler_rate_matrix",
+]
+
+#: Base pose (6) and needle-tip pose (6).
+N_PARAMETERS = 12
+
+
+def _rot(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+def _xyz(angles) -> np.ndarray:
+    return _rot(0, angles[0]) @ _rot(1, angles[1]) @ _rot(2, angles[2])
+
+
+def xyz_euler_rate_matrix(angles) -> np.ndarray:
+    """``W`` with ``omega = W angles_dot`` for ``R = R_x R_y R_z`` (omega in the frame ``R``
+    is expressed in).
+
+    Parameters
+    ----------
+    angles : array_like, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    rx = _rot(0, angles[0])
+    rxy = rx @ _rot(1, angles[1])
+    return np.column_stack([[1.0, 0.0, 0.0], rx[:, 1], rxy[:, 2]])
+
+
+def pose_from_parameters(p6) -> np.ndarray:
+    """``Trans(t) Rot(angles)`` from ``[t (3, mm), angles (3, rad)]``.
+
+    Parameters
+    ----------
+    p6 : array_like, shape (6,)
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+
+    Examples
+    --------
+    >>> g = pose_from_parameters([1.0, 2.0, 3.0, 0.0, 0.0, np.pi / 2])
+    >>> np.round(g[:3, :3] @ [1.0, 0.0, 0.0], 12).tolist(), g[:3, 3].tolist()
+    ([0.0, 1.0, 0.0], [1.0, 2.0, 3.0])
+    """
+    p = np.asarray(p6, dtype=float).reshape(6)
+    g = np.eye(4)
+    g[:3, :3] = _xyz(p[3:])
+    g[:3, 3] = p[:3]
+    return g
+
+
+def _params_from_pose(g: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    angles = Rotation.from_matrix(g[:3, :3]).as_euler("XYZ")  # intrinsic x-y-z
+    return np.concatenate([g[:3, 3], angles])
+
+
+def parameters_from_model(model: PandaModel) -> np.ndarray:
+    """The 12 parameters of a model's base and needle.
+
+    Parameters
+    ----------
+    model : PandaModel
+
+    Returns
+    -------
+    ndarray, shape (12,)
+    """
+    return np.concatenate(
+        [_params_from_pose(model.world_T_base), _params_from_pose(model.flange_T_tip)]
+    )
+
+
+def model_from_parameters(model: PandaModel, a) -> PandaModel:
+    """``model`` with its base and needle set from the parameters.
+
+    Parameters
+    ----------
+    model : PandaModel
+    a : array_like, shape (12,)
+
+    Returns
+    -------
+    PandaModel
+    """
+    a = np.asarray(a, dtype=float).reshape(-1)
+    if a.shape != (N_PARAMETERS,) or not np.all(np.isfinite(a)):
+        raise InvalidInputError("parameters", f"expected {N_PARAMETERS} finite numbers")
+    return model.with_parameters(pose_from_parameters(a[:6]), pose_from_parameters(a[6:]))
+
+
+@dataclass(frozen=True)
+class ParameterJacobians:
+    """Derivatives of the arm's task quantities with respect to the 12 parameters.
+
+    Attributes
+    ----------
+    tip : ndarray, shape (3, 12)
+        ``d tip_mm / dt = tip @ a_dot``.
+    angular : ndarray, shape (3, 12)
+        Angular velocity of the tip frame (world) per parameter rate.
+    axis : ndarray, shape (3, 12)
+        ``d needle_axis / dt = axis @ a_dot``.
+    """
+
+    tip: np.ndarray
+    angular: np.ndarray
+    axis: np.ndarray
+
+    def point(self, state: ArmState, a, k: int) -> np.ndarray:
+        """Jacobian of link-frame origin ``k`` (it depends on the base only).
+
+        Parameters
+        ----------
+        state : ArmState
+        a : ndarray, shape (12,)
+        k : int
+
+        Returns
+        -------
+        ndarray, shape (3, 12)
+        """
+        jac = np.zeros((3, N_PARAMETERS))
+        jac[:, :3] = np.eye(3)
+        w = xyz_euler_rate_matrix(a[3:6])
+        jac[:, 3:6] = np.cross(w.T, state.origins[k] - a[:3]).T
+        return jac
+
+
+def parameter_jacobians(model: PandaModel, state: ArmState, a) -> ParameterJacobians:
+    """Tip position, orientation and axis derivatives with respect to the parameters.
+
+    Parameters
+    ----------
+    model : PandaModel
+        The model built from ``a`` (:func:`model_from_parameters`).
+    state : ArmState
+        ``model.state(q)``.
+    a : array_like, shape (12,)
+
+    Returns
+    -------
+    ParameterJacobians
+    """
+    a = np.asarray(a, dtype=float)
+    wb = xyz_euler_rate_matrix(a[3:6])
+    # world_T_flange = world_T_tip * tip_T_flange
+    r_tip = model.tip_pose(state.q)[:3, :3]
+    r_flange = r_tip @ model.flange_T_tip[:3, :3].T
+    tip = np.zeros((3, N_PARAMETERS))
+    ang = np.zeros((3, N_PARAMETERS))
+    tip[:, :3] = np.eye(3)
+    tip[:, 3:6] = np.cross(wb.T, state.tip_mm - a[:3]).T
+    ang[:, 3:6] = wb
+    tip[:, 6:9] = r_flange  # t_n is expressed in the flange frame
+    ang[:, 9:12] = r_flange @ xyz_euler_rate_matrix(a[9:12])
+    axis = np.cross(ang.T, state.needle_axis).T
+    return ParameterJacobians(tip, ang, axis)
