@@ -39,6 +39,7 @@ MODULES = [
     "needlekit.control.qp",
     "needlekit.control.controller",
     "needlekit.control.parameters",
+    "needlekit.control.adaptation",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

@@ -42,7 +42,16 @@ from needlekit.control.vfi import (
 )
 from needlekit.errors import InvalidInputError
 
-__all__ = ["ControlOutput", "ControllerSettings", "GuideLine", "Step", "control_step"]
+__all__ = [
+    "ControlOutput",
+    "ControllerSettings",
+    "GuideLine",
+    "Step",
+    "StepVFI",
+    "control_step",
+    "step_vfis",
+    "task_parameter_jacobian",
+]
 
 
 class Step(enum.Enum):
@@ -195,6 +204,80 @@ def _task(state: ArmState, step: Step, guide: GuideLine, settings, p_d, v_d):
     return state.tip_jacobian, state.tip_mm - p_d, v_d
 
 
+@dataclass(frozen=True)
+class StepVFI:
+    """One VFI of a step at the current state.
+
+    Attributes
+    ----------
+    name : str
+        ``patient`` (robot point ``k`` outside the patient cylinder), ``guide``, ``cone``
+        or ``plane``.
+    distance, safe : float
+        The distance (mm^2 for the cylinders, ``2 - 2 cos`` for the cone, mm for the plane)
+        and its safe value.
+    zone : Zone
+    gain : float
+    jac_q : ndarray, shape (7,)
+        Derivative with respect to the joint angles.
+    jac_a : ndarray, shape (12,) or None
+        Derivative with respect to the model parameters (when they were given).
+    """
+
+    name: str
+    distance: float
+    safe: float
+    zone: Zone
+    gain: float
+    jac_q: np.ndarray
+    jac_a: np.ndarray | None = None
+
+
+def step_vfis(
+    state: ArmState, step: Step, guide: GuideLine, settings: ControllerSettings, pj=None, a=None
+) -> list[StepVFI]:
+    """The VFIs active in a step, with their Jacobians in q (and in the parameters).
+
+    Parameters
+    ----------
+    state : ArmState
+    step : Step
+    guide : GuideLine
+    settings : ControllerSettings
+    pj : ParameterJacobians, optional
+        With ``a``: also give each VFI's derivative with respect to the parameters.
+    a : ndarray, shape (12,), optional
+
+    Returns
+    -------
+    list of StepVFI
+    """
+    cfg = settings
+    out = []
+    if step is Step.PUNCTURE:
+        d, j = point_line_sq_distance(state.tip_mm, state.tip_jacobian, guide.line)
+        ja = None if pj is None else point_line_sq_distance(state.tip_mm, pj.tip, guide.line)[1]
+        out.append(StepVFI("guide", d, cfg.guide_radius_mm**2, Zone.INSIDE, cfg.eta_guide, j, ja))
+        u = guide.insertion_direction
+        f, j = line_angle_distance(state.needle_axis, state.axis_jacobian, u)
+        ja = None if pj is None else line_angle_distance(state.needle_axis, pj.axis, u)[1]
+        safe = 2.0 - 2.0 * np.cos(cfg.cone_angle_rad)
+        out.append(StepVFI("cone", f, safe, Zone.INSIDE, cfg.eta_cone, j, ja))
+        d, j = point_plane_distance(state.tip_mm, state.tip_jacobian, guide.plane)
+        ja = None if pj is None else point_plane_distance(state.tip_mm, pj.tip, guide.plane)[1]
+        out.append(StepVFI("plane", d, 0.0, Zone.OUTSIDE, cfg.eta_plane, j, ja))
+        return out
+    cyl = guide.patient_line(cfg.patient_axis)
+    for k in cfg.robot_points:
+        p = state.origins[k]
+        d, j = point_line_sq_distance(p, state.point_jacobian(k), cyl)
+        ja = None if pj is None else point_line_sq_distance(p, pj.point(state, a, k), cyl)[1]
+        out.append(
+            StepVFI("patient", d, cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient, j, ja)
+        )
+    return out
+
+
 def control_step(
     model: PandaModel,
     q,
@@ -205,6 +288,8 @@ def control_step(
     desired_mm=None,
     desired_velocity_mm_s=None,
     state: ArmState | None = None,
+    vfis: list[StepVFI] | None = None,
+    vfi_share: float = 1.0,
 ) -> ControlOutput:
     """Joint velocities for one control step (Tang et al.'s Eq. 1 with the step's VFIs).
 
@@ -222,6 +307,11 @@ def control_step(
         Its velocity (fed forward; default zero).
     state : ArmState, optional
         ``model.state(q)`` when the caller has it already.
+    vfis : list of StepVFI, optional
+        :func:`step_vfis` of this state when the caller has them already.
+    vfi_share : float
+        Share of each VFI's decay rate given to the joints (the rest goes to the
+        parameters' adaptation, which moves the estimated distances too).
 
     Returns
     -------
@@ -242,32 +332,47 @@ def control_step(
     n = len(s.q)
     H = 2.0 * (jac.T @ jac + cfg.damping**2 * np.eye(n))
     f = 2.0 * jac.T @ (cfg.eta * err - ff)
-    rows, rhs, dist = [], [], {}
-    if step is Step.PUNCTURE:
-        d, j = point_line_sq_distance(s.tip_mm, s.tip_jacobian, guide.line)
-        r, b = vfi_row(d, j, cfg.guide_radius_mm**2, Zone.INSIDE, cfg.eta_guide)
-        rows.append(r), rhs.append(b)
-        dist["guide_sq_mm2"] = d
-        fval, j = line_angle_distance(s.needle_axis, s.axis_jacobian, guide.insertion_direction)
-        r, b = vfi_row(fval, j, 2.0 - 2.0 * np.cos(cfg.cone_angle_rad), Zone.INSIDE, cfg.eta_cone)
-        rows.append(r), rhs.append(b)
-        dist["cone_f"] = fval
-        d, j = point_plane_distance(s.tip_mm, s.tip_jacobian, guide.plane)
-        r, b = vfi_row(d, j, 0.0, Zone.OUTSIDE, cfg.eta_plane)
-        rows.append(r), rhs.append(b)
-        dist["plane_mm"] = d
-    else:
-        cyl = guide.patient_line(cfg.patient_axis)
-        smallest = np.inf
-        for k in cfg.robot_points:
-            d, j = point_line_sq_distance(s.origins[k], s.point_jacobian(k), cyl)
-            r, b = vfi_row(d, j, cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient)
-            rows.append(r), rhs.append(b)
-            smallest = min(smallest, d)
-        dist["patient_sq_mm2"] = smallest
+    vfis = step_vfis(s, step, guide, cfg) if vfis is None else vfis
+    rows = np.empty((len(vfis), n))
+    rhs = np.empty(len(vfis))
+    dist: dict = {}
+    for i, v in enumerate(vfis):
+        rows[i], rhs[i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
+        key = _DIST_KEYS[v.name]
+        dist[key] = min(dist.get(key, np.inf), v.distance)
     lower, upper = joint_limit_bounds(
         s.q, model.q_min, model.q_max, model.q_dot_max, cfg.eta_joints
     )
-    sol = solve_qp(H, f, np.array(rows), np.array(rhs), lower, upper, check=False)
+    sol = solve_qp(H, f, rows, rhs, lower, upper, check=False)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
     return ControlOutput(q_dot, sol.status, err, dist)
+
+
+_DIST_KEYS = {
+    "patient": "patient_sq_mm2",
+    "guide": "guide_sq_mm2",
+    "cone": "cone_f",
+    "plane": "plane_mm",
+}
+
+
+def task_parameter_jacobian(step: Step, pj, settings: ControllerSettings) -> np.ndarray:
+    """Derivative of the step's task vector with respect to the model parameters.
+
+    Parameters
+    ----------
+    step : Step
+    pj : ParameterJacobians
+    settings : ControllerSettings
+
+    Returns
+    -------
+    ndarray, shape (m, 12)
+        Rows as in the step's task error (ALIGN: axis; APPROACH: tip and weighted axis;
+        PUNCTURE: tip).
+    """
+    if step is Step.ALIGN:
+        return pj.axis
+    if step is Step.APPROACH:
+        return np.vstack([pj.tip, settings.axis_scale_mm * pj.axis])
+    return pj.tip
