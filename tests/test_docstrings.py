@@ -40,6 +40,8 @@ MODULES = [
     "needlekit.control.controller",
     "needlekit.control.parameters",
     "needlekit.control.adaptation",
+    "needlekit.control.em",
+    "needlekit.control.procedure",
     "needlekit.io.plans",
     "needlekit.io.files",
     "needlekit.io.poses",

@@ -154,6 +154,10 @@ class ControllerSettings:
         cylinder: the elbow, the wrist and the flange-side frame.
     eta_patient, eta_guide, eta_cone, eta_plane, eta_joints : float
         VFI gains (not given in the paper).
+    puncture_keeps_axis : bool
+        PUNCTURE's task also holds the needle on the guide direction (weighted like
+        APPROACH); without it (the paper's translation-only task) the redundant arm lets
+        the needle drift to the cone's edge, where the cone VFI stops it.
     """
 
     eta: float = 0.5
@@ -165,10 +169,11 @@ class ControllerSettings:
     cone_angle_rad: float = float(np.radians(0.5))
     robot_points: tuple = (3, 4, 5, 6, 7)
     eta_patient: float = 1.0
-    eta_guide: float = 1.0
-    eta_cone: float = 1.0
-    eta_plane: float = 1.0
+    eta_guide: float = 5.0
+    eta_cone: float = 5.0
+    eta_plane: float = 5.0
     eta_joints: float = 1.0
+    puncture_keeps_axis: bool = True
 
 
 @dataclass(frozen=True)
@@ -196,7 +201,7 @@ def _task(state: ArmState, step: Step, guide: GuideLine, settings, p_d, v_d):
     u = guide.insertion_direction
     if step is Step.ALIGN:
         return state.axis_jacobian, state.needle_axis - u, np.zeros(3)
-    if step is Step.APPROACH:
+    if step is Step.APPROACH or settings.puncture_keeps_axis:
         w = settings.axis_scale_mm
         jac = np.vstack([state.tip_jacobian, w * state.axis_jacobian])
         err = np.concatenate([state.tip_mm - p_d, w * (state.needle_axis - u)])
@@ -373,6 +378,6 @@ def task_parameter_jacobian(step: Step, pj, settings: ControllerSettings) -> np.
     """
     if step is Step.ALIGN:
         return pj.axis
-    if step is Step.APPROACH:
+    if step is Step.APPROACH or settings.puncture_keeps_axis:
         return np.vstack([pj.tip, settings.axis_scale_mm * pj.axis])
     return pj.tip

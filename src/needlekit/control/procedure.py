@@ -1,0 +1,407 @@
+"""One simulated puncture: the three-step procedure of Tang et al. on a Panda guided by EM
+sensors, with the adaptive controller running at 1 kHz.
+
+Phases (``Phase``):
+
+0. ``ADAPT``: the robot stands still while the estimate of the base and needle converges
+   (the paper's simulations start this way);
+1. ``ALIGN``: the needle turns onto the guide line (step 1);
+2. ``APPROACH`` then ``WAIT``: the tip goes to the start point 300 mm out along the guide
+   line and waits until the estimate agrees with the needle sensor (step 2);
+3. ``PUNCTURE``: the tip follows a quintic to the target in ``T`` seconds (step 3), then
+   holds for ``settle_s``.
+
+"The estimate agrees" means: over the last ``convergence_window_s`` of needle samples, the
+mean estimated-minus-measured position is within ``converged_mm`` and the mean rotation
+between them within ``converged_deg`` (averaging keeps the sensor noise out of the test).
+The guide line is the running mean of the bronchoscope sensor's samples (the target does
+not move). The needle sensor feeds the adaptation law at its own rate, each sample paired
+with the joint angles of the moment it was taken.
+
+When no needle sample has arrived for ``stop_after_s`` the robot stops (zero joint
+velocities) and resumes when samples return; after ``abort_after_s`` the trial aborts with
+that reason. Every phase has a time limit, also ending the trial as aborted.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needlekit.control.adaptation import AdaptationSettings, adaptation_step
+from needlekit.control.controller import (
+    ControllerSettings,
+    GuideLine,
+    Step,
+    control_step,
+    step_vfis,
+)
+from needlekit.control.em import EMSensor, EMSensorSpec
+from needlekit.control.panda import PandaModel
+from needlekit.control.parameters import model_from_parameters, parameter_jacobians
+from needlekit.control.qp import QPStatus
+
+__all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
+
+
+class Phase(enum.Enum):
+    """Where a trial is."""
+
+    ADAPT = "adapt"
+    ALIGN = "align"
+    APPROACH = "approach"
+    WAIT = "wait"
+    PUNCTURE = "puncture"
+    DONE = "done"
+    ABORTED = "aborted"
+
+
+def quintic(t: float, duration_s: float) -> tuple[float, float]:
+    """Fraction ``s(t) = 10 tau^3 - 15 tau^4 + 6 tau^5`` (tau = t / T, clipped) and its rate.
+
+    Parameters
+    ----------
+    t, duration_s : float
+
+    Returns
+    -------
+    s, s_dot : float
+
+    Examples
+    --------
+    >>> quintic(10.0, 20.0)
+    (0.5, 0.09375)
+    """
+    tau = min(max(t / duration_s, 0.0), 1.0)
+    s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+    s_dot = 30.0 * tau**2 * (1.0 - tau) ** 2 / duration_s
+    return s, s_dot
+
+
+@dataclass(frozen=True)
+class ProcedureSettings:
+    """Timing, thresholds and limits of the procedure (s, mm, deg).
+
+    Attributes
+    ----------
+    dt_s : float
+        Control period (1 kHz).
+    start_distance_mm : float
+        Start point along the guide line (300 mm).
+    puncture_duration_s : float
+        T of the quintic (20 s in the simulations).
+    settle_s : float
+        Hold after the quintic ends.
+    align_tolerance_deg, approach_tolerance_mm : float
+        When ALIGN and APPROACH are done (estimated).
+    converged_mm, converged_deg, convergence_window_s : float
+        When the estimate agrees with the needle sensor (1.5 mm, 0.5 deg).
+    adapt_min_s : float
+        Shortest initial adaptation.
+    phase_timeout_s : float
+        Longest any phase before PUNCTURE may take.
+    stop_after_s, abort_after_s : float
+        Measurement loss that stops the robot, and that aborts the trial.
+    log_every : int
+        Record the trajectories every this many control steps.
+    vfi_share : float
+        The joints' share of each VFI's decay rate (the adaptation takes the rest).
+    """
+
+    dt_s: float = 0.001
+    start_distance_mm: float = 300.0
+    puncture_duration_s: float = 20.0
+    settle_s: float = 1.0
+    align_tolerance_deg: float = 1.0
+    approach_tolerance_mm: float = 3.0
+    converged_mm: float = 1.5
+    converged_deg: float = 0.5
+    convergence_window_s: float = 0.5
+    adapt_min_s: float = 1.0
+    phase_timeout_s: float = 30.0
+    stop_after_s: float = 0.1
+    abort_after_s: float = 2.0
+    log_every: int = 10
+    vfi_share: float = 0.5
+
+
+@dataclass(frozen=True)
+class TrialSetup:
+    """The truth and the prior of one trial.
+
+    Attributes
+    ----------
+    arm : PandaModel
+        The arm with its nominal base and needle (the controller's prior).
+    true_parameters, nominal_parameters : ndarray, shape (12,)
+        The real base and needle, and the initial estimate.
+    q0 : ndarray, shape (7,)
+    target_mm : ndarray, shape (3,)
+    guide_direction : ndarray, shape (3,)
+        ``l_g``, pointing out of the patient.
+    """
+
+    arm: PandaModel
+    true_parameters: np.ndarray
+    nominal_parameters: np.ndarray
+    q0: np.ndarray
+    target_mm: np.ndarray
+    guide_direction: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrialResult:
+    """What happened in one trial (ground truth unless a name says "estimated").
+
+    Attributes
+    ----------
+    status : str
+        ``"completed"`` or ``"aborted"``.
+    reason : str
+    position_error_mm : float
+        Final distance from the real tip to the real target.
+    angle_error_deg : float
+        Final angle between the real needle and the real guide line.
+    max_guide_distance_mm, max_cone_angle_deg, min_plane_distance_mm : float
+        During PUNCTURE, once the real tip is inside the guide cylinder and the needle inside
+        the cone (the VFIs pull them in when the puncture starts outside): the real tip's
+        largest distance from the real guide line and the largest needle angle; and over
+        the whole PUNCTURE the smallest signed distance of the tip from the target's plane.
+    min_patient_distance_mm : float
+        Smallest distance of a robot point from the patient cylinder's axis before PUNCTURE.
+    phase_times_s : dict
+        When each phase began.
+    counts : dict
+        Control steps, needle samples, lost samples, infeasible QPs, adaptation warnings.
+    log : dict of ndarray
+        Every ``log_every`` steps: ``t_s``, ``phase``, ``to_target_mm``, ``to_line_mm``,
+        ``angle_deg`` (real), ``tip_estimate_error_mm`` (estimated vs real tip),
+        ``base_error_mm``, ``needle_error_mm`` (estimated vs real translations),
+        ``desired_to_target_mm``.
+    """
+
+    status: str
+    reason: str
+    position_error_mm: float
+    angle_error_deg: float
+    max_guide_distance_mm: float
+    max_cone_angle_deg: float
+    min_plane_distance_mm: float
+    min_patient_distance_mm: float
+    phase_times_s: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+    log: dict = field(default_factory=dict)
+
+
+def _angle_deg(u, v) -> float:
+    return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
+
+
+def run_trial(
+    setup: TrialSetup,
+    rng: np.random.Generator,
+    *,
+    procedure: ProcedureSettings | None = None,
+    controller: ControllerSettings | None = None,
+    adaptation: AdaptationSettings,
+    needle_sensor: EMSensorSpec | None = None,
+    scope_sensor: EMSensorSpec | None = None,
+) -> TrialResult:
+    """Simulate one puncture from start to end.
+
+    Parameters
+    ----------
+    setup : TrialSetup
+    rng : numpy.random.Generator
+        Drives the sensors' noise and dropouts.
+    procedure : ProcedureSettings, optional
+    controller : ControllerSettings, optional
+    adaptation : AdaptationSettings
+        Includes the parameter bounds (the uncertainty box).
+    needle_sensor, scope_sensor : EMSensorSpec, optional
+        The needle-tip and bronchoscope sensors (default: 100 Hz, 1 mm, 0.2 deg, 5 ms).
+
+    Returns
+    -------
+    TrialResult
+    """
+    ps = procedure or ProcedureSettings()
+    cs = controller or ControllerSettings()
+    truth = model_from_parameters(setup.arm, setup.true_parameters)
+    needle = EMSensor(needle_sensor or EMSensorSpec(), rng)
+    scope = EMSensor(scope_sensor or EMSensorSpec(), rng)
+    true_guide = GuideLine(setup.target_mm, setup.guide_direction)
+    scope_pose = np.eye(4)
+    scope_pose[:3, 3] = true_guide.target_mm
+    z = true_guide.direction  # the bronchoscope sensor's z axis lies along l_g
+    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    scope_pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+
+    a = np.array(setup.nominal_parameters, dtype=float)
+    est = model_from_parameters(setup.arm, a)
+    q = np.array(setup.q0, dtype=float)
+    dt = ps.dt_s
+    q_hist: dict[int, np.ndarray] = {}
+    window = max(1, round(ps.convergence_window_s * needle.spec.rate_hz))
+    recent: deque = deque(maxlen=window)
+    scope_sum, scope_n = np.zeros(6), 0
+    guide = None
+    phase, phase_start = Phase.ADAPT, 0.0
+    times = {Phase.ADAPT.value: 0.0}
+    counts = dict.fromkeys(("steps", "needle_samples", "qp_infeasible", "adaptation_infeasible"), 0)
+    status, reason = "completed", "target reached"
+    puncture_from = None
+    log = {k: [] for k in ("t_s", "phase", "to_target_mm", "to_line_mm", "angle_deg")}
+    log.update({k: [] for k in ("base_error_mm", "needle_error_mm", "desired_to_target_mm")})
+    log["tip_estimate_error_mm"] = []
+    max_line = max_cone = 0.0
+    inside = False  # the real tip has entered the guide cylinder and the cone
+    cone_deg = float(np.degrees(cs.cone_angle_rad))
+    min_plane = min_patient = np.inf
+    last_task: tuple = (None, None)  # the controller's latest (step, task error)
+    step_of = {Phase.ALIGN: Step.ALIGN, Phase.APPROACH: Step.APPROACH, Phase.WAIT: Step.APPROACH}
+    step_of[Phase.PUNCTURE] = Step.PUNCTURE
+    tick = 0
+    while phase not in (Phase.DONE, Phase.ABORTED):
+        t = tick * dt
+        q_hist[tick] = q.copy()
+        q_hist.pop(tick - 1000, None)
+        true_tip = truth.tip_pose(q)
+        sample = needle.update(t, lambda tip=true_tip: tip)
+        scope_sample = scope.update(t, lambda: scope_pose)
+        if scope_sample is not None:
+            scope_sum += np.concatenate([scope_sample.pose[:3, 3], scope_sample.pose[:3, 2]])
+            scope_n += 1
+            guide = GuideLine(scope_sum[:3] / scope_n, scope_sum[3:] / scope_n)
+        if sample is not None:
+            counts["needle_samples"] += 1
+            q_s = q_hist.get(round(sample.taken_s / dt), q)
+            s_s = est.state(q_s)
+            est_tip = est.tip_pose(q_s)
+            pj = parameter_jacobians(est, s_s, a)
+            step = step_of.get(phase)
+            vfis = [] if step is None or guide is None else step_vfis(s_s, step, guide, cs, pj, a)
+            out = adaptation_step(
+                a, est_tip, sample.pose, pj, adaptation, step=step,
+                task_error=last_task[1] if last_task[0] is step else None,
+                controller=cs, vfis=vfis, vfi_share=ps.vfi_share,
+            )  # fmt: skip
+            if out.status is not QPStatus.OPTIMAL:
+                counts["adaptation_infeasible"] += 1
+            a = a + needle.period_s * out.a_dot
+            est = model_from_parameters(setup.arm, a)
+            dr = est_tip[:3, :3] @ sample.pose[:3, :3].T
+            recent.append(np.concatenate([est_tip[:3, 3] - sample.pose[:3, 3], _rotvec(dr)]))
+        converged = False
+        if len(recent) == window:
+            mean = np.mean(recent, axis=0)
+            converged = (
+                np.linalg.norm(mean[:3]) <= ps.converged_mm
+                and np.degrees(np.linalg.norm(mean[3:])) <= ps.converged_deg
+            )
+        # measurement loss
+        age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
+        if age > ps.abort_after_s:
+            phase, status, reason = Phase.ABORTED, "aborted", "needle sensor lost"
+            break
+        state = est.state(q)
+        q_dot = np.zeros(7)
+        if phase is Phase.ADAPT:
+            if t - phase_start >= ps.adapt_min_s and converged:
+                phase, phase_start = Phase.ALIGN, t
+        elif guide is not None and age <= ps.stop_after_s:
+            step = step_of[phase]
+            p_s = guide.start_point(ps.start_distance_mm)
+            if phase is Phase.PUNCTURE:
+                frac, rate = quintic(t - phase_start, ps.puncture_duration_s)
+                p_d = puncture_from + (guide.target_mm - puncture_from) * frac
+                v_d = (guide.target_mm - puncture_from) * rate
+            else:
+                p_d, v_d = p_s, np.zeros(3)
+            out = control_step(
+                est, q, step, guide, cs, desired_mm=p_d, desired_velocity_mm_s=v_d,
+                state=state, vfi_share=ps.vfi_share,
+            )  # fmt: skip
+            if out.status is not QPStatus.OPTIMAL:
+                counts["qp_infeasible"] += 1
+            q_dot, last_task = out.q_dot, (step, out.task_error)
+            u = guide.insertion_direction
+            if phase is Phase.ALIGN and _angle_deg(state.needle_axis, u) <= ps.align_tolerance_deg:
+                phase, phase_start = Phase.APPROACH, t
+            elif (
+                phase is Phase.APPROACH
+                and np.linalg.norm(state.tip_mm - p_s) <= ps.approach_tolerance_mm
+            ):
+                phase, phase_start = Phase.WAIT, t
+            elif phase is Phase.WAIT and converged:
+                phase, phase_start = Phase.PUNCTURE, t
+                puncture_from = p_s
+            elif (
+                phase is Phase.PUNCTURE and t - phase_start >= ps.puncture_duration_s + ps.settle_s
+            ):
+                phase = Phase.DONE
+            if phase is not Phase.DONE:
+                times.setdefault(phase.value, t)
+        if phase not in (Phase.PUNCTURE, Phase.DONE) and t - phase_start > ps.phase_timeout_s:
+            phase, status, reason = Phase.ABORTED, "aborted", f"{phase.value} timed out"
+            break
+        # ground truth
+        tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
+        rel = tip_true - true_guide.target_mm
+        to_line = float(np.linalg.norm(rel - true_guide.direction * (rel @ true_guide.direction)))
+        angle = _angle_deg(axis_true, true_guide.insertion_direction)
+        if phase is Phase.PUNCTURE:
+            inside = inside or (to_line <= cs.guide_radius_mm and angle <= cone_deg)
+            if inside:
+                max_line, max_cone = max(max_line, to_line), max(max_cone, angle)
+        if phase is Phase.PUNCTURE:
+            min_plane = min(min_plane, float(rel @ true_guide.direction))
+        elif phase in (Phase.ALIGN, Phase.APPROACH, Phase.WAIT):
+            ts = truth.state(q)
+            axis_line = true_guide.patient_line(cs.patient_axis)
+            for k in cs.robot_points:
+                r = ts.origins[k] - axis_line.point_mm
+                d = np.linalg.norm(r - axis_line.direction * (r @ axis_line.direction))
+                min_patient = min(min_patient, float(d))
+        if tick % ps.log_every == 0:
+            log["t_s"].append(t)
+            log["phase"].append(phase.value)
+            log["to_target_mm"].append(float(np.linalg.norm(rel)))
+            log["to_line_mm"].append(to_line)
+            log["angle_deg"].append(angle)
+            log["tip_estimate_error_mm"].append(float(np.linalg.norm(state.tip_mm - tip_true)))
+            log["base_error_mm"].append(float(np.linalg.norm(a[:3] - setup.true_parameters[:3])))
+            log["needle_error_mm"].append(
+                float(np.linalg.norm(a[6:9] - setup.true_parameters[6:9]))
+            )
+            log["desired_to_target_mm"].append(
+                float(np.linalg.norm(p_d - guide.target_mm)) if phase is Phase.PUNCTURE else np.nan
+            )
+        q = q + dt * q_dot
+        tick += 1
+        counts["steps"] += 1
+    final = truth.tip_pose(q)
+    counts["needle_lost"] = needle.n_lost
+    return TrialResult(
+        status,
+        reason,
+        float(np.linalg.norm(final[:3, 3] - true_guide.target_mm)),
+        _angle_deg(final[:3, 2], true_guide.insertion_direction),
+        max_line,
+        max_cone,
+        min_plane,
+        min_patient,
+        times,
+        counts,
+        {k: np.asarray(v) for k, v in log.items()},
+    )
+
+
+def _rotvec(r: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(r).as_rotvec()
