@@ -54,23 +54,25 @@ def test_estimate_converges_to_noise_free_measurements():
     assert np.all(a >= SETTINGS.lower - 1e-9) and np.all(a <= SETTINGS.upper + 1e-9)
 
 
-def test_the_stability_row_holds():
+@pytest.mark.parametrize("step", [Step.ALIGN, Step.APPROACH, Step.PUNCTURE])
+def test_the_stability_row_holds(step):
+    from needlekit.control.controller import ControllerSettings, task_parameter_jacobian
+
     rng = np.random.default_rng(1)
     a = NOMINAL.copy()
     truth = model_from_parameters(PandaModel(), NOMINAL + rng.uniform(-0.5, 0.5, 12) * SPREAD)
-    m, s, pj = _estimate_at(a, Q0)
-    task_error = s.tip_mm - (s.tip_mm + np.array([3.0, -2.0, 5.0]))
+    m, _, pj = _estimate_at(a, Q0)
+    cfg = ControllerSettings()
+    jx = task_parameter_jacobian(step, pj, cfg)
+    task_error = rng.normal(size=jx.shape[0])
     out = adaptation_step(
-        a,
-        m.tip_pose(Q0),
-        truth.tip_pose(Q0),
-        pj,
-        SETTINGS,
-        step=Step.PUNCTURE,
-        task_error=task_error,
-    )
+        a, m.tip_pose(Q0), truth.tip_pose(Q0), pj, SETTINGS, step=step, task_error=task_error,
+        controller=cfg,
+    )  # fmt: skip
     assert out.status is QPStatus.OPTIMAL
-    assert task_error @ pj.tip @ out.a_dot <= 1e-9
+    assert task_error @ jx @ out.a_dot <= 1e-9
+    free = adaptation_step(a, m.tip_pose(Q0), truth.tip_pose(Q0), pj, SETTINGS)
+    assert np.linalg.norm(free.a_dot) > 0  # the row binds only where it must
 
 
 def test_an_infeasible_qp_keeps_the_estimate_and_warns(caplog):
