@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -118,3 +119,30 @@ def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
     lines = [line(headers), "  ".join("-" * w for w in widths)]
     lines.extend(line(r) for r in text)
     return "\n".join(lines)
+
+
+@contextmanager
+def sweep_progress() -> Iterator:
+    """Progress bars for a sweep study: ``progress(planner)`` opens one bar per planner and
+    returns its per-direction update; every bar is closed on leaving the block.
+
+    Yields
+    ------
+    callable
+        ``progress(planner) -> update`` (see
+        :func:`needlekit.studies.sweep_study.run_sweep_study`).
+    """
+    from tqdm import tqdm
+
+    bars: list = []
+
+    def progress(planner: str):
+        bar = tqdm(desc=f"sweep {planner:8s}", unit="dir", disable=None)
+        bars.append(bar)
+        return lambda _: bar.update(1)
+
+    try:
+        yield progress
+    finally:
+        for bar in bars:
+            bar.close()

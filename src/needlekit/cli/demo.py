@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit.cli._common import EXIT_OK
+from needlekit.cli._common import EXIT_OK, sweep_progress
 
 #: Budgets of the demo sweep: iteration limits make its numbers the same on every machine.
 DEMO_PLANNERS = ("rcs_star", "rcs", "rrt")
@@ -25,8 +25,6 @@ DEMO_MAX_ITERATIONS = 300
 
 
 def _lung_sweep(out: Path) -> int:
-    from tqdm import tqdm
-
     from needlekit.planning.steerable.source import ScenarioSource
     from needlekit.studies.sweep_study import run_sweep_study
 
@@ -36,14 +34,7 @@ def _lung_sweep(out: Path) -> int:
     with resources.as_file(resources.files("needlekit") / "data" / "lung_phantom.yaml") as src:
         shutil.copyfile(src, scenario)
     print("lung phantom: loading the scene", file=sys.stderr)
-    bars: list = []
-
-    def progress(planner):
-        bar = tqdm(desc=f"sweep {planner:8s}", unit="dir", disable=None, file=sys.stderr)
-        bars.append(bar)
-        return lambda _: bar.update(1)
-
-    try:
+    with sweep_progress() as progress:
         study = run_sweep_study(
             ScenarioSource.of(scenario),
             case / "sweep.json",
@@ -55,9 +46,6 @@ def _lung_sweep(out: Path) -> int:
             progress=progress,
             title="needlekit demo: effective puncture region in the lung phantom",
         )
-    finally:
-        for bar in bars:
-            bar.close()
     for name, sw in study.sweeps.items():
         st = sw.stats
         best = "-" if st["best_cost_mm"] is None else f"{st['best_cost_mm']:.3f} mm"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from needlekit.cli._common import EXIT_OK
+from needlekit.cli._common import EXIT_OK, sweep_progress
 from needlekit.errors import NeedlekitError
 
 
@@ -30,15 +30,7 @@ def _source(args: argparse.Namespace):
 
 
 def _problem_and_obstacles(args: argparse.Namespace):
-    from needlekit.planning.steerable.source import load_problem
-
-    return load_problem(
-        args.scenario,
-        start_pose=_pose_override(args),
-        goal_mm=args.goal,
-        r_min_mm=args.r_min_mm,
-        needle_diameter_mm=args.needle_diameter_mm,
-    )
+    return _source(args).load()
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -70,8 +62,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from needlekit.batch import open_executor
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
     from needlekit.studies.sweep_study import run_sweep_study
@@ -82,32 +72,24 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         dirs = healpix_directions(args.healpix)
     else:
         dirs = sphere_directions(args.directions)
-    bars: list = []
-
-    def progress(planner):
-        bar = tqdm(desc=f"sweep {planner:8s}", unit="dir", disable=None)
-        bars.append(bar)
-        return lambda _: bar.update(1)
-
-    try:
-        with open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
-            study = run_sweep_study(
-                source,
-                args.out,
-                plan_path=args.plan,
-                report_path=args.report,
-                planners=args.planner,
-                directions=dirs,
-                time_limit_s=args.time_limit_s,
-                max_iterations=args.max_iterations,
-                seed=args.seed,
-                executor=None if args.executor == "serial" else ex,
-                progress=progress,
-                options={"rrt": {"connection": args.rrt_connection or "arc_line"}},
-            )
-    finally:
-        for bar in bars:
-            bar.close()
+    with (
+        open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
+        sweep_progress() as progress,
+    ):
+        study = run_sweep_study(
+            source,
+            args.out,
+            plan_path=args.plan,
+            report_path=args.report,
+            planners=args.planner,
+            directions=dirs,
+            time_limit_s=args.time_limit_s,
+            max_iterations=args.max_iterations,
+            seed=args.seed,
+            executor=None if args.executor == "serial" else ex,
+            progress=progress,
+            options={"rrt": {"connection": args.rrt_connection or "arc_line"}},
+        )
 
     def mm(v):
         return "-" if v is None else f"{v:.4f}"

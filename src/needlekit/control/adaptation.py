@@ -37,6 +37,7 @@ from needlekit.control.parameters import N_PARAMETERS, ParameterJacobians
 from needlekit.control.qp import QPStatus, solve_qp
 from needlekit.control.vfi import vfi_row
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.so3 import so3_log
 
 __all__ = ["AdaptationOutput", "AdaptationSettings", "adaptation_step", "measurement_error"]
 
@@ -95,12 +96,6 @@ class AdaptationOutput:
     error: np.ndarray
 
 
-def _log_rotation(r: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(r).as_rotvec()
-
-
 def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) -> np.ndarray:
     """``[p_est - p_meas; s * log(R_est R_meas^T)]``.
 
@@ -114,7 +109,7 @@ def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) 
     ndarray, shape (6,)
     """
     dp = estimated_tip[:3, 3] - measured_tip[:3, 3]
-    dr = _log_rotation(estimated_tip[:3, :3] @ measured_tip[:3, :3].T)
+    dr = so3_log(estimated_tip[:3, :3] @ measured_tip[:3, :3].T)
     return np.concatenate([dp, orientation_scale_mm * dr])
 
 

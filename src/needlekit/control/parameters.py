@@ -18,8 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from needlekit.control.dq import dq_to_matrix
 from needlekit.control.panda import ArmState, PandaModel
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.euler import euler_rate_matrix, euler_to_matrix, matrix_to_euler
 
 __all__ = [
     "N_PARAMETERS",
@@ -35,18 +37,6 @@ __all__ = [
 N_PARAMETERS = 12
 
 
-def _rot(axis: int, angle: float) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    r = np.eye(3)
-    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
-    return r
-
-
-def _xyz(angles) -> np.ndarray:
-    return _rot(0, angles[0]) @ _rot(1, angles[1]) @ _rot(2, angles[2])
-
-
 def xyz_euler_rate_matrix(angles) -> np.ndarray:
     """``W`` with ``omega = W angles_dot`` for ``R = R_x R_y R_z`` (omega in the frame ``R``
     is expressed in).
@@ -59,9 +49,7 @@ def xyz_euler_rate_matrix(angles) -> np.ndarray:
     -------
     ndarray, shape (3, 3)
     """
-    rx = _rot(0, angles[0])
-    rxy = rx @ _rot(1, angles[1])
-    return np.column_stack([[1.0, 0.0, 0.0], rx[:, 1], rxy[:, 2]])
+    return euler_rate_matrix(angles, "XYZ")
 
 
 def pose_from_parameters(p6) -> np.ndarray:
@@ -83,16 +71,13 @@ def pose_from_parameters(p6) -> np.ndarray:
     """
     p = np.asarray(p6, dtype=float).reshape(6)
     g = np.eye(4)
-    g[:3, :3] = _xyz(p[3:])
+    g[:3, :3] = euler_to_matrix(p[3:], "XYZ")
     g[:3, 3] = p[:3]
     return g
 
 
 def _params_from_pose(g: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    angles = Rotation.from_matrix(g[:3, :3]).as_euler("XYZ")  # intrinsic x-y-z
-    return np.concatenate([g[:3, 3], angles])
+    return np.concatenate([g[:3, 3], matrix_to_euler(g[:3, :3], "XYZ")])
 
 
 def parameters_from_model(model: PandaModel) -> np.ndarray:
@@ -185,7 +170,7 @@ def parameter_jacobians(model: PandaModel, state: ArmState, a) -> ParameterJacob
     a = np.asarray(a, dtype=float)
     wb = xyz_euler_rate_matrix(a[3:6])
     # world_T_flange = world_T_tip * tip_T_flange
-    r_tip = model.tip_pose(state.q)[:3, :3]
+    r_tip = dq_to_matrix(state.tip_dq)[:3, :3]
     r_flange = r_tip @ model.flange_T_tip[:3, :3].T
     tip = np.zeros((3, N_PARAMETERS))
     ang = np.zeros((3, N_PARAMETERS))

@@ -39,6 +39,7 @@ from needlekit.control.controller import (
     control_step,
     step_vfis,
 )
+from needlekit.control.dq import dq_to_matrix
 from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.control.panda import PandaModel
 from needlekit.control.parameters import model_from_parameters, parameter_jacobians
@@ -281,7 +282,7 @@ def run_trial(
             counts["needle_samples"] += 1
             q_s = q_hist.get(round(sample.taken_s / dt), q)
             s_s = est.state(q_s)
-            est_tip = est.tip_pose(q_s)
+            est_tip = dq_to_matrix(s_s.tip_dq)
             pj = parameter_jacobians(est, s_s, a)
             step = step_of.get(phase)
             vfis = [] if step is None or guide is None else step_vfis(s_s, step, guide, cs, pj, a)
@@ -294,14 +295,14 @@ def run_trial(
                 counts["adaptation_infeasible"] += 1
             a = a + needle.period_s * out.a_dot
             est = model_from_parameters(setup.arm, a)
-            dr = est_tip[:3, :3] @ sample.pose[:3, :3].T
-            recent.append(np.concatenate([est_tip[:3, 3] - sample.pose[:3, 3], _rotvec(dr)]))
+            recent.append(out.error)  # rotation rows weighted by orientation_scale_mm
         converged = False
         if len(recent) == window:
             mean = np.mean(recent, axis=0)
             converged = (
                 np.linalg.norm(mean[:3]) <= ps.converged_mm
-                and np.degrees(np.linalg.norm(mean[3:])) <= ps.converged_deg
+                and np.degrees(np.linalg.norm(mean[3:]) / adaptation.orientation_scale_mm)
+                <= ps.converged_deg
             )
         # measurement loss
         age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
@@ -399,9 +400,3 @@ def run_trial(
         counts,
         {k: np.asarray(v) for k, v in log.items()},
     )
-
-
-def _rotvec(r: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(r).as_rotvec()

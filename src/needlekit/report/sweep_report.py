@@ -21,7 +21,6 @@ from collections.abc import Mapping
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.sweep import SweepResult
 from needlekit.report._style import _GREEN, _ORANGE, _PALETTE, _PURPLE, _SKY
 from needlekit.report.html_page import (
@@ -83,9 +82,8 @@ def _check_sweeps(sweeps) -> dict[str, SweepResult]:
 
 def _costs(sw: SweepResult) -> np.ndarray:
     """Cost (mm) per direction, NaN where there is no solved plan; shape (n,)."""
-    ok = [r is not None and r.status is PlanStatus.SOLVED for r in sw.results]
-    c = np.array([r.cost_mm if k else np.nan for r, k in zip(sw.results, ok, strict=True)])
-    return np.where(np.isfinite(c), c, np.nan).astype(float)
+    c = sw.costs_mm
+    return np.where(np.isfinite(c), c, np.nan)
 
 
 def _label(planner: str) -> str:

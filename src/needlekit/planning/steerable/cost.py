@@ -109,10 +109,4 @@ def plan_cost(problem, plan, spacing_mm: float = COST_SPACING_MM) -> float:
     -------
     float
     """
-    poses = plan.poses()
-    return float(
-        sum(
-            motion_cost(problem, poses[i], spin, kappa, length, spacing_mm)
-            for i, (spin, kappa, length) in enumerate(plan.primitives)
-        )
-    )
+    return chain_cost(problem, plan.start_pose, plan.primitives, spacing_mm)

@@ -34,6 +34,7 @@ __all__ = [
     "healpix_directions",
     "pose_from_direction",
     "sphere_directions",
+    "solved_costs",
     "sweep",
     "sweep_stats",
     "sweeps_to_dict",
@@ -189,6 +190,11 @@ class SweepResult:
     results: list
     planner: str
     stats: dict = field(default_factory=dict)
+
+    @property
+    def costs_mm(self) -> np.ndarray:
+        """Cost per candidate direction, ``inf`` where there is no solved plan."""
+        return solved_costs(self.results)
 
     @property
     def best(self) -> PlanResult | None:
@@ -365,6 +371,23 @@ def sweep(
     return SweepResult(dirs, eff, results, planner, stats)
 
 
+def solved_costs(results) -> np.ndarray:
+    """Cost of each result that has a solved plan, ``inf`` elsewhere.
+
+    Parameters
+    ----------
+    results : sequence of PlanResult or None
+
+    Returns
+    -------
+    ndarray, shape (len(results),)
+    """
+    return np.array(
+        [r.cost_mm if r is not None and r.status is PlanStatus.SOLVED else np.inf for r in results],
+        dtype=float,
+    )
+
+
 def sweep_stats(directions, effective, results, time_s: float = 0.0) -> dict:
     """The summary of a sweep (Feng's Table 4 and the best direction).
 
@@ -397,9 +420,7 @@ def sweep_stats(directions, effective, results, time_s: float = 0.0) -> dict:
     """
     dirs = np.asarray(directions, dtype=float).reshape(-1, 3)
     eff = np.asarray(effective, dtype=bool)
-    costs = np.array(
-        [r.cost_mm if r is not None and r.status is PlanStatus.SOLVED else np.inf for r in results]
-    )
+    costs = solved_costs(results)
     solved = np.isfinite(costs)
     best = int(np.argmin(costs)) if solved.any() else None
     # Feng's Table 4 "before lowest": the sum of the solved directions' costs, in sweep
