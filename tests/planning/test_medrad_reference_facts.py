@@ -89,7 +89,10 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
     res = solve_rcs(prob, time_limit_s=1.0, obstacles=obstacles)
     expected = REFERENCE.get((start, r_min), "none")
     if expected == "none":  # start 2: the reference finds no plan within 1 s
-        assert res.status is PlanStatus.TIMEOUT and res.plan is None
+        # no plan reaching the goal: at most the valid path that got nearest it
+        assert res.status in (PlanStatus.TIMEOUT, PlanStatus.APPROXIMATE)
+        if res.plan is not None:
+            assert res.stats["goal_distance_mm"] > prob.goal_tolerance_mm
     elif expected is None:
         assert res.status is PlanStatus.INFEASIBLE
     else:

@@ -12,7 +12,7 @@ from needlekit.planning.steerable.goal import goal_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.rcs import solve_rcs
-from needlekit.planning.steerable.verify import verify_plan
+from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
 GOAL = np.array([0.0, -20.0, 60.0])
 
@@ -59,8 +59,14 @@ def test_no_plan_exists_terminates_within_budget():
     ]
     prob = _problem(*wall)
     res = solve_rcs(prob, time_limit_s=0.5)
-    assert res.status in (PlanStatus.TIMEOUT, PlanStatus.INFEASIBLE)
-    assert res.plan is None and res.time_s < 1.5
+    assert res.status in (PlanStatus.TIMEOUT, PlanStatus.INFEASIBLE, PlanStatus.APPROXIMATE)
+    assert res.time_s < 1.5
+    if res.status is PlanStatus.APPROXIMATE:  # the nearest valid path, short of the goal
+        assert res.stats["goal_distance_mm"] > prob.goal_tolerance_mm
+        assert not verify_plan(prob, res.plan).ok
+        assert verify_approximate(prob, res.plan).ok
+    else:
+        assert res.plan is None
 
 
 def test_unreachable_goal_and_invalid_start():
@@ -94,3 +100,22 @@ def test_result_json_has_the_plan_file_fields():
     pts = np.array(d["points_mm"])
     assert np.linalg.norm(np.diff(pts, axis=0), axis=1).max() <= 0.5 + 1e-9
     assert set(d["primitives"][0]) == {"rotation_rad", "curvature_per_mm", "length_mm"}
+
+
+@pytest.mark.parametrize("planner", ["rcs_star", "rcs", "rrt"])
+def test_out_of_budget_the_nearest_valid_path_comes_back_as_approximate(planner):
+    from needlekit.planning.steerable.solve import solve
+
+    wall = [
+        Capsule([x, -130.0, 40.0], [x, 130.0, 40.0], 1.6) for x in np.arange(-130.0, 131.0, 3.0)
+    ]
+    prob = _problem(*wall)
+    res = solve(prob, planner, time_limit_s=60.0, max_iterations=300, seed=0)
+    assert res.status is PlanStatus.APPROXIMATE and res.status is not PlanStatus.SOLVED
+    gap = np.linalg.norm(res.plan.end_pose()[:3, 3] - GOAL)
+    assert res.stats["goal_distance_mm"] == pytest.approx(gap) and gap > prob.goal_tolerance_mm
+    assert gap < np.linalg.norm(GOAL)  # nearer than the start
+    check = verify_approximate(prob, res.plan)
+    assert check.ok, check.violations  # every rule but the goal holds
+    assert [v.split(":")[0] for v in verify_plan(prob, res.plan).violations] == ["goal"]
+    assert res.cost_mm == pytest.approx(res.plan.length_mm)

@@ -35,6 +35,7 @@ def _problem_and_obstacles(args: argparse.Namespace):
 
 def _cmd_plan(args: argparse.Namespace) -> int:
     from needlekit.io.plans import write_plan_json
+    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
     sc, problem, obstacles = _problem_and_obstacles(args)
@@ -58,7 +59,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     print(f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms) -> {args.out}")
     if not res.status.has_plan and res.stats.get("reason"):
         print(f"reason: {res.stats['reason']}")
-    return EXIT_OK if res.status.has_plan else 1
+    if res.status is PlanStatus.APPROXIMATE:
+        print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
+    return EXIT_OK if res.status is PlanStatus.SOLVED else 1
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:

@@ -56,7 +56,7 @@ from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
-from needlekit.planning.steerable.verify import verify_plan
+from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
 __all__ = ["LOOKAHEAD_RANKS", "Resolution", "solve_rcs"]
 
@@ -244,7 +244,9 @@ def solve_rcs(
     PlanResult
         ``SOLVED`` (``stats["certified"]`` when the search finished), ``INFEASIBLE`` (no
         plan at the finest resolution, or the goal outside the start's reachable set),
-        ``TIMEOUT`` or ``INVALID_PROBLEM``.
+        ``APPROXIMATE`` (the budget ran out: the valid path that ended nearest the goal,
+        ``stats["goal_distance_mm"]``), ``TIMEOUT`` (not even that) or
+        ``INVALID_PROBLEM``.
     """
     if problem.start_pose is None:
         raise InvalidInputError(
@@ -396,6 +398,7 @@ def solve_rcs(
             return
         best, best_plan = cost, plan
 
+    closest = (float(np.linalg.norm(start[:3, 3] - goal)), 0)  # (goal distance, node)
     try_goal(0)
     expand(0)
     reason = "search space exhausted"
@@ -423,6 +426,9 @@ def solve_rcs(
         spin = spins[n.si] if n.curved else 0.0
         if not validator.motion_valid(parent.pose, spin, kappa if n.curved else 0.0, lengths[n.li]):
             continue
+        gap = float(np.linalg.norm(n.pose[:3, 3] - goal))
+        if gap < closest[0]:
+            closest = (gap, idx)
         try_goal(idx)
         expand(idx)
 
@@ -443,4 +449,13 @@ def solve_rcs(
         return result(
             PlanStatus.INFEASIBLE, **{**stats, "reason": "no plan at the finest resolution"}
         )
+    if closest[1] > 0:  # the valid path that got nearest the goal
+        plan = SteerablePlan(start, np.array(chain(closest[1])).reshape(-1, 3))
+        check = verify_approximate(
+            problem, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm
+        )
+        if check.ok:
+            stats["goal_distance_mm"] = check.metrics["goal_distance_mm"]
+            return result(PlanStatus.APPROXIMATE, plan, nodes[closest[1]].g, **stats)
+        stats["refused_by_check"] += 1
     return result(PlanStatus.TIMEOUT, **stats)

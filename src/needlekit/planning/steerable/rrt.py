@@ -32,7 +32,7 @@ from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
-from needlekit.planning.steerable.verify import verify_plan
+from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
 __all__ = ["GOAL_BIAS", "solve_rrt", "solve_rrt_multi"]
 
@@ -109,7 +109,9 @@ def solve_rrt_multi(
     Returns
     -------
     list of PlanResult
-        One per target, in order: ``SOLVED`` with the cheapest plan found, else ``TIMEOUT``
+        One per target, in order: ``SOLVED`` with the cheapest plan found, else
+        ``APPROXIMATE`` (the valid tree path that ended nearest the target,
+        ``stats["goal_distance_mm"]``) or ``TIMEOUT``
         (or ``INFEASIBLE`` / ``INVALID_PROBLEM`` when that is known up front).
     """
     if problem.start_pose is None:
@@ -240,6 +242,22 @@ def solve_rrt_multi(
         lengths.append(lengths[near] + length)
         try_goals(len(poses) - 1)
 
+    def _approximate(i: int, stats: dict) -> PlanResult:
+        """The valid tree path that ended nearest target ``i``, else a timeout."""
+        gaps = np.linalg.norm(np.array(poses)[:, :3, 3] - goals[i], axis=1)
+        idx = int(np.argmin(gaps))
+        if idx > 0:
+            plan = SteerablePlan(start, np.array(chain(idx)).reshape(-1, 3))
+            sub = _with_goal(problem, goals[i])
+            check = verify_approximate(
+                sub, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm
+            )
+            if check.ok:
+                stats = {**stats, "goal_distance_mm": check.metrics["goal_distance_mm"]}
+                return finish(i, PlanStatus.APPROXIMATE, plan, costs[idx], **stats)
+            stats = {**stats, "refused_by_check": stats["refused_by_check"] + 1}
+        return finish(i, PlanStatus.TIMEOUT, **stats)
+
     out = []
     for i in range(k):
         stats = {
@@ -260,7 +278,7 @@ def solve_rrt_multi(
         elif best_plans[i] is not None:
             out.append(finish(i, PlanStatus.SOLVED, best_plans[i], best[i], **stats))
         else:
-            out.append(finish(i, PlanStatus.TIMEOUT, **stats))
+            out.append(_approximate(i, stats))
     return out
 
 

@@ -31,7 +31,7 @@ from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 
-__all__ = ["Verification", "verify_plan"]
+__all__ = ["Verification", "verify_approximate", "verify_plan"]
 
 #: Slack on the checked limits (curvature, length, goal distance, angles): rounding only.
 VERIFY_SLACK: float = 1e-9
@@ -170,3 +170,36 @@ def verify_plan(
         "colliding_samples": n_hits,
     }
     return Verification(not bad, tuple(bad), metrics)
+
+
+def verify_approximate(
+    problem: SteerableProblem,
+    plan: SteerablePlan,
+    *,
+    obstacles: VoxelObstacles | None = None,
+    spacing_mm: float = 0.25,
+) -> Verification:
+    """Check a path that stops short of the goal (an approximate solution): every rule of
+    :func:`verify_plan` except the goal tolerance, which becomes the distance it reaches.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    plan : SteerablePlan
+    obstacles : VoxelObstacles, optional
+    spacing_mm : float
+
+    Returns
+    -------
+    Verification
+        ``metrics["goal_distance_mm"]`` is how far from the goal the path ends.
+    """
+    from dataclasses import replace
+
+    reached = float(np.linalg.norm(plan.end_pose()[:3, 3] - problem.goal_mm))
+    relaxed = replace(
+        problem,
+        goal_tolerance_mm=max(problem.goal_tolerance_mm, reached),
+        start_point_mm=None if problem.start_pose is not None else problem.start_point_mm,
+    )
+    return verify_plan(relaxed, plan, obstacles=obstacles, spacing_mm=spacing_mm)
