@@ -30,3 +30,8 @@ ON_AXIS_TOL_MM: float = 1e-12
 #: Default spacing (mm) of points sampled densely along an arc for clearance checks and
 #: exported paths; plan files promise at most 0.5 mm.
 DEFAULT_SAMPLE_SPACING_MM: float = 0.5
+
+#: Part of a planner's time budget (s, at most; and at most 5 % of it) kept back from the
+#: search for building and checking the path it returns, so that a run answers within its
+#: budget. One search step plus the final check take about 1-2 ms on a Med-RAD lung.
+PLANNER_FINISH_RESERVE_S: float = 0.01

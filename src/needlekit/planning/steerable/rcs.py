@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.constants import PLANNER_FINISH_RESERVE_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.planning.result import PlanStatus
@@ -258,6 +259,7 @@ def solve_rcs(
     validator = MotionValidator(problem, obstacles)
     setup_s = validator.warm_up()  # JIT compilation is not search time
     t0 = time.perf_counter()
+    search_s = time_limit_s - min(PLANNER_FINISH_RESERVE_S, 0.05 * time_limit_s)
     start, goal = problem.start_pose, problem.goal_mm
 
     def result(status, plan=None, cost=math.inf, **stats):
@@ -403,7 +405,7 @@ def solve_rcs(
     expand(0)
     reason = "search space exhausted"
     while buckets:
-        if time.perf_counter() - t0 > time_limit_s:
+        if time.perf_counter() - t0 > search_s:
             reason = "time limit"
             break
         if max_iterations is not None and iterations >= max_iterations:

@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.constants import PLANNER_FINISH_RESERVE_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
@@ -130,6 +131,7 @@ def solve_rrt_multi(
     validator = MotionValidator(problem, obstacles)
     validator.warm_up()  # JIT compilation is not search time
     t0 = time.perf_counter()
+    search_s = time_limit_s - min(PLANNER_FINISH_RESERVE_S, 0.05 * time_limit_s)
     k = len(goals)
 
     def finish(i, status, plan=None, cost=math.inf, **stats):
@@ -216,7 +218,7 @@ def solve_rrt_multi(
     try_goals(0)
     reason = "time limit"
     while open_goals:
-        if time.perf_counter() - t0 > time_limit_s:
+        if time.perf_counter() - t0 > search_s:
             break
         if max_iterations is not None and iterations >= max_iterations:
             reason = "iteration limit"
