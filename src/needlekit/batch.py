@@ -128,21 +128,29 @@ def open_executor(
             raise InvalidInputError(
                 "executor", "'dask' needs Dask distributed: pip install 'needlekit[dask]'"
             ) from exc
-        if address is not None:
-            with Client(address) as client:
-                yield client.get_executor()
-        else:
-            with (
-                LocalCluster(
-                    n_workers=workers or os.cpu_count() or 1,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.WARNING,
-                ) as cluster,
-                Client(cluster) as client,
-            ):
-                yield client.get_executor()
+        # Dask logs its start-up at INFO on its own logger: follow the caller's verbosity
+        dask_log = logging.getLogger("distributed")
+        old_level = dask_log.level
+        if logging.getLogger().getEffectiveLevel() > logging.INFO:
+            dask_log.setLevel(logging.WARNING)
+        try:
+            if address is not None:
+                with Client(address) as client:
+                    yield client.get_executor()
+            else:
+                with (
+                    LocalCluster(
+                        n_workers=workers or os.cpu_count() or 1,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                        silence_logs=logging.WARNING,
+                    ) as cluster,
+                    Client(cluster) as client,
+                ):
+                    yield client.get_executor()
+        finally:
+            dask_log.setLevel(old_level)
     else:
         raise InvalidInputError("executor", f"expected one of {', '.join(EXECUTORS)}, got {kind!r}")
 
