@@ -14,7 +14,7 @@ from needlekit.batch import (
     worker_cached,
 )
 from needlekit.errors import InvalidInputError
-from needlekit.planning.steerable.source import ScenarioSource, load_problem
+from needlekit.io.problems import ScenarioSource, load_problem
 from needlekit.planning.steerable.sweep import sphere_directions, sweep
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -27,7 +27,7 @@ MODULES = [
     "needlekit.planning.steerable.solve",
     "needlekit.planning.steerable.rrt",
     "needlekit.planning.steerable.sweep",
-    "needlekit.planning.steerable.source",
+    "needlekit.io.problems",
     "needlekit.batch",
     "needlekit.planning.steerable.cost",
     "needlekit.report.sweep_report",

@@ -54,6 +54,9 @@ class SerialExecutor(Executor):
     Exceptions are stored in the returned future, as with a pool.
     """
 
+    #: Tasks run in the caller's process: they need not be picklable.
+    in_process = True
+
     def submit(self, fn: Callable, /, *args, **kwargs) -> Future:
         """Run ``fn(*args, **kwargs)`` now.
 

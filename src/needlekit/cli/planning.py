@@ -18,7 +18,7 @@ def _pose_override(args: argparse.Namespace):
 
 
 def _source(args: argparse.Namespace):
-    from needlekit.planning.steerable.source import ScenarioSource
+    from needlekit.io.problems import ScenarioSource
 
     return ScenarioSource.of(
         args.scenario,

@@ -334,32 +334,15 @@ def sweep(
         eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
     else:
         eff = np.ones(len(dirs), dtype=bool)
-    from needlekit.batch import SerialExecutor
-
-    remote = executor is not None and not isinstance(executor, SerialExecutor)
+    # executors that run tasks elsewhere get the recipe, or a scene small enough to ship
+    remote = executor is not None and not getattr(executor, "in_process", False)
     if remote and source is None:
         _check_task_size(problem, obstacles)
-    carry = (None, None) if remote and source is not None else (problem, obstacles)
-    tasks = [
-        (
-            *carry,
-            source if carry[0] is None else None,
-            d,
-            planner,
-            time_limit_s,
-            seed,
-            max_iterations,
-            options,
-        )
-        for d in dirs[eff]
-    ]
+    recipe = remote and source is not None
+    carry = (None, None, source) if recipe else (problem, obstacles, None)
+    tasks = [(*carry, d, planner, time_limit_s, seed, max_iterations, options) for d in dirs[eff]]
     done: list = [None] * len(tasks)
-    if executor is None:
-        finished = enumerate(map(_plan_one, tasks))
-    else:
-        from needlekit.batch import as_completed_indexed
-
-        finished = as_completed_indexed(executor, _plan_one, tasks)
+    finished = enumerate((map if executor is None else executor.map)(_plan_one, tasks))
     for k, res in finished:
         done[k] = res
         if progress is not None:
