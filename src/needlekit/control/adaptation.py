@@ -5,19 +5,27 @@ known joint configuration) updates the 12 parameters ``a`` (:mod:`.parameters`) 
 rate that solves
 
     min ||J_y,a a_dot + eta_a y_err||^2 + lambda_a^2 ||a_dot||^2
-    s.t.  VFI rows in a,   parameter bounds,   x_err^T J_x,a a_dot <= 0
+    s.t.  VFI rows in a,   parameter bounds,   x_err^T J_x,a a_dot <= c
 
 - ``y_err = [p_est - p_meas; s * log(R_est R_meas^T)]``: the estimated minus the measured
-  tip position, and the rotation between them weighted by ``s`` mm/rad;
+  tip position, and the rotation between them weighted by ``s`` mm/rad; with a
+  :class:`MeasurementHistory` the objective is the mean over keyframes taken at other
+  configurations as well (see there why);
 - the VFI rows: the step's VFIs with their parameter Jacobians and the remaining share of
   their decay rate (the joints take ``vfi_share``), so the *estimated* distances obey the
-  VFIs under the joint action of the robot's motion and the adaptation;
-- the stability row: the adaptation never increases the controller's task error;
+  VFIs under the joint action of the robot's motion and the adaptation. Where the estimate
+  already violates a VFI the row only forbids making it worse: pulling the estimate back
+  in would make it wrong on purpose, and the joints do the pulling;
+- the stability row: the adaptation does not increase the controller's task error
+  (``c = 0``, the paper's row) outside a small ball; inside it, ``c = eta_a (r^2 -
+  ||x_err||^2) / 2`` lets it (``AdaptationSettings.stability_radius_mm``). With ``c = 0``
+  everywhere the estimate can never move away from the desired value, which is the only
+  way a correction reaches the robot: measured with the paper's uncertainty, the wait at
+  the start point then never converges in some trials;
 - the bounds keep ``a`` inside the uncertainty box.
 
-An infeasible QP gives ``a_dot = 0`` and a logged warning (``a_dot = 0`` satisfies the
-stability row, so infeasibility means the estimate already violates a VFI, e.g. after a
-noisy measurement).
+``a_dot = 0`` satisfies every row, so the QP is infeasible only when the estimate has left
+the uncertainty box; it then gives ``a_dot = 0`` and a logged warning.
 """
 
 from __future__ import annotations
@@ -33,13 +41,24 @@ from needlekit.control.controller import (
     StepVFI,
     task_parameter_jacobian,
 )
-from needlekit.control.parameters import N_PARAMETERS, ParameterJacobians
+from needlekit.control.parameters import (
+    N_PARAMETERS,
+    ParameterJacobians,
+    pose_from_parameters,
+    xyz_euler_rate_matrix,
+)
 from needlekit.control.qp import QPStatus, solve_qp
 from needlekit.control.vfi import vfi_row
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.so3 import so3_log
 
-__all__ = ["AdaptationOutput", "AdaptationSettings", "adaptation_step", "measurement_error"]
+__all__ = [
+    "AdaptationOutput",
+    "AdaptationSettings",
+    "MeasurementHistory",
+    "adaptation_step",
+    "measurement_error",
+]
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +79,12 @@ class AdaptationSettings:
         ``s``: weight of the rotation error rows (mm per rad).
     bound_gain : float
         Rate (1/s) at which a parameter may approach its bound.
+    stability_radius_mm : float
+        ``r``: inside the ball ``||x_err|| < r`` the stability row lets the adaptation
+        increase the task error, at a rate vanishing at the ball's edge (its right-hand side
+        is ``max(0, eta (r^2 - ||x_err||^2) / 2)``); outside it is the paper's row
+        ``x_err^T J_x,a a_dot <= 0``. ``0`` gives the paper's row everywhere. Units: the
+        task error's (mm; axis rows weighted by the controller's ``axis_scale_mm``).
     """
 
     lower: np.ndarray
@@ -68,6 +93,7 @@ class AdaptationSettings:
     damping: float = 1e-2
     orientation_scale_mm: float = 100.0
     bound_gain: float = 10.0
+    stability_radius_mm: float = 1.5
 
     def __post_init__(self) -> None:
         lo = np.asarray(self.lower, dtype=float).reshape(-1)
@@ -113,6 +139,137 @@ def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) 
     return np.concatenate([dp, orientation_scale_mm * dr])
 
 
+class MeasurementHistory:
+    """Keyframes of past needle-sensor measurements, stacked into the adaptation objective.
+
+    One measurement fixes 6 of the 12 parameters: at a single joint configuration a base
+    rotation error is indistinguishable from a needle rotation error, and shows only when
+    the arm moves (over a 300 mm puncture, 1 deg of base rotation error moves the real tip
+    5 mm off the line). Stacking measurements taken at different configurations makes the
+    objective of Eq. 3 the least-squares fit of the parameters to all of them, so the
+    estimate keeps what the arm's motion has revealed instead of forgetting it.
+
+    Each sample is the flange pose in the *base* frame (independent of the parameters) and
+    the measured tip pose. A sample whose flange lies ``spacing_mm`` or ``spacing_deg`` from
+    the newest keyframe becomes a keyframe (the oldest goes beyond ``capacity``); a sample
+    within ``merge_mm`` and ``merge_deg`` of it (the arm at rest) is averaged into it, which
+    averages the sensor noise; any other sample enters the objective only as the current
+    measurement. The objective is the mean over the keyframes and the current sample.
+
+    Parameters
+    ----------
+    capacity : int
+    spacing_mm, spacing_deg : float
+    merge_mm, merge_deg : float
+    """
+
+    def __init__(
+        self,
+        capacity: int = 40,
+        spacing_mm: float = 10.0,
+        spacing_deg: float = 5.0,
+        merge_mm: float = 0.5,
+        merge_deg: float = 0.1,
+    ):
+        if capacity < 1 or not (0 < merge_mm < spacing_mm and 0 < merge_deg < spacing_deg):
+            raise InvalidInputError(
+                "history", "expected capacity >= 1 and 0 < merge < spacing (mm and deg)"
+            )
+        self.capacity = int(capacity)
+        self._spacing = (float(spacing_mm), float(np.radians(spacing_deg)))
+        self._merge = (float(merge_mm), float(np.radians(merge_deg)))
+        self._first: list[np.ndarray] = []  # flange pose of each keyframe's first sample
+        self._sums: list[np.ndarray] = []  # (4, 4, 2): summed flange and measured poses
+        self._count: list[int] = []
+        self._poses = np.empty((0, 2, 4, 4))  # per keyframe: mean flange, mean measured
+        self._current: np.ndarray | None = None  # the newest sample when not a keyframe's
+
+    def __len__(self) -> int:
+        return len(self._count)
+
+    @property
+    def counts(self) -> np.ndarray:
+        """Samples averaged in each keyframe, oldest first."""
+        return np.asarray(self._count, dtype=int)
+
+    def add(self, base_T_flange: np.ndarray, measured_tip: np.ndarray) -> None:
+        """Add one sample (the flange in the base frame at the sample's configuration).
+
+        Parameters
+        ----------
+        base_T_flange, measured_tip : ndarray, shape (4, 4)
+        """
+        sample = np.stack([base_T_flange, measured_tip]).astype(float)
+        self._current = None
+        if self._count:
+            first = self._first[-1]
+            dp = float(np.linalg.norm(base_T_flange[:3, 3] - first[:3, 3]))
+            cos = (np.trace(base_T_flange[:3, :3].T @ first[:3, :3]) - 1.0) / 2.0
+            angle = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+            if dp <= self._merge[0] and angle <= self._merge[1]:
+                self._sums[-1] += sample
+                self._count[-1] += 1
+                self._poses[-1] = _mean_poses(self._sums[-1] / self._count[-1])
+                return
+            if dp < self._spacing[0] and angle < self._spacing[1]:
+                self._current = sample
+                return
+        self._first.append(sample[0])
+        self._sums.append(sample.copy())
+        self._count.append(1)
+        self._poses = np.concatenate([self._poses, sample[None]])
+        if len(self._count) > self.capacity:
+            del self._first[0], self._sums[0], self._count[0]
+            self._poses = self._poses[1:]
+
+    def stacked(self, a, orientation_scale_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Measurement errors and their parameter Jacobians of the keyframes and the
+        current sample, at ``a``.
+
+        Parameters
+        ----------
+        a : ndarray, shape (12,)
+        orientation_scale_mm : float
+
+        Returns
+        -------
+        error : ndarray, shape (6 k,)
+            ``[p_est - p_meas; s log(R_est R_meas^T)]`` per entry.
+        jacobian : ndarray, shape (6 k, 12)
+        """
+        poses = self._poses
+        if self._current is not None:
+            poses = np.concatenate([poses, self._current[None]])
+        flange, measured = poses[:, 0], poses[:, 1]
+        a = np.asarray(a, dtype=float)
+        k, s = len(poses), orientation_scale_mm
+        rb, rn = pose_from_parameters(a[:6])[:3, :3], pose_from_parameters(a[6:])[:3, :3]
+        wb, wn = xyz_euler_rate_matrix(a[3:6]), xyz_euler_rate_matrix(a[9:12])
+        rf = rb @ flange[:, :3, :3]  # flange rotations in the world, (k, 3, 3)
+        tip = a[:3] + (flange[:, :3, 3] + flange[:, :3, :3] @ a[6:9]) @ rb.T
+        err = np.empty((k, 6))
+        err[:, :3] = tip - measured[:, :3, 3]
+        err[:, 3:] = s * so3_log(rf @ rn @ np.transpose(measured[:, :3, :3], (0, 2, 1)))
+        jac = np.zeros((k, 6, N_PARAMETERS))
+        jac[:, :3, :3] = np.eye(3)
+        jac[:, :3, 3:6] = np.cross(wb.T[None, :, :], (tip - a[:3])[:, None, :]).transpose(0, 2, 1)
+        jac[:, :3, 6:9] = rf
+        jac[:, 3:, 3:6] = s * wb
+        jac[:, 3:, 9:12] = s * (rf @ wn)
+        return err.reshape(-1), jac.reshape(-1, N_PARAMETERS)
+
+
+def _mean_poses(poses: np.ndarray) -> np.ndarray:
+    """Project averaged 4 x 4 poses back onto SE(3) (the chordal mean of the rotations)."""
+    out = np.zeros_like(poses)
+    u, _, vt = np.linalg.svd(poses[:, :3, :3])
+    d = np.sign(np.linalg.det(u @ vt))
+    out[:, :3, :3] = u @ (vt * np.stack([np.ones_like(d), np.ones_like(d), d], axis=1)[:, :, None])
+    out[:, :3, 3] = poses[:, :3, 3]
+    out[:, 3, 3] = 1.0
+    return out
+
+
 def adaptation_step(
     a,
     estimated_tip: np.ndarray,
@@ -125,6 +282,7 @@ def adaptation_step(
     controller: ControllerSettings | None = None,
     vfis: list[StepVFI] = (),
     vfi_share: float = 0.5,
+    history: MeasurementHistory | None = None,
 ) -> AdaptationOutput:
     """Parameter rates from one measurement (Eq. 3).
 
@@ -148,6 +306,9 @@ def adaptation_step(
         The step's VFIs at the current configuration with their parameter Jacobians.
     vfi_share : float
         The joints' share of each VFI's decay rate (the adaptation takes the rest).
+    history : MeasurementHistory, optional
+        Keyframes (including this measurement) whose mean squared error the objective
+        drives down instead of this measurement's alone.
 
     Returns
     -------
@@ -156,21 +317,27 @@ def adaptation_step(
     a = np.asarray(a, dtype=float)
     s = settings.orientation_scale_mm
     err = measurement_error(estimated_tip, measured_tip, s)
-    jac = np.vstack([pj.tip, s * pj.angular])
+    if history is not None and len(history):
+        y_err, jac = history.stacked(a, s)
+        scale = 1.0 / len(history)  # the mean over the keyframes
+    else:
+        y_err, jac, scale = err, np.vstack([pj.tip, s * pj.angular]), 1.0
     n = N_PARAMETERS
-    H = 2.0 * (jac.T @ jac + settings.damping**2 * np.eye(n))
-    f = 2.0 * settings.eta * jac.T @ err
+    H = 2.0 * (scale * jac.T @ jac + settings.damping**2 * np.eye(n))
+    f = 2.0 * settings.eta * scale * jac.T @ y_err
     rows, rhs = [], []
     for v in vfis:
         if v.jac_a is None:
             continue
         r, b = vfi_row(v.distance, v.jac_a, v.safe, v.zone, (1.0 - vfi_share) * v.gain)
         rows.append(r)
-        rhs.append(b)
+        rhs.append(max(b, 0.0))  # never pull the estimate in: only forbid pushing it out
     if step is not None and task_error is not None:
         jx = task_parameter_jacobian(step, pj, controller or ControllerSettings())
-        rows.append(np.asarray(task_error) @ jx)
-        rhs.append(0.0)
+        e = np.asarray(task_error, dtype=float)
+        rows.append(e @ jx)
+        r2 = settings.stability_radius_mm**2
+        rhs.append(max(0.0, 0.5 * settings.eta * (r2 - float(e @ e))))
     lower = settings.bound_gain * (settings.lower - a)
     upper = settings.bound_gain * (settings.upper - a)
     A = np.array(rows).reshape(-1, n)

@@ -31,7 +31,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from needlekit.control.adaptation import AdaptationSettings, adaptation_step
+from needlekit.control.adaptation import (
+    AdaptationSettings,
+    MeasurementHistory,
+    adaptation_step,
+)
 from needlekit.control.controller import (
     ControllerSettings,
     GuideLine,
@@ -127,6 +131,7 @@ class ProcedureSettings:
     abort_after_s: float = 2.0
     log_every: int = 10
     vfi_share: float = 0.5
+    history_keyframes: int = 40
 
 
 @dataclass(frozen=True)
@@ -249,6 +254,7 @@ def run_trial(
     q_hist: dict[int, np.ndarray] = {}
     window = max(1, round(ps.convergence_window_s * needle.spec.rate_hz))
     recent: deque = deque(maxlen=window)
+    history = MeasurementHistory(ps.history_keyframes) if ps.history_keyframes else None
     scope_sum, scope_n = np.zeros(6), 0
     guide = None
     phase, phase_start = Phase.ADAPT, 0.0
@@ -284,12 +290,17 @@ def run_trial(
             s_s = est.state(q_s)
             est_tip = dq_to_matrix(s_s.tip_dq)
             pj = parameter_jacobians(est, s_s, a)
+            if history is not None:
+                history.add(
+                    np.linalg.inv(est.world_T_base) @ est_tip @ np.linalg.inv(est.flange_T_tip),
+                    sample.pose,
+                )
             step = step_of.get(phase)
             vfis = [] if step is None or guide is None else step_vfis(s_s, step, guide, cs, pj, a)
             out = adaptation_step(
                 a, est_tip, sample.pose, pj, adaptation, step=step,
                 task_error=last_task[1] if last_task[0] is step else None,
-                controller=cs, vfis=vfis, vfi_share=ps.vfi_share,
+                controller=cs, vfis=vfis, vfi_share=ps.vfi_share, history=history,
             )  # fmt: skip
             if out.status is not QPStatus.OPTIMAL:
                 counts["adaptation_infeasible"] += 1
