@@ -13,7 +13,7 @@ from typing import Any
 
 __all__ = ["best_time", "format_record", "machine_info"]
 
-_PACKAGES = ("needlekit", "numpy", "scipy", "numba", "llvmlite")
+_PACKAGES = ("needlekit", "numpy", "scipy", "numba", "llvmlite", "dqrobotics", "daqp")
 
 
 def _cpu_model() -> str:

@@ -17,6 +17,7 @@ from needlekit.cli.bench import _cmd_bench
 from needlekit.cli.demo import _cmd_demo
 from needlekit.cli.kinematics import _cmd_forward, _cmd_inverse
 from needlekit.cli.planning import _cmd_plan, _cmd_sweep, _cmd_verify
+from needlekit.cli.puncture import _cmd_puncture
 from needlekit.cli.scene import _cmd_scene, _cmd_schema
 from needlekit.errors import NeedlekitError
 
@@ -48,6 +49,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _cmd_sweep(args)
         elif args.command == "verify":
             return _cmd_verify(args)
+        elif args.command == "puncture":
+            return _cmd_puncture(args)
         elif args.command == "demo":
             return _cmd_demo(args)
         elif args.command == "bench":

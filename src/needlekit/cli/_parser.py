@@ -212,6 +212,47 @@ def _build_parser() -> argparse.ArgumentParser:
     _problem_overrides(ver)
     ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
+    pu = sub.add_parser(
+        "puncture",
+        help="simulate robotic punctures with adaptive VFI control (Tang et al., Section III)",
+        description="Run simulated punctures of a Panda guided by EM sensors under kinematic "
+        "uncertainty and write DIR/puncture.json and DIR/puncture.html.",
+    )
+    pu.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
+    pu.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    pu.add_argument(
+        "--out",
+        type=Path,
+        default=Path("out/puncture"),
+        help="output folder (default out/puncture)",
+    )
+    pu.add_argument(
+        "--exact-sensors", action="store_true", help="noise-free EM sensors (rate and latency kept)"
+    )
+    pu.add_argument(
+        "--stability-radius-mm",
+        type=_non_negative,
+        default=1.5,
+        help="ball in which the adaptation may grow the task error (0: the paper's row; "
+        "default 1.5)",
+    )
+    pu.add_argument(
+        "--history",
+        type=int,
+        default=40,
+        metavar="KEYFRAMES",
+        help="measurement keyframes in the adaptation objective (0: the newest alone; default 40)",
+    )
+    pu.add_argument(
+        "--guide-samples",
+        type=int,
+        default=0,
+        metavar="N",
+        help="bronchoscope samples averaged into the guide line (0: all, running; default 0)",
+    )
+    pu.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    _executor_options(pu)
+
     demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
     demo.add_argument(
         "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
@@ -255,6 +296,15 @@ def _build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
+    bc = bench_sub.add_parser(
+        "control",
+        help="time of a whole puncture-control step (kinematics, VFIs, QP, adaptation)",
+    )
+    bc.add_argument("--out", type=Path, help="write the record as JSON here")
+    bc.add_argument(
+        "--trials", type=_positive_int, default=1, help="simulated punctures timed (default 1)"
+    )
+    bc.add_argument("--seed", type=int, default=0, help="study seed of the trials (default 0)")
     bs = bench_sub.add_parser(
         "steerable",
         help="curved-needle planners on the Med-RAD lungs (status, cost, time per case)",

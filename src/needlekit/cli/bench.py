@@ -1,4 +1,4 @@
-"""``needlekit bench kinematics|fields|steerable``."""
+"""``needlekit bench kinematics|fields|steerable|control``."""
 
 from __future__ import annotations
 
@@ -31,6 +31,10 @@ def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int
             medrad_dir=args.medrad,
             medrad_patients=tuple(args.patients),
         )
+    elif args.bench_command == "control":
+        from needlekit.benchmarks.control import run_control_benchmark
+
+        record = run_control_benchmark(trials=args.trials, seed=args.seed)
     elif args.bench_command == "steerable":
         from tqdm import tqdm
 

@@ -139,6 +139,10 @@ def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) 
     return np.concatenate([dp, orientation_scale_mm * dr])
 
 
+#: Weight of rotation against translation when keyframes are compared (mm per rad).
+_POSE_DISTANCE_MM_PER_RAD = 100.0
+
+
 class MeasurementHistory:
     """Keyframes of past needle-sensor measurements, stacked into the adaptation objective.
 
@@ -151,10 +155,14 @@ class MeasurementHistory:
 
     Each sample is the flange pose in the *base* frame (independent of the parameters) and
     the measured tip pose. A sample whose flange lies ``spacing_mm`` or ``spacing_deg`` from
-    the newest keyframe becomes a keyframe (the oldest goes beyond ``capacity``); a sample
+    the newest keyframe becomes a keyframe; a sample
     within ``merge_mm`` and ``merge_deg`` of it (the arm at rest) is averaged into it, which
     averages the sensor noise; any other sample enters the objective only as the current
     measurement. The objective is the mean over the keyframes and the current sample.
+    Beyond ``capacity`` the older of the two most alike keyframes goes (flange poses
+    compared as mm + 100 mm/rad), so the history keeps the configurations that tell the
+    parameters apart: a FIFO would, after a long straight puncture, hold only collinear
+    keyframes that no longer pin down the base rotation.
 
     Parameters
     ----------
@@ -219,8 +227,22 @@ class MeasurementHistory:
         self._count.append(1)
         self._poses = np.concatenate([self._poses, sample[None]])
         if len(self._count) > self.capacity:
-            del self._first[0], self._sums[0], self._count[0]
-            self._poses = self._poses[1:]
+            self._drop(self._most_redundant())
+
+    def _most_redundant(self) -> int:
+        """The older of the two closest keyframes (the newest is never dropped)."""
+        flange = self._poses[:-1, 0]
+        p = flange[:, :3, 3]
+        d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=2)
+        cos = (np.einsum("iab,jab->ij", flange[:, :3, :3], flange[:, :3, :3]) - 1.0) / 2.0
+        d += _POSE_DISTANCE_MM_PER_RAD * np.arccos(np.clip(cos, -1.0, 1.0))
+        np.fill_diagonal(d, np.inf)
+        i, j = np.unravel_index(int(np.argmin(d)), d.shape)
+        return int(min(i, j))
+
+    def _drop(self, k: int) -> None:
+        del self._first[k], self._sums[k], self._count[k]
+        self._poses = np.delete(self._poses, k, axis=0)
 
     def stacked(self, a, orientation_scale_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Measurement errors and their parameter Jacobians of the keyframes and the

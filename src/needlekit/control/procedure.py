@@ -28,6 +28,7 @@ from __future__ import annotations
 import enum
 from collections import deque
 from dataclasses import dataclass, field
+from time import perf_counter
 
 import numpy as np
 
@@ -110,10 +111,20 @@ class ProcedureSettings:
         Longest any phase before PUNCTURE may take.
     stop_after_s, abort_after_s : float
         Measurement loss that stops the robot, and that aborts the trial.
+    target_tolerance_mm : float
+        A puncture whose estimated tip ends farther from the target than this (the arm
+        blocked by its joint limits or the constraints) ends as aborted.
     log_every : int
         Record the trajectories every this many control steps.
     vfi_share : float
         The joints' share of each VFI's decay rate (the adaptation takes the rest).
+    history_keyframes : int
+        Keyframes of past measurements in the adaptation objective
+        (:class:`~needlekit.control.adaptation.MeasurementHistory`); 0: the newest
+        measurement alone, as Eq. 3 is written.
+    guide_samples : int
+        Bronchoscope samples averaged into the guide line, after which it stays fixed; 0:
+        the running mean of all of them (the target does not move).
     """
 
     dt_s: float = 0.001
@@ -129,8 +140,10 @@ class ProcedureSettings:
     phase_timeout_s: float = 30.0
     stop_after_s: float = 0.1
     abort_after_s: float = 2.0
+    target_tolerance_mm: float = 3.0
     log_every: int = 10
     vfi_share: float = 0.5
+    guide_samples: int = 0
     history_keyframes: int = 40
 
 
@@ -186,7 +199,9 @@ class TrialResult:
         Every ``log_every`` steps: ``t_s``, ``phase``, ``to_target_mm``, ``to_line_mm``,
         ``angle_deg`` (real), ``tip_estimate_error_mm`` (estimated vs real tip),
         ``base_error_mm``, ``needle_error_mm`` (estimated vs real translations),
-        ``desired_to_target_mm``.
+        ``base_rotation_error_deg``, ``needle_rotation_error_deg``, ``desired_to_target_mm``,
+        and the newest needle sample's ``measured_to_line_mm`` and ``measured_angle_deg``
+        (against the real guide line).
     """
 
     status: str
@@ -206,6 +221,11 @@ def _angle_deg(u, v) -> float:
     return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
 
 
+def _rotation_deg(pose: np.ndarray, rotation: np.ndarray) -> float:
+    cos = (np.trace(pose[:3, :3].T @ rotation) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
 def run_trial(
     setup: TrialSetup,
     rng: np.random.Generator,
@@ -215,6 +235,7 @@ def run_trial(
     adaptation: AdaptationSettings,
     needle_sensor: EMSensorSpec | None = None,
     scope_sensor: EMSensorSpec | None = None,
+    timings: list | None = None,
 ) -> TrialResult:
     """Simulate one puncture from start to end.
 
@@ -229,6 +250,11 @@ def run_trial(
         Includes the parameter bounds (the uncertainty box).
     needle_sensor, scope_sensor : EMSensorSpec, optional
         The needle-tip and bronchoscope sensors (default: 100 Hz, 1 mm, 0.2 deg, 5 ms).
+    timings : list, optional
+        Receives ``(phase, adapted, seconds)`` for every control step: the time the
+        controller took (guide-line update, adaptation on a new needle sample, convergence
+        and loss checks, kinematics, VFIs and the QP), without the simulated robot, sensors
+        and logging.
 
     Returns
     -------
@@ -265,6 +291,11 @@ def run_trial(
     log = {k: [] for k in ("t_s", "phase", "to_target_mm", "to_line_mm", "angle_deg")}
     log.update({k: [] for k in ("base_error_mm", "needle_error_mm", "desired_to_target_mm")})
     log["tip_estimate_error_mm"] = []
+    for k in ("measured_to_line_mm", "measured_angle_deg"):
+        log[k] = []
+    log["base_rotation_error_deg"], log["needle_rotation_error_deg"] = [], []
+    true_rb = model_from_parameters(setup.arm, setup.true_parameters)
+    true_base_r, true_needle_r = true_rb.world_T_base[:3, :3], true_rb.flange_T_tip[:3, :3]
     max_line = max_cone = 0.0
     inside = False  # the real tip has entered the guide cylinder and the cone
     cone_deg = float(np.degrees(cs.cone_angle_rad))
@@ -280,7 +311,8 @@ def run_trial(
         true_tip = truth.tip_pose(q)
         sample = needle.update(t, lambda tip=true_tip: tip)
         scope_sample = scope.update(t, lambda: scope_pose)
-        if scope_sample is not None:
+        tick_phase, tick_start = phase, perf_counter()
+        if scope_sample is not None and not (ps.guide_samples and scope_n >= ps.guide_samples):
             scope_sum += np.concatenate([scope_sample.pose[:3, 3], scope_sample.pose[:3, 2]])
             scope_n += 1
             guide = GuideLine(scope_sum[:3] / scope_n, scope_sum[3:] / scope_n)
@@ -361,6 +393,8 @@ def run_trial(
         if phase not in (Phase.PUNCTURE, Phase.DONE) and t - phase_start > ps.phase_timeout_s:
             phase, status, reason = Phase.ABORTED, "aborted", f"{phase.value} timed out"
             break
+        if timings is not None:
+            timings.append((tick_phase.value, sample is not None, perf_counter() - tick_start))
         # ground truth
         tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
         rel = tip_true - true_guide.target_mm
@@ -387,6 +421,18 @@ def run_trial(
             log["angle_deg"].append(angle)
             log["tip_estimate_error_mm"].append(float(np.linalg.norm(state.tip_mm - tip_true)))
             log["base_error_mm"].append(float(np.linalg.norm(a[:3] - setup.true_parameters[:3])))
+            log["base_rotation_error_deg"].append(_rotation_deg(est.world_T_base, true_base_r))
+            log["needle_rotation_error_deg"].append(_rotation_deg(est.flange_T_tip, true_needle_r))
+            m_line = m_angle = np.nan
+            if needle.latest is not None:
+                mp = needle.latest.pose
+                mrel = mp[:3, 3] - true_guide.target_mm
+                m_line = float(
+                    np.linalg.norm(mrel - true_guide.direction * (mrel @ true_guide.direction))
+                )
+                m_angle = _angle_deg(mp[:3, 2], true_guide.insertion_direction)
+            log["measured_to_line_mm"].append(m_line)
+            log["measured_angle_deg"].append(m_angle)
             log["needle_error_mm"].append(
                 float(np.linalg.norm(a[6:9] - setup.true_parameters[6:9]))
             )
@@ -398,6 +444,11 @@ def run_trial(
         counts["steps"] += 1
     final = truth.tip_pose(q)
     counts["needle_lost"] = needle.n_lost
+    if status == "completed":
+        short = float(np.linalg.norm(est.state(q).tip_mm - guide.target_mm))
+        if short > ps.target_tolerance_mm:  # by the robot's own estimate
+            status, reason = "aborted", f"the puncture stopped {short:.1f} mm short of the target"
+
     return TrialResult(
         status,
         reason,

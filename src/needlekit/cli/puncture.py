@@ -1,0 +1,61 @@
+"""``needlekit puncture``: the robotic puncture simulation study."""
+
+from __future__ import annotations
+
+import argparse
+
+from needlekit.cli._common import EXIT_OK, _fmt_table
+from needlekit.errors import InvalidInputError
+
+
+def _cmd_puncture(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from needlekit.batch import open_executor
+    from needlekit.studies.puncture_study import TrialOptions, run_puncture_study
+
+    for name in ("history", "guide_samples"):
+        if getattr(args, name) < 0:
+            raise InvalidInputError(
+                name, f"expected a whole number >= 0, got {getattr(args, name)}"
+            )
+    options = TrialOptions(
+        exact_sensors=args.exact_sensors,
+        stability_radius_mm=args.stability_radius_mm,
+        history_keyframes=args.history,
+        guide_samples=args.guide_samples,
+    )
+    with (
+        open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
+        tqdm(total=args.trials, desc="puncture", unit="trial", disable=None) as bar,
+    ):
+
+        def progress(trial: dict) -> None:
+            bar.update(1)
+            bar.set_postfix_str(f"last {trial['position_error_mm']:.2f} mm")
+
+        study = run_puncture_study(
+            args.out,
+            trials=args.trials,
+            seed=args.seed,
+            options=options,
+            executor=None if args.executor == "serial" else ex,
+            progress=progress,
+            report=not args.no_report,
+        )
+    s = study.summary
+    rows = []
+    for key in ("position_error_mm", "angle_error_deg"):
+        for source, st in (("needlekit", s[key]), ("Tang et al.", s["paper"][key])):
+            rows.append([f"{key}", source, st["mean"], st["sd"], st["min"], st["max"]])
+    print(_fmt_table(["quantity", "source", "mean", "sd", "min", "max"], rows))
+    v = s["constraint_violations"]
+    print(
+        f"{s['completed']} of {s['trials']} trials completed, {s['aborted']['count']} aborted; "
+        f"{v['total']} constraint violations beyond the measurement noise"
+    )
+    for a in s["aborted"]["trials"]:
+        print(f"  trial {a['trial']}: {a['reason']}")
+    for path in study.files.values():
+        print(f"-> {path}")
+    return EXIT_OK if s["aborted"]["count"] == 0 and v["total"] == 0 else 1

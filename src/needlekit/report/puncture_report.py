@@ -1,0 +1,315 @@
+"""The puncture study's report: figures like Tang et al.'s Fig. 4 (the puncture of example
+trials against the guide cylinder and cone) and Fig. 5 (the adaptation of the base and
+needle estimates), the distribution of the final errors, and the comparison with the paper.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.report._style import _PALETTE
+from needlekit.report.html_page import (
+    FigureSection,
+    TableSection,
+    TextSection,
+    write_report_html,
+)
+
+__all__ = [
+    "adaptation_figure",
+    "error_histograms_figure",
+    "puncture_figure",
+    "puncture_sections",
+    "write_puncture_report",
+]
+
+_OCTANTS = ("+x +y", "-x +y", "-x -y", "+x -y")
+
+
+def _series(log: dict, key: str) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in log[key]], dtype=float)
+
+
+def _examples(trials: list[dict]) -> list[dict]:
+    return [t for t in trials if "log" in t and "puncture" in t["phase_times_s"]]
+
+
+def _label(t: dict) -> str:
+    return f"trial {t['trial']} (octant {_OCTANTS[t['octant']]})"
+
+
+def puncture_figure(trials: list[dict], *, guide_radius_mm: float = 1.5, cone_deg: float = 0.5):
+    """Fig. 4: distance to the target, distance from the guide line and needle angle during
+    the puncture of the example trials (real: lines; measured by the needle sensor: dots).
+
+    Parameters
+    ----------
+    trials : list of dict
+        Trial outcomes; those with a ``log`` are drawn.
+    guide_radius_mm, cone_deg : float
+        The bounds drawn as dashed lines.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    fig = make_subplots(
+        rows=3,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.06,
+        subplot_titles=(
+            "(A) tip to target (mm): real, and the quintic (dashed)",
+            "(B) tip to guide line (mm): real, and measured (dots)",
+            "(C) needle to guide line (deg): real, and measured (dots)",
+        ),
+    )
+    for k, t in enumerate(_examples(trials)):
+        log, colour = t["log"], _PALETTE[k % len(_PALETTE)]
+        t0 = t["phase_times_s"]["puncture"]
+        ts = np.asarray(log["t_s"], float)
+        on = ts >= t0
+        x = ts[on] - t0
+        name = _label(t)
+        common = {"legendgroup": name, "line": {"color": colour, "width": 2}}
+        fig.add_trace(
+            go.Scatter(x=x, y=_series(log, "to_target_mm")[on], name=name, **common), 1, 1
+        )
+        fig.add_trace(
+            go.Scatter(
+                x=x,
+                y=_series(log, "desired_to_target_mm")[on],
+                showlegend=False,
+                legendgroup=name,
+                line={"color": colour, "width": 1, "dash": "dash"},
+            ),
+            1,
+            1,
+        )
+        for row, real, meas in (
+            (2, "to_line_mm", "measured_to_line_mm"),
+            (3, "angle_deg", "measured_angle_deg"),
+        ):
+            fig.add_trace(
+                go.Scatter(
+                    x=x[::5],
+                    y=_series(log, meas)[on][::5],
+                    mode="markers",
+                    showlegend=False,
+                    legendgroup=name,
+                    marker={"color": colour, "size": 3, "opacity": 0.35},
+                ),
+                row,
+                1,
+            )
+            fig.add_trace(
+                go.Scatter(x=x, y=_series(log, real)[on], showlegend=False, **common), row, 1
+            )
+    fig.add_hline(y=guide_radius_mm, line={"color": "#444", "dash": "dot"}, row=2, col=1)
+    fig.add_hline(y=cone_deg, line={"color": "#444", "dash": "dot"}, row=3, col=1)
+    fig.update_yaxes(rangemode="tozero")
+    fig.update_yaxes(range=[0, 3 * guide_radius_mm], row=2, col=1)
+    fig.update_yaxes(range=[0, 3 * cone_deg], row=3, col=1)
+    fig.update_xaxes(title_text="time since the puncture began (s)", row=3, col=1)
+    fig.update_layout(height=820, template="plotly_white", legend={"orientation": "h", "y": -0.08})
+    return fig
+
+
+def adaptation_figure(trials: list[dict]):
+    """Fig. 5: errors of the estimated base and needle poses over whole example trials.
+
+    Parameters
+    ----------
+    trials : list of dict
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    panels = (
+        ("base_error_mm", "(A) base position error (mm)"),
+        ("base_rotation_error_deg", "(B) base rotation error (deg)"),
+        ("needle_error_mm", "(C) needle-tip position error (mm)"),
+        ("needle_rotation_error_deg", "(D) needle-tip rotation error (deg)"),
+        ("tip_estimate_error_mm", "(E) estimated minus real tip (mm)"),
+    )
+    fig = make_subplots(
+        rows=3, cols=2, subplot_titles=[p[1] for p in panels], vertical_spacing=0.09
+    )
+    for k, t in enumerate(_examples(trials)):
+        log, colour, name = t["log"], _PALETTE[k % len(_PALETTE)], _label(t)
+        ts = np.asarray(log["t_s"], float)
+        for j, (key, _) in enumerate(panels):
+            fig.add_trace(
+                go.Scatter(
+                    x=ts,
+                    y=_series(log, key),
+                    name=name,
+                    legendgroup=name,
+                    showlegend=j == 0,
+                    line={"color": colour, "width": 1.6},
+                ),
+                j // 2 + 1,
+                j % 2 + 1,
+            )
+            start = t["phase_times_s"].get("puncture")
+            if start is not None:
+                fig.add_vline(
+                    x=start, line={"color": colour, "dash": "dot", "width": 1},
+                    row=j // 2 + 1, col=j % 2 + 1,
+                )  # fmt: skip
+    fig.update_yaxes(type="log")
+    fig.update_xaxes(title_text="time (s); dotted: the puncture begins")
+    fig.update_layout(height=900, template="plotly_white", legend={"orientation": "h", "y": -0.06})
+    return fig
+
+
+def error_histograms_figure(trials: list[dict], paper: dict):
+    """Distributions of the final position and angle errors, with the paper's mean +- sd.
+
+    Parameters
+    ----------
+    trials : list of dict
+    paper : dict
+        ``PAPER_RESULTS``.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    done = [t for t in trials if t["status"] == "completed"]
+    keys = (("position_error_mm", "final tip-to-target error (mm)"),
+            ("angle_error_deg", "final needle-to-guide-line angle (deg)"))  # fmt: skip
+    fig = make_subplots(rows=1, cols=2, subplot_titles=[k[1] for k in keys])
+    for j, (key, _) in enumerate(keys):
+        fig.add_trace(
+            go.Histogram(
+                x=[t[key] for t in done],
+                nbinsx=25,
+                name="needlekit" if j == 0 else None,
+                showlegend=j == 0,
+                marker={"color": _PALETTE[0]},
+            ),
+            1,
+            j + 1,
+        )
+        p = paper[key]
+        fig.add_vrect(
+            x0=p["mean"] - p["sd"], x1=p["mean"] + p["sd"], fillcolor=_PALETTE[1],
+            opacity=0.15, line_width=0, row=1, col=j + 1,
+        )  # fmt: skip
+        fig.add_vline(x=p["mean"], line={"color": _PALETTE[1], "dash": "dash"}, row=1, col=j + 1)
+    fig.update_yaxes(title_text="trials", col=1)
+    fig.update_layout(
+        height=420,
+        template="plotly_white",
+        title_text="shaded: the paper's mean +- sd (dashed: mean)",
+    )
+    return fig
+
+
+def _comparison_rows(summary: dict) -> list[dict]:
+    rows = []
+    for key, what in (("position_error_mm", "position error"), ("angle_error_deg", "angle")):
+        unit = "mm" if key.endswith("mm") else "deg"
+        for source, st in (("needlekit", summary[key]), ("Tang et al.", summary["paper"][key])):
+            rows.append(
+                {
+                    "quantity": what,
+                    "source": source,
+                    f"mean_{unit}": st["mean"],
+                    f"sd_{unit}": st["sd"],
+                    f"min_{unit}": st["min"],
+                    f"max_{unit}": st["max"],
+                }
+            )
+    return rows
+
+
+def puncture_sections(summary: dict, trials: list[dict]) -> list:
+    """The report's sections (figures, tables, text).
+
+    Parameters
+    ----------
+    summary : dict
+        The study summary (``puncture.json`` without ``per_trial``).
+    trials : list of dict
+
+    Returns
+    -------
+    list
+    """
+    v = summary["constraint_violations"]
+    opts = summary["options"]
+    text = (
+        f"{summary['trials']} trials (seed {summary['seed']}): {summary['completed']} completed, "
+        f"{summary['aborted']['count']} aborted; {v['total']} constraint violations beyond "
+        f"the measurement noise ({v['tolerance']['position_mm']} mm, "
+        f"{v['tolerance']['angle_deg']} deg). Sensors "
+        f"{'exact' if opts['exact_sensors'] else 'noisy (1 mm, 0.2 deg, 100 Hz)'}, "
+        f"stability radius {opts['stability_radius_mm']} mm, "
+        f"{opts['history_keyframes']} measurement keyframes, guide line from "
+        f"{opts['guide_samples'] or 'all'} bronchoscope samples."
+    )
+    viol = [
+        {
+            "constraint": k,
+            "violations": v[k]["count"],
+            "trials": ", ".join(map(str, v[k]["trials"])),
+        }
+        for k in ("guide_cylinder", "cone", "plane", "patient_cylinder")
+    ]
+    sections = [
+        TextSection(text),
+        TableSection("Final errors beside Tang et al. (Section III-B)", _comparison_rows(summary)),
+        FigureSection("Final errors", error_histograms_figure(trials, summary["paper"])),
+        FigureSection(
+            "The puncture (like Fig. 4)",
+            puncture_figure(trials),
+            "Example trials, one per octant of guide directions. Dotted lines: the guide "
+            "cylinder's radius and the cone's half-angle. The VFIs act on the estimate; the "
+            "curves are the real robot's.",
+        ),
+        FigureSection(
+            "The adaptation (like Fig. 5)",
+            adaptation_figure(trials),
+            "Errors of the estimated base (transmitter to base) and needle tip (flange to tip) "
+            "against the truth, over whole trials.",
+        ),
+        TableSection("Constraint violations beyond the measurement noise", viol),
+    ]
+    if summary["aborted"]["count"]:
+        sections.append(TableSection("Aborted trials", summary["aborted"]["trials"]))
+    return sections
+
+
+def write_puncture_report(path: str | os.PathLike, summary: dict, trials: list[dict]) -> Path:
+    """Write the study's report page atomically.
+
+    Parameters
+    ----------
+    path : path-like
+    summary : dict
+    trials : list of dict
+
+    Returns
+    -------
+    Path
+    """
+    return write_report_html(
+        path,
+        title="Robotic needle puncture: simulation study (Tang et al., Section III)",
+        sections=puncture_sections(summary, trials),
+    )

@@ -1,0 +1,451 @@
+"""The simulation study of Tang et al. (Section III): many robotic punctures with random
+targets, guide lines and kinematic uncertainty, summarised beside the paper's figures.
+
+Each trial draws (from its own seed, so results do not depend on the executor or the
+order the trials finish in):
+
+- the target uniformly in a cube (10 mm) around ``target_center_mm``;
+- the guide line ``l_g`` from random x-y-z components in one of the four octants above the
+  horizontal plane (trial ``i`` takes octant ``i mod 4``), redrawn while the start point
+  300 mm out would lie inside the patient cylinder (``R_p``) or put the arm's wrist
+  outside its comfortable reach (``min_wrist_reach_mm`` to ``max_wrist_reach_mm`` from the
+  shoulder); the draws are counted;
+- the controller's initial estimate of the base and needle uniformly within the
+  uncertainty box around the nominal values (+-200 mm and +-10 deg on the base, +-10 mm
+  and +-5 deg on the needle). As in the paper, the real arm has the nominal values ("an
+  ideal Panda with nominal geometric parameters"; the uncertain parameters are "randomly
+  generated around the nominal ones"), so every trial works in the same workspace. The
+  adaptation keeps its estimate in the box of the same size around its initial value,
+  which contains the truth without telling where it is.
+
+:func:`run_puncture_study` runs the trials on any :class:`concurrent.futures.Executor`
+(:func:`needlekit.batch.open_executor`), writes ``puncture.json`` (summary statistics,
+constraint violations, aborted trials, every trial's outcome and the logs of the example
+trials) and a report page, both atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+
+__all__ = [
+    "PAPER_RESULTS",
+    "PunctureScenario",
+    "TrialOptions",
+    "run_puncture_study",
+    "run_puncture_trial",
+    "sample_trial",
+    "summary_stats",
+]
+
+#: Tang et al., Section III-B: final tip-to-target error and needle-to-guide-line angle.
+PAPER_RESULTS = {
+    "position_error_mm": {"mean": 1.55, "sd": 0.40, "min": 0.64, "max": 2.34},
+    "angle_error_deg": {"mean": 0.38, "sd": 0.021, "min": 0.08, "max": 0.71},
+}
+
+_Q_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
+_SHOULDER_MM = 333.0  # the Panda's shoulder above its base
+
+
+@dataclass(frozen=True)
+class PunctureScenario:
+    """Where the study's trials come from (mm, deg; transmitter frame).
+
+    Attributes
+    ----------
+    nominal_base, nominal_needle : tuple of 6 floats
+        The nominal base pose (in the transmitter frame) and needle tip (in the flange
+        frame), ``[t (mm), x-y-z Euler angles (deg)]``: the controller's prior.
+    base_spread_mm, base_spread_deg, needle_spread_mm, needle_spread_deg : float
+        Half-widths of the uniform uncertainty (+-200 mm, +-10 deg, +-10 mm, +-5 deg).
+    target_center_mm : tuple of 3 floats
+    target_cube_mm : float
+        Edge of the cube the targets are drawn from (10 mm).
+    q0 : tuple of 7 floats
+        Initial joint angles (rad; the Panda's ready pose).
+    start_distance_mm : float
+    min_wrist_reach_mm, max_wrist_reach_mm : float
+        Distances from the arm's shoulder to its wrist (flange and needle lengths back from
+        the start point along ``l_g``) when the tip is at the start point. The Panda reaches
+        about 800 mm; closer than 300 mm it has to fold onto itself (in a first run of 100
+        trials without this limit, all 12 that failed had the wrist within 245 mm of the
+        shoulder, guide lines leaning towards the robot).
+    max_draws : int
+        Guide-line draws per trial before giving up.
+    """
+
+    nominal_base: tuple = (-650.0, 0.0, -450.0, 0.0, 0.0, 0.0)
+    nominal_needle: tuple = (0.0, 0.0, 100.0, 0.0, 0.0, 0.0)
+    base_spread_mm: float = 200.0
+    base_spread_deg: float = 10.0
+    needle_spread_mm: float = 10.0
+    needle_spread_deg: float = 5.0
+    target_center_mm: tuple = (-150.0, 0.0, -250.0)
+    target_cube_mm: float = 10.0
+    q0: tuple = _Q_READY
+    start_distance_mm: float = 300.0
+    min_wrist_reach_mm: float = 300.0
+    max_wrist_reach_mm: float = 700.0
+    max_draws: int = 1000
+
+    @property
+    def nominal_parameters(self) -> np.ndarray:
+        """The 12 nominal parameters (mm, rad)."""
+        b, n = np.asarray(self.nominal_base, float), np.asarray(self.nominal_needle, float)
+        return np.concatenate([b[:3], np.radians(b[3:]), n[:3], np.radians(n[3:])])
+
+    @property
+    def spread(self) -> np.ndarray:
+        """Half-widths of the uncertainty box of the 12 parameters (mm, rad)."""
+        rb, rn = math.radians(self.base_spread_deg), math.radians(self.needle_spread_deg)
+        return np.array(
+            [self.base_spread_mm] * 3 + [rb] * 3 + [self.needle_spread_mm] * 3 + [rn] * 3
+        )
+
+
+@dataclass(frozen=True)
+class TrialOptions:
+    """How each trial runs: sensors, controller, adaptation and procedure settings.
+
+    Attributes
+    ----------
+    exact_sensors : bool
+        Noise-free sensors (latency and rate unchanged).
+    stability_radius_mm : float
+        :attr:`needlekit.control.adaptation.AdaptationSettings.stability_radius_mm`
+        (0: the paper's stability row).
+    history_keyframes : int
+        Keyframes in the adaptation objective (0: the newest measurement alone).
+    guide_samples : int
+        Bronchoscope samples averaged into the guide line (0: all, running).
+    """
+
+    exact_sensors: bool = False
+    stability_radius_mm: float = 1.5
+    history_keyframes: int = 40
+    guide_samples: int = 0
+
+
+def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: int):
+    """Draw one trial of the study.
+
+    Parameters
+    ----------
+    scenario : PunctureScenario
+    rng : numpy.random.Generator
+    index : int
+        The trial's number (picks the octant).
+
+    Returns
+    -------
+    setup : needlekit.control.procedure.TrialSetup
+    draws : int
+        Guide-line draws it took.
+
+    Raises
+    ------
+    InvalidInputError
+        No acceptable guide line within ``max_draws``.
+    """
+    from needlekit.control.controller import ControllerSettings
+    from needlekit.control.panda import FLANGE_MM as _FLANGE_MM
+    from needlekit.control.panda import PandaModel
+    from needlekit.control.parameters import pose_from_parameters
+    from needlekit.control.procedure import TrialSetup
+
+    nominal, spread = scenario.nominal_parameters, scenario.spread
+    initial = nominal + rng.uniform(-1.0, 1.0, 12) * spread
+    true_a = nominal
+    half = scenario.target_cube_mm / 2.0
+    target = np.asarray(scenario.target_center_mm, float) + rng.uniform(-half, half, 3)
+    sx, sy = ((1, 1), (-1, 1), (-1, -1), (1, -1))[index % 4]
+    cs = ControllerSettings()
+    axis = cs.patient_axis / np.linalg.norm(cs.patient_axis)
+    base = pose_from_parameters(true_a[:6])
+    shoulder = base[:3, 3] + base[:3, 2] * _SHOULDER_MM
+    back = _FLANGE_MM + true_a[8]  # wrist to tip along the needle
+    for draw in range(1, scenario.max_draws + 1):
+        c = rng.uniform(0.0, 1.0, 3) * np.array([sx, sy, 1.0])
+        if np.linalg.norm(c) < 1e-6:
+            continue
+        lg = c / np.linalg.norm(c)
+        start = target + scenario.start_distance_mm * lg
+        rel = start - target
+        off_axis = np.linalg.norm(rel - axis * (rel @ axis))
+        wrist = start + back * lg
+        if (
+            off_axis >= cs.patient_radius_mm
+            and scenario.min_wrist_reach_mm
+            <= np.linalg.norm(wrist - shoulder)
+            <= scenario.max_wrist_reach_mm
+        ):
+            q0 = np.asarray(scenario.q0, float)
+            return TrialSetup(PandaModel(), true_a, initial, q0, target, lg), draw
+    raise InvalidInputError(
+        "scenario", f"no acceptable guide line in {scenario.max_draws} draws (octant {index % 4})"
+    )
+
+
+def _trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
+    from needlekit.control.adaptation import AdaptationSettings
+    from needlekit.control.em import EMSensorSpec
+    from needlekit.control.procedure import ProcedureSettings
+
+    spread = scenario.spread
+    adaptation = AdaptationSettings(
+        initial - spread, initial + spread, stability_radius_mm=options.stability_radius_mm
+    )
+    procedure = ProcedureSettings(
+        start_distance_mm=scenario.start_distance_mm,
+        history_keyframes=options.history_keyframes,
+        guide_samples=options.guide_samples,
+    )
+    spec = EMSensorSpec()
+    if options.exact_sensors:
+        spec = replace(spec, position_sigma_mm=0.0, orientation_sigma_deg=0.0)
+    return adaptation, procedure, spec
+
+
+def run_puncture_trial(
+    scenario: PunctureScenario,
+    options: TrialOptions,
+    index: int,
+    seed_sequence: np.random.SeedSequence,
+    keep_log: bool = False,
+) -> dict:
+    """Run trial ``index`` and return its outcome as plain data (JSON-ready).
+
+    Parameters
+    ----------
+    scenario : PunctureScenario
+    options : TrialOptions
+    index : int
+    seed_sequence : numpy.random.SeedSequence
+        The trial's own seed (its first child draws the trial, the second drives the
+        sensors).
+    keep_log : bool
+        Include the trial's time series.
+
+    Returns
+    -------
+    dict
+    """
+    from needlekit.control.procedure import run_trial
+
+    draw_seed, sensor_seed = seed_sequence.spawn(2)
+    setup, draws = sample_trial(scenario, np.random.default_rng(draw_seed), index)
+    adaptation, procedure, spec = _trial_settings(scenario, options, setup.nominal_parameters)
+    r = run_trial(
+        setup,
+        np.random.default_rng(sensor_seed),
+        procedure=procedure,
+        adaptation=adaptation,
+        needle_sensor=spec,
+        scope_sensor=spec,
+    )
+    out = {
+        "trial": index,
+        "octant": index % 4,
+        "status": r.status,
+        "reason": r.reason,
+        "position_error_mm": r.position_error_mm,
+        "angle_error_deg": r.angle_error_deg,
+        "max_guide_distance_mm": r.max_guide_distance_mm,
+        "max_cone_angle_deg": r.max_cone_angle_deg,
+        "min_plane_distance_mm": _finite_or_none(r.min_plane_distance_mm),
+        "min_patient_distance_mm": _finite_or_none(r.min_patient_distance_mm),
+        "phase_times_s": r.phase_times_s,
+        "counts": r.counts,
+        "guide_draws": draws,
+        "target_mm": setup.target_mm.tolist(),
+        "guide_direction": setup.guide_direction.tolist(),
+        "initial_parameters": setup.nominal_parameters.tolist(),
+    }
+    if keep_log:
+        out["log"] = {
+            k: [_finite_or_none(float(x)) for x in v] if v.dtype.kind == "f" else v.tolist()
+            for k, v in r.log.items()
+        }
+    return out
+
+
+def _run_job(job: tuple) -> dict:
+    return run_puncture_trial(*job)
+
+
+def _finite_or_none(v: float):
+    return float(v) if math.isfinite(v) else None
+
+
+def summary_stats(values) -> dict:
+    """``mean``, ``sd`` (sample), ``median``, ``min`` and ``max`` of finite values.
+
+    Parameters
+    ----------
+    values : array_like
+
+    Returns
+    -------
+    dict
+        Also ``n``; the statistics are None when there is no value.
+    """
+    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
+    if not len(v):
+        return dict.fromkeys(("n", "mean", "sd", "median", "min", "max")) | {"n": 0}
+    return {
+        "n": len(v),
+        "mean": float(v.mean()),
+        "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+        "median": float(np.median(v)),
+        "min": float(v.min()),
+        "max": float(v.max()),
+    }
+
+
+@dataclass(frozen=True)
+class _Bounds:
+    guide_mm: float
+    cone_deg: float
+    patient_mm: float
+    noise_mm: float
+    noise_deg: float
+
+
+def _violations(trials: list[dict], b: _Bounds) -> dict:
+    """Constraint violations beyond the measurement noise (the paper's criterion)."""
+    checks = {
+        "guide_cylinder": lambda t: t["max_guide_distance_mm"] > b.guide_mm + b.noise_mm,
+        "cone": lambda t: t["max_cone_angle_deg"] > b.cone_deg + b.noise_deg,
+        "plane": lambda t: (t["min_plane_distance_mm"] or 0.0) < -b.noise_mm,
+        "patient_cylinder": lambda t: (
+            (t["min_patient_distance_mm"] or math.inf) < b.patient_mm - b.noise_mm
+        ),
+    }
+    out = {}
+    for name, bad in checks.items():
+        hit = [t["trial"] for t in trials if t["status"] == "completed" and bad(t)]
+        out[name] = {"count": len(hit), "trials": hit}
+    out["total"] = sum(v["count"] for v in out.values())
+    out["tolerance"] = {"position_mm": b.noise_mm, "angle_deg": b.noise_deg}
+    return out
+
+
+@dataclass
+class PunctureStudy:
+    """What :func:`run_puncture_study` produced."""
+
+    summary: dict
+    trials: list[dict] = field(default_factory=list)
+    files: dict = field(default_factory=dict)
+
+
+def run_puncture_study(
+    out_dir: str | os.PathLike,
+    *,
+    trials: int = 100,
+    seed: int = 0,
+    scenario: PunctureScenario | None = None,
+    options: TrialOptions | None = None,
+    executor=None,
+    progress: Callable[[dict], None] | None = None,
+    example_trials: int = 4,
+    report: bool = True,
+) -> PunctureStudy:
+    """Run the study and write ``out_dir/puncture.json`` (and ``puncture.html``).
+
+    Parameters
+    ----------
+    out_dir : path-like
+    trials : int
+    seed : int
+        Root seed; trial ``i`` uses the ``i``-th child of ``SeedSequence(seed)``.
+    scenario : PunctureScenario, optional
+    options : TrialOptions, optional
+    executor : concurrent.futures.Executor, optional
+        Runs the trials (default: one after another in this process).
+    progress : callable, optional
+        Called with each finished trial's outcome.
+    example_trials : int
+        Trials (the first ones: one per octant) whose time series are kept for the figures.
+    report : bool
+        Also write the report page.
+
+    Returns
+    -------
+    PunctureStudy
+    """
+    import time
+
+    from needlekit import __version__
+    from needlekit.batch import SerialExecutor, as_completed_indexed
+    from needlekit.control.controller import ControllerSettings
+    from needlekit.control.em import EMSensorSpec
+    from needlekit.io.files import atomic_write
+
+    if not isinstance(trials, int) or trials < 1:
+        raise InvalidInputError("trials", f"expected a whole number >= 1, got {trials!r}")
+    scenario = scenario or PunctureScenario()
+    options = options or TrialOptions()
+    out_dir = Path(out_dir)
+    seeds = np.random.SeedSequence(seed).spawn(trials)
+    ex = executor or SerialExecutor()
+    t0 = time.perf_counter()
+    jobs = [(scenario, options, i, seeds[i], i < example_trials) for i in range(trials)]
+    results: list[dict | None] = [None] * trials
+    for i, result in as_completed_indexed(ex, _run_job, jobs):
+        results[i] = result
+        if progress is not None:
+            progress(results[i])
+    wall = time.perf_counter() - t0
+    done = [r for r in results if r is not None]
+    completed = [r for r in done if r["status"] == "completed"]
+    cs, spec = ControllerSettings(), EMSensorSpec()
+    bounds = _Bounds(
+        cs.guide_radius_mm,
+        math.degrees(cs.cone_angle_rad),
+        cs.patient_radius_mm,
+        0.0 if options.exact_sensors else spec.position_sigma_mm,
+        0.0 if options.exact_sensors else spec.orientation_sigma_deg,
+    )
+    summary = {
+        "needlekit_version": __version__,
+        "trials": trials,
+        "seed": seed,
+        "completed": len(completed),
+        "aborted": {
+            "count": trials - len(completed),
+            "trials": [
+                {"trial": r["trial"], "reason": r["reason"]}
+                for r in done
+                if r["status"] != "completed"
+            ],
+        },
+        "position_error_mm": summary_stats(r["position_error_mm"] for r in completed),
+        "angle_error_deg": summary_stats(r["angle_error_deg"] for r in completed),
+        "constraint_violations": _violations(done, bounds),
+        "paper": PAPER_RESULTS,
+        "scenario": asdict(scenario),
+        "options": asdict(options),
+        "wall_s": wall,
+    }
+    doc = dict(summary)
+    doc["per_trial"] = done
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {"json": out_dir / "puncture.json"}
+    text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
+    atomic_write(files["json"], lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    if report:
+        from needlekit.report.puncture_report import write_puncture_report
+
+        files["report"] = write_puncture_report(out_dir / "puncture.html", summary, done)
+    return PunctureStudy(summary, done, files)
