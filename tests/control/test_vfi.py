@@ -118,3 +118,17 @@ def test_primitives_validate_their_fields():
         Line([0, 0, 0], [0, 0, 0])
     with pytest.raises(InvalidInputError, match="point_mm"):
         Plane([0, np.nan, 0], [0, 0, 1])
+
+
+def test_batched_robot_point_distances_match_one_at_a_time():
+    rng = np.random.default_rng(5)
+    m = PandaModel()
+    line = Line(rng.normal(0, 100, 3), rng.normal(size=3))
+    for _ in range(5):
+        s = m.state(rng.uniform(m.q_min, m.q_max))
+        ks = np.arange(8)
+        d, jac = s.points_line_sq_distances(ks, line.point_mm, line.direction)
+        for r, k in enumerate(ks):
+            d1, j1 = point_line_sq_distance(s.origins[k], s.point_jacobian(k), line)
+            assert d[r] == pytest.approx(d1, rel=1e-12)
+            np.testing.assert_allclose(jac[r], j1, atol=1e-9 * max(1.0, np.abs(j1).max()))

@@ -273,13 +273,14 @@ def step_vfis(
         out.append(StepVFI("plane", d, 0.0, Zone.OUTSIDE, cfg.eta_plane, j, ja))
         return out
     cyl = guide.patient_line(cfg.patient_axis)
-    for k in cfg.robot_points:
-        p = state.origins[k]
-        d, j = point_line_sq_distance(p, state.point_jacobian(k), cyl)
-        ja = None if pj is None else point_line_sq_distance(p, pj.point(state, a, k), cyl)[1]
-        out.append(
-            StepVFI("patient", d, cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient, j, ja)
-        )
+    ks = np.asarray(cfg.robot_points, dtype=np.int64)
+    ds, js = state.points_line_sq_distances(ks, cyl.point_mm, cyl.direction)
+    safe = cfg.patient_radius_mm**2
+    for r, k in enumerate(cfg.robot_points):
+        ja = None
+        if pj is not None:
+            ja = point_line_sq_distance(state.origins[k], pj.point(state, a, k), cyl)[1]
+        out.append(StepVFI("patient", float(ds[r]), safe, Zone.OUTSIDE, cfg.eta_patient, js[r], ja))
     return out
 
 

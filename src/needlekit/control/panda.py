@@ -138,6 +138,30 @@ def _cross_columns(axes: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+@nb.njit(cache=True)
+def _points_line_sq_distances(axes, origins, ks, c, ell):
+    """Squared distances of link origins ``ks`` from the line (c, ell) and their joint
+    Jacobians (origin k moves with the joints before it)."""
+    m, n = ks.shape[0], axes.shape[0]
+    d = np.empty(m)
+    jac = np.zeros((m, n))
+    for r in range(m):
+        k = ks[r]
+        p = origins[k]
+        v0, v1, v2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+        t = v0 * ell[0] + v1 * ell[1] + v2 * ell[2]
+        e0, e1, e2 = v0 - t * ell[0], v1 - t * ell[1], v2 - t * ell[2]
+        d[r] = e0 * e0 + e1 * e1 + e2 * e2
+        for i in range(min(k, n)):
+            w0, w1, w2 = p[0] - origins[i, 0], p[1] - origins[i, 1], p[2] - origins[i, 2]
+            a = axes[i]
+            j0 = a[1] * w2 - a[2] * w1
+            j1 = a[2] * w0 - a[0] * w2
+            j2 = a[0] * w1 - a[1] * w0
+            jac[r, i] = 2.0 * (e0 * j0 + e1 * j1 + e2 * j2)
+    return d, jac
+
+
 @dataclass(frozen=True)
 class ArmState:
     """Kinematic quantities of the arm at one configuration (world frame, mm).
@@ -187,6 +211,27 @@ class ArmState:
         if m:
             jac[:, :m] = _cross_columns(self.axes[:m], self.origins[k] - self.origins[:m])
         return jac
+
+    def points_line_sq_distances(self, ks, point_mm, direction) -> tuple[np.ndarray, np.ndarray]:
+        """Squared distances of joint-frame origins from a line, with their Jacobians.
+
+        Parameters
+        ----------
+        ks : ndarray of int, shape (m,)
+            Indices into :attr:`origins`.
+        point_mm, direction : ndarray, shape (3,)
+            A point of the line and its unit direction.
+
+        Returns
+        -------
+        d : ndarray, shape (m,)
+            mm^2.
+        jac : ndarray, shape (m, 7)
+            ``d_dot = jac q_dot``.
+        """
+        return _points_line_sq_distances(
+            self.axes, self.origins, np.asarray(ks, dtype=np.int64), point_mm, direction
+        )
 
 
 def _pose(value, name: str) -> np.ndarray:

@@ -303,7 +303,7 @@ def run_trial(
     last_task: tuple = (None, None)  # the controller's latest (step, task error)
     step_of = {Phase.ALIGN: Step.ALIGN, Phase.APPROACH: Step.APPROACH, Phase.WAIT: Step.APPROACH}
     step_of[Phase.PUNCTURE] = Step.PUNCTURE
-    tick = 0
+    tick, converged = 0, False
     while phase not in (Phase.DONE, Phase.ABORTED):
         t = tick * dt
         q_hist[tick] = q.copy()
@@ -339,14 +339,13 @@ def run_trial(
             a = a + needle.period_s * out.a_dot
             est = model_from_parameters(setup.arm, a)
             recent.append(out.error)  # rotation rows weighted by orientation_scale_mm
-        converged = False
-        if len(recent) == window:
-            mean = np.mean(recent, axis=0)
-            converged = (
-                np.linalg.norm(mean[:3]) <= ps.converged_mm
-                and np.degrees(np.linalg.norm(mean[3:]) / adaptation.orientation_scale_mm)
-                <= ps.converged_deg
-            )
+            if len(recent) == window:  # changes only with a new sample
+                mean = np.mean(recent, axis=0)
+                converged = bool(
+                    np.linalg.norm(mean[:3]) <= ps.converged_mm
+                    and np.degrees(np.linalg.norm(mean[3:]) / adaptation.orientation_scale_mm)
+                    <= ps.converged_deg
+                )
         # measurement loss
         age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
         if age > ps.abort_after_s:
