@@ -109,6 +109,13 @@ def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
     assert len(t["log"]["t_s"]) == len(t["log"]["measured_to_line_mm"]) > 100
     html = (out / "puncture.html").read_text()
     assert "like Fig. 4" in html and "like Fig. 5" in html and "Tang et al." in html
+    assert "The punctures in the neck phantom" in html and "tracheal_rings" in html
+    tips = np.asarray(t["log"]["tip_mm"])
+    assert tips.shape == (len(t["log"]["t_s"]), 3)
+    # the logged real tip ends where the reported error says
+    assert np.linalg.norm(tips[-1] - t["target_mm"]) == pytest.approx(
+        t["position_error_mm"], abs=0.2
+    )
     assert "Tang et al." in text and "-> " in text
 
 

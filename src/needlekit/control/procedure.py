@@ -200,8 +200,8 @@ class TrialResult:
         ``angle_deg`` (real), ``tip_estimate_error_mm`` (estimated vs real tip),
         ``base_error_mm``, ``needle_error_mm`` (estimated vs real translations),
         ``base_rotation_error_deg``, ``needle_rotation_error_deg``, ``desired_to_target_mm``,
-        and the newest needle sample's ``measured_to_line_mm`` and ``measured_angle_deg``
-        (against the real guide line).
+        the newest needle sample's ``measured_to_line_mm`` and ``measured_angle_deg``
+        (against the real guide line), and the real ``tip_mm`` (rows of 3).
     """
 
     status: str
@@ -290,7 +290,7 @@ def run_trial(
     puncture_from = None
     log = {k: [] for k in ("t_s", "phase", "to_target_mm", "to_line_mm", "angle_deg")}
     log.update({k: [] for k in ("base_error_mm", "needle_error_mm", "desired_to_target_mm")})
-    log["tip_estimate_error_mm"] = []
+    log["tip_estimate_error_mm"], log["tip_mm"] = [], []
     for k in ("measured_to_line_mm", "measured_angle_deg"):
         log[k] = []
     log["base_rotation_error_deg"], log["needle_rotation_error_deg"] = [], []
@@ -416,6 +416,7 @@ def run_trial(
             log["t_s"].append(t)
             log["phase"].append(phase.value)
             log["to_target_mm"].append(float(np.linalg.norm(rel)))
+            log["tip_mm"].append(tip_true.copy())
             log["to_line_mm"].append(to_line)
             log["angle_deg"].append(angle)
             log["tip_estimate_error_mm"].append(float(np.linalg.norm(state.tip_mm - tip_true)))

@@ -20,6 +20,7 @@ from needlekit.report.html_page import (
 
 __all__ = [
     "adaptation_figure",
+    "neck_figure",
     "error_histograms_figure",
     "puncture_figure",
     "puncture_sections",
@@ -220,6 +221,77 @@ def error_histograms_figure(trials: list[dict], paper: dict):
     return fig
 
 
+def _rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector ``a`` onto unit vector ``b``."""
+    from needlekit.geometry.so3 import so3_exp
+
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        perp = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return so3_exp(np.pi * perp / np.linalg.norm(perp))
+    return so3_exp(axis / s * np.arctan2(s, c))
+
+
+def neck_figure(trials: list[dict], phantom=None, *, outside_mm: float = 60.0):
+    """The example trials' needle-tip paths in the neck phantom (3D).
+
+    Each trial's real tip positions during the puncture are carried rigidly onto the
+    phantom's guide line (its target onto the phantom's target, its ``l_g`` onto the
+    phantom's outward guide direction): the paths show how far off the line the real tip
+    went, in the anatomy the puncture is for.
+
+    Parameters
+    ----------
+    trials : list of dict
+    phantom : Phantom, optional
+        Default: the built-in neck phantom (seed 0).
+    outside_mm : float
+        How far out from the skin the paths are drawn.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    from needlekit.anatomy.phantoms import neck_phantom
+    from needlekit.report.scene3d import scene_figure
+
+    ph = phantom or neck_phantom(0)
+    gl = ph.info["guide_line"]
+    target = np.asarray(gl["target_mm"], float)
+    inward = np.asarray(gl["direction"], float)
+    depth = float(gl["length_mm"]) + outside_mm
+    paths, names = [], []
+    for t in _examples(trials):
+        log = t["log"]
+        ts = np.asarray(log["t_s"], float)
+        tips = np.asarray(log["tip_mm"], float)
+        on = ts >= t["phase_times_s"]["puncture"]
+        rel = tips[on] - np.asarray(t["target_mm"], float)
+        lg = np.asarray(t["guide_direction"], float)
+        r = _rotation_onto(lg, -inward)
+        mapped = rel @ r.T + target
+        keep = (mapped - target) @ -inward <= depth
+        paths.append(mapped[keep])
+        names.append(_label(t))
+    start = np.eye(4)
+    start[:3, 3] = target - depth * inward
+    z = inward
+    x = np.cross([0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    start[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    return scene_figure(
+        ph.scene,
+        start_poses=start[None],
+        targets_mm=target[None],
+        paths_mm=paths,
+        path_names=names,
+        title="needle-tip paths of the example trials, carried onto the neck phantom's guide line",
+    )
+
+
 def _comparison_rows(summary: dict) -> list[dict]:
     rows = []
     for key, what in (("position_error_mm", "position error"), ("angle_error_deg", "angle")):
@@ -290,6 +362,17 @@ def puncture_sections(summary: dict, trials: list[dict]) -> list:
         ),
         TableSection("Constraint violations beyond the measurement noise", viol),
     ]
+    if any("tip_mm" in t.get("log", {}) for t in trials):
+        sections.insert(
+            5,
+            FigureSection(
+                "The punctures in the neck phantom",
+                neck_figure(trials),
+                "The real tip paths of the example trials, each carried rigidly onto the "
+                "phantom's guide line (between two tracheal rings below the thyroid isthmus, "
+                "to the middle of the trachea).",
+            ),
+        )
     if summary["aborted"]["count"]:
         sections.append(TableSection("Aborted trials", summary["aborted"]["trials"]))
     return sections

@@ -273,7 +273,11 @@ def run_puncture_trial(
     }
     if keep_log:
         out["log"] = {
-            k: [_finite_or_none(float(x)) for x in v] if v.dtype.kind == "f" else v.tolist()
+            k: [_finite_or_none(float(x)) for x in v]
+            if v.dtype.kind == "f" and v.ndim == 1
+            else np.round(v, 4).tolist()
+            if v.dtype.kind == "f"
+            else v.tolist()
             for k, v in r.log.items()
         }
     return out
