@@ -207,3 +207,16 @@ def test_history_identifies_what_one_measurement_cannot():
     with_history = run(MeasurementHistory())
     alone = run(None)
     assert with_history < 0.05 and alone > 1.0
+
+
+def test_rotation_log_kernel_matches_so3_log_near_zero_and_pi():
+    from needlekit.control.adaptation import _rotation_log
+    from needlekit.geometry.so3 import so3_exp, so3_log
+
+    rng = np.random.default_rng(8)
+    for scale in (1e-10, 1e-4, 0.5, 2.0, np.pi - 1e-3, np.pi - 1e-7, np.pi):
+        for _ in range(10):
+            axis = rng.normal(size=3)
+            w = scale * axis / np.linalg.norm(axis)
+            r = so3_exp(w)
+            np.testing.assert_allclose(_rotation_log(r), so3_log(r), atol=1e-7)

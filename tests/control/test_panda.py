@@ -112,3 +112,19 @@ def test_bad_input_names_the_field():
         PandaModel(world_T_base=np.diag([1.0, 1.0, -1.0, 1.0]))
     with pytest.raises(InvalidInputError, match="q_min"):
         PandaModel(q_min=Q_MAX)
+
+
+def test_dq_from_matrix_round_trips_every_branch():
+    from needlekit.geometry.so3 import so3_exp
+
+    rng = np.random.default_rng(9)
+    # generic rotations, and half-turns about each axis (each branch of the conversion)
+    omegas = [rng.normal(size=3) for _ in range(20)]
+    omegas += [np.pi * e for e in np.eye(3)] + [0.999 * np.pi * np.array([1.0, 1.0, 0.0]) / 2**0.5]
+    for w in omegas:
+        g = np.eye(4)
+        g[:3, :3] = so3_exp(w)
+        g[:3, 3] = rng.normal(0, 100, 3)
+        x = dq_from_matrix(g)
+        assert x[0] >= 0 and abs(np.linalg.norm(x[:4]) - 1) < 1e-12
+        np.testing.assert_allclose(dq_to_matrix(x), g, atol=1e-9)

@@ -78,3 +78,41 @@ def test_parameter_jacobians_match_finite_differences(seed):
 
 def s_rot(model, q):
     return model.tip_pose(q)[:3, :3]
+
+
+def test_closed_form_xyz_euler_maps_match_the_general_ones():
+    rng = np.random.default_rng(11)
+    for angles in rng.uniform(-1.5, 1.5, (20, 3)):
+        g = pose_from_parameters(np.concatenate([[1.0, 2.0, 3.0], angles]))
+        np.testing.assert_allclose(g[:3, :3], euler_to_matrix(angles, "XYZ"), atol=1e-14)
+        np.testing.assert_allclose(
+            xyz_euler_rate_matrix(angles), euler_rate_matrix(angles, "XYZ"), atol=1e-14
+        )
+
+
+@pytest.mark.parametrize("step", ["approach", "puncture"])
+def test_vfi_parameter_rows_match_finite_differences(step):
+    from needlekit.control.controller import ControllerSettings, GuideLine, Step, step_vfis
+
+    rng = np.random.default_rng(12)
+    a = np.array([-650.0, 0.0, -450.0, 0.1, -0.05, 0.2, 1.0, -2.0, 100.0, 0.03, 0.02, -0.04])
+    q = np.array([0.1, -0.5, 0.2, -2.2, 0.1, 1.9, 0.6])
+    guide = GuideLine(np.array([-150.0, 0.0, -250.0]), rng.normal(size=3) + [0, 0, 3])
+    cfg, st = ControllerSettings(), Step(step)
+
+    def vfis(params):
+        m = model_from_parameters(PandaModel(), params)
+        s = m.state(q)
+        return step_vfis(s, st, guide, cfg, parameter_jacobians(m, s, params), params)
+
+    base = vfis(a)
+    h = 1e-6
+    for i in range(12):
+        d = np.zeros(12)
+        d[i] = h
+        plus, minus = vfis(a + d), vfis(a - d)
+        for v, vp, vm in zip(base, plus, minus, strict=True):
+            fd = (vp.distance - vm.distance) / (2 * h)
+            assert v.jac_a[i] == pytest.approx(
+                fd, rel=1e-5, abs=1e-4 * max(1.0, abs(v.distance)) ** 0.5
+            )

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from needlekit.control.controller import (
@@ -50,7 +51,6 @@ from needlekit.control.parameters import (
 from needlekit.control.qp import QPStatus, solve_qp
 from needlekit.control.vfi import vfi_row
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.so3 import so3_log
 
 __all__ = [
     "AdaptationOutput",
@@ -135,7 +135,7 @@ def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) 
     ndarray, shape (6,)
     """
     dp = estimated_tip[:3, 3] - measured_tip[:3, 3]
-    dr = so3_log(estimated_tip[:3, :3] @ measured_tip[:3, :3].T)
+    dr = _rotation_log(np.ascontiguousarray(estimated_tip[:3, :3] @ measured_tip[:3, :3].T))
     return np.concatenate([dp, orientation_scale_mm * dr])
 
 
@@ -262,23 +262,74 @@ class MeasurementHistory:
         poses = self._poses
         if self._current is not None:
             poses = np.concatenate([poses, self._current[None]])
-        flange, measured = poses[:, 0], poses[:, 1]
         a = np.asarray(a, dtype=float)
-        k, s = len(poses), orientation_scale_mm
-        rb, rn = pose_from_parameters(a[:6])[:3, :3], pose_from_parameters(a[6:])[:3, :3]
+        rb = np.ascontiguousarray(pose_from_parameters(a[:6])[:3, :3])
+        rn = np.ascontiguousarray(pose_from_parameters(a[6:])[:3, :3])
         wb, wn = xyz_euler_rate_matrix(a[3:6]), xyz_euler_rate_matrix(a[9:12])
-        rf = rb @ flange[:, :3, :3]  # flange rotations in the world, (k, 3, 3)
-        tip = a[:3] + (flange[:, :3, 3] + flange[:, :3, :3] @ a[6:9]) @ rb.T
-        err = np.empty((k, 6))
-        err[:, :3] = tip - measured[:, :3, 3]
-        err[:, 3:] = s * so3_log(rf @ rn @ np.transpose(measured[:, :3, :3], (0, 2, 1)))
-        jac = np.zeros((k, 6, N_PARAMETERS))
-        jac[:, :3, :3] = np.eye(3)
-        jac[:, :3, 3:6] = np.cross(wb.T[None, :, :], (tip - a[:3])[:, None, :]).transpose(0, 2, 1)
-        jac[:, :3, 6:9] = rf
-        jac[:, 3:, 3:6] = s * wb
-        jac[:, 3:, 9:12] = s * (rf @ wn)
-        return err.reshape(-1), jac.reshape(-1, N_PARAMETERS)
+        return _stacked_errors(
+            np.ascontiguousarray(poses), a[:3].copy(), rb, wb, a[6:9].copy(), rn, wn,
+            float(orientation_scale_mm),
+        )  # fmt: skip
+
+
+@nb.njit(cache=True)
+def _rotation_log(r):
+    """Rotation vector of a rotation matrix (accurate near 0 and near pi)."""
+    c = min(1.0, max(-1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
+    v = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    s = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    theta = np.arctan2(s, c)
+    if theta < 1e-8:
+        return v
+    if c > -0.5:
+        return v * (theta / s)
+    # near pi: the axis from the symmetric part, its sign from the skew part
+    sym = 0.5 * (r + r.T)
+    best, k = -1.0, 0
+    for i in range(3):
+        d = (sym[i, i] - c) / (1.0 - c)
+        if d > best:
+            best, k = d, i
+    axis = (sym[k] - c * np.eye(3)[k]) / (1.0 - c)
+    axis /= np.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)
+    if axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2] < 0.0:
+        axis = -axis
+    return axis * theta
+
+
+@nb.njit(cache=True)
+def _stacked_errors(poses, tb, rb, wb, tn, rn, wn, s):
+    """Measurement errors and parameter Jacobians of keyframes (flange in the base frame,
+    measured tip in the world) at the parameters given as rotations and rate maps."""
+    k = poses.shape[0]
+    err = np.empty(6 * k)
+    jac = np.zeros((6 * k, 12))
+    for i in range(k):
+        f_r = np.ascontiguousarray(poses[i, 0, :3, :3])
+        f_p = np.ascontiguousarray(poses[i, 0, :3, 3])
+        y_rt = np.ascontiguousarray(poses[i, 1, :3, :3].T)
+        y_p = poses[i, 1, :3, 3]
+        rf = rb @ f_r  # flange rotation in the world
+        tip = tb + rb @ (f_p + f_r @ tn)
+        rel = tip - tb
+        o = 6 * i
+        err[o : o + 3] = tip - y_p
+        err[o + 3 : o + 6] = s * _rotation_log(rf @ rn @ y_rt)
+        for r in range(3):
+            jac[o + r, r] = 1.0
+            for c in range(3):
+                # d tip / d angles_b: (W_b e_c) x rel
+                w = wb[:, c]
+                cr = (w[1] * rel[2] - w[2] * rel[1], w[2] * rel[0] - w[0] * rel[2],
+                      w[0] * rel[1] - w[1] * rel[0])  # fmt: skip
+                jac[o + r, 3 + c] = cr[r]
+                jac[o + r, 6 + c] = rf[r, c]
+                jac[o + 3 + r, 3 + c] = s * wb[r, c]
+        rfwn = rf @ wn
+        for r in range(3):
+            for c in range(3):
+                jac[o + 3 + r, 9 + c] = s * rfwn[r, c]
+    return err, jac
 
 
 def _mean_poses(poses: np.ndarray) -> np.ndarray:

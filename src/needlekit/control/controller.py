@@ -276,12 +276,31 @@ def step_vfis(
     ks = np.asarray(cfg.robot_points, dtype=np.int64)
     ds, js = state.points_line_sq_distances(ks, cyl.point_mm, cyl.direction)
     safe = cfg.patient_radius_mm**2
-    for r, k in enumerate(cfg.robot_points):
-        ja = None
-        if pj is not None:
-            ja = point_line_sq_distance(state.origins[k], pj.point(state, a, k), cyl)[1]
+    jas = None if pj is None else _points_parameter_rows(state.origins[ks], cyl, pj, a)
+    for r in range(len(ks)):
+        ja = None if jas is None else jas[r]
         out.append(StepVFI("patient", float(ds[r]), safe, Zone.OUTSIDE, cfg.eta_patient, js[r], ja))
     return out
+
+
+def _points_parameter_rows(points: np.ndarray, line: Line, pj, a) -> np.ndarray:
+    """Derivatives of the points' squared distances from ``line`` with respect to the
+    parameters (a link point moves with the base pose only: ``dp = dt_b + (W_b dangles_b)
+    x (p - t_b)``)."""
+    v = points - line.point_mm
+    perp = v - np.outer(v @ line.direction, line.direction)
+    rows = np.zeros((len(points), 12))
+    rows[:, :3] = 2.0 * perp
+    r = points - np.asarray(a)[:3]
+    r_x_perp = np.column_stack(
+        [
+            r[:, 1] * perp[:, 2] - r[:, 2] * perp[:, 1],
+            r[:, 2] * perp[:, 0] - r[:, 0] * perp[:, 2],
+            r[:, 0] * perp[:, 1] - r[:, 1] * perp[:, 0],
+        ]
+    )
+    rows[:, 3:6] = 2.0 * r_x_perp @ pj.base_rate
+    return rows
 
 
 def control_step(

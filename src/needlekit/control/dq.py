@@ -168,6 +168,48 @@ def dq_to_matrix(x) -> np.ndarray:
     return _dq_to_matrix(np.ascontiguousarray(x, dtype=float))
 
 
+@nb.njit(cache=True)
+def _dq_from_matrix(g):
+    # rotation matrix -> quaternion by Shepperd's method (the largest of the four
+    # candidate denominators keeps it accurate everywhere)
+    m00, m11, m22 = g[0, 0], g[1, 1], g[2, 2]
+    tr = m00 + m11 + m22
+    r = np.empty(4)
+    if tr >= m00 and tr >= m11 and tr >= m22:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        r[0] = 0.25 * s
+        r[1] = (g[2, 1] - g[1, 2]) / s
+        r[2] = (g[0, 2] - g[2, 0]) / s
+        r[3] = (g[1, 0] - g[0, 1]) / s
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * np.sqrt(1.0 + m00 - m11 - m22)
+        r[0] = (g[2, 1] - g[1, 2]) / s
+        r[1] = 0.25 * s
+        r[2] = (g[0, 1] + g[1, 0]) / s
+        r[3] = (g[0, 2] + g[2, 0]) / s
+    elif m11 >= m22:
+        s = 2.0 * np.sqrt(1.0 + m11 - m00 - m22)
+        r[0] = (g[0, 2] - g[2, 0]) / s
+        r[1] = (g[0, 1] + g[1, 0]) / s
+        r[2] = 0.25 * s
+        r[3] = (g[1, 2] + g[2, 1]) / s
+    else:
+        s = 2.0 * np.sqrt(1.0 + m22 - m00 - m11)
+        r[0] = (g[1, 0] - g[0, 1]) / s
+        r[1] = (g[0, 2] + g[2, 0]) / s
+        r[2] = (g[1, 2] + g[2, 1]) / s
+        r[3] = 0.25 * s
+    r /= np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2 + r[3] ** 2)
+    if r[0] < 0.0:
+        r = -r
+    t = np.array([0.0, g[0, 3], g[1, 3], g[2, 3]])
+    d = 0.5 * quat_mul(t, r)
+    out = np.empty(8)
+    out[:4] = r
+    out[4:] = d
+    return out
+
+
 def dq_from_matrix(g) -> np.ndarray:
     """Unit dual quaternion of a 4x4 homogeneous transform (``r0 >= 0``).
 
@@ -179,13 +221,4 @@ def dq_from_matrix(g) -> np.ndarray:
     -------
     ndarray, shape (8,)
     """
-    from scipy.spatial.transform import Rotation
-
-    g = np.asarray(g, dtype=float)
-    xyzw = Rotation.from_matrix(g[:3, :3]).as_quat()
-    r = np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
-    if r[0] < 0:
-        r = -r
-    t = g[:3, 3]
-    d = 0.5 * quat_mul(np.array([0.0, t[0], t[1], t[2]]), r)
-    return np.concatenate([r, d])
+    return _dq_from_matrix(np.ascontiguousarray(g, dtype=float))

@@ -347,6 +347,24 @@ class PandaModel:
             self.q_dot_max,
         )
 
+    def _with_poses_unchecked(self, world_T_base, flange_T_tip) -> PandaModel:
+        """:meth:`with_parameters` without validating the poses (callers build proper rigid
+        transforms themselves; the adaptation rebuilds the model at every measurement)."""
+        m = object.__new__(PandaModel)
+        flange = np.eye(4)
+        flange[2, 3] = FLANGE_MM
+        for name, value in (
+            ("world_T_base", world_T_base),
+            ("flange_T_tip", flange_T_tip),
+            ("q_min", self.q_min),
+            ("q_max", self.q_max),
+            ("q_dot_max", self.q_dot_max),
+            ("_base_dq", dq_from_matrix(world_T_base)),
+            ("_tool_dq", dq_from_matrix(flange @ flange_T_tip)),
+        ):
+            object.__setattr__(m, name, value)
+        return m
+
     def reference_robot(self):
         """The same arm as a ``dqrobotics`` ``DQ_SerialManipulatorMDH`` in mm (test oracle).
 

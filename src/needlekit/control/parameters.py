@@ -16,12 +16,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from needlekit.control.dq import dq_to_matrix
 from needlekit.control.panda import ArmState, PandaModel
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.euler import euler_rate_matrix, euler_to_matrix, matrix_to_euler
+from needlekit.geometry.euler import matrix_to_euler
 
 __all__ = [
     "N_PARAMETERS",
@@ -37,9 +38,40 @@ __all__ = [
 N_PARAMETERS = 12
 
 
+@nb.njit(cache=True)
+def _xyz_matrix(a, b, c):
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    r = np.empty((3, 3))
+    r[0, 0], r[0, 1], r[0, 2] = cb * cc, -cb * sc, sb
+    r[1, 0] = sa * sb * cc + ca * sc
+    r[1, 1] = -sa * sb * sc + ca * cc
+    r[1, 2] = -sa * cb
+    r[2, 0] = -ca * sb * cc + sa * sc
+    r[2, 1] = ca * sb * sc + sa * cc
+    r[2, 2] = ca * cb
+    return r
+
+
+@nb.njit(cache=True)
+def _xyz_rate(a, b):
+    # omega = e_x a_dot + R_x e_y b_dot + R_x R_y e_z c_dot
+    ca, sa, cb, sb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)
+    w = np.zeros((3, 3))
+    w[0, 0], w[0, 2] = 1.0, sb
+    w[1, 1], w[1, 2] = ca, -sa * cb
+    w[2, 1], w[2, 2] = sa, ca * cb
+    return w
+
+
+def _skew(v) -> np.ndarray:
+    """``[v]x`` with ``[v]x w = v x w`` (numpy's cross is slow on tiny arrays)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def xyz_euler_rate_matrix(angles) -> np.ndarray:
     """``W`` with ``omega = W angles_dot`` for ``R = R_x R_y R_z`` (omega in the frame ``R``
-    is expressed in).
+    is expressed in); closed form, equal to
+    ``needlekit.geometry.euler.euler_rate_matrix(angles, "XYZ")``.
 
     Parameters
     ----------
@@ -49,7 +81,8 @@ def xyz_euler_rate_matrix(angles) -> np.ndarray:
     -------
     ndarray, shape (3, 3)
     """
-    return euler_rate_matrix(angles, "XYZ")
+    a = np.asarray(angles, dtype=float).reshape(3)
+    return _xyz_rate(a[0], a[1])
 
 
 def pose_from_parameters(p6) -> np.ndarray:
@@ -71,7 +104,7 @@ def pose_from_parameters(p6) -> np.ndarray:
     """
     p = np.asarray(p6, dtype=float).reshape(6)
     g = np.eye(4)
-    g[:3, :3] = euler_to_matrix(p[3:], "XYZ")
+    g[:3, :3] = _xyz_matrix(p[3], p[4], p[5])
     g[:3, 3] = p[:3]
     return g
 
@@ -111,7 +144,7 @@ def model_from_parameters(model: PandaModel, a) -> PandaModel:
     a = np.asarray(a, dtype=float).reshape(-1)
     if a.shape != (N_PARAMETERS,) or not np.all(np.isfinite(a)):
         raise InvalidInputError("parameters", f"expected {N_PARAMETERS} finite numbers")
-    return model.with_parameters(pose_from_parameters(a[:6]), pose_from_parameters(a[6:]))
+    return model._with_poses_unchecked(pose_from_parameters(a[:6]), pose_from_parameters(a[6:]))
 
 
 @dataclass(frozen=True)
@@ -126,11 +159,14 @@ class ParameterJacobians:
         Angular velocity of the tip frame (world) per parameter rate.
     axis : ndarray, shape (3, 12)
         ``d needle_axis / dt = axis @ a_dot``.
+    base_rate : ndarray, shape (3, 3)
+        ``W_b``: the base's angular velocity per rate of its Euler angles.
     """
 
     tip: np.ndarray
     angular: np.ndarray
     axis: np.ndarray
+    base_rate: np.ndarray
 
     def point(self, state: ArmState, a, k: int) -> np.ndarray:
         """Jacobian of link-frame origin ``k`` (it depends on the base only).
@@ -147,8 +183,7 @@ class ParameterJacobians:
         """
         jac = np.zeros((3, N_PARAMETERS))
         jac[:, :3] = np.eye(3)
-        w = xyz_euler_rate_matrix(a[3:6])
-        jac[:, 3:6] = np.cross(w.T, state.origins[k] - a[:3]).T
+        jac[:, 3:6] = -_skew(state.origins[k] - a[:3]) @ self.base_rate
         return jac
 
 
@@ -175,9 +210,9 @@ def parameter_jacobians(model: PandaModel, state: ArmState, a) -> ParameterJacob
     tip = np.zeros((3, N_PARAMETERS))
     ang = np.zeros((3, N_PARAMETERS))
     tip[:, :3] = np.eye(3)
-    tip[:, 3:6] = np.cross(wb.T, state.tip_mm - a[:3]).T
+    tip[:, 3:6] = -_skew(state.tip_mm - a[:3]) @ wb  # (W_b e_c) x r = -[r]x W_b e_c
     ang[:, 3:6] = wb
     tip[:, 6:9] = r_flange  # t_n is expressed in the flange frame
     ang[:, 9:12] = r_flange @ xyz_euler_rate_matrix(a[9:12])
-    axis = np.cross(ang.T, state.needle_axis).T
-    return ParameterJacobians(tip, ang, axis)
+    axis = -_skew(state.needle_axis) @ ang
+    return ParameterJacobians(tip, ang, axis, wb)
