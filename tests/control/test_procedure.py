@@ -55,7 +55,7 @@ def test_a_noise_free_puncture_with_a_known_arm_reaches_the_target_inside_every_
         scope_sensor=exact,
     )
     assert r.status == "completed"
-    assert r.position_error_mm < 0.5 and r.angle_error_deg < 0.05
+    assert r.position_error_mm < 0.1 and r.angle_error_deg < 0.05  # measured 0.035 mm
     assert r.max_guide_distance_mm <= 1.5 + 1e-3 and r.max_cone_angle_deg <= 0.5 + 1e-3
     assert r.min_plane_distance_mm > -0.05  # never noticeably past the target's plane
     assert r.min_patient_distance_mm > 200.0

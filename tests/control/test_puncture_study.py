@@ -90,6 +90,24 @@ def test_summary_statistics_and_violation_counting():
     assert v["total"] == 4
 
 
+def test_puncture_command_rejects_bad_options_in_one_line(capsys, tmp_path):
+    afile = tmp_path / "a-file"
+    afile.write_text("x")
+    for argv, needle in [
+        (["--trials", "0"], "--trials"),
+        (["--history", "-1"], "history"),
+        (["--stability-radius-mm", "nan"], "--stability-radius-mm"),
+        (["--trials", "1", "--out", str(afile)], "out"),
+    ]:
+        try:
+            code = main(["puncture", *argv])
+        except SystemExit as exc:  # argparse's own checks
+            code = exc.code
+        err = capsys.readouterr().err
+        assert code == 2 and needle in err and len(err.strip().splitlines()) == 1
+    assert afile.read_text() == "x"
+
+
 @pytest.mark.slow
 def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
     out = tmp_path / "study"

@@ -401,6 +401,8 @@ def run_puncture_study(
     scenario = scenario or PunctureScenario()
     options = options or TrialOptions()
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InvalidInputError("out", f"{out_dir} exists and is not a folder")
     seeds = np.random.SeedSequence(seed).spawn(trials)
     ex = executor or SerialExecutor()
     t0 = time.perf_counter()
