@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from needlekit.control.dq import _qmul, dq_from_matrix, dq_mul, dq_to_matrix
+from needlekit.control.dq import _dq_to_matrix, _qmul, dq_from_matrix, dq_mul, dq_to_matrix
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -160,6 +160,18 @@ def _points_line_sq_distances(axes, origins, ks, c, ell):
             j2 = a[0] * w1 - a[1] * w0
             jac[r, i] = 2.0 * (e0 * j0 + e1 * j1 + e2 * j2)
     return d, jac
+
+
+@nb.njit(cache=True)
+def _arm_state(q, mdh, base, tool):
+    """Everything :meth:`PandaModel.state` returns, in one compiled call."""
+    x, jac, axes, origins = chain_kinematics(q, mdh, base, tool)
+    tip = _dq_to_matrix(x)
+    p = tip[:3, 3].copy()
+    axis = tip[:3, 2].copy()
+    jt = _cross_columns(axes, p.reshape(1, 3) - origins[: axes.shape[0]])
+    ja = _cross_columns(axes, axis.reshape(1, 3))
+    return x, jac, axes, origins, p, axis, jt, ja
 
 
 @dataclass(frozen=True)
@@ -306,11 +318,9 @@ class PandaModel:
         ArmState
         """
         q = self._q(q)
-        x, jac, axes, origins = chain_kinematics(q, PANDA_MDH_MM, self._base_dq, self._tool_dq)
-        tip = dq_to_matrix(x)
-        p, axis = tip[:3, 3], tip[:3, 2]
-        jt = _cross_columns(axes, p - origins[:7])
-        ja = _cross_columns(axes, axis.reshape(1, 3))
+        x, jac, axes, origins, p, axis, jt, ja = _arm_state(
+            q, PANDA_MDH_MM, self._base_dq, self._tool_dq
+        )
         return ArmState(q, x, jac, p, axis, jt, ja, axes, origins)
 
     def tip_pose(self, q) -> np.ndarray:
