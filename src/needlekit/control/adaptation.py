@@ -206,6 +206,10 @@ class MeasurementHistory:
         Parameters
         ----------
         base_T_flange, measured_tip : ndarray, shape (4, 4)
+
+        Returns
+        -------
+        None
         """
         sample = np.stack([base_T_flange, measured_tip]).astype(float)
         self._current = None
