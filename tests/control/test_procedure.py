@@ -64,3 +64,49 @@ def test_a_noise_free_puncture_with_a_known_arm_reaches_the_target_inside_every_
     assert r.counts["qp_infeasible"] == 0
     log = r.log
     assert len(log["t_s"]) == len(log["to_target_mm"]) > 100
+
+
+def _known_arm_trial(needle_sensor):
+    setup = TrialSetup(
+        PandaModel(), NOMINAL, NOMINAL, Q_READY, np.array([-150.0, 0.0, -250.0]),
+        np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0]),
+    )  # fmt: skip
+    exact = EMSensorSpec(position_sigma_mm=0.0, orientation_sigma_deg=0.0)
+    return run_trial(
+        setup,
+        np.random.default_rng(0),
+        adaptation=AdaptationSettings(NOMINAL - SPREAD, NOMINAL + SPREAD),
+        needle_sensor=needle_sensor,
+        scope_sensor=exact,
+    )
+
+
+@pytest.mark.slow
+def test_a_lost_needle_sensor_stops_the_robot_which_resumes_when_it_returns(caplog):
+    # half a second without needle samples during the puncture (it runs from about 16 s)
+    spec = EMSensorSpec(position_sigma_mm=0.0, orientation_sigma_deg=0.0, outages=[(20.0, 20.5)])
+    with caplog.at_level("INFO", logger="needlekit.control.procedure"):
+        r = _known_arm_trial(spec)
+    assert r.status == "completed" and r.position_error_mm < 0.1
+    assert r.counts["needle_lost"] == 50
+    (t_stop, what_stop), (t_go, what_go) = r.events
+    assert what_stop.startswith("stopped") and what_go == "resumed"
+    # silent from the last sample before 20 s (arriving 5 ms later) for more than 0.1 s
+    assert t_stop == pytest.approx(19.99 + 0.005 + 0.1, abs=2e-3)
+    assert t_go == pytest.approx(20.5 + 0.005, abs=2e-3)
+    assert r.counts["stopped_steps"] == pytest.approx(1000 * (t_go - t_stop), abs=2)
+    ts, tips = r.log["t_s"], r.log["tip_mm"]
+    still = tips[(ts > t_stop + 1e-3) & (ts < t_go - 1e-3)]
+    assert len(still) > 30 and np.ptp(still, axis=0).max() == 0.0  # not a micron of motion
+    assert "stopped: needle sensor silent" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_needle_sensor_lost_for_good_aborts_the_trial_with_the_reason():
+    spec = EMSensorSpec(position_sigma_mm=0.0, orientation_sigma_deg=0.0, outages=[(20.0, 1e9)])
+    r = _known_arm_trial(spec)
+    assert r.status == "aborted" and r.reason == "needle sensor lost"
+    assert r.log["t_s"][-1] == pytest.approx(19.995 + 2.0, abs=0.02)  # after abort_after_s
+    assert r.events[0][1].startswith("stopped") and len(r.events) == 1
+    with pytest.raises(InvalidInputError, match="outages"):
+        EMSensorSpec(outages=[(2.0, 1.0)])

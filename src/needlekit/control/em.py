@@ -37,6 +37,9 @@ class EMSensorSpec:
         Probability that a sample starts a burst of lost samples.
     dropout_burst_mean : float
         Mean number of samples lost per burst (>= 1).
+    outages : tuple of (float, float)
+        Scheduled intervals ``[start_s, end_s)`` in which every sample is lost (a cable
+        pulled, the transmitter switched off).
     """
 
     rate_hz: float = 100.0
@@ -45,8 +48,16 @@ class EMSensorSpec:
     latency_s: float = 0.005
     dropout_probability: float = 0.0
     dropout_burst_mean: float = 1.0
+    outages: tuple = ()
 
     def __post_init__(self) -> None:
+        try:
+            outages = tuple((float(a), float(b)) for a, b in self.outages)
+        except (TypeError, ValueError):
+            raise InvalidInputError("outages", "expected (start_s, end_s) pairs") from None
+        if any(not (np.isfinite(a) and np.isfinite(b) and 0 <= a < b) for a, b in outages):
+            raise InvalidInputError("outages", "expected finite 0 <= start_s < end_s")
+        object.__setattr__(self, "outages", outages)
         for name in ("rate_hz",):
             if not getattr(self, name) > 0:
                 raise InvalidInputError(name, "must be > 0")
@@ -146,7 +157,10 @@ class EMSensor:
             if self._lost_left == 0 and self.rng.random() < spec.dropout_probability:
                 mean = spec.dropout_burst_mean
                 self._lost_left = 1 if mean <= 1.0 else int(self.rng.geometric(1.0 / mean))
-            if self._lost_left > 0:
+            scheduled = any(a <= self._next_sample_s < b for a, b in spec.outages)
+            if scheduled:
+                self.n_lost += 1
+            elif self._lost_left > 0:
                 self._lost_left -= 1
                 self.n_lost += 1
             else:

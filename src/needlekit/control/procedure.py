@@ -26,6 +26,7 @@ that reason. Every phase has a time limit, also ending the trial as aborted.
 from __future__ import annotations
 
 import enum
+import logging
 from collections import deque
 from dataclasses import dataclass, field
 from time import perf_counter
@@ -51,6 +52,8 @@ from needlekit.control.parameters import model_from_parameters, parameter_jacobi
 from needlekit.control.qp import QPStatus
 
 __all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
+
+log_event = logging.getLogger(__name__)
 
 
 class Phase(enum.Enum):
@@ -194,7 +197,8 @@ class TrialResult:
     phase_times_s : dict
         When each phase began.
     counts : dict
-        Control steps, needle samples, lost samples, infeasible QPs, adaptation warnings.
+        Control steps, needle samples, lost samples, infeasible QPs, adaptation warnings,
+        and the steps the robot stood still because the needle sensor was silent.
     log : dict of ndarray
         Every ``log_every`` steps: ``t_s``, ``phase``, ``to_target_mm``, ``to_line_mm``,
         ``angle_deg`` (real), ``tip_estimate_error_mm`` (estimated vs real tip),
@@ -202,6 +206,8 @@ class TrialResult:
         ``base_rotation_error_deg``, ``needle_rotation_error_deg``, ``desired_to_target_mm``,
         the newest needle sample's ``measured_to_line_mm`` and ``measured_angle_deg``
         (against the real guide line), and the real ``tip_mm`` (rows of 3).
+    events : list of (float, str)
+        When the robot stopped because the needle sensor fell silent, and when it resumed.
     """
 
     status: str
@@ -215,6 +221,7 @@ class TrialResult:
     phase_times_s: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
     log: dict = field(default_factory=dict)
+    events: list = field(default_factory=list)
 
 
 def _angle_deg(u, v) -> float:
@@ -285,7 +292,11 @@ def run_trial(
     guide = None
     phase, phase_start = Phase.ADAPT, 0.0
     times = {Phase.ADAPT.value: 0.0}
-    counts = dict.fromkeys(("steps", "needle_samples", "qp_infeasible", "adaptation_infeasible"), 0)
+    counts = dict.fromkeys(
+        ("steps", "needle_samples", "qp_infeasible", "adaptation_infeasible", "stopped_steps"), 0
+    )
+    events: list[tuple[float, str]] = []  # (time, what): the robot stopped or resumed
+    stopped = False
     status, reason = "completed", "target reached"
     puncture_from = None
     log = {k: [] for k in ("t_s", "phase", "to_target_mm", "to_line_mm", "angle_deg")}
@@ -353,6 +364,13 @@ def run_trial(
             break
         state = est.state(q)
         q_dot = np.zeros(7)
+        if phase is not Phase.ADAPT and (age > ps.stop_after_s) != stopped:
+            stopped = not stopped
+            events.append((t, "stopped: needle sensor silent" if stopped else "resumed"))
+            log_fn = log_event.warning if stopped else log_event.info
+            log_fn("t = %.3f s: %s", t, events[-1][1])
+        if stopped and phase is not Phase.ADAPT:
+            counts["stopped_steps"] += 1
         if phase is Phase.ADAPT:
             if t - phase_start >= ps.adapt_min_s and converged:
                 phase, phase_start = Phase.ALIGN, t
@@ -461,4 +479,5 @@ def run_trial(
         times,
         counts,
         {k: np.asarray(v) for k, v in log.items()},
+        events,
     )

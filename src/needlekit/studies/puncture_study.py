@@ -267,6 +267,7 @@ def run_puncture_trial(
         "phase_times_s": r.phase_times_s,
         "counts": r.counts,
         "guide_draws": draws,
+        "events": [[float(t), what] for t, what in r.events],
         "target_mm": setup.target_mm.tolist(),
         "guide_direction": setup.guide_direction.tolist(),
         "initial_parameters": setup.nominal_parameters.tolist(),
