@@ -97,40 +97,38 @@ def run_control_benchmark(trials: int = 1, seed: int = 0, kinematics_calls: int 
         ``step_us_adapting`` / ``step_us_not_adapting`` and ``results`` (rows for the
         summary, with the kinematics reference).
     """
+    from dataclasses import replace
+
     from needlekit.control.procedure import run_trial
     from needlekit.studies.puncture_study import (
         PunctureScenario,
         TrialOptions,
-        _trial_settings,
+        run_puncture_trial,
         sample_trial,
+        trial_settings,
     )
 
     scenario, options = PunctureScenario(), TrialOptions()
-    seeds = np.random.SeedSequence(seed).spawn(trials)
-    timings: list = []
-    statuses = []
     warm = sample_trial(scenario, np.random.default_rng(0), 0)[0]
-    adaptation, procedure, spec = _trial_settings(scenario, options, warm.nominal_parameters)
+    adaptation, procedure, spec = trial_settings(scenario, options, warm.nominal_parameters)
     run_trial(  # a short warm-up: numba kernels load, daqp and numpy caches fill
-        warm, np.random.default_rng(0), procedure=procedure.__class__(phase_timeout_s=0.5),
+        warm, np.random.default_rng(0), procedure=replace(procedure, phase_timeout_s=0.5),
         adaptation=adaptation, needle_sensor=spec, scope_sensor=spec,
     )  # fmt: skip
+    seeds = np.random.SeedSequence(seed).spawn(trials)
+    timings: list = []
     t0 = time.perf_counter()
-    for i in range(trials):
-        draw_seed, sensor_seed = seeds[i].spawn(2)
-        setup, _ = sample_trial(scenario, np.random.default_rng(draw_seed), i)
-        adaptation = _trial_settings(scenario, options, setup.nominal_parameters)[0]
-        r = run_trial(
-            setup, np.random.default_rng(sensor_seed), procedure=procedure,
-            adaptation=adaptation, needle_sensor=spec, scope_sensor=spec, timings=timings,
-        )  # fmt: skip
-        statuses.append(r.status)
+    statuses = [
+        run_puncture_trial(scenario, options, i, seeds[i], timings=timings)["status"]
+        for i in range(trials)
+    ]
     wall = time.perf_counter() - t0
-    phases = [p for p, _, _ in timings]
+    phases = np.array([p for p, _, _ in timings])
     adapted = np.array([a for _, a, _ in timings], dtype=bool)
     secs = np.array([s for _, _, s in timings], dtype=float)
     all_steps = step_statistics(secs)
-    by_phase = {p: step_statistics(secs[np.array(phases) == p]) for p in dict.fromkeys(phases)}
+    not_adapting, adapting = step_statistics(secs[~adapted]), step_statistics(secs[adapted])
+    by_phase = {p: step_statistics(secs[phases == p]) for p in dict.fromkeys(phases.tolist())}
     kin = _kinematics_reference(kinematics_calls, seed)
     rows = [
         {
@@ -139,11 +137,8 @@ def run_control_benchmark(trials: int = 1, seed: int = 0, kinematics_calls: int 
             f"max {all_steps['max']:7.1f} us over {all_steps['n']} steps "
             f"(target: median <= 150 us)",
         },
-        {
-            "name": "  without adaptation",
-            "summary": _short(step_statistics(secs[~adapted])),
-        },
-        {"name": "  with adaptation", "summary": _short(step_statistics(secs[adapted]))},
+        {"name": "  without adaptation", "summary": _short(not_adapting)},
+        {"name": "  with adaptation", "summary": _short(adapting)},
     ]
     rows += [{"name": f"  phase {p}", "summary": _short(st)} for p, st in by_phase.items()]
     rows.append(kin)
@@ -158,8 +153,8 @@ def run_control_benchmark(trials: int = 1, seed: int = 0, kinematics_calls: int 
             "history_keyframes": options.history_keyframes,
         },
         "step_us": all_steps,
-        "step_us_not_adapting": step_statistics(secs[~adapted]),
-        "step_us_adapting": step_statistics(secs[adapted]),
+        "step_us_not_adapting": not_adapting,
+        "step_us_adapting": adapting,
         "step_us_by_phase": by_phase,
         "trial_status": statuses,
         "wall_s": wall,

@@ -186,8 +186,9 @@ class MeasurementHistory:
         self.capacity = int(capacity)
         self._spacing = (float(spacing_mm), float(np.radians(spacing_deg)))
         self._merge = (float(merge_mm), float(np.radians(merge_deg)))
-        self._first: list[np.ndarray] = []  # flange pose of each keyframe's first sample
-        self._sums: list[np.ndarray] = []  # (4, 4, 2): summed flange and measured poses
+        # only the newest keyframe takes samples: its first flange pose and its sums
+        self._anchor = np.eye(4)
+        self._sum = np.zeros((2, 4, 4))
         self._count: list[int] = []
         self._poses = np.empty((0, 2, 4, 4))  # per keyframe: mean flange, mean measured
         self._current: np.ndarray | None = None  # the newest sample when not a keyframe's
@@ -214,24 +215,24 @@ class MeasurementHistory:
         sample = np.stack([base_T_flange, measured_tip]).astype(float)
         self._current = None
         if self._count:
-            first = self._first[-1]
-            dp = float(np.linalg.norm(base_T_flange[:3, 3] - first[:3, 3]))
-            cos = (np.trace(base_T_flange[:3, :3].T @ first[:3, :3]) - 1.0) / 2.0
+            dp = float(np.linalg.norm(base_T_flange[:3, 3] - self._anchor[:3, 3]))
+            cos = (np.trace(base_T_flange[:3, :3].T @ self._anchor[:3, :3]) - 1.0) / 2.0
             angle = float(np.arccos(np.clip(cos, -1.0, 1.0)))
             if dp <= self._merge[0] and angle <= self._merge[1]:
-                self._sums[-1] += sample
+                self._sum += sample
                 self._count[-1] += 1
-                self._poses[-1] = _mean_poses(self._sums[-1] / self._count[-1])
+                self._poses[-1] = _mean_poses(self._sum / self._count[-1])
                 return
             if dp < self._spacing[0] and angle < self._spacing[1]:
                 self._current = sample
                 return
-        self._first.append(sample[0])
-        self._sums.append(sample.copy())
+        self._anchor, self._sum = sample[0], sample.copy()
         self._count.append(1)
         self._poses = np.concatenate([self._poses, sample[None]])
         if len(self._count) > self.capacity:
-            self._drop(self._most_redundant())
+            k = self._most_redundant()
+            del self._count[k]
+            self._poses = np.delete(self._poses, k, axis=0)
 
     def _most_redundant(self) -> int:
         """The older of the two closest keyframes (the newest is never dropped)."""
@@ -243,10 +244,6 @@ class MeasurementHistory:
         np.fill_diagonal(d, np.inf)
         i, j = np.unravel_index(int(np.argmin(d)), d.shape)
         return int(min(i, j))
-
-    def _drop(self, k: int) -> None:
-        del self._first[k], self._sums[k], self._count[k]
-        self._poses = np.delete(self._poses, k, axis=0)
 
     def stacked(self, a, orientation_scale_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Measurement errors and their parameter Jacobians of the keyframes and the

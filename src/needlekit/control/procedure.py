@@ -50,6 +50,7 @@ from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.control.panda import PandaModel
 from needlekit.control.parameters import model_from_parameters, parameter_jacobians
 from needlekit.control.qp import QPStatus
+from needlekit.geometry.se3 import pose_from_direction
 
 __all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
 
@@ -224,6 +225,19 @@ class TrialResult:
     events: list = field(default_factory=list)
 
 
+_LOG_KEYS = (
+    "t_s", "phase", "to_target_mm", "tip_mm", "to_line_mm", "angle_deg",
+    "tip_estimate_error_mm", "base_error_mm", "base_rotation_error_deg",
+    "needle_rotation_error_deg", "measured_to_line_mm", "measured_angle_deg",
+    "needle_error_mm", "desired_to_target_mm",
+)  # fmt: skip
+
+
+def _distance_from_line(p, line) -> float:
+    rel = p - line.point_mm
+    return float(np.linalg.norm(rel - line.direction * (rel @ line.direction)))
+
+
 def _angle_deg(u, v) -> float:
     return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
 
@@ -273,12 +287,8 @@ def run_trial(
     needle = EMSensor(needle_sensor or EMSensorSpec(), rng)
     scope = EMSensor(scope_sensor or EMSensorSpec(), rng)
     true_guide = GuideLine(setup.target_mm, setup.guide_direction)
-    scope_pose = np.eye(4)
-    scope_pose[:3, 3] = true_guide.target_mm
-    z = true_guide.direction  # the bronchoscope sensor's z axis lies along l_g
-    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    scope_pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    # the bronchoscope sensor at the target, its z axis along l_g
+    scope_pose = pose_from_direction(true_guide.target_mm, true_guide.direction)
 
     a = np.array(setup.nominal_parameters, dtype=float)
     est = model_from_parameters(setup.arm, a)
@@ -299,14 +309,10 @@ def run_trial(
     stopped = False
     status, reason = "completed", "target reached"
     puncture_from = None
-    log = {k: [] for k in ("t_s", "phase", "to_target_mm", "to_line_mm", "angle_deg")}
-    log.update({k: [] for k in ("base_error_mm", "needle_error_mm", "desired_to_target_mm")})
-    log["tip_estimate_error_mm"], log["tip_mm"] = [], []
-    for k in ("measured_to_line_mm", "measured_angle_deg"):
-        log[k] = []
-    log["base_rotation_error_deg"], log["needle_rotation_error_deg"] = [], []
-    true_rb = model_from_parameters(setup.arm, setup.true_parameters)
-    true_base_r, true_needle_r = true_rb.world_T_base[:3, :3], true_rb.flange_T_tip[:3, :3]
+    log: dict[str, list] = {k: [] for k in _LOG_KEYS}
+    true_base_r, true_needle_r = truth.world_T_base[:3, :3], truth.flange_T_tip[:3, :3]
+    patient_line = true_guide.patient_line(cs.patient_axis)
+    robot_points = np.asarray(cs.robot_points, dtype=np.int64)
     max_line = max_cone = 0.0
     inside = False  # the real tip has entered the guide cylinder and the cone
     cone_deg = float(np.degrees(cs.cone_angle_rad))
@@ -415,7 +421,7 @@ def run_trial(
         # ground truth
         tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
         rel = tip_true - true_guide.target_mm
-        to_line = float(np.linalg.norm(rel - true_guide.direction * (rel @ true_guide.direction)))
+        to_line = _distance_from_line(tip_true, true_guide.line)
         angle = _angle_deg(axis_true, true_guide.insertion_direction)
         if phase is Phase.PUNCTURE:
             inside = inside or (to_line <= cs.guide_radius_mm and angle <= cone_deg)
@@ -424,12 +430,10 @@ def run_trial(
         if phase is Phase.PUNCTURE:
             min_plane = min(min_plane, float(rel @ true_guide.direction))
         elif phase in (Phase.ALIGN, Phase.APPROACH, Phase.WAIT):
-            ts = truth.state(q)
-            axis_line = true_guide.patient_line(cs.patient_axis)
-            for k in cs.robot_points:
-                r = ts.origins[k] - axis_line.point_mm
-                d = np.linalg.norm(r - axis_line.direction * (r @ axis_line.direction))
-                min_patient = min(min_patient, float(d))
+            d2, _ = truth.state(q).points_line_sq_distances(
+                robot_points, patient_line.point_mm, patient_line.direction
+            )
+            min_patient = min(min_patient, float(np.sqrt(d2.min())))
         if tick % ps.log_every == 0:
             log["t_s"].append(t)
             log["phase"].append(phase.value)
@@ -444,10 +448,7 @@ def run_trial(
             m_line = m_angle = np.nan
             if needle.latest is not None:
                 mp = needle.latest.pose
-                mrel = mp[:3, 3] - true_guide.target_mm
-                m_line = float(
-                    np.linalg.norm(mrel - true_guide.direction * (mrel @ true_guide.direction))
-                )
+                m_line = _distance_from_line(mp[:3, 3], true_guide.line)
                 m_angle = _angle_deg(mp[:3, 2], true_guide.insertion_direction)
             log["measured_to_line_mm"].append(m_line)
             log["measured_angle_deg"].append(m_angle)

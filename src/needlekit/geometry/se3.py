@@ -18,6 +18,7 @@ __all__ = [
     "adjoint",
     "hat6",
     "make_pose",
+    "pose_from_direction",
     "pose_inverse",
     "se3_exp",
     "se3_log",
@@ -180,6 +181,30 @@ def pose_inverse(pose):
     out[:, :3, 3] = -np.einsum("nij,nj->ni", rt, g[:, :3, 3])
     out[:, 3, 3] = 1.0
     return unbatch(out, single)
+
+
+def pose_from_direction(point, direction) -> np.ndarray:
+    """A pose at ``point`` whose z axis is ``direction`` (the rotation about z arbitrary but
+    fixed).
+
+    Parameters
+    ----------
+    point : array_like, shape (3,)
+    direction : array_like, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
+    z = np.asarray(direction, dtype=float)
+    z = z / np.linalg.norm(z)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    g = np.eye(4)
+    g[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    g[:3, 3] = point
+    return g
 
 
 def adjoint(pose):

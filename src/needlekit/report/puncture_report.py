@@ -256,6 +256,7 @@ def neck_figure(trials: list[dict], phantom=None, *, outside_mm: float = 60.0):
     plotly.graph_objects.Figure
     """
     from needlekit.anatomy.phantoms import neck_phantom
+    from needlekit.geometry.se3 import pose_from_direction
     from needlekit.report.scene3d import scene_figure
 
     ph = phantom or neck_phantom(0)
@@ -276,12 +277,7 @@ def neck_figure(trials: list[dict], phantom=None, *, outside_mm: float = 60.0):
         keep = (mapped - target) @ -inward <= depth
         paths.append(mapped[keep])
         names.append(_label(t))
-    start = np.eye(4)
-    start[:3, 3] = target - depth * inward
-    z = inward
-    x = np.cross([0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0], z)
-    x /= np.linalg.norm(x)
-    start[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    start = pose_from_direction(target - depth * inward, inward)
     return scene_figure(
         ph.scene,
         start_poses=start[None],

@@ -40,11 +40,13 @@ from needlekit.errors import InvalidInputError
 __all__ = [
     "PAPER_RESULTS",
     "PunctureScenario",
+    "PunctureStudy",
     "TrialOptions",
     "run_puncture_study",
     "run_puncture_trial",
     "sample_trial",
     "summary_stats",
+    "trial_settings",
 ]
 
 #: Tang et al., Section III-B: final tip-to-target error and needle-to-guide-line angle.
@@ -196,7 +198,23 @@ def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: in
     )
 
 
-def _trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
+def trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
+    """The adaptation, procedure and sensor settings of a trial.
+
+    Parameters
+    ----------
+    scenario : PunctureScenario
+    options : TrialOptions
+    initial : ndarray, shape (12,)
+        The controller's initial estimate (the parameter box is centred on it).
+
+    Returns
+    -------
+    adaptation : needlekit.control.adaptation.AdaptationSettings
+    procedure : needlekit.control.procedure.ProcedureSettings
+    sensor : needlekit.control.em.EMSensorSpec
+        Both sensors'.
+    """
     from needlekit.control.adaptation import AdaptationSettings
     from needlekit.control.em import EMSensorSpec
     from needlekit.control.procedure import ProcedureSettings
@@ -222,6 +240,7 @@ def run_puncture_trial(
     index: int,
     seed_sequence: np.random.SeedSequence,
     keep_log: bool = False,
+    timings: list | None = None,
 ) -> dict:
     """Run trial ``index`` and return its outcome as plain data (JSON-ready).
 
@@ -235,6 +254,9 @@ def run_puncture_trial(
         sensors).
     keep_log : bool
         Include the trial's time series.
+    timings : list, optional
+        Receives the controller's time per step (see
+        :func:`needlekit.control.procedure.run_trial`).
 
     Returns
     -------
@@ -244,7 +266,7 @@ def run_puncture_trial(
 
     draw_seed, sensor_seed = seed_sequence.spawn(2)
     setup, draws = sample_trial(scenario, np.random.default_rng(draw_seed), index)
-    adaptation, procedure, spec = _trial_settings(scenario, options, setup.nominal_parameters)
+    adaptation, procedure, spec = trial_settings(scenario, options, setup.nominal_parameters)
     r = run_trial(
         setup,
         np.random.default_rng(sensor_seed),
@@ -252,6 +274,7 @@ def run_puncture_trial(
         adaptation=adaptation,
         needle_sensor=spec,
         scope_sensor=spec,
+        timings=timings,
     )
     out = {
         "trial": index,
@@ -273,19 +296,21 @@ def run_puncture_trial(
         "initial_parameters": setup.nominal_parameters.tolist(),
     }
     if keep_log:
-        out["log"] = {
-            k: [_finite_or_none(float(x)) for x in v]
-            if v.dtype.kind == "f" and v.ndim == 1
-            else np.round(v, 4).tolist()
-            if v.dtype.kind == "f"
-            else v.tolist()
-            for k, v in r.log.items()
-        }
+        out["log"] = {k: _jsonable(v) for k, v in r.log.items()}
     return out
 
 
 def _run_job(job: tuple) -> dict:
     return run_puncture_trial(*job)
+
+
+def _jsonable(series: np.ndarray) -> list:
+    """A logged series as JSON: NaN as None, positions (rows of 3) to 0.1 micron."""
+    if series.dtype.kind != "f":
+        return series.tolist()
+    if series.ndim > 1:
+        return np.round(series, 4).tolist()
+    return [_finite_or_none(float(x)) for x in series]
 
 
 def _finite_or_none(v: float):

@@ -23,6 +23,7 @@ import numpy as np
 
 from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
@@ -139,30 +140,6 @@ def effective_directions(directions, normal, min_puncture_angle_deg: float) -> n
         raise InvalidInputError("min_puncture_angle_deg", f"must lie in [0, 90), got {alpha}")
     angle_to_surface = np.degrees(np.arcsin(np.clip(d @ n, -1.0, 1.0)))
     return angle_to_surface >= alpha - 1e-12
-
-
-def pose_from_direction(point, direction) -> np.ndarray:
-    """A start pose at ``point`` whose z axis is ``direction`` (spin about it arbitrary but
-    fixed: the planners choose their own spins).
-
-    Parameters
-    ----------
-    point : array_like, shape (3,)
-    direction : array_like, shape (3,)
-
-    Returns
-    -------
-    ndarray, shape (4, 4)
-    """
-    z = np.asarray(direction, dtype=float)
-    z = z / np.linalg.norm(z)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    g = np.eye(4)
-    g[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    g[:3, 3] = point
-    return g
 
 
 @dataclass(frozen=True)
