@@ -1,15 +1,33 @@
-"""Atomic file output: a file is either written whole or left as it was."""
+"""Atomic file output: a file is either written whole or left as it was.
+
+- :func:`atomic_write` (and :func:`write_text`, :func:`write_json` on top of it) writes a
+  temporary file beside the destination and renames it into place.
+- :func:`staged_outputs` makes several files one unit: inside the block every
+  :func:`atomic_write` is held back, and only when the whole block succeeds are all the
+  files moved into place; on any error every destination is left as it was.
+- :func:`output_path_problem` says, before any work, why a path could not be written.
+"""
 
 from __future__ import annotations
 
+import contextvars
 import json
 import os
+import shutil
+import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["atomic_write", "write_json", "write_text"]
+__all__ = [
+    "atomic_write",
+    "output_path_problem",
+    "staged_outputs",
+    "write_json",
+    "write_text",
+]
 
 
 def _umask() -> int:
@@ -35,19 +53,241 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
         The destination.
     """
     dest = Path(path)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=dest.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    stage = _STAGE.get()
+    if stage is not None:
+        stage.make_parents(dest)
+    else:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _temp_beside(dest, "tmp")
     try:
         write(tmp)
         # mkstemp creates 0600 files; give the result the mode a plain open() would.
         os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, dest)
+        if stage is not None:
+            stage.hold(dest, tmp)
+        else:
+            os.replace(tmp, dest)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     return dest
+
+
+def _temp_beside(dest: Path, kind: str) -> Path:
+    fd, name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=f".{kind}", dir=dest.parent)
+    os.close(fd)
+    return Path(name)
+
+
+class _Stage:
+    """Files written inside one :func:`staged_outputs` block, not yet in place."""
+
+    def __init__(self) -> None:
+        self.pending: dict[Path, Path] = {}  # destination -> its temporary file
+        self.new_dirs: list[Path] = []  # folders this block created, outermost first
+
+    def make_parents(self, dest: Path) -> None:
+        missing = []
+        d = dest.parent
+        while not d.exists() and d != d.parent:
+            missing.append(d)
+            d = d.parent
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        self.new_dirs.extend(reversed(missing))
+
+    def hold(self, dest: Path, tmp: Path) -> None:
+        key = Path(os.path.abspath(dest))
+        earlier = self.pending.pop(key, None)
+        if earlier is not None:  # the same file written twice: the last version wins
+            earlier.unlink(missing_ok=True)
+        self.pending[key] = tmp
+
+    def commit(self) -> None:
+        """Move every file into place; if one move fails, put back what was there."""
+        moved: list[tuple[Path, Path | None]] = []
+        try:
+            for dest, tmp in list(self.pending.items()):
+                backup = _keep_copy(dest)
+                try:
+                    os.replace(tmp, dest)
+                except BaseException:
+                    if backup is not None:
+                        backup.unlink(missing_ok=True)
+                    raise
+                del self.pending[dest]
+                moved.append((dest, backup))
+        except BaseException:
+            for dest, backup in reversed(moved):
+                if backup is not None:
+                    os.replace(backup, dest)
+                else:
+                    dest.unlink(missing_ok=True)
+            self.discard()
+            raise
+        for _, backup in moved:
+            if backup is not None:
+                backup.unlink(missing_ok=True)
+
+    def discard(self) -> None:
+        """Remove the files not yet in place and the folders made for them (if empty)."""
+        for tmp in self.pending.values():
+            tmp.unlink(missing_ok=True)
+        self.pending.clear()
+        for d in reversed(self.new_dirs):
+            try:
+                d.rmdir()
+            except OSError:  # not empty (something else was written there) or gone
+                pass
+        self.new_dirs.clear()
+
+
+def _keep_copy(dest: Path) -> Path | None:
+    """A hard link (else a copy) of the file at ``dest``, to restore it; None if none."""
+    if not os.path.lexists(dest):
+        return None
+    backup = _temp_beside(dest, "old")
+    backup.unlink()
+    try:
+        os.link(dest, backup, follow_symlinks=False)
+    except OSError:  # a file system without hard links
+        shutil.copy2(dest, backup, follow_symlinks=False)
+    return backup
+
+
+_STAGE: contextvars.ContextVar[_Stage | None] = contextvars.ContextVar(
+    "needlekit_output_stage", default=None
+)
+
+
+@contextmanager
+def staged_outputs() -> Iterator[None]:
+    """Write several files as one unit: all of them, or none.
+
+    Inside the block, every :func:`atomic_write` (and so :func:`write_text`,
+    :func:`write_json` and every writer built on them) writes its temporary file beside
+    the destination but does not rename it yet. When the block ends normally, all files
+    are moved into place together; if the block raises (or a move fails), the temporary
+    files and the folders made for them are removed and every file that was already
+    there is left (or put back) as it was. Blocks nest: an inner block joins the outer
+    one, whose end decides.
+
+    Yields
+    ------
+    None
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = write_text(d / "a.txt", "old")
+    >>> try:
+    ...     with staged_outputs():
+    ...         _ = write_text(d / "a.txt", "new")
+    ...         raise RuntimeError("the second file could not be made")
+    ... except RuntimeError:
+    ...     pass
+    >>> (d / "a.txt").read_text(), sorted(p.name for p in d.iterdir())
+    ('old', ['a.txt'])
+    """
+    if _STAGE.get() is not None:  # an outer block commits
+        yield
+        return
+    stage = _Stage()
+    token = _STAGE.set(stage)
+    try:
+        yield
+    except BaseException:
+        _STAGE.reset(token)
+        stage.discard()
+        raise
+    _STAGE.reset(token)
+    stage.commit()
+
+
+def _read_only(mode: int) -> bool:
+    # No write permission for anyone: refused even for root, who could write anyway,
+    # because the owner marked it so (a rename would silently bypass the mark).
+    return not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH)
+
+
+def _folder_problem(d: Path, *, itself: bool = False) -> str | None:
+    """Why new files cannot be made in the existing folder ``d`` (None if they can);
+    ``itself``: the reason is about the path being checked, not one of its folders."""
+    name = "" if itself else f"folder {d} "
+    try:
+        mode = d.stat().st_mode
+    except OSError as exc:
+        return f"{name}cannot be read ({exc.strerror})"
+    if _read_only(mode):
+        return f"{name}is read-only"
+    if not os.access(d, os.W_OK | os.X_OK):
+        return f"{name}is not writable (permission denied)"
+    try:  # the real test (read-only file systems, ACLs, quotas): create a file and remove it
+        probe = _temp_beside(d / "needlekit-probe", "probe")
+    except OSError as exc:
+        return f"{name}is not writable ({exc.strerror})"
+    probe.unlink()
+    return None
+
+
+def _nearest_existing(p: Path) -> Path:
+    d = p
+    while not os.path.lexists(d) and d != d.parent:
+        d = d.parent
+    return d
+
+
+def output_path_problem(path: str | os.PathLike, *, folder: bool = False) -> str | None:
+    """Why an output could not be written at ``path``, checked before any work is done.
+
+    Nothing is created or left behind: missing folders are only checked to be creatable
+    (their nearest existing ancestor is a writable folder), and writability is tested by
+    creating and removing a file.
+
+    Parameters
+    ----------
+    path : path-like
+        The output file, or folder when ``folder`` is true.
+    folder : bool
+        Whether an output folder (that files are written into) is meant.
+
+    Returns
+    -------
+    str or None
+        The reason, e.g. ``"is a folder, expected a file"`` or ``"folder /data is
+        read-only"``; None when the path can be written.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = tempfile.mkdtemp()
+    >>> output_path_problem(d)
+    'is a folder, expected a file'
+    >>> output_path_problem(d, folder=True) is None
+    True
+    """
+    p = Path(path)
+    if str(path) == "":
+        return "the path is empty"
+    if os.path.lexists(p):
+        if p.is_dir():
+            return _folder_problem(p, itself=True) if folder else "is a folder, expected a file"
+        if folder:
+            return "is a file, expected a folder"
+        if not p.is_file() and not p.is_symlink():
+            return "is not a regular file (a device, pipe or socket)"
+        if p.is_file():
+            mode = p.stat().st_mode
+            if _read_only(mode):
+                return "is read-only"
+            if not os.access(p, os.W_OK):
+                return "is not writable (permission denied)"
+        return _folder_problem(p.parent if str(p.parent) else Path("."))
+    base = _nearest_existing(p.parent)
+    if not base.is_dir():
+        return f"cannot be created: {base} is not a folder"
+    return _folder_problem(base)
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
