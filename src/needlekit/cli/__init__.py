@@ -2,10 +2,17 @@
 
 Every command returns an exit status; errors in the input print one line
 ``error: <message>`` on stderr and exit with status 2.
+
+Before a command runs, every path it reads or writes is checked
+(:mod:`needlekit.cli._paths`), and only then is the command's module imported: a bad
+argument is answered at once, without loading numba, scipy or plotly. A command's
+output files are written as one unit (:func:`needlekit.io.files.staged_outputs`): if
+it fails, every file that was there before is left as it was.
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import sys
@@ -13,15 +20,43 @@ from collections.abc import Sequence
 
 from needlekit.cli._common import EXIT_OK, EXIT_USAGE
 from needlekit.cli._parser import _build_parser
-from needlekit.cli.bench import _cmd_bench
-from needlekit.cli.demo import _cmd_demo
-from needlekit.cli.kinematics import _cmd_forward, _cmd_inverse
-from needlekit.cli.planning import _cmd_plan, _cmd_sweep, _cmd_verify
-from needlekit.cli.puncture import _cmd_puncture
-from needlekit.cli.scene import _cmd_scene, _cmd_schema
+from needlekit.cli._paths import check_paths
 from needlekit.errors import NeedlekitError
 
 __all__ = ["main"]
+
+#: Commands with sub-commands, and the attribute that holds the sub-command.
+_GROUPS = {"kinematics": "kin_command", "scene": "scene_command", "bench": "bench_command"}
+
+#: What runs each command: ``module:function(args) -> exit status``, imported only then.
+_HANDLERS = {
+    "kinematics forward": "needlekit.cli.kinematics:_cmd_forward",
+    "kinematics inverse": "needlekit.cli.kinematics:_cmd_inverse",
+    "schema": "needlekit.cli.scene:_cmd_schema",
+    "scene info": "needlekit.cli.scene:_cmd_scene",
+    "scene render": "needlekit.cli.scene:_cmd_scene",
+    "plan": "needlekit.cli.planning:_cmd_plan",
+    "sweep": "needlekit.cli.planning:_cmd_sweep",
+    "verify": "needlekit.cli.planning:_cmd_verify",
+    "puncture": "needlekit.cli.puncture:_cmd_puncture",
+    "demo": "needlekit.cli.demo:_cmd_demo",
+    "bench kinematics": "needlekit.cli.bench:_cmd_bench",
+    "bench fields": "needlekit.cli.bench:_cmd_bench",
+    "bench control": "needlekit.cli.bench:_cmd_bench",
+    "bench steerable": "needlekit.cli.bench:_cmd_bench",
+}
+
+
+def _run(command: str, args) -> int:
+    """Import the command's module and run it."""
+    module, function = _HANDLERS[command].split(":")
+    return getattr(importlib.import_module(module), function)(args)
+
+
+def _quiet_stdout() -> None:
+    """Send what is left of stdout to /dev/null (the reader of the pipe has left)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -32,37 +67,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(levelname)s %(name)s: %(message)s",
     )
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USAGE if argv else EXIT_OK
+    command = args.command
+    if command in _GROUPS:
+        sub = getattr(args, _GROUPS[command])
+        if sub is None:
+            parser.parse_args([command, "--help"])  # prints the group's help and exits
+            return EXIT_USAGE
+        command = f"{command} {sub}"
     try:
-        if args.command == "kinematics":
-            if args.kin_command == "forward":
-                return _cmd_forward(args)
-            if args.kin_command == "inverse":
-                return _cmd_inverse(args)
-            parser.parse_args(["kinematics", "--help"])
-        elif args.command == "schema":
-            return _cmd_schema()
-        elif args.command == "scene":
-            return _cmd_scene(args, parser)
-        elif args.command == "plan":
-            return _cmd_plan(args)
-        elif args.command == "sweep":
-            return _cmd_sweep(args)
-        elif args.command == "verify":
-            return _cmd_verify(args)
-        elif args.command == "puncture":
-            return _cmd_puncture(args)
-        elif args.command == "demo":
-            return _cmd_demo(args)
-        elif args.command == "bench":
-            return _cmd_bench(args, parser)
-        else:
-            parser.print_help()
-            return EXIT_USAGE if argv else EXIT_OK
+        check_paths(args)
+        from needlekit.io.files import staged_outputs
+
+        with staged_outputs():
+            try:
+                return _run(command, args)
+            except BrokenPipeError:  # the work is done: keep its files
+                _quiet_stdout()
+                return EXIT_OK
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # e.g. `needlekit schema | head`: the reader left early
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        _quiet_stdout()
         return EXIT_OK
-    return EXIT_USAGE
+    except OSError as exc:  # the disk filled up, a folder vanished...: nothing was replaced
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"error: {where}{exc.strerror or exc}; no output was changed", file=sys.stderr)
+        return EXIT_USAGE

@@ -6,9 +6,8 @@ import argparse
 import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from pathlib import Path
 
-import numpy as np
+from needlekit.cli._paths import add_input
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -67,10 +66,20 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _seed(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if v < 0:  # numpy's SeedSequence takes only non-negative entropy
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return v
+
+
 def _problem_overrides(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
+    add_input(
+        p,
         "--start-pose",
-        type=Path,
         help="4x4 start pose text file (RAS mm), instead of the scenario's",
     )
     p.add_argument(
@@ -83,8 +92,11 @@ def _problem_overrides(p: argparse.ArgumentParser) -> None:
     p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
 
 
-def _start_pose(path: Path | None) -> np.ndarray:
+def _start_pose(path):
+    """The 4x4 pose in the text file at ``path``, or the identity when None."""
     if path is None:
+        import numpy as np
+
         return np.eye(4)
     from needlekit.io.poses import read_pose_txt
 

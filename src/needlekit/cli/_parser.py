@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from needlekit import __version__
 from needlekit.cli._common import (
@@ -13,6 +12,25 @@ from needlekit.cli._common import (
     _positive,
     _positive_int,
     _problem_overrides,
+    _seed,
+)
+from needlekit.cli._paths import add_input, add_output
+
+#: What ``needlekit puncture`` writes in its --out folder.
+PUNCTURE_FILES = ("puncture.json", "puncture.html")
+#: What ``needlekit demo`` writes in its --out folder.
+DEMO_FILES = (
+    "lung/scenario.yaml",
+    "lung/sweep.json",
+    "lung/plan.json",
+    "lung/report.html",
+    "forward_steering_planar.png",
+    "forward_steering_3d.png",
+    "inverse_steering.png",
+    "reachability.png",
+    "demo.json",
+    "phantoms.html",
+    "phantoms.json",
 )
 
 
@@ -74,9 +92,7 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="U1,U2,T",
         help="one input segment; repeat for several",
     )
-    fwd.add_argument(
-        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
-    )
+    add_input(fwd, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
     fwd.add_argument(
         "--dt-s", type=_positive, default=None, help="sampling interval of the printed trajectory"
     )
@@ -99,9 +115,7 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="X,Y,Z",
         help="target point in the world frame (mm); repeat for several",
     )
-    inv.add_argument(
-        "--start-pose", type=Path, help="4x4 start pose text file (RAS mm); default identity"
-    )
+    add_input(inv, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
     inv.add_argument(
         "--r-min-mm", type=_positive, help="minimum radius of curvature; tighter arcs are an error"
     )
@@ -118,13 +132,13 @@ def _build_parser() -> argparse.ArgumentParser:
     info = scene_sub.add_parser(
         "info", help="summarise the structures: role, extent, voxel size, volume"
     )
-    info.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    add_input(info, "scenario", help="scenario file (YAML)")
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
     render = scene_sub.add_parser(
         "render", help="write a self-contained interactive 3D view (HTML)"
     )
-    render.add_argument("scenario", type=Path, help="scenario file (YAML)")
-    render.add_argument("--out", type=Path, required=True, help="output HTML file")
+    add_input(render, "scenario", help="scenario file (YAML)")
+    add_output(render, "--out", required=True, help="output HTML file")
     render.add_argument(
         "--max-cells",
         type=_positive_int,
@@ -137,20 +151,18 @@ def _build_parser() -> argparse.ArgumentParser:
         help="plan a curved (steerable) needle path for a scenario",
         description="Plan with RCS*, RCS or RRT and write plan.json; exit 0 with a plan, 1 without.",
     )
-    planp.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    add_input(planp, "scenario", help="scenario file (YAML)")
     _problem_overrides(planp)
     planp.add_argument(
         "--planner",
         choices=["rcs_star", "rcs", "rrt"],
         help="planner (default: the scenario's, else rcs_star)",
     )
-    planp.add_argument(
-        "--out", type=Path, default=Path("plan.json"), help="plan file to write (default plan.json)"
-    )
+    add_output(planp, "--out", default="plan.json", help="plan file to write (default plan.json)")
     planp.add_argument(
         "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
     )
-    planp.add_argument("--seed", type=int, help="seed of randomised planners")
+    planp.add_argument("--seed", type=_seed, help="seed of randomised planners")
     _rrt_option(planp)
 
     sw = sub.add_parser(
@@ -159,7 +171,7 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Sample start directions around the scenario's start point, keep those at least "
         "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
     )
-    sw.add_argument("scenario", type=Path, help="scenario file (YAML)")
+    add_input(sw, "scenario", help="scenario file (YAML)")
     _problem_overrides(sw)
     sw.add_argument(
         "--planner",
@@ -168,16 +180,9 @@ def _build_parser() -> argparse.ArgumentParser:
         default=["rcs_star"],
         help="planner(s) to compare (default rcs_star)",
     )
-    sw.add_argument(
-        "--out",
-        type=Path,
-        default=Path("sweep.json"),
-        help="sweep table to write (default sweep.json)",
-    )
-    sw.add_argument("--plan", type=Path, help="also write the first planner's best plan here")
-    sw.add_argument(
-        "--report", type=Path, help="also write a self-contained HTML report (Fig. 8, Fig. 9)"
-    )
+    add_output(sw, "--out", default="sweep.json", help="sweep table to write (default sweep.json)")
+    add_output(sw, "--plan", help="also write the first planner's best plan here")
+    add_output(sw, "--report", help="also write a self-contained HTML report (Fig. 8, Fig. 9)")
     sw.add_argument(
         "--directions",
         type=_positive_int,
@@ -187,7 +192,7 @@ def _build_parser() -> argparse.ArgumentParser:
     sw.add_argument(
         "--time-limit-s", type=_positive, default=0.5, help="budget per direction (default 0.5 s)"
     )
-    sw.add_argument("--seed", type=int, default=0, help="seed of randomised planners")
+    sw.add_argument("--seed", type=_seed, default=0, help="seed of randomised planners")
     sw.add_argument(
         "--healpix",
         type=_positive_int,
@@ -207,8 +212,8 @@ def _build_parser() -> argparse.ArgumentParser:
         help="re-check a plan file independently; exit 1 on any violation",
         description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
     )
-    ver.add_argument("scenario", type=Path, help="scenario file (YAML)")
-    ver.add_argument("plan", type=Path, help="plan file (plan.json)")
+    add_input(ver, "scenario", help="scenario file (YAML)")
+    add_input(ver, "plan", help="plan file (plan.json)")
     _problem_overrides(ver)
     ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
@@ -219,11 +224,13 @@ def _build_parser() -> argparse.ArgumentParser:
         "uncertainty and write DIR/puncture.json and DIR/puncture.html.",
     )
     pu.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
-    pu.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    pu.add_argument(
+    pu.add_argument("--seed", type=_seed, default=0, help="root seed (default 0)")
+    add_output(
+        pu,
         "--out",
-        type=Path,
-        default=Path("out/puncture"),
+        folder=True,
+        contents=PUNCTURE_FILES,
+        default="out/puncture",
         help="output folder (default out/puncture)",
     )
     pu.add_argument(
@@ -254,8 +261,13 @@ def _build_parser() -> argparse.ArgumentParser:
     _executor_options(pu)
 
     demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
-    demo.add_argument(
-        "--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)"
+    add_output(
+        demo,
+        "--out",
+        folder=True,
+        contents=DEMO_FILES,
+        default="out/demo",
+        help="output folder (default out/demo)",
     )
 
     bench = sub.add_parser(
@@ -263,7 +275,7 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     bench_sub = bench.add_subparsers(dest="bench_command", metavar="SUITE", parser_class=_Parser)
     bk = bench_sub.add_parser("kinematics", help="arcs propagated and sampled per second")
-    bk.add_argument("--out", type=Path, help="write the record as JSON here")
+    add_output(bk, "--out", help="write the record as JSON here")
     bk.add_argument("--arcs", type=_positive_int, default=200_000, help="arcs per batch")
     bk.add_argument(
         "--samples", type=_positive_int, default=32, help="points per sampled arc (>= 2)"
@@ -274,7 +286,7 @@ def _build_parser() -> argparse.ArgumentParser:
     bf = bench_sub.add_parser(
         "fields", help="distance queries per second, field build times (incl. Med-RAD)"
     )
-    bf.add_argument("--out", type=Path, help="write the record as JSON here")
+    add_output(bf, "--out", help="write the record as JSON here")
     bf.add_argument(
         "--grid", type=_positive_int, default=256, help="edge of the cubic test grids (voxels)"
     )
@@ -291,25 +303,26 @@ def _build_parser() -> argparse.ArgumentParser:
         default=[1],
         help="Med-RAD lung patients to load (default 1)",
     )
-    bf.add_argument(
+    add_input(
+        bf,
         "--medrad",
-        type=Path,
+        folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
     bc = bench_sub.add_parser(
         "control",
         help="time of a whole puncture-control step (kinematics, VFIs, QP, adaptation)",
     )
-    bc.add_argument("--out", type=Path, help="write the record as JSON here")
+    add_output(bc, "--out", help="write the record as JSON here")
     bc.add_argument(
         "--trials", type=_positive_int, default=1, help="simulated punctures timed (default 1)"
     )
-    bc.add_argument("--seed", type=int, default=0, help="study seed of the trials (default 0)")
+    bc.add_argument("--seed", type=_seed, default=0, help="study seed of the trials (default 0)")
     bs = bench_sub.add_parser(
         "steerable",
         help="curved-needle planners on the Med-RAD lungs (status, cost, time per case)",
     )
-    bs.add_argument("--out", type=Path, help="write the record as JSON here")
+    add_output(bs, "--out", help="write the record as JSON here")
     bs.add_argument(
         "--patients",
         type=_positive_int,
@@ -337,9 +350,10 @@ def _build_parser() -> argparse.ArgumentParser:
         default=1.0,
         help="budget per case and planner (default 1 s)",
     )
-    bs.add_argument(
+    add_input(
+        bs,
         "--medrad",
-        type=Path,
+        folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
     return parser

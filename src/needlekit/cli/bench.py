@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli._common import EXIT_OK, EXIT_USAGE
+from needlekit.cli._common import EXIT_OK
 from needlekit.errors import NeedlekitError
 
 
-def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def _cmd_bench(args: argparse.Namespace) -> int:
     from needlekit.benchmarks.record import format_record
 
     if args.bench_command == "kinematics":
@@ -65,8 +65,7 @@ def _cmd_bench(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int
                 )
             )
     else:
-        parser.parse_args(["bench", "--help"])
-        return EXIT_USAGE
+        raise NeedlekitError(f"bench: unknown suite {args.bench_command!r}")
     if args.out is not None:
         from needlekit.io.files import write_json
 

@@ -3,18 +3,17 @@
 On the built-in lung phantom it sweeps the effective puncture region with RCS*, RCS and
 RRT (Feng et al. 2023), re-checks the best plan and writes ``lung/sweep.json``,
 ``lung/plan.json`` and the self-contained ``lung/report.html``; beside it, the needle
-kinematics figures and the three phantoms.
+kinematics figures and the three phantoms. The files are written as one unit
+(:func:`~needlekit.io.files.staged_outputs`): a demo that fails leaves an earlier
+demo's files as they were.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 from importlib import resources
 from pathlib import Path
-
-import numpy as np
 
 from needlekit.cli._common import EXIT_OK, sweep_progress
 
@@ -25,18 +24,20 @@ DEMO_MAX_ITERATIONS = 300
 
 
 def _lung_sweep(out: Path) -> int:
+    from needlekit.io.files import write_text
     from needlekit.io.problems import ScenarioSource
     from needlekit.studies.sweep_study import run_sweep_study
 
     case = out / "lung"
-    case.mkdir(parents=True, exist_ok=True)
-    scenario = case / "scenario.yaml"
-    with resources.as_file(resources.files("needlekit") / "data" / "lung_phantom.yaml") as src:
-        shutil.copyfile(src, scenario)
     print("lung phantom: loading the scene", file=sys.stderr)
-    with sweep_progress() as progress:
+    with (
+        resources.as_file(resources.files("needlekit") / "data" / "lung_phantom.yaml") as src,
+        sweep_progress() as progress,
+    ):
+        # the sweep reads the packaged file; its copy lands in lung/ with the results
+        write_text(case / "scenario.yaml", Path(src).read_text(encoding="utf-8"))
         study = run_sweep_study(
-            ScenarioSource.of(scenario),
+            ScenarioSource.of(src),
             case / "sweep.json",
             plan_path=case / "plan.json",
             report_path=case / "report.html",
@@ -64,13 +65,21 @@ def _lung_sweep(out: Path) -> int:
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
+    from needlekit.io.files import staged_outputs
+
+    with staged_outputs():  # all of the demo's files, or none
+        return _demo(Path(args.out))
+
+
+def _demo(out: Path) -> int:
+    import numpy as np
+
     from needlekit.anatomy.phantoms import PHANTOMS, make_phantom
     from needlekit.anatomy.summary import summarize_scene
     from needlekit.io.files import write_json
     from needlekit.report.kinematics import write_kinematics_figures
     from needlekit.report.scene3d import scene_figure, write_scenes_html
 
-    out = Path(args.out)
     code = _lung_sweep(out)
     paths = write_kinematics_figures(out)
     for p in paths:

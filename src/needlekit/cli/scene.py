@@ -7,10 +7,10 @@ import json
 
 import numpy as np
 
-from needlekit.cli._common import EXIT_OK, EXIT_USAGE, _fmt_table
+from needlekit.cli._common import EXIT_OK, _fmt_table
 
 
-def _cmd_schema() -> int:
+def _cmd_schema(args: argparse.Namespace | None = None) -> int:
     from needlekit.io.scenario_schema import SCENARIO_SCHEMA
 
     print(json.dumps(SCENARIO_SCHEMA, indent=2))
@@ -24,12 +24,9 @@ def _fmt_extent(extent: np.ndarray) -> str:
     return " x ".join(f"{v:.1f}" for v in size)
 
 
-def _cmd_scene(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def _cmd_scene(args: argparse.Namespace) -> int:
     from needlekit.io.scenario import load_scenario
 
-    if args.scene_command not in ("info", "render"):
-        parser.parse_args(["scene", "--help"])
-        return EXIT_USAGE
     sc = load_scenario(args.scenario)
     if args.scene_command == "info":
         from needlekit.anatomy.summary import summarize_scene

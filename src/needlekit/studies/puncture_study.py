@@ -420,7 +420,7 @@ def run_puncture_study(
     from needlekit.batch import SerialExecutor, as_completed_indexed
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.em import EMSensorSpec
-    from needlekit.io.files import atomic_write
+    from needlekit.io.files import staged_outputs, write_text
 
     if not isinstance(trials, int) or trials < 1:
         raise InvalidInputError("trials", f"expected a whole number >= 1, got {trials!r}")
@@ -472,12 +472,12 @@ def run_puncture_study(
     }
     doc = dict(summary)
     doc["per_trial"] = done
-    out_dir.mkdir(parents=True, exist_ok=True)
     files = {"json": out_dir / "puncture.json"}
     text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
-    atomic_write(files["json"], lambda tmp: tmp.write_text(text, encoding="utf-8"))
-    if report:
-        from needlekit.report.puncture_report import write_puncture_report
+    with staged_outputs():  # both files or neither: a failed report keeps the old json
+        write_text(files["json"], text)
+        if report:
+            from needlekit.report.puncture_report import write_puncture_report
 
-        files["report"] = write_puncture_report(out_dir / "puncture.html", summary, done)
+            files["report"] = write_puncture_report(out_dir / "puncture.html", summary, done)
     return PunctureStudy(summary, done, files)

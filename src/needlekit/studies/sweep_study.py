@@ -118,12 +118,10 @@ def run_sweep_study(
     InvalidInputError
         No planners, or an unknown one.
     """
-    from needlekit.io.files import write_json
+    from needlekit.io.files import staged_outputs, write_json
     from needlekit.io.plans import write_plan_json
     from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
     from needlekit.planning.steerable.verify import verify_plan
-    from needlekit.report.html_page import TableSection, TextSection
-    from needlekit.report.sweep_report import sweep_sections, write_report_html
 
     planners = list(dict.fromkeys(planners))
     if not planners:
@@ -159,19 +157,36 @@ def run_sweep_study(
         "options": options or {},
         **sweeps_to_dict(sweeps),
     }
-    files["sweep"] = write_json(sweep_path, record)
     if best is not None:
         p = problem.with_start_pose(best.start_pose)
         check = verify_plan(p, best.plan, obstacles=obstacles, expected_cost_mm=best.cost_mm)
-    if best is not None and plan_path is not None:
-        files["plan"] = write_plan_json(
-            plan_path,
-            best,
-            scenario=source.scenario_path,
-            check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
-        )
-    if report_path is None:
-        return SweepStudy(sweeps, best, check, files)
+    # all files or none: a report that cannot be written leaves the old sweep.json too
+    with staged_outputs():
+        files["sweep"] = write_json(sweep_path, record)
+        if best is not None and plan_path is not None:
+            files["plan"] = write_plan_json(
+                plan_path,
+                best,
+                scenario=source.scenario_path,
+                check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
+            )
+        if report_path is not None:
+            files["report"] = _write_report(
+                report_path,
+                title or f"Effective puncture region: {sc.name}",
+                sweeps,
+                planners[0],
+                best,
+                check,
+                problem,
+            )
+    return SweepStudy(sweeps, best, check, files)
+
+
+def _write_report(path, title: str, sweeps: dict, first: str, best, check, problem):
+    from needlekit.report.html_page import TableSection, TextSection
+    from needlekit.report.sweep_report import sweep_sections, write_report_html
+
     normal = None
     if problem.entry_surface is not None:
         normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
@@ -183,7 +198,7 @@ def run_sweep_study(
         )
         sections.append(
             TextSection(
-                f"Best {planners[0]} plan: cost {best.cost_mm:.3f}, length {m['length_mm']:.3f} mm, "
+                f"Best {first} plan: cost {best.cost_mm:.3f}, length {m['length_mm']:.3f} mm, "
                 f"{len(best.plan.primitives)} motions{cert}. Independent check: "
                 + ("passed" if check.ok else "FAILED: " + "; ".join(check.violations))
                 + f" (goal distance {m['goal_distance_mm']:.3f} mm, min clearance "
@@ -193,9 +208,4 @@ def run_sweep_study(
             )
         )
         sections.append(TableSection("Best plan: motions", _plan_rows(best.plan)))
-    files["report"] = write_report_html(
-        report_path,
-        title=title or f"Effective puncture region: {sc.name}",
-        sections=sections,
-    )
-    return SweepStudy(sweeps, best, check, files)
+    return write_report_html(path, title=title, sections=sections)
