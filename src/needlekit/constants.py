@@ -31,6 +31,21 @@ ON_AXIS_TOL_MM: float = 1e-12
 #: exported paths; plan files promise at most 0.5 mm.
 DEFAULT_SAMPLE_SPACING_MM: float = 0.5
 
+#: Most samples a sampled tip trajectory may hold (``kinematics forward --dt-s``). Each
+#: sample is a 4x4 float64 pose (128 bytes) with temporaries of the same size, so 10^6
+#: samples take a few hundred MB and print ~100 MB of table: beyond any reader, and the
+#: segment ends are exact at any sampling interval anyway.
+MAX_TRAJECTORY_SAMPLES: int = 1_000_000
+
+#: A scenario whose anatomy is smaller than this across (mm) gets a warning that lengths
+#: are millimetres: the smallest anatomy planned here (a 2-3 cm nodule and its
+#: surroundings) is far larger, so such a scene was almost surely written in cm or m.
+MM_WARNING_MIN_EXTENT_MM: float = 5.0
+
+#: A needle whose minimum radius of curvature is below this (mm) gets the same warning:
+#: bevel-tip needles in tissue bend with radii of tens of mm (Feng et al. use 50 mm).
+MM_WARNING_MIN_R_MIN_MM: float = 1.0
+
 #: Part of a planner's time budget (s, at most; and at most 5 % of it) kept back from the
 #: search for building and checking the path it returns, so that a run answers within its
 #: budget. One search step plus the final check take about 1-2 ms on a Med-RAD lung.

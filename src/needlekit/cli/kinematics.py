@@ -9,16 +9,31 @@ import math
 import numpy as np
 
 from needlekit.cli._common import EXIT_OK, _fmt_table, _start_pose
-from needlekit.errors import NeedlekitError
+from needlekit.constants import MAX_TRAJECTORY_SAMPLES
+from needlekit.errors import InvalidInputError, NeedlekitError
+
+
+def _check_sample_count(durations_s, dt_s: float) -> None:
+    """Refuse a sampling that would not fit in memory, before allocating anything."""
+    # as simulate_bevel samples: ceil(T / dt) per segment (at least 1), plus the start
+    total = 1.0 + sum(max(1.0, math.ceil(min(t / dt_s, 1e300))) for t in durations_s)
+    if total > MAX_TRAJECTORY_SAMPLES:
+        raise InvalidInputError(
+            "--dt-s",
+            f"{total:.3g} samples over {sum(durations_s):g} s of segments at {dt_s:g} s; "
+            f"at most {MAX_TRAJECTORY_SAMPLES:,} (use a larger --dt-s or shorter segments)",
+        )
 
 
 def _cmd_forward(args: argparse.Namespace) -> int:
-    from needlekit.needle.bevel3d import propagate_bevel, simulate_bevel
-
-    g0 = _start_pose(args.start_pose)
     segments = np.array(args.segment, dtype=float)
     if np.any(segments[:, 2] < 0):
         raise NeedlekitError("--segment: durations must be >= 0")
+    if args.dt_s is not None:
+        _check_sample_count(segments[:, 2].tolist(), args.dt_s)
+    from needlekit.needle.bevel3d import propagate_bevel, simulate_bevel
+
+    g0 = _start_pose(args.start_pose)
     if args.dt_s is None:
         ends = propagate_bevel(g0, segments, args.kappa_per_mm)
         times = np.concatenate([[0.0], np.cumsum(segments[:, 2])])

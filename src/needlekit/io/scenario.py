@@ -15,6 +15,7 @@ expected, in one line; nothing but :class:`~needlekit.errors.NeedlekitError` com
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,10 +26,18 @@ import numpy as np
 import yaml
 
 from needlekit._validation import as_poses
-from needlekit.anatomy.fields import ComplementField, DistanceField, TransformedField, union
+from needlekit.anatomy.fields import (
+    ComplementField,
+    DistanceField,
+    LazyField,
+    TransformedField,
+    union,
+)
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.errors import InvalidInputError
 from needlekit.io.scenario_schema import SCENARIO_SCHEMA, SOURCE_KINDS
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "GoalSpec",
@@ -446,6 +455,7 @@ def parse_scenario(
     needle = NeedleSpec(**data.get("needle", {}))
     start = _start(data["start"], ctx, base) if "start" in data else None
     goal = _goal(data["goal"], ctx, base) if "goal" in data else None
+    _warn_if_not_mm(scene, needle, source)
     return Scenario(
         data.get("name", ""),
         data.get("description", ""),
@@ -457,6 +467,44 @@ def parse_scenario(
         None,
         base,
     )
+
+
+def _cheap_extent_mm(scene: Scene) -> float | None:
+    """Largest side (mm) of the box around the bounded structures, from the bounds that
+    are known without building a field (lazy fields not built yet are left out); None
+    when no structure is bounded and known."""
+    boxes = []
+    for s in scene.structures:
+        if isinstance(s.field, LazyField) and not s.field.built:
+            continue
+        b = np.asarray(s.field.bounds(), dtype=float)
+        if np.all(np.isfinite(b)):
+            boxes.append(b)
+    if not boxes:
+        return None
+    b = np.stack(boxes)
+    return float(np.max(b[:, 1].max(axis=0) - b[:, 0].min(axis=0)))
+
+
+def _warn_if_not_mm(scene: Scene, needle: NeedleSpec, source: str) -> None:
+    """Log a warning when the sizes look like centimetres or metres, not millimetres."""
+    from needlekit.constants import MM_WARNING_MIN_EXTENT_MM, MM_WARNING_MIN_R_MIN_MM
+
+    extent = _cheap_extent_mm(scene)
+    if extent is not None and extent < MM_WARNING_MIN_EXTENT_MM:
+        _log.warning(
+            "%s: the anatomy is only %.3g mm across; lengths in scenario files are "
+            "millimetres (was it written in cm or m?)",
+            source,
+            extent,
+        )
+    if needle.r_min_mm < MM_WARNING_MIN_R_MIN_MM:
+        _log.warning(
+            "%s: needle.r_min_mm is %.3g mm; lengths in scenario files are millimetres "
+            "(was it written in cm or m?)",
+            source,
+            needle.r_min_mm,
+        )
 
 
 def _combined(base_scene: Scene, extra: list[Structure]) -> DistanceField | None:
