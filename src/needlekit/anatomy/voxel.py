@@ -334,6 +334,88 @@ class VoxelSDF(DistanceField):
             values[start : start + len(pts)] = d
         return cls(values.reshape(shp), a, value_error_mm=err)
 
+    # -- storing and restoring ------------------------------------------------------------
+
+    def prepared_state(self) -> dict:
+        """What, besides :attr:`values`, rebuilds this field exactly with
+        :meth:`from_prepared_state`: plain floats and lists (JSON round-trips them exactly).
+
+        Returns
+        -------
+        dict
+            ``affine`` (4x4 list), ``value_error_mm``, ``error_bound_mm`` and ``box``
+            (2x3 list, the :meth:`bounds` box; NaN when empty).
+        """
+        return {
+            "affine": self.affine.tolist(),
+            "value_error_mm": float(self.value_error_mm),
+            "error_bound_mm": float(self.error_bound_mm),
+            "box": self._box.tolist(),
+        }
+
+    @classmethod
+    def from_prepared_state(cls, values, state: dict) -> VoxelSDF:
+        """The field :meth:`prepared_state` described, around already-checked values.
+
+        The whole-grid checks of the constructor (finite values, structure inside the grid)
+        and the passes that compute the error bound and the structure's box are skipped:
+        ``state`` carries their results. Use it only for values and state that a
+        :class:`VoxelSDF` produced (e.g. read back from the prepared-anatomy cache, which
+        checks sizes and checksums); the values may be a read-only memory map.
+
+        Parameters
+        ----------
+        values : ndarray of float32, shape (i, j, k)
+            C-contiguous; kept as given (no copy).
+        state : dict
+            From :meth:`prepared_state`.
+
+        Returns
+        -------
+        VoxelSDF
+            Answers every query bit for bit as the field that gave ``state``.
+
+        Raises
+        ------
+        InvalidInputError
+            Values not a C-contiguous float32 3-D grid, or a bad affine.
+
+        Examples
+        --------
+        >>> m = np.zeros((8, 8, 8), bool); m[3:5, 3:5, 3:5] = True
+        >>> a = VoxelSDF.from_mask(m, np.eye(4))
+        >>> b = VoxelSDF.from_prepared_state(a.values, a.prepared_state())
+        >>> bool(b.signed_distance([1.0, 2.0, 3.0]) == a.signed_distance([1.0, 2.0, 3.0]))
+        True
+        """
+        vals = np.asarray(values)
+        if (
+            vals.ndim != 3
+            or min(vals.shape) < 2
+            or vals.dtype != np.float32
+            or not vals.flags.c_contiguous
+        ):
+            raise InvalidInputError(
+                "values",
+                f"expected a C-contiguous float32 3-D grid, got {vals.dtype} {vals.shape}",
+            )
+        a, spacing, _ = _orthogonal_affine(state["affine"], "affine")
+        if vals.flags.writeable:
+            vals = vals.view()
+            vals.flags.writeable = False
+        a.flags.writeable = False
+        sdf = cls.__new__(cls)
+        sdf.values = vals
+        sdf.affine = a
+        sdf.inv_affine = np.linalg.inv(a)
+        sdf.spacing_mm = spacing
+        sdf.shape = vals.shape
+        sdf.interpolation_error_mm = 0.5 * float(np.linalg.norm(spacing))
+        sdf.value_error_mm = float(state["value_error_mm"])
+        sdf.error_bound_mm = float(state["error_bound_mm"])
+        sdf._box = np.array(state["box"], dtype=np.float64).reshape(2, 3)
+        return sdf
+
     # -- queries --------------------------------------------------------------------------
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
