@@ -20,6 +20,13 @@ Distance fields are built for what planning needs first: one signed distance tra
 the *free space* (allowed region and nodules, minus all obstacles), whose complement is the
 scene's combined obstacle field. The nodules belong to it because Med-RAD's liver masks
 leave them out: a target must never count as an obstacle. Each structure's own field is built lazily on first use.
+
+Prepared once: by default what loading builds (the masks on one grid, the free space, its
+signed distance field and the obstacle voxels) is stored in the prepared-anatomy cache
+(:mod:`needlekit.io.anatomy_cache`) under a key made of the mask files' *content* and the
+settings, and every structure's own field joins the entry the first time it is built; the
+next load maps them from disk (read-only memory maps) instead of reading and transforming
+the masks again, with the same arrays bit for bit. ``use_cache=False`` skips it.
 """
 
 from __future__ import annotations
@@ -35,8 +42,9 @@ import numpy as np
 
 from needlekit.anatomy.fields import ComplementField, LazyField
 from needlekit.anatomy.scene import Role, Scene, Structure
-from needlekit.anatomy.voxel import VoxelSDF
+from needlekit.anatomy.voxel import DEFAULT_MASK_PADDING_MM, MASK_OFFSET_MAX_FRACTION, VoxelSDF
 from needlekit.errors import InvalidInputError
+from needlekit.io import anatomy_cache
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import Mask, read_mask
 
@@ -177,11 +185,18 @@ class MedradCase:
         Target points (RAS mm) by name (``"target"``, ``"target1"``, ...).
     folder : Path
     timings_s : dict of str to float
-        ``load_s`` (reading masks) and ``obstacle_field_s`` (the free-space transform).
+        ``load_s`` (reading masks) and ``obstacle_field_s`` (the free-space transform) when
+        they were built; through the cache also ``hash_s`` (hashing the mask files) and
+        ``cache_write_s`` (storing a new entry) or ``cache_load_s`` (opening an entry).
     free_space : Mask or None
         The free-space mask (allowed region and nodules, minus the obstacles) on the
         allowed region's grid; its complement gives the exact voxel-centre collision test
         of :class:`needlekit.anatomy.occupancy.VoxelObstacles`.
+    occupancy : ndarray of bool or None
+        That complement (the obstacle voxels) when it came from the cache (read-only
+        memory map), else None (computed when needed).
+    cache_entry : Path or None
+        The prepared-anatomy cache entry the case was loaded from or stored in.
     """
 
     organ: str
@@ -192,6 +207,8 @@ class MedradCase:
     folder: Path
     timings_s: dict[str, float] = field(default_factory=dict)
     free_space: Mask | None = None
+    occupancy: np.ndarray | None = None
+    cache_entry: Path | None = None
 
     def voxel_obstacles(self, needle_diameter_mm: float, safety_margin_mm: float = 0.0):
         """Exact voxel-centre collision test over this case's obstacle voxels (everything
@@ -210,8 +227,9 @@ class MedradCase:
 
         if self.free_space is None:
             raise InvalidInputError("free_space", "this case was built without its free-space mask")
+        occupancy = ~self.free_space.data if self.occupancy is None else self.occupancy
         return VoxelObstacles(
-            ~self.free_space.data,
+            occupancy,
             self.free_space.affine,
             needle_diameter_mm=needle_diameter_mm,
             safety_margin_mm=safety_margin_mm,
@@ -351,12 +369,187 @@ def _lazy_sdf(mask: Mask, name: str) -> LazyField:
     return LazyField(lambda: VoxelSDF.from_mask(mask), f"signed distance to {name}")
 
 
+@dataclass
+class _Prepared:
+    """What loading builds from the masks: the free space, its field, the structures'
+    (lazy) fields, and where it came from."""
+
+    free_space: Mask
+    free_field: VoxelSDF
+    fields: dict[str, LazyField]
+    timings_s: dict[str, float]
+    occupancy: np.ndarray | None = None
+    cache_entry: Path | None = None
+    masks: dict[str, Mask] | None = None
+
+
+# (structure name, role, colour, metadata, description of its field)
+_Spec = tuple[str, Role, str, dict, str]
+
+
+def _prepare(paths: dict[str, Path], specs: list[_Spec], region: str, n_threads: int,
+             folder: Path) -> _Prepared:  # fmt: skip
+    """Read the masks onto one grid and build the free space's field (no cache)."""
+    t0 = time.perf_counter()
+    masks = _on_one_grid(_read_all(paths), region)
+    t_load = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    free = masks[region].data.copy()
+    for name, role, *_ in specs:  # targets are never obstacles (liver masks leave nodules out)
+        if role is Role.TARGET:
+            free |= masks[name].data
+    for name, role, *_ in specs:
+        if role is Role.OBSTACLE:
+            free &= ~masks[name].data
+    if not free.any():
+        raise InvalidInputError(str(folder), "no free space: the obstacles fill the allowed region")
+    free_field = VoxelSDF.from_mask(free, masks[region].affine, n_threads=n_threads)
+    t_field = time.perf_counter() - t0
+    fields = {name: _lazy_sdf(masks[name], what) for name, _, _, _, what in specs}
+    return _Prepared(
+        Mask(free, masks[region].affine, None),
+        free_field,
+        fields,
+        {"load_s": t_load, "obstacle_field_s": t_field},
+        masks=masks,
+    )
+
+
+# -- through the prepared-anatomy cache ------------------------------------------------------
+
+
+def _cache_inputs(organ: str, paths: dict[str, Path], specs: list[_Spec], region: str) -> dict:
+    """Everything that changes the stored arrays: the masks' content and roles, and the
+    settings of the transforms (the EDT library's version among them)."""
+    import edt
+
+    return {
+        "kind": "medrad",
+        "organ": organ,
+        "region": region,
+        "structures": [
+            [name, role.value, anatomy_cache.file_digest(paths[name])] for name, role, *_ in specs
+        ],
+        "settings": {
+            "mask_padding_mm": DEFAULT_MASK_PADDING_MM,
+            "mask_offset_max_fraction": MASK_OFFSET_MAX_FRACTION,
+            "edt": getattr(edt, "__version__", "unknown"),
+        },
+    }
+
+
+def _grid_meta(mask: Mask) -> dict:
+    return {"affine": np.asarray(mask.affine).tolist()}
+
+
+def _cropped(mask: Mask) -> tuple[np.ndarray, dict]:
+    """A mask cut to its set voxels (most of a structure's grid is empty), and how to put
+    it back."""
+    d = mask.data
+    lo, hi = [0, 0, 0], [1, 1, 1]
+    for axis in range(3):
+        idx = np.flatnonzero(d.any(axis=tuple(a for a in range(3) if a != axis)))
+        if idx.size:
+            lo[axis], hi[axis] = int(idx[0]), int(idx[-1]) + 1
+    part = d[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
+    meta = {**_grid_meta(mask), "shape": list(d.shape), "offset": lo}
+    return part, meta
+
+
+def _uncropped(stored: anatomy_cache.CachedArray) -> Mask:
+    meta = stored.meta
+    full = np.zeros(tuple(meta["shape"]), dtype=bool)
+    lo = meta["offset"]
+    s = stored.values.shape
+    full[lo[0] : lo[0] + s[0], lo[1] : lo[1] + s[1], lo[2] : lo[2] + s[2]] = stored.values
+    full.flags.writeable = False
+    return Mask(full, np.array(meta["affine"], dtype=np.float64), None)
+
+
+def _restored_sdf(stored: anatomy_cache.CachedArray) -> VoxelSDF:
+    return VoxelSDF.from_prepared_state(stored.values, stored.meta)
+
+
+def _cached_sdf(entry: anatomy_cache.CacheEntry, name: str) -> VoxelSDF:
+    """A structure's field from the entry; built from the stored mask and added to the
+    entry the first time."""
+    stored = entry.get(f"sdf_{name}")
+    if stored is not None:
+        return _restored_sdf(stored)
+    sdf = VoxelSDF.from_mask(_uncropped(entry[f"mask_{name}"]))
+    stored = entry.put(f"sdf_{name}", sdf.values, sdf.prepared_state())
+    return sdf if stored is None else _restored_sdf(stored)
+
+
+def _lazy_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, what: str) -> LazyField:
+    return LazyField(lambda: _cached_sdf(entry, name), f"signed distance to {what}")
+
+
+def _entry_arrays(prep: _Prepared) -> dict[str, tuple[np.ndarray, dict]]:
+    free = prep.free_space
+    arrays = {
+        "free_space": (free.data, _grid_meta(free)),
+        "occupancy": (~free.data, _grid_meta(free)),
+        "sdf_free_space": (prep.free_field.values, prep.free_field.prepared_state()),
+    }
+    for name, mask in (prep.masks or {}).items():
+        arrays[f"mask_{name}"] = _cropped(mask)
+    return arrays
+
+
+def _from_entry(entry: anatomy_cache.CacheEntry, specs: list[_Spec],
+                timings: dict[str, float]) -> _Prepared:  # fmt: skip
+    free = entry["free_space"]
+    affine = np.array(free.meta["affine"], dtype=np.float64)
+    affine.flags.writeable = False
+    return _Prepared(
+        Mask(free.values, affine, None),
+        _restored_sdf(entry["sdf_free_space"]),
+        {name: _lazy_cached_sdf(entry, name, what) for name, _, _, _, what in specs},
+        timings,
+        occupancy=entry["occupancy"].values,
+        cache_entry=entry.path,
+    )
+
+
+def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: list[_Spec],
+                    region: str, n_threads: int, folder: Path, cache_dir) -> _Prepared:  # fmt: skip
+    """:func:`_prepare` through the cache: open the entry of the masks' content, or build
+    and store it."""
+    t0 = time.perf_counter()
+    inputs = _cache_inputs(organ, paths, specs, region)
+    key = anatomy_cache.entry_key(inputs)
+    label = f"medrad-{organ}{patient}"
+    timings = {"hash_s": time.perf_counter() - t0}
+    t0 = time.perf_counter()
+    entry = anatomy_cache.open_entry(cache_dir, label, key)
+    if entry is not None:
+        timings["cache_load_s"] = time.perf_counter() - t0
+        log.debug("prepared anatomy from the cache: %s", entry.path)
+        return _from_entry(entry, specs, timings)
+    prep = _prepare(paths, specs, region, n_threads, folder)
+    timings.update(prep.timings_s)
+    t0 = time.perf_counter()
+    try:
+        entry = anatomy_cache.write_entry(cache_dir, label, key, inputs, _entry_arrays(prep))
+    except OSError as exc:
+        log.warning("prepared-anatomy cache unavailable (%s); going on without it", exc)
+        prep.timings_s = timings
+        return prep
+    timings["cache_write_s"] = time.perf_counter() - t0
+    log.debug("prepared anatomy stored in the cache: %s", entry.path)
+    return _from_entry(entry, specs, timings)
+
+
 def load_medrad(
     organ: str,
     patient: int,
     root: str | os.PathLike | None = None,
     *,
     threads: int | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    use_cache: bool = True,
 ) -> MedradCase:
     """Load a Med-RAD patient into a :class:`MedradCase`.
 
@@ -369,12 +562,20 @@ def load_medrad(
         Med-RAD folder (default: see :func:`medrad_root`).
     threads : int, optional
         Threads of the distance transforms (default: all CPUs).
+    cache_dir : path-like, optional
+        Root of the prepared-anatomy cache (default
+        :func:`needlekit.io.anatomy_cache.default_cache_dir`: ``$NEEDLEKIT_CACHE_DIR``,
+        ``$XDG_CACHE_HOME/needlekit`` or ``~/.cache/needlekit``).
+    use_cache : bool
+        Load the prepared anatomy from the cache, or build and store it there (default);
+        False builds it in memory only. A corrupt entry is rebuilt and an unwritable cache
+        skipped, each with a logged warning.
 
     Returns
     -------
     MedradCase
         Its scene has the combined obstacle field built; per-structure fields are built on
-        first use.
+        first use (and, through the cache, stored then and loaded on later runs).
 
     Raises
     ------
@@ -406,39 +607,28 @@ def load_medrad(
     starts, targets = _starts_and_targets(files, folder)
     n_threads = int(threads) if threads else (os.cpu_count() or 1)
 
-    t0 = time.perf_counter()
     paths = {table[stem][0]: files[stem] for stem in table}
     nodule_names = {tk: ("nodule" if tk == "target" else f"nodule{tk[6:]}") for tk in target_masks}
     paths.update({nodule_names[tk]: p for tk, p in target_masks.items()})
     region = next(v for v in table.values() if v[1] is Role.ALLOWED_REGION)[0]
-    masks = _on_one_grid(_read_all(paths), region)
-    t_load = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    free = masks[region].data.copy()
-    for tk in target_masks:  # targets are never obstacles (liver masks leave nodules out)
-        free |= masks[nodule_names[tk]].data
-    for name, role, _ in table.values():
-        if role is Role.OBSTACLE:
-            free &= ~masks[name].data
-    if not free.any():
-        raise InvalidInputError(str(folder), "no free space: the obstacles fill the allowed region")
-    free_space = VoxelSDF.from_mask(free, masks[region].affine, n_threads=n_threads)
-    t_field = time.perf_counter() - t0
+    specs: list[_Spec] = [(name, role, colour, {}, name) for name, role, colour in table.values()]
+    specs += [(nodule_names[tk], Role.TARGET, _TARGET_COLOUR, {"target": tk}, tk)
+              for tk in sorted(target_masks)]  # fmt: skip
+    if use_cache:
+        prep = _prepare_cached(
+            key, int(patient), paths, specs, region, n_threads, folder, cache_dir
+        )
+    else:
+        prep = _prepare(paths, specs, region, n_threads, folder)
 
     structures = [
-        Structure(name, role, _lazy_sdf(masks[name], name), colour, str(paths[name]))
-        for name, role, colour in table.values()
+        Structure(name, role, prep.fields[name], colour, str(paths[name]), meta)
+        for name, role, colour, meta, _ in specs
     ]
-    structures += [
-        Structure(nodule_names[tk], Role.TARGET, _lazy_sdf(masks[nodule_names[tk]], tk),
-                  _TARGET_COLOUR, str(paths[nodule_names[tk]]), {"target": tk})
-        for tk in sorted(target_masks)
-    ]  # fmt: skip
     scene = Scene(
         structures,
         name=f"Med-RAD {key} {int(patient)}",
-        obstacle_field=ComplementField(free_space),
+        obstacle_field=ComplementField(prep.free_field),
     )
     return MedradCase(
         key,
@@ -447,6 +637,8 @@ def load_medrad(
         starts,
         targets,
         folder,
-        {"load_s": t_load, "obstacle_field_s": t_field},
-        Mask(free, masks[region].affine, None),
+        prep.timings_s,
+        prep.free_space,
+        prep.occupancy,
+        prep.cache_entry,
     )

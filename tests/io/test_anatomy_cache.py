@@ -1,0 +1,489 @@
+"""The prepared-anatomy cache: content keys, atomic entries, corrupt entries rebuilt, and
+cached patients that behave bit for bit as freshly built ones.
+
+A small synthetic Med-RAD lung (48^3 voxels of 1 mm, written with nibabel into tmp_path)
+stands in for the real data; every test uses a cache folder under tmp_path.
+"""
+
+import json
+import logging
+import os
+import pickle
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import needlekit
+from needlekit.anatomy.voxel import VoxelSDF
+from needlekit.errors import InvalidInputError
+from needlekit.io import anatomy_cache, medrad
+from needlekit.io.anatomy_cache import (
+    CACHE_DIR_ENV,
+    cache_root,
+    clear_cache,
+    default_cache_dir,
+    entry_key,
+    open_entry,
+    write_entry,
+)
+from needlekit.io.medrad import MEDRAD_ENV, load_medrad
+from needlekit.io.volumes import write_mask_nifti
+
+N = 48  # voxels per axis, 1 mm, centred on the origin
+
+
+def _masks() -> dict[str, np.ndarray]:
+    x, y, z = (np.indices((N, N, N)) - N // 2).astype(float)
+    return {
+        "pleuralBoundary": x**2 + y**2 + z**2 <= 20**2,
+        "bronchialTree": ((x + 8) ** 2 + y**2 <= 2.5**2) & (np.abs(z) <= 15),
+        "vessels": ((x - 8) ** 2 + (z + 8) ** 2 <= 2**2) & (np.abs(y) <= 15),
+        "fissures": (z == 10) & (x >= 0) & (x <= 12) & (np.abs(y) <= 12),
+        "nodule": (x - 6) ** 2 + (y - 4) ** 2 + (z - 2) ** 2 <= 3**2,
+    }
+
+
+def _affine() -> np.ndarray:
+    a = np.eye(4)
+    a[:3, 3] = -N // 2
+    return a
+
+
+@pytest.fixture
+def patient(tmp_path) -> Path:
+    """A Med-RAD folder with one synthetic lung patient (start on the airway wall, pointing
+    into the lung; target in the nodule) and a scenario file for it."""
+    root = tmp_path / "med-rad"
+    folder = root / "Lungs" / "TumorTargetEnvironments" / "Patient1"
+    folder.mkdir(parents=True)
+    for name, mask in _masks().items():
+        write_mask_nifti(folder / f"{name}.nii.gz", mask, _affine())
+    start = np.array([[0, 0, 1, -5.5], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
+    np.savetxt(folder / "start1.txt", start)
+    np.savetxt(folder / "target.txt", [6.0, 4.0, 2.0])
+    (tmp_path / "scenario.yaml").write_text(
+        "version: 1\n"
+        "name: synthetic lung\n"
+        f"base: {{medrad: {{organ: lung, patient: 1, root: {root}}}}}\n"
+        "needle: {diameter_mm: 0.5, r_min_mm: 10, max_length_mm: 60, start_exclusion_mm: 3}\n"
+        "start: {case_start: start1}\n"
+        "goal: {case_target: target, tolerance_mm: 1.0}\n"
+        "planner: {name: rcs_star, time_limit_s: 30}\n"
+    )
+    return root
+
+
+def _folder(root: Path) -> Path:
+    return root / "Lungs" / "TumorTargetEnvironments" / "Patient1"
+
+
+def _entries(cache: Path) -> list[Path]:
+    return (
+        sorted(p for p in cache.iterdir() if not p.name.startswith(".")) if cache.is_dir() else []
+    )
+
+
+def _debris(cache: Path) -> list[Path]:
+    return sorted(p for p in cache.iterdir() if p.name.startswith(".")) if cache.is_dir() else []
+
+
+def _same_sdf(a: VoxelSDF, b: VoxelSDF) -> None:
+    assert a.values.dtype == b.values.dtype and a.values.shape == b.values.shape
+    assert a.values.tobytes() == b.values.tobytes()
+    assert a.affine.tobytes() == b.affine.tobytes()
+    assert a.inv_affine.tobytes() == b.inv_affine.tobytes()
+    assert (a.error_bound_mm, a.value_error_mm) == (b.error_bound_mm, b.value_error_mm)
+    assert a.interpolation_error_mm == b.interpolation_error_mm
+    np.testing.assert_array_equal(a.bounds(), b.bounds())
+    np.testing.assert_array_equal(a.spacing_mm, b.spacing_mm)
+
+
+# ----------------------------------------------------------------------------------------
+# where
+
+
+def test_default_cache_dir_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_DIR_ENV, str(tmp_path / "mine"))
+    assert default_cache_dir() == tmp_path / "mine"
+    monkeypatch.delenv(CACHE_DIR_ENV)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_dir() == tmp_path / "xdg" / "needlekit"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert default_cache_dir() == tmp_path / "home" / ".cache" / "needlekit"
+    assert cache_root(tmp_path / "given") == tmp_path / "given"
+
+
+def test_the_test_session_never_uses_the_user_cache():
+    home = Path.home() / ".cache" / "needlekit"
+    assert default_cache_dir() != home
+    assert os.environ[CACHE_DIR_ENV] == str(default_cache_dir())
+
+
+# ----------------------------------------------------------------------------------------
+# keys
+
+
+def test_the_key_follows_content_not_modification_time(patient, tmp_path):
+    cache = tmp_path / "cache"
+    first = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert "cache_write_s" in first.timings_s
+    mask = _folder(patient) / "vessels.nii.gz"
+    os.utime(mask, (1e9, 1e9))  # touched, not changed
+    again = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert again.cache_entry == first.cache_entry and "cache_load_s" in again.timings_s
+
+    changed = _masks()["vessels"].copy()
+    changed[20, 24, 16] = True  # one more vessel voxel, at (-4, 0, -8) mm
+    write_mask_nifti(mask, changed, _affine())
+    other = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert other.cache_entry != first.cache_entry and "cache_write_s" in other.timings_s
+    assert len(_entries(cache)) == 2
+    assert bool(other.scene["vessels"].field.signed_distance([-4.0, 0.0, -8.0]) < 0)
+
+
+def test_the_key_follows_every_setting(patient, monkeypatch):
+    folder = _folder(patient)
+    paths = {name: folder / f"{name}.nii.gz" for name in _masks()}
+    specs = [(name, medrad.Role.OBSTACLE, "", {}, name) for name in paths]
+
+    def key():
+        return entry_key(medrad._cache_inputs("lung", paths, specs, "pleuralBoundary"))
+
+    base = key()
+    assert key() == base
+    monkeypatch.setattr(medrad, "DEFAULT_MASK_PADDING_MM", 12.0)
+    padded = key()
+    monkeypatch.setattr(medrad, "MASK_OFFSET_MAX_FRACTION", 0.5)
+    offset = key()
+    monkeypatch.setattr(needlekit, "__version__", "0.0.0+other")
+    version = key()
+    monkeypatch.setattr(anatomy_cache, "CACHE_FORMAT_VERSION", 999)
+    fmt = key()
+    assert len({base, padded, offset, version, fmt}) == 5
+    # roles count: the same files with another region give another entry
+    assert entry_key(medrad._cache_inputs("lung", paths, specs, "vessels")) != fmt
+
+
+# ----------------------------------------------------------------------------------------
+# the same anatomy, bit for bit
+
+
+def test_a_cached_patient_equals_a_freshly_built_one(patient, tmp_path):
+    cache = tmp_path / "cache"
+    fresh = load_medrad("lung", 1, patient, use_cache=False)
+    assert fresh.cache_entry is None and not cache.exists()
+    cold = load_medrad("lung", 1, patient, cache_dir=cache)
+    warm = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert cold.cache_entry == warm.cache_entry is not None
+    assert "cache_load_s" in warm.timings_s and "load_s" not in warm.timings_s
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-30.0, 30.0, (2000, 3))
+    for case in (cold, warm):
+        assert case.free_space.data.tobytes() == fresh.free_space.data.tobytes()
+        assert case.free_space.affine.tobytes() == fresh.free_space.affine.tobytes()
+        _same_sdf(case.scene.obstacle_field().base, fresh.scene.obstacle_field().base)
+        for s in fresh.scene.structures:
+            _same_sdf(case.scene[s.name].field.get(), s.field.get())
+            assert case.scene[s.name].role is s.role and case.scene[s.name].metadata == s.metadata
+        a = case.scene.signed_distance(pts)
+        b = fresh.scene.signed_distance(pts)
+        assert all(a[n].tobytes() == b[n].tobytes() for n in b)
+        g1 = case.scene.obstacle_field(0.25).gradient(pts)
+        g2 = fresh.scene.obstacle_field(0.25).gradient(pts)
+        assert g1.tobytes() == g2.tobytes()
+        o1, o2 = case.voxel_obstacles(0.5, 0.1), fresh.voxel_obstacles(0.5, 0.1)
+        assert o1.occupancy.tobytes() == o2.occupancy.tobytes()
+        assert o1.min_distance_mm == o2.min_distance_mm
+        start = case.starts[0].world_T_tip[:3, 3]
+        assert np.array_equal(
+            o1.collides(pts, exclude_near=start, exclusion_mm=3.0),
+            o2.collides(pts, exclude_near=start, exclusion_mm=3.0),
+        )
+    # the structure fields the first run built are in the entry now, read-only
+    stored = {p.stem for p in warm.cache_entry.glob("sdf_*.json")}
+    assert stored == {"sdf_free_space"} | {f"sdf_{s.name}" for s in fresh.scene.structures}
+    assert not warm.scene["vessels"].field.get().values.flags.writeable
+
+
+def test_no_cache_reads_and_writes_nothing(patient, tmp_path):
+    cache = tmp_path / "cache"
+    case = load_medrad("lung", 1, patient, cache_dir=cache, use_cache=False)
+    assert case.cache_entry is None and case.occupancy is None
+    assert not cache.exists()
+
+
+def _plan_json(path: Path) -> dict:
+    def strip(d):
+        if isinstance(d, dict):
+            return {k: strip(v) for k, v in d.items() if not k.endswith("_s")}
+        if isinstance(d, list):
+            return [strip(v) for v in d]
+        return d
+
+    return strip(json.loads(path.read_text()))
+
+
+def _plan_and_verify(capsys, scenario: Path, out: Path, *cache_flags: str):
+    from needlekit.cli import main
+
+    plan_code = main(["plan", str(scenario), "--out", str(out), *cache_flags])
+    capsys.readouterr()
+    verify_code = main(["verify", str(scenario), str(out), "--json", *cache_flags])
+    report = json.loads(capsys.readouterr().out)
+    return plan_code, _plan_json(out), verify_code, report
+
+
+def test_plan_and_verify_give_the_same_result_with_and_without_the_cache(patient, tmp_path, capsys):
+    scenario = tmp_path / "scenario.yaml"
+    cache = str(tmp_path / "cache")
+    runs = [
+        _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache"),
+        _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache),
+        _plan_and_verify(capsys, scenario, tmp_path / "warm.json", "--cache-dir", cache),
+    ]
+    assert runs[0][0] == 0 and runs[0][1]["status"] == "solved" and runs[0][2] == 0
+    for run in runs[1:]:
+        assert run[0] == runs[0][0] and run[2] == runs[0][2]
+        assert run[1] == runs[0][1]
+        assert _plan_json_like(run[3]) == _plan_json_like(runs[0][3])
+    assert len(_entries(Path(cache))) == 1
+
+
+def _plan_json_like(report):
+    return json.loads(
+        json.dumps(report),
+        object_hook=lambda d: {k: v for k, v in d.items() if not k.endswith("_s")},
+    )
+
+
+def test_a_scenario_source_carries_the_cache_settings(patient, tmp_path):
+    from needlekit.io.problems import ScenarioSource
+
+    src = ScenarioSource.of(tmp_path / "scenario.yaml", cache_dir=tmp_path / "c", use_cache=False)
+    assert src.cache_dir == str((tmp_path / "c").resolve()) and src.use_cache is False
+    again = pickle.loads(pickle.dumps(src))
+    assert again == src and hash(again) == hash(src)
+    assert ScenarioSource.of(tmp_path / "scenario.yaml").cache_dir is None
+
+
+# ----------------------------------------------------------------------------------------
+# damaged entries are rebuilt, with a warning
+
+
+def _truncate(path: Path) -> None:
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+
+
+def _scribble(path: Path) -> None:
+    with open(path, "r+b") as f:
+        f.seek(0)
+        f.write(b"\x00" * 256)
+
+
+@pytest.mark.parametrize(
+    ("damaged", "how"),
+    [
+        ("sdf_free_space.npy", _truncate),
+        ("occupancy.npy", _scribble),
+        ("manifest.json", _truncate),
+        ("free_space.json", lambda p: p.write_text('{"not": "a record"}')),
+        ("mask_vessels.npy", lambda p: p.unlink()),
+    ],
+)
+def test_a_corrupt_entry_is_rebuilt_with_a_warning(patient, tmp_path, caplog, damaged, how):
+    cache = tmp_path / "cache"
+    good = load_medrad("lung", 1, patient, cache_dir=cache)
+    good.scene["vessels"].field.get()
+    reference = good.scene.obstacle_field().base.values.tobytes()
+    how(good.cache_entry / damaged)
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        again = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert "corrupt entry" in caplog.text and "rebuilding" in caplog.text
+    assert "cache_write_s" in again.timings_s  # built again, and stored again
+    assert again.scene.obstacle_field().base.values.tobytes() == reference
+    assert _entries(cache) == [again.cache_entry] and not _debris(cache)
+    third = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert "cache_load_s" in third.timings_s
+
+
+def test_a_corrupt_structure_field_is_rebuilt(patient, tmp_path, caplog):
+    cache = tmp_path / "cache"
+    first = load_medrad("lung", 1, patient, cache_dir=cache)
+    reference = first.scene["vessels"].field.get().values.tobytes()
+    _truncate(first.cache_entry / "sdf_vessels.npy")
+    again = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert "cache_load_s" in again.timings_s  # the entry itself is sound
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        rebuilt = again.scene["vessels"].field.get()
+    assert "rebuilding" in caplog.text
+    assert rebuilt.values.tobytes() == reference
+    third = load_medrad("lung", 1, patient, cache_dir=cache)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        assert third.scene["vessels"].field.get().values.tobytes() == reference
+    assert caplog.text == ""
+
+
+# ----------------------------------------------------------------------------------------
+# atomic writes and concurrent writers
+
+
+def test_a_write_that_fails_midway_leaves_no_entry_and_no_debris(patient, tmp_path, monkeypatch):
+    cache = tmp_path / "cache"
+    real = anatomy_cache._write_array
+    calls = []
+
+    def failing(folder, name, values, meta):
+        calls.append(name)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # the process is stopped while it writes
+        real(folder, name, values, meta)
+
+    monkeypatch.setattr(anatomy_cache, "_write_array", failing)
+    with pytest.raises(KeyboardInterrupt):
+        load_medrad("lung", 1, patient, cache_dir=cache)
+    assert cache.is_dir() and not _entries(cache) and not _debris(cache)
+
+
+def test_an_unwritable_cache_is_skipped_with_a_warning(patient, tmp_path, caplog):
+    blocked = tmp_path / "a file"
+    blocked.write_text("not a folder")
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.medrad"):
+        case = load_medrad("lung", 1, patient, cache_dir=blocked / "cache")
+    assert "going on without it" in caplog.text
+    assert case.cache_entry is None and "load_s" in case.timings_s
+    fresh = load_medrad("lung", 1, patient, use_cache=False)
+    _same_sdf(case.scene.obstacle_field().base, fresh.scene.obstacle_field().base)
+
+
+def _arrays(seed: int = 0):
+    rng = np.random.default_rng(seed)
+    return {
+        "a": (rng.normal(size=(30, 20, 10)).astype(np.float32), {"what": "values"}),
+        "b": (rng.random((5, 6, 7)) < 0.5, {"affine": np.eye(4).tolist()}),
+    }
+
+
+def test_write_entry_stores_and_reopens_arrays_exactly(tmp_path):
+    arrays = _arrays()
+    key = entry_key({"test": 1})
+    entry = write_entry(tmp_path, "test", key, {"test": 1}, arrays)
+    assert entry.path == tmp_path / f"test-{key}"
+    for name, (values, meta) in arrays.items():
+        assert entry[name].values.tobytes() == values.tobytes() and entry[name].meta == meta
+        assert not entry[name].values.flags.writeable
+    again = open_entry(tmp_path, "test", key, full_check=True)
+    assert again is not None and again["a"].values.tobytes() == arrays["a"][0].tobytes()
+    assert open_entry(tmp_path, "test", entry_key({"test": 2})) is None
+    assert again.get("missing") is None
+    assert again.put("c", np.arange(5.0), {"n": 5}) is not None
+    assert open_entry(tmp_path, "test", key).get("c").values.tolist() == [0, 1, 2, 3, 4]
+
+
+def test_the_full_check_finds_damage_the_quick_check_may_miss(tmp_path, caplog):
+    values = np.zeros((64, 64, 64), np.float32)
+    key = entry_key({"test": "full"})
+    entry = write_entry(tmp_path, "test", key, {}, {"a": (values, {})})
+    path = entry.path / "a.npy"
+    del entry
+    sampled = {0} | {int(i * (path.stat().st_size - 4096) / 63) for i in range(64)}
+    spot = next(o for o in range(5000, path.stat().st_size, 4096)
+                if all(not s <= o < s + 4096 for s in sampled))  # fmt: skip
+    with open(path, "r+b") as f:
+        f.seek(spot)
+        f.write(b"\x01")
+    assert open_entry(tmp_path, "test", key) is not None
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        assert open_entry(tmp_path, "test", key, full_check=True) is None
+    assert "corrupt entry" in caplog.text and not (tmp_path / f"test-{key}").exists()
+
+
+def test_a_writer_that_loses_the_race_uses_the_winners_entry(tmp_path, monkeypatch):
+    key = entry_key({"race": 1})
+    winner = {}
+    real_rename = os.rename
+
+    def rename(src, dst):
+        if Path(dst).name == f"test-{key}" and not winner:
+            # another process places the same entry just before this one
+            winner["started"] = True
+            winner["entry"] = write_entry(tmp_path, "test", key, {}, _arrays())
+        return real_rename(src, dst)
+
+    monkeypatch.setattr(anatomy_cache.os, "rename", rename)
+    entry = write_entry(tmp_path, "test", key, {}, _arrays())
+    assert entry.path == winner["entry"].path
+    assert entry["a"].values.tobytes() == _arrays()["a"][0].tobytes()
+    assert _entries(tmp_path) == [entry.path] and not _debris(tmp_path)
+
+
+def _write_in_a_process(args):
+    root, key = args
+    entry = write_entry(root, "test", key, {}, _arrays())
+    return entry["a"].values.tobytes() == _arrays()["a"][0].tobytes()
+
+
+def test_processes_writing_the_same_entry_do_not_corrupt_it(tmp_path):
+    key = entry_key({"race": 2})
+    with ProcessPoolExecutor(2) as pool:
+        ok = list(pool.map(_write_in_a_process, [(str(tmp_path), key)] * 6))
+    assert all(ok)
+    assert _entries(tmp_path) == [tmp_path / f"test-{key}"] and not _debris(tmp_path)
+    assert open_entry(tmp_path, "test", key, full_check=True) is not None
+
+
+def test_stale_temporary_folders_are_removed_and_clear_cache_empties(tmp_path):
+    stale = tmp_path / ".tmp-test-crashed"
+    stale.mkdir()
+    (stale / "a.npy").write_bytes(b"half")
+    os.utime(stale, (0, 0))
+    fresh = tmp_path / ".tmp-test-live"
+    fresh.mkdir()
+    write_entry(tmp_path, "test", entry_key({"x": 1}), {}, _arrays())
+    assert not stale.exists() and fresh.exists()
+    write_entry(tmp_path, "test", entry_key({"x": 2}), {}, _arrays())
+    assert clear_cache(tmp_path) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_values_that_cannot_be_stored_raise_and_leave_nothing(tmp_path):
+    bad = {"ok": _arrays()["a"], "bad": (np.array([object()]), {})}
+    with pytest.raises(ValueError):
+        write_entry(tmp_path, "test", entry_key({"bad": 1}), {}, bad)
+    assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------------------
+# the real data
+
+
+def _medrad_root():
+    try:
+        return medrad.medrad_root()
+    except InvalidInputError:
+        return None
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+@pytest.mark.skipif(
+    _medrad_root() is None,
+    reason=f"Med-RAD data not found: set {MEDRAD_ENV} or place it at ../shared/data/med-rad",
+)
+def test_lung1_plans_and_verifies_the_same_through_the_cache(tmp_path, capsys):
+    scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_lung1.yaml"
+    cache = str(tmp_path / "cache")
+    runs = [
+        _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache"),
+        _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache),
+        _plan_and_verify(capsys, scenario, tmp_path / "warm.json", "--cache-dir", cache),
+    ]
+    assert runs[0][1]["status"] == "solved"
+    for run in runs[1:]:
+        assert run[0] == runs[0][0] and run[2] == runs[0][2]
+        assert run[1] == runs[0][1]
+        assert _plan_json_like(run[3]) == _plan_json_like(runs[0][3])
