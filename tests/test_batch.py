@@ -79,7 +79,7 @@ def test_scenario_source_is_a_small_hashable_recipe():
     assert Path(src.scenario_path).is_absolute()
     assert hash(src) == hash(pickle.loads(pickle.dumps(src)))
     assert len(pickle.dumps(src)) < 1000
-    _, problem, _ = src.load()
+    _, problem = src.load()
     np.testing.assert_allclose(problem.goal_mm, [1, 2, 3])
     assert problem.r_min_mm == 80
 
@@ -92,8 +92,8 @@ def test_load_problem_errors_name_the_field(tmp_path):
 @pytest.fixture(scope="module")
 def lung():
     src = ScenarioSource.of(EXAMPLES / "lung_phantom.yaml")
-    _, problem, obstacles = src.load()
-    return src, problem, obstacles
+    _, problem = src.load()
+    return src, problem
 
 
 def _costs(result):
@@ -103,9 +103,9 @@ def _costs(result):
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["process", "dask"])
 def test_parallel_sweep_equals_the_serial_sweep(lung, kind):
-    src, problem, obstacles = lung
+    src, problem = lung
     dirs = sphere_directions(96)
-    kw = {"directions": dirs, "time_limit_s": 30.0, "max_iterations": 150, "obstacles": obstacles}
+    kw = {"directions": dirs, "time_limit_s": 30.0, "max_iterations": 150}
     serial = sweep(problem, "rcs_star", **kw)
     seen = []
     with open_executor(kind, workers=2) as ex:
@@ -116,7 +116,7 @@ def test_parallel_sweep_equals_the_serial_sweep(lung, kind):
 
 
 def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
-    _, problem, _ = lung
+    _, problem = lung
 
     from concurrent.futures import ThreadPoolExecutor
 

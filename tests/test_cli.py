@@ -359,14 +359,18 @@ def test_sweep_writes_the_direction_table(capsys, tmp_path):
     # the start lies on the airway wall: its outward normal halves the sphere (alpha = 0)
     assert summary["n_effective"] == 29
     # an iteration budget, not the clock, ends each search: the same outcome on any machine
-    assert code == 0 and summary["n_solved"] == 8 and summary["best_index"] == 13
+    # (8 solved before clearance was certified: half the 0.5 mm sample gap is now kept too)
+    assert code == 0 and summary["n_solved"] == 7 and summary["best_index"] == 13
     assert summary["best_cost_mm"] == pytest.approx(60.39820756787659, abs=1e-6)
-    assert summary["mean_cost_mm"] == pytest.approx(63.797477268617385, abs=1e-6)
-    assert "29 of 60 directions effective, 8 solved" in text
-    costs = [r["cost_mm"]["rcs_star"] for r in data["directions"]]
-    assert sum(c is not None for c in costs) == 8
+    assert summary["mean_cost_mm"] == pytest.approx(63.379010229738455, abs=1e-6)
+    assert "29 of 60 directions effective, 7 solved" in text
+    rows = data["directions"]
+    costs = [r["cost_mm"]["rcs_star"] for r in rows if r["status"]["rcs_star"] == "solved"]
+    assert len(costs) == 7
+    # one direction ends approximate: its nearest valid path, with the cost of that path
+    assert [r["status"]["rcs_star"] for r in rows].count("approximate") == 1
     best = data["best_plans"]["rcs_star"]
-    assert best["cost_mm"] == summary["best_cost_mm"] == min(c for c in costs if c is not None)
+    assert best["cost_mm"] == summary["best_cost_mm"] == min(costs)
     plan = json.loads((tmp_path / "best.json").read_text())
     assert plan["check"]["ok"] and plan["cost_mm"] == best["cost_mm"]
 

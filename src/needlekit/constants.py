@@ -50,3 +50,28 @@ MM_WARNING_MIN_R_MIN_MM: float = 1.0
 #: search for building and checking the path it returns, so that a run answers within its
 #: budget. One search step plus the final check take about 1-2 ms on a Med-RAD lung.
 PLANNER_FINISH_RESERVE_S: float = 0.01
+
+# -- the default needle and budget (written once; scenario files, problems, the command line
+# and the benchmarks read these) ----------------------------------------------------------
+
+#: Needle diameter (mm): the Med-RAD benchmark's needle, as in the reference planner's set-up.
+DEFAULT_NEEDLE_DIAMETER_MM: float = 1.0
+#: Minimum radius of curvature (mm) of a bevel-tip needle in soft tissue (Feng et al. use 50).
+DEFAULT_R_MIN_MM: float = 50.0
+#: Longest insertion (mm), l_max of the Med-RAD benchmark.
+DEFAULT_MAX_LENGTH_MM: float = 150.0
+#: Largest change of direction along a path (deg); the reference planner refuses more.
+DEFAULT_MAX_HEADING_CHANGE_DEG: float = 90.0
+#: Obstacles this close to the start (mm) are ignored: a transbronchial needle leaves the
+#: airway through its wall (the reference planner's whitelist radius).
+DEFAULT_START_EXCLUSION_MM: float = 3.0
+#: Goal tolerance tau (mm), Feng et al.'s and the reference planner's.
+DEFAULT_GOAL_TOLERANCE_MM: float = 1.0
+#: Planning budget per run (s): Feng et al.'s 1 s per start direction.
+DEFAULT_TIME_LIMIT_S: float = 1.0
+
+#: Shortest distance gradient (its length) accepted as a surface normal. A true signed
+#: distance has a unit gradient wherever the surface normal is defined; on the medial axis
+#: (e.g. a sphere's centre) central differences give a much shorter one, and interpolated
+#: grids stay above ~0.7 away from it. Below this the normal counts as undefined.
+MIN_NORMAL_GRADIENT: float = 0.5

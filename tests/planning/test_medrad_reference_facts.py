@@ -9,27 +9,12 @@ same verdicts and costs; the planners build on both.
 import numpy as np
 import pytest
 
-from needlekit.errors import InvalidInputError
-from needlekit.io.medrad import MEDRAD_ENV, load_medrad, medrad_root
 from needlekit.planning.steerable.goal import goal_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.verify import verify_plan
 
-
-def _have_data():
-    try:
-        medrad_root()
-    except InvalidInputError:
-        return False
-    return True
-
-
-pytestmark = [
-    pytest.mark.realdata,
-    pytest.mark.slow,
-    pytest.mark.skipif(not _have_data(), reason=f"Med-RAD data not found: set {MEDRAD_ENV}"),
-]
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
 # issue 4: reference RCS* costs (mm) on Patient 1, None = unreachable; start 2 collides
 REFERENCE = {
@@ -39,9 +24,19 @@ REFERENCE = {
 
 
 @pytest.fixture(scope="module")
-def lung1():
-    case = load_medrad("lung", 1)
-    return case, case.voxel_obstacles(needle_diameter_mm=1.0)
+def lung1(medrad_lung1):
+    return medrad_lung1, medrad_lung1.voxel_obstacles(needle_diameter_mm=1.0)
+
+
+def _problem(case, obstacles, start, r_min):
+    return SteerableProblem(
+        case.scene,
+        goal_mm=case.targets_mm["target"],
+        start_pose=case.start(start).world_T_tip,
+        r_min_mm=r_min,
+        collision_model="voxel_centres",
+        voxel_obstacles=obstacles,
+    )
 
 
 @pytest.mark.parametrize(("start", "r_min"), sorted(REFERENCE))
@@ -55,10 +50,8 @@ def test_direct_connection_reproduces_the_reference(lung1, start, r_min):
         assert conn is None
         return
     assert conn.length_mm == pytest.approx(expected, abs=0.005)
-    prob = SteerableProblem(case.scene, goal_mm=target, start_pose=s.world_T_tip, r_min_mm=r_min)
-    v = verify_plan(
-        prob, SteerablePlan(s.world_T_tip, conn.primitives), obstacles=obstacles, spacing_mm=0.5
-    )
+    prob = _problem(case, obstacles, start, r_min)
+    v = verify_plan(prob, SteerablePlan(s.world_T_tip, conn.primitives), spacing_mm=0.5)
     assert v.ok, v.violations
 
 
@@ -68,10 +61,8 @@ def test_start2_direct_connection_collides(lung1, r_min):
     s = case.start(2)
     target = case.targets_mm["target"]
     conn = goal_connection(s.world_T_tip, target, r_min, 1.0)
-    prob = SteerableProblem(case.scene, goal_mm=target, start_pose=s.world_T_tip, r_min_mm=r_min)
-    v = verify_plan(
-        prob, SteerablePlan(s.world_T_tip, conn.primitives), obstacles=obstacles, spacing_mm=0.5
-    )
+    prob = _problem(case, obstacles, 2, r_min)
+    v = verify_plan(prob, SteerablePlan(s.world_T_tip, conn.primitives), spacing_mm=0.5)
     assert not v.ok and v.violations[0].startswith("collision")
     assert np.isfinite(v.metrics["min_clearance_mm"])
 
@@ -82,11 +73,8 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
     from needlekit.planning.steerable.rcs import solve_rcs
 
     case, obstacles = lung1
-    s = case.start(start)
-    prob = SteerableProblem(
-        case.scene, goal_mm=case.targets_mm["target"], start_pose=s.world_T_tip, r_min_mm=r_min
-    )
-    res = solve_rcs(prob, time_limit_s=1.0, obstacles=obstacles)
+    prob = _problem(case, obstacles, start, r_min)
+    res = solve_rcs(prob, time_limit_s=1.0)
     expected = REFERENCE.get((start, r_min), "none")
     if expected == "none":  # start 2: the reference finds no plan within 1 s
         # no plan reaching the goal: at most the valid path that got nearest it
@@ -98,7 +86,7 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
     else:
         assert res.status is PlanStatus.SOLVED and res.stats["certified"]
         assert res.cost_mm <= expected + 0.5
-        assert verify_plan(prob, res.plan, obstacles=obstacles, spacing_mm=0.5).ok
+        assert verify_plan(prob, res.plan, spacing_mm=0.5).ok
 
 
 def test_bench_steerable_records_cases_and_the_reference(tmp_path):

@@ -70,7 +70,8 @@ def toy():
     scene = Scene(
         [
             Structure("lung", Role.ALLOWED_REGION, Sphere([0, 0, 0], 200.0)),
-            Structure("airway", Role.ENTRY_SURFACE, Sphere([0, 0, -10], 10.0)),
+            # the start leaves this airway through its wall: the default entry surface
+            Structure("airway", Role.OBSTACLE, Sphere([0, 0, -10], 10.0)),
             Structure("vessel", Role.OBSTACLE, Capsule([-30, -30, 40], [30, -30, 40], 3.0)),
         ]
     )

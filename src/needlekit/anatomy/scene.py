@@ -4,8 +4,10 @@ Roles say what a planner does with a structure:
 
 * ``obstacle``: the needle must keep clear of it (vessels, airways, ribs, placed needles);
 * ``target``: the goal region (a nodule, a tumour);
-* ``entry_surface``: the surface the needle enters through (airway wall, skin); its normal
-  gives the puncture angle;
+* ``entry_surface``: the surface of the body the needle enters (the skin); its inward normal
+  gives the puncture angle. (An airway a transbronchial needle leaves through its wall is an
+  ``obstacle``: a problem whose start lies on an obstacle takes it as the entry surface and
+  measures the angle to its outward normal.)
 * ``allowed_region``: the needle must stay inside it (the lung inside the pleura, the
   body inside the skin). Its outside is treated as an obstacle, except where a target is;
 * ``context``: shown and measured, ignored by planners (e.g. the liver around a tumour

@@ -17,9 +17,23 @@ from typing import Any
 import numpy as np
 
 from needlekit.benchmarks.record import machine_info
+from needlekit.constants import (
+    DEFAULT_GOAL_TOLERANCE_MM,
+    DEFAULT_MAX_HEADING_CHANGE_DEG,
+    DEFAULT_MAX_LENGTH_MM,
+    DEFAULT_NEEDLE_DIAMETER_MM,
+    DEFAULT_R_MIN_MM,
+    DEFAULT_START_EXCLUSION_MM,
+    DEFAULT_TIME_LIMIT_S,
+)
 from needlekit.planning.result import PlanStatus
 
-__all__ = ["REFERENCE_LUNG1", "run_steerable_benchmark"]
+__all__ = [
+    "BENCH_NEEDLE",
+    "REFERENCE_LUNG1",
+    "medrad_lung_problem",
+    "run_steerable_benchmark",
+]
 
 #: Issue 4's reference for Med-RAD lung 1, RCS*: (start, r_min) -> certified cost (mm),
 #: None where the goal is unreachable, "no plan" where nothing is found within 1 s.
@@ -29,98 +43,153 @@ REFERENCE_LUNG1: dict[tuple[int, int], float | str | None] = {
 }  # fmt: skip
 
 
-def _solve(planner: str, problem, obstacles, time_limit_s: float):
-    from needlekit.planning.steerable.solve import solve
+def _row(res, **case) -> dict:
+    st = res.stats
+    return {
+        **case,
+        "planner": res.planner,
+        "status": res.status.value,
+        "cost_mm": None if not math.isfinite(res.cost_mm) else res.cost_mm,
+        "time_s": res.time_s,
+        "setup_s": st.get("setup_s"),
+        "planner_wall_s": st.get("planner_wall_s"),
+        "overrun_s": st.get("overrun_s"),
+        "first_solution_s": st.get("first_solution_s"),
+        "cost_history": st.get("cost_history", []),
+        "certified": bool(st.get("certified", False)),
+        "certified_clearance_mm": st.get("certified_clearance_mm"),
+        "iterations": st.get("iterations"),
+        "reason": st.get("reason"),
+        "goal_distance_mm": st.get("goal_distance_mm"),
+    }
 
-    return solve(problem, planner, time_limit_s=time_limit_s, obstacles=obstacles, seed=0)
+
+def medrad_lung_problem(case, start: str, r_min_mm: float):
+    """The benchmark's problem for one Med-RAD lung start, built the way a scenario file
+    with that case, start, target and needle is (:func:`needlekit.io.problems.problem_from_scenario`).
+
+    Parameters
+    ----------
+    case : needlekit.io.medrad.MedradCase
+    start : str
+        ``"start1"`` ...
+    r_min_mm : float
+
+    Returns
+    -------
+    SteerableProblem
+    """
+    from needlekit.io.problems import problem_from_scenario
+    from needlekit.io.scenario import GoalSpec, NeedleSpec, Scenario, StartSpec
+
+    s = case.start(start)
+    scenario = Scenario(
+        name=f"Med-RAD {case.organ} {case.patient}, {start}",
+        description="needlekit bench steerable",
+        scene=case.scene,
+        needle=NeedleSpec(
+            diameter_mm=BENCH_NEEDLE["needle_diameter_mm"],
+            r_min_mm=float(r_min_mm),
+            max_length_mm=BENCH_NEEDLE["max_length_mm"],
+            max_heading_change_deg=BENCH_NEEDLE["max_heading_change_deg"],
+            start_exclusion_mm=BENCH_NEEDLE["start_exclusion_mm"],
+        ),
+        start=StartSpec(s.world_T_tip[:3, 3].copy(), s.world_T_tip, start),
+        goal=GoalSpec(case.targets_mm["target"], BENCH_NEEDLE["goal_tolerance_mm"], "target"),
+        base=case,
+        collision_model="voxel_centres",
+    )
+    return problem_from_scenario(scenario)
+
+
+#: The benchmark's needle: the reference planner's Med-RAD set-up (needlekit's defaults).
+BENCH_NEEDLE: dict[str, float] = {
+    "needle_diameter_mm": DEFAULT_NEEDLE_DIAMETER_MM,
+    "goal_tolerance_mm": DEFAULT_GOAL_TOLERANCE_MM,
+    "max_length_mm": DEFAULT_MAX_LENGTH_MM,
+    "max_heading_change_deg": DEFAULT_MAX_HEADING_CHANGE_DEG,
+    "start_exclusion_mm": DEFAULT_START_EXCLUSION_MM,
+}
 
 
 def run_steerable_benchmark(
     patients: Sequence[int] = (1, 2, 3, 4, 5),
-    radii_mm: Sequence[float] = (50.0, 100.0),
+    radii_mm: Sequence[float] = (DEFAULT_R_MIN_MM, 100.0),
     planners: Sequence[str] = ("rcs_star", "rcs", "rrt"),
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     medrad_dir=None,
     progress=None,
+    scenarios: Sequence = (),
 ) -> dict[str, Any]:
     """Run the planners on every case and record status, cost and time.
 
     Parameters
     ----------
     patients : sequence of int
-        Med-RAD lung patients.
+        Med-RAD lung patients (every start of each, against its target).
     radii_mm : sequence of float
         Minimum radii of curvature.
     planners : sequence of str
-        ``"rcs_star"``, ``"rcs"``, ``"rrt"`` (seed 0).
+        Registered steerable planners (seed 0).
     time_limit_s : float
         Budget per case and planner.
     medrad_dir : path-like, optional
     progress : callable, optional
         Called with a short string after each case (e.g. to advance a progress bar).
+    scenarios : sequence of path-like
+        Scenario files run as further cases, each with its own settings but these
+        planners and budget (no Med-RAD grid when ``patients`` is empty).
 
     Returns
     -------
     dict
         ``benchmark``, ``machine``, ``inputs``, ``fields`` (per patient: load and
         field-building seconds), ``results`` (one row per case and planner: ``patient``,
-        ``start``, ``r_min_mm``, ``planner``, ``status``, ``cost_mm``, ``time_s``,
-        ``certified``, ``iterations``, ``reference_cost_mm``) and ``summary`` (median time
-        to a certified plan, worst time of infeasible answers, agreement with the
-        reference).
+        ``start``, ``r_min_mm`` or ``scenario``, ``planner``, ``status``, ``cost_mm``,
+        ``time_s``, ``setup_s``, ``planner_wall_s``, ``overrun_s`` (time beyond the budget),
+        ``first_solution_s``, ``cost_history``, ``certified``, ``iterations``,
+        ``reference_cost_mm``) and ``summary`` (median time to a certified plan, worst
+        time of infeasible answers, largest overrun, agreement with the reference).
     """
     from needlekit.io.medrad import load_medrad
-    from needlekit.planning.steerable.problem import SteerableProblem
+    from needlekit.io.problems import load_problem
+    from needlekit.planning.steerable.solve import solve
+
+    def run(problem, planner):
+        return solve(problem, planner, time_limit_s=time_limit_s, seed=0)
 
     rows, fields = [], []
     for patient in patients:
         t0 = time.perf_counter()
         case = load_medrad("lung", patient, medrad_dir)
-        obstacles = case.voxel_obstacles(needle_diameter_mm=1.0)
         fields.append({"patient": patient, **case.timings_s, "total_s": time.perf_counter() - t0})
-        target = case.targets_mm["target"]
         for s in case.starts:
             start = int(s.name.removeprefix("start"))
             for r in radii_mm:
-                problem = SteerableProblem(
-                    case.scene,
-                    goal_mm=target,
-                    start_pose=s.world_T_tip,
-                    r_min_mm=r,
-                    needle_diameter_mm=1.0,
-                    goal_tolerance_mm=1.0,
-                    max_length_mm=150.0,
-                    max_heading_change_deg=90.0,
-                    start_exclusion_mm=3.0,
-                )
+                problem = medrad_lung_problem(case, s.name, r)
                 for planner in planners:
-                    res = _solve(planner, problem, obstacles, time_limit_s)
+                    res = run(problem, planner)
                     ref = (
                         REFERENCE_LUNG1.get((start, int(r)))
                         if patient == 1 and planner == "rcs_star"
                         else "n/a"
                     )
                     rows.append(
-                        {
-                            "patient": patient,
-                            "start": start,
-                            "r_min_mm": float(r),
-                            "planner": planner,
-                            "status": res.status.value,
-                            "cost_mm": None if not math.isfinite(res.cost_mm) else res.cost_mm,
-                            "time_s": res.time_s,
-                            "certified": bool(res.stats.get("certified", False)),
-                            "iterations": res.stats.get("iterations"),
-                            "reason": res.stats.get("reason"),
-                            "goal_distance_mm": res.stats.get("goal_distance_mm"),
-                            "reference_cost_mm": ref,
-                        }
+                        _row(res, patient=patient, start=start, r_min_mm=float(r))
+                        | {"reference_cost_mm": ref}
                     )
                     if progress is not None:
                         progress(
                             f"lung {patient} start {start} r {r:g} {planner}: {res.status.value}"
                         )
-        del case, obstacles
+        del case
+    for path in scenarios:
+        _, problem = load_problem(path)
+        for planner in planners:
+            res = run(problem, planner)
+            rows.append(_row(res, scenario=str(path)) | {"reference_cost_mm": "n/a"})
+            if progress is not None:
+                progress(f"{path} {planner}: {res.status.value}")
     return {
         "benchmark": "steerable",
         "machine": machine_info(),
@@ -128,13 +197,11 @@ def run_steerable_benchmark(
             "patients": list(patients),
             "radii_mm": list(radii_mm),
             "planners": list(planners),
+            "scenarios": [str(p) for p in scenarios],
             "time_limit_s": time_limit_s,
-            "needle_diameter_mm": 1.0,
-            "goal_tolerance_mm": 1.0,
-            "max_length_mm": 150.0,
-            "max_heading_change_deg": 90.0,
-            "start_exclusion_mm": 3.0,
-            "collision_model": "exact distance to obstacle voxel centres (radius + half voxel diagonal)",
+            **BENCH_NEEDLE,
+            "collision_model": "voxel_centres: exact distance to obstacle voxel centres "
+            "(radius + half voxel diagonal)",
         },
         "fields": fields,
         "results": rows,
@@ -148,8 +215,10 @@ def _summary(rows: list[dict]) -> dict:
         mine = [r for r in rows if r["planner"] == planner]
         certified = [r["time_s"] for r in mine if r["certified"]]
         infeasible = [r["time_s"] for r in mine if r["status"] == PlanStatus.INFEASIBLE.value]
+        overruns = [r["overrun_s"] for r in mine if r.get("overrun_s") is not None]
         out[planner] = {
             "cases": len(mine),
+            "max_overrun_s": max(overruns) if overruns else None,
             "solved": sum(r["status"] == "solved" for r in mine),
             "certified": len(certified),
             "median_time_to_certified_s": float(np.median(certified)) if certified else None,

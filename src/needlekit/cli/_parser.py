@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from needlekit import __version__
 from needlekit.cli._common import (
@@ -55,6 +56,23 @@ def _rrt_option(p: argparse.ArgumentParser) -> None:
         choices=["arc_line", "arc"],
         help="RRT's greedy goal connection: arc then line (default) or one arc to the target "
         "(the reference implementation's rule, behind Feng et al.'s tables)",
+    )
+
+
+def _cache_options(p: argparse.ArgumentParser) -> None:
+    from pathlib import Path
+
+    p.add_argument(
+        "--cache-dir",
+        type=Path,
+        metavar="DIR",
+        help="prepared-anatomy cache of Med-RAD patients (default $NEEDLEKIT_CACHE_DIR, "
+        "else $XDG_CACHE_HOME/needlekit or ~/.cache/needlekit)",
+    )
+    p.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="prepare the anatomy in memory only: neither read nor write the cache",
     )
 
 
@@ -153,16 +171,25 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     add_input(planp, "scenario", help="scenario file (YAML)")
     _problem_overrides(planp)
+    _cache_options(planp)
     planp.add_argument(
         "--planner",
-        choices=["rcs_star", "rcs", "rrt"],
-        help="planner (default: the scenario's, else rcs_star)",
+        metavar="NAME",
+        help="a registered planner: rcs_star, rcs, rrt or one a plug-in registers "
+        "(default: the scenario's, else rcs_star)",
     )
     add_output(planp, "--out", default="plan.json", help="plan file to write (default plan.json)")
     planp.add_argument(
         "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
     )
-    planp.add_argument("--seed", type=_seed, help="seed of randomised planners")
+    planp.add_argument(
+        "--seed", type=_seed, help="seed of randomised planners (default: the scenario's, else 0)"
+    )
+    planp.add_argument(
+        "--max-iterations",
+        type=_positive_int,
+        help="iteration budget besides the time limit (reproducible runs; default: the scenario's)",
+    )
     _rrt_option(planp)
 
     sw = sub.add_parser(
@@ -173,12 +200,12 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     add_input(sw, "scenario", help="scenario file (YAML)")
     _problem_overrides(sw)
+    _cache_options(sw)
     sw.add_argument(
         "--planner",
         nargs="+",
-        choices=["rcs_star", "rcs", "rrt"],
-        default=["rcs_star"],
-        help="planner(s) to compare (default rcs_star)",
+        metavar="NAME",
+        help="registered planner(s) to compare (default: the scenario's, else rcs_star)",
     )
     add_output(sw, "--out", default="sweep.json", help="sweep table to write (default sweep.json)")
     add_output(sw, "--plan", help="also write the first planner's best plan here")
@@ -190,9 +217,13 @@ def _build_parser() -> argparse.ArgumentParser:
         help="candidate directions on the sphere (default 544)",
     )
     sw.add_argument(
-        "--time-limit-s", type=_positive, default=0.5, help="budget per direction (default 0.5 s)"
+        "--time-limit-s",
+        type=_positive,
+        help="budget per direction (default: the scenario's, else 1 s as Feng et al.)",
     )
-    sw.add_argument("--seed", type=_seed, default=0, help="seed of randomised planners")
+    sw.add_argument(
+        "--seed", type=_seed, help="seed of randomised planners (default: the scenario's, else 0)"
+    )
     sw.add_argument(
         "--healpix",
         type=_positive_int,
@@ -202,7 +233,8 @@ def _build_parser() -> argparse.ArgumentParser:
     sw.add_argument(
         "--max-iterations",
         type=_positive_int,
-        help="iteration budget per direction besides the time limit (reproducible sweeps)",
+        help="iteration budget per direction besides the time limit (reproducible sweeps; "
+        "default: the scenario's)",
     )
     _executor_options(sw)
     _rrt_option(sw)
@@ -215,6 +247,7 @@ def _build_parser() -> argparse.ArgumentParser:
     add_input(ver, "scenario", help="scenario file (YAML)")
     add_input(ver, "plan", help="plan file (plan.json)")
     _problem_overrides(ver)
+    _cache_options(ver)
     ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
     pu = sub.add_parser(
@@ -325,10 +358,18 @@ def _build_parser() -> argparse.ArgumentParser:
     add_output(bs, "--out", help="write the record as JSON here")
     bs.add_argument(
         "--patients",
-        type=_positive_int,
+        type=_seed,
         nargs="+",
         default=[1, 2, 3, 4, 5],
-        help="lung patients (default 1-5)",
+        help="lung patients (default 1-5; 0 for none)",
+    )
+    bs.add_argument(
+        "--scenario",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="FILE",
+        help="scenario files to run as further cases (with --patients 0: these only)",
     )
     bs.add_argument(
         "--radii",
@@ -341,8 +382,8 @@ def _build_parser() -> argparse.ArgumentParser:
         "--planners",
         nargs="+",
         default=["rcs_star", "rcs", "rrt"],
-        choices=["rcs_star", "rcs", "rrt"],
-        help="planners (default all three)",
+        metavar="NAME",
+        help="registered planners (default rcs_star rcs rrt)",
     )
     bs.add_argument(
         "--time-limit-s",

@@ -40,20 +40,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         from needlekit.benchmarks.steerable import run_steerable_benchmark
 
-        total = len(args.patients) * 5 * len(args.radii) * len(args.planners)
+        patients = tuple(p for p in args.patients if p != 0)
+        total = (len(patients) * 5 * len(args.radii) + len(args.scenario)) * len(args.planners)
         with tqdm(total=total, desc="bench steerable", unit="case", disable=None) as bar:
             record = run_steerable_benchmark(
-                patients=tuple(args.patients),
+                patients=patients,
                 radii_mm=tuple(args.radii),
                 planners=tuple(args.planners),
                 time_limit_s=args.time_limit_s,
                 medrad_dir=args.medrad,
+                scenarios=tuple(args.scenario),
                 progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
             )
         for row in record["results"]:
             cost = "-" if row["cost_mm"] is None else f"{row['cost_mm']:.4f}"
             row["name"] = (
-                f"lung{row['patient']} s{row['start']} r{row['r_min_mm']:g} {row['planner']}"
+                f"{row['scenario']} {row['planner']}"
+                if "scenario" in row
+                else f"lung{row['patient']} s{row['start']} r{row['r_min_mm']:g} {row['planner']}"
             )
             row["summary"] = (
                 f"{row['status']:<10} {cost:>9} mm {1000 * row['time_s']:8.1f} ms"

@@ -26,11 +26,28 @@ def _source(args: argparse.Namespace):
         goal_mm=args.goal,
         r_min_mm=args.r_min_mm,
         needle_diameter_mm=args.needle_diameter_mm,
+        cache_dir=getattr(args, "cache_dir", None),
+        use_cache=not getattr(args, "no_cache", False),
     )
 
 
-def _problem_and_obstacles(args: argparse.Namespace):
-    return _source(args).load()
+def _settings(args: argparse.Namespace, names=None):
+    """The scenario's planner block under the flags, checked before the anatomy is read."""
+    from needlekit.io.problems import planner_settings
+    from needlekit.io.scenario import read_scenario_document
+
+    block = read_scenario_document(args.scenario).get("planner")
+    options = {}
+    if args.rrt_connection is not None:
+        options["rrt"] = {"connection": args.rrt_connection}
+    return planner_settings(
+        block,
+        names=names,
+        time_limit_s=args.time_limit_s,
+        seed=args.seed,
+        max_iterations=args.max_iterations,
+        options=options,
+    )
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
@@ -38,26 +55,23 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
-    sc, problem, obstacles = _problem_and_obstacles(args)
-    planner = args.planner or sc.planner.get("name") or "rcs_star"
-    budget = args.time_limit_s or sc.planner.get("time_limit_s") or 1.0
-    seed = args.seed if args.seed is not None else sc.planner.get("seed")
-    options = dict(sc.planner.get("options") or {})
-    if planner == "rrt" and args.rrt_connection is not None:
-        options["connection"] = args.rrt_connection
+    settings = _settings(args, args.planner)
+    _, problem = _source(args).load()
+    planner = settings.name
     res = solve(
         problem,
         planner,
-        time_limit_s=budget,
-        obstacles=obstacles,
-        seed=seed,
-        options=options if planner == "rrt" else None,
+        termination=settings.termination(),
+        options=settings.options[planner],
     )
     write_plan_json(args.out, res, scenario=str(args.scenario))
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
-    print(f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms) -> {args.out}")
-    if not res.status.has_plan and res.stats.get("reason"):
+    print(
+        f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms search, "
+        f"{1000 * res.stats.get('setup_s', 0.0):.1f} ms set-up) -> {args.out}"
+    )
+    if res.status is not PlanStatus.SOLVED and res.stats.get("reason"):
         print(f"reason: {res.stats['reason']}")
     if res.status is PlanStatus.APPROXIMATE:
         print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
@@ -69,6 +83,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
     from needlekit.studies.sweep_study import run_sweep_study
 
+    settings = _settings(args, args.planner)
     source = _source(args)
     source.cached()  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
@@ -84,14 +99,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             args.out,
             plan_path=args.plan,
             report_path=args.report,
-            planners=args.planner,
+            planners=settings.names,
             directions=dirs,
-            time_limit_s=args.time_limit_s,
-            max_iterations=args.max_iterations,
-            seed=args.seed,
+            time_limit_s=settings.time_limit_s,
+            max_iterations=settings.max_iterations,
+            seed=settings.seed,
             executor=None if args.executor == "serial" else ex,
             progress=progress,
-            options={"rrt": {"connection": args.rrt_connection or "arc_line"}},
+            options=settings.options,
         )
 
     def mm(v):
@@ -117,11 +132,11 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from needlekit.io.plans import read_plan_json
     from needlekit.planning.steerable.verify import verify_plan
 
-    _, problem, obstacles = _problem_and_obstacles(args)
-    plan, _, data = read_plan_json(args.plan)
+    plan, _, data = read_plan_json(args.plan)  # a malformed file fails before the anatomy loads
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
-    check = verify_plan(problem, plan, obstacles=obstacles, expected_cost_mm=data.get("cost_mm"))
+    _, problem = _source(args).load()
+    check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
         print(
             json.dumps(
@@ -134,7 +149,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         print(
             f"{'ok' if check.ok else 'VIOLATED'}: cost {m['cost']:.4f}, length {m['length_mm']:.3f} mm, goal distance "
             f"{m['goal_distance_mm']:.3f} mm, max curvature {m['max_curvature_per_mm']:.5f} /mm, heading change "
-            f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm"
+            f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm, "
+            f"certified clearance {m['certified_clearance_mm']:.3f} mm ({m['collision_model']})"
         )
         for v in check.violations:
             print(f"  - {v}")

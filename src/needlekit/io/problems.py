@@ -10,14 +10,20 @@ process pool or Dask cluster turns it into the problem once
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["ScenarioSource", "load_problem"]
+__all__ = [
+    "PlannerSettings",
+    "ScenarioSource",
+    "load_problem",
+    "planner_settings",
+    "problem_from_scenario",
+]
 
 
 def load_problem(
@@ -27,6 +33,8 @@ def load_problem(
     goal_mm=None,
     r_min_mm: float | None = None,
     needle_diameter_mm: float | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    use_cache: bool = True,
 ):
     """Load a scenario file and build its steerable-needle problem.
 
@@ -40,15 +48,17 @@ def load_problem(
         Replaces the scenario's goal point (tolerance kept, default 1 mm).
     r_min_mm, needle_diameter_mm : float, optional
         Replace the scenario's needle values.
+    cache_dir : path-like, optional
+        Root of the prepared-anatomy cache (default: the user cache folder).
+    use_cache : bool
+        Load a Med-RAD base's prepared anatomy from that cache, or store it there.
 
     Returns
     -------
     scenario : needlekit.io.scenario.Scenario
         With the start and goal filled in from the overrides where it lacked them.
     problem : SteerableProblem
-    obstacles : VoxelObstacles or None
-        The exact voxel-centre collision test for Med-RAD cases (the reference planner's
-        model), else None (the scene's obstacle field is used).
+        With the scenario's collision model (:func:`problem_from_scenario`).
 
     Raises
     ------
@@ -56,10 +66,9 @@ def load_problem(
         Missing start or goal, or a bad override.
     """
     from needlekit.io.scenario import GoalSpec, StartSpec, load_scenario
-    from needlekit.planning.steerable.problem import SteerableProblem
 
     path = Path(scenario_path)
-    sc = load_scenario(path)
+    sc = load_scenario(path, cache_dir=cache_dir, use_cache=use_cache)
     overrides: dict = {}
     if start_pose is not None:
         pose = np.asarray(start_pose, dtype=float)
@@ -84,14 +93,78 @@ def load_problem(
             overrides["start_pose"][:3, 3], overrides["start_pose"], "start_pose override"
         )
         goal = sc.goal or GoalSpec(overrides["goal_mm"], 1.0, "goal override")
-        sc = type(sc)(
-            sc.name, sc.description, sc.scene, sc.needle, start, goal, sc.planner, sc.path, sc.base
-        )
-    problem = SteerableProblem.from_scenario(sc, **overrides)
-    obstacles = None
-    if hasattr(sc.base, "voxel_obstacles"):  # Med-RAD: the reference's exact voxel-centre test
-        obstacles = sc.base.voxel_obstacles(problem.needle_diameter_mm, problem.safety_margin_mm)
-    return sc, problem, obstacles
+        sc = replace(sc, start=start, goal=goal)
+    return sc, problem_from_scenario(sc, **overrides)
+
+
+def problem_from_scenario(scenario, **overrides):
+    """The steerable-needle problem a scenario describes.
+
+    Parameters
+    ----------
+    scenario : needlekit.io.scenario.Scenario or path-like
+        A loaded scenario or a scenario file.
+    **overrides
+        :class:`~needlekit.planning.steerable.problem.SteerableProblem` attributes to set
+        instead of the scenario's (e.g. ``r_min_mm=100``, ``start_pose=...``).
+
+    Returns
+    -------
+    SteerableProblem
+        With the scenario's collision model; for ``voxel_centres`` its obstacle voxels are
+        built from the scenario's base for the problem's needle.
+
+    Raises
+    ------
+    InvalidInputError
+        No start or goal, or a collision model the scenario's anatomy cannot give.
+    """
+    from needlekit.io.medrad import MedradCase
+    from needlekit.io.scenario import Scenario, load_scenario
+    from needlekit.planning.steerable.problem import CollisionModel, CostKind, SteerableProblem
+
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    if sc.start is None and "start_pose" not in overrides:
+        raise InvalidInputError("start", "the scenario gives no start")
+    if sc.goal is None and "goal_mm" not in overrides:
+        raise InvalidInputError("goal", "the scenario gives no goal")
+    n = sc.needle
+    kw = {
+        "scene": sc.scene,
+        "goal_mm": None if sc.goal is None else sc.goal.point_mm,
+        "start_pose": None if sc.start is None else sc.start.world_T_tip,
+        "start_point_mm": None if sc.start is None else sc.start.point_mm,
+        "r_min_mm": n.r_min_mm,
+        "max_length_mm": n.max_length_mm,
+        "needle_diameter_mm": n.diameter_mm,
+        "safety_margin_mm": n.safety_margin_mm,
+        "min_puncture_angle_deg": n.min_puncture_angle_deg,
+        "max_heading_change_deg": n.max_heading_change_deg,
+        "start_exclusion_mm": n.start_exclusion_mm,
+        "collision_model": sc.collision_model,
+    }
+    if sc.goal is not None:
+        kw["goal_tolerance_mm"] = sc.goal.tolerance_mm
+    cost = (sc.planner or {}).get("cost")
+    if cost:
+        kw["cost"] = cost.get("kind", CostKind.PATH_LENGTH.value)
+        for key, name in (("weight", "cost_weight"), ("reach_mm", "cost_reach_mm")):
+            if key in cost:
+                kw[name] = cost[key]
+    kw.update(overrides)
+    if kw.get("start_pose") is not None and "start_point_mm" not in overrides:
+        kw["start_point_mm"] = None
+    model = CollisionModel(kw["collision_model"])
+    if model is CollisionModel.VOXEL_CENTRES and kw.get("voxel_obstacles") is None:
+        if not isinstance(sc.base, MedradCase):
+            raise InvalidInputError(
+                "collision_model",
+                "voxel_centres needs obstacle voxels: a scenario with a medrad base "
+                "(use collision_model: field for phantoms and shapes)",
+            )
+        margin = float(kw["safety_margin_mm"])
+        kw["voxel_obstacles"] = sc.base.voxel_obstacles(float(kw["needle_diameter_mm"]), margin)
+    return SteerableProblem(**kw)
 
 
 def _frozen(value):
@@ -112,6 +185,9 @@ class ScenarioSource:
     start_pose : tuple of 16 floats or None
     goal_mm : tuple of 3 floats or None
     r_min_mm, needle_diameter_mm : float or None
+    cache_dir : str or None
+        Root of the prepared-anatomy cache (None: the user cache folder).
+    use_cache : bool
     """
 
     scenario_path: str
@@ -119,6 +195,8 @@ class ScenarioSource:
     goal_mm: tuple | None = None
     r_min_mm: float | None = None
     needle_diameter_mm: float | None = None
+    cache_dir: str | None = None
+    use_cache: bool = True
 
     @classmethod
     def of(
@@ -129,6 +207,8 @@ class ScenarioSource:
         goal_mm=None,
         r_min_mm: float | None = None,
         needle_diameter_mm: float | None = None,
+        cache_dir: str | os.PathLike | None = None,
+        use_cache: bool = True,
     ) -> ScenarioSource:
         """A source from the same arguments as :func:`load_problem`.
 
@@ -138,6 +218,8 @@ class ScenarioSource:
         start_pose : array_like, shape (4, 4), optional
         goal_mm : array_like, shape (3,), optional
         r_min_mm, needle_diameter_mm : float, optional
+        cache_dir : str or path, optional
+        use_cache : bool
 
         Returns
         -------
@@ -149,6 +231,8 @@ class ScenarioSource:
             _frozen(goal_mm),
             None if r_min_mm is None else float(r_min_mm),
             None if needle_diameter_mm is None else float(needle_diameter_mm),
+            None if cache_dir is None else str(Path(cache_dir).expanduser().resolve()),
+            bool(use_cache),
         )
 
     def load(self):
@@ -166,6 +250,8 @@ class ScenarioSource:
             goal_mm=self.goal_mm,
             r_min_mm=self.r_min_mm,
             needle_diameter_mm=self.needle_diameter_mm,
+            cache_dir=self.cache_dir,
+            use_cache=self.use_cache,
         )
 
     def cached(self):
@@ -174,8 +260,119 @@ class ScenarioSource:
         Returns
         -------
         tuple
-            ``(scenario, problem, obstacles)``.
+            ``(scenario, problem)``.
         """
         from needlekit.batch import worker_cached
 
         return worker_cached(("ScenarioSource", self), self.load)
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """A run's planner settings: the scenario's ``planner`` block under the caller's
+    overrides (the command line's flags), read the same way by ``plan``, ``sweep`` and the
+    studies.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Planners to run (the first is the main one).
+    time_limit_s : float
+    seed : int
+    max_iterations : int or None
+    options : dict
+        Per planner name, its checked options (a mapping of the options dataclass's fields).
+    """
+
+    names: tuple[str, ...]
+    time_limit_s: float
+    seed: int
+    max_iterations: int | None
+    options: dict
+
+    @property
+    def name(self) -> str:
+        """The main planner."""
+        return self.names[0]
+
+    def termination(self):
+        """The budget.
+
+        Returns
+        -------
+        needlekit.planning.interface.Termination
+        """
+        from needlekit.planning.interface import Termination
+
+        return Termination(self.time_limit_s, self.max_iterations)
+
+
+def planner_settings(
+    block: dict | None,
+    *,
+    names=None,
+    time_limit_s: float | None = None,
+    seed: int | None = None,
+    max_iterations: int | None = None,
+    options: dict | None = None,
+) -> PlannerSettings:
+    """Merge a scenario's ``planner`` block with overrides, and check every option.
+
+    Parameters
+    ----------
+    block : dict or None
+        The scenario's ``planner`` block (``name``, ``time_limit_s``, ``seed``,
+        ``max_iterations``, ``options`` of the named planner).
+    names : str or sequence of str, optional
+        Planners to run instead of the block's ``name`` (default ``rcs_star``).
+    time_limit_s, seed, max_iterations : optional
+        Override the block's values.
+    options : dict, optional
+        Per planner name, settings that override the block's (e.g.
+        ``{"rrt": {"connection": "arc"}}``).
+
+    Returns
+    -------
+    PlannerSettings
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown planner or option (naming it), before any work.
+    """
+    import dataclasses
+
+    from needlekit.constants import DEFAULT_TIME_LIMIT_S
+    from needlekit.planning.interface import get_planner, planner_class
+
+    block = dict(block or {})
+    if names is None:
+        names = [block.get("name") or "rcs_star"]
+    elif isinstance(names, str):
+        names = [names]
+    names = tuple(dict.fromkeys(names))
+    if not names:
+        raise InvalidInputError("planner", "expected at least one planner")
+    seed_given = seed is not None
+    seed = seed if seed_given else block.get("seed", 0)
+    checked = {}
+    for name in names:
+        opts = dict(block.get("options") or {}) if name == block.get("name") else {}
+        opts.update((options or {}).get(name) or {})
+        factory = planner_class(name)
+        fields = {f.name for f in dataclasses.fields(factory.options_type)}
+        if "seed" in fields:  # the flag wins over the block's options, which win over its seed
+            opts["seed"] = seed if seed_given else opts.get("seed", seed)
+        get_planner(name, opts)  # raises on unknown options or bad values
+        checked[name] = opts
+    return PlannerSettings(
+        names,
+        float(
+            time_limit_s
+            if time_limit_s is not None
+            else block.get("time_limit_s", DEFAULT_TIME_LIMIT_S)
+        ),
+        int(seed),
+        max_iterations if max_iterations is not None else block.get("max_iterations"),
+        checked,
+    )

@@ -34,6 +34,14 @@ from needlekit.anatomy.fields import (
     union,
 )
 from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.constants import (
+    DEFAULT_GOAL_TOLERANCE_MM,
+    DEFAULT_MAX_HEADING_CHANGE_DEG,
+    DEFAULT_MAX_LENGTH_MM,
+    DEFAULT_NEEDLE_DIAMETER_MM,
+    DEFAULT_R_MIN_MM,
+    DEFAULT_START_EXCLUSION_MM,
+)
 from needlekit.errors import InvalidInputError
 from needlekit.io.scenario_schema import SCENARIO_SCHEMA, SOURCE_KINDS
 
@@ -46,6 +54,7 @@ __all__ = [
     "StartSpec",
     "load_scenario",
     "parse_scenario",
+    "read_scenario_document",
 ]
 
 #: RAS <- LPS (and back): a rotation by pi about z.
@@ -70,13 +79,13 @@ class NeedleSpec:
         airway through its wall).
     """
 
-    diameter_mm: float = 1.0
-    r_min_mm: float = 50.0
-    max_length_mm: float = 150.0
+    diameter_mm: float = DEFAULT_NEEDLE_DIAMETER_MM
+    r_min_mm: float = DEFAULT_R_MIN_MM
+    max_length_mm: float = DEFAULT_MAX_LENGTH_MM
     safety_margin_mm: float = 0.0
-    max_heading_change_deg: float = 90.0
+    max_heading_change_deg: float = DEFAULT_MAX_HEADING_CHANGE_DEG
     min_puncture_angle_deg: float = 0.0
-    start_exclusion_mm: float = 3.0
+    start_exclusion_mm: float = DEFAULT_START_EXCLUSION_MM
 
     @property
     def clearance_margin_mm(self) -> float:
@@ -109,7 +118,7 @@ class GoalSpec:
     """Target point (RAS mm) and tolerance (mm)."""
 
     point_mm: np.ndarray
-    tolerance_mm: float = 1.0
+    tolerance_mm: float = DEFAULT_GOAL_TOLERANCE_MM
     name: str = ""
 
 
@@ -131,6 +140,9 @@ class Scenario:
         The file it was read from.
     base : object or None
         The phantom or Med-RAD case the scene was built from.
+    collision_model : str
+        ``"field"`` or ``"voxel_centres"`` (see
+        :class:`needlekit.planning.steerable.problem.CollisionModel`).
     """
 
     name: str
@@ -142,6 +154,7 @@ class Scenario:
     planner: dict = field(default_factory=dict)
     path: Path | None = None
     base: Any = None
+    collision_model: str = "field"
 
 
 # ----------------------------------------------------------------------------------------
@@ -307,7 +320,7 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
     )
 
 
-def _base(spec: dict, ctx: _Ctx):
+def _base(spec: dict, ctx: _Ctx, cache: dict | None = None):
     if "phantom" in spec:
         from needlekit.anatomy.phantoms import make_phantom
 
@@ -322,7 +335,7 @@ def _base(spec: dict, ctx: _Ctx):
         if "root" in m and not Path(m["root"]).is_absolute()
         else m.get("root")
     )
-    return load_medrad(m["organ"], m["patient"], root)
+    return load_medrad(m["organ"], m["patient"], root, **(cache or {}))
 
 
 def _case_starts(base) -> list[tuple[str, np.ndarray]]:
@@ -378,18 +391,15 @@ def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
     point = ctx.point(spec["point_mm"])
     if "direction" not in spec:
         return StartSpec(point, None, "point")
-    from needlekit.geometry.se3 import make_pose
+    from needlekit.geometry.se3 import pose_from_direction
 
     d = ctx.point(spec["direction"])
     big = float(np.max(np.abs(d)))
     if not big > 1e-12:
         raise ctx.error("start.direction", "must be a non-zero vector")
-    d = d / big  # scaled first: the norm of a huge vector would overflow
-    z = d / np.linalg.norm(d)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    g = make_pose(np.column_stack([x, np.cross(z, x), z]), point)
+    # scaled first: the norm of a huge vector would overflow; the frame is the one sweeps
+    # give the same direction
+    g = pose_from_direction(point, d / big)
     return StartSpec(point, g, "point+direction")
 
 
@@ -397,7 +407,7 @@ def _goal(spec: dict, ctx: _Ctx, base) -> GoalSpec:
     given = [k for k in ("point_mm", "point_file", "case_target") if k in spec]
     if len(given) != 1:
         raise ctx.error("goal", "give exactly one of point_mm, point_file, case_target")
-    tol = float(spec.get("tolerance_mm", 1.0))
+    tol = float(spec.get("tolerance_mm", DEFAULT_GOAL_TOLERANCE_MM))
     k = given[0]
     if k == "point_mm":
         return GoalSpec(ctx.point(spec["point_mm"]), tol, "point")
@@ -411,7 +421,12 @@ def _goal(spec: dict, ctx: _Ctx, base) -> GoalSpec:
 
 
 def parse_scenario(
-    data: Any, *, base_dir: str | os.PathLike = ".", source: str = "scenario"
+    data: Any,
+    *,
+    base_dir: str | os.PathLike = ".",
+    source: str = "scenario",
+    cache_dir: str | os.PathLike | None = None,
+    use_cache: bool = True,
 ) -> Scenario:
     """Validate and build a scenario from already-parsed YAML/JSON data.
 
@@ -423,6 +438,10 @@ def parse_scenario(
         Folder that relative file paths are resolved against.
     source : str
         Name used in error messages (usually the file name).
+    cache_dir : path-like, optional
+        Root of the prepared-anatomy cache of a Med-RAD base (default: the user cache).
+    use_cache : bool
+        Use that cache (see :func:`needlekit.io.medrad.load_medrad`).
 
     Returns
     -------
@@ -435,7 +454,8 @@ def parse_scenario(
     """
     _validate(data, source)
     ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
-    base = _base(data["base"], ctx) if "base" in data else None
+    cache = {"cache_dir": cache_dir, "use_cache": use_cache}
+    base = _base(data["base"], ctx, cache) if "base" in data else None
     names: set[str] = set()
     extra = [_structure(i, s, ctx, names) for i, s in enumerate(data.get("structures", []))]
     if base is not None:
@@ -466,6 +486,7 @@ def parse_scenario(
         dict(data.get("planner", {})),
         None,
         base,
+        data.get("collision_model", "field"),
     )
 
 
@@ -518,8 +539,9 @@ def _combined(base_scene: Scene, extra: list[Structure]) -> DistanceField | None
     return union(base_field, *parts)
 
 
-def load_scenario(path: str | os.PathLike) -> Scenario:
-    """Read a scenario file (YAML or JSON).
+def read_scenario_document(path: str | os.PathLike) -> dict:
+    """Read and validate a scenario file's document, without building its anatomy (cheap:
+    callers check settings such as the planner block before any long computation).
 
     Parameters
     ----------
@@ -527,13 +549,13 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
 
     Returns
     -------
-    Scenario
+    dict
+        The document, valid against the schema.
 
     Raises
     ------
     InvalidInputError
-        Missing or unreadable file, bad YAML, or any field not as the schema says; the
-        message names the file and the field.
+        Missing or unreadable file, bad YAML, or a field not as the schema says.
     """
     p = Path(path)
     if not p.is_file():
@@ -552,7 +574,47 @@ def load_scenario(path: str | os.PathLike) -> Scenario:
         raise InvalidInputError(
             str(p), f"expected a mapping at the top level, got {type(data).__name__}"
         )
-    sc = parse_scenario(data, base_dir=p.parent, source=p.name)
+    _validate(data, p.name)
+    return data
+
+
+def load_scenario(
+    path: str | os.PathLike, *, cache_dir: str | os.PathLike | None = None, use_cache: bool = True
+) -> Scenario:
+    """Read a scenario file (YAML or JSON).
+
+    Parameters
+    ----------
+    path : path-like
+    cache_dir : path-like, optional
+        Root of the prepared-anatomy cache of a Med-RAD base (default: the user cache).
+    use_cache : bool
+        Use that cache (see :func:`needlekit.io.medrad.load_medrad`).
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    InvalidInputError
+        Missing or unreadable file, bad YAML, or any field not as the schema says; the
+        message names the file and the field.
+    """
+    p = Path(path)
+    data = read_scenario_document(p)
+    sc = parse_scenario(
+        data, base_dir=p.parent, source=p.name, cache_dir=cache_dir, use_cache=use_cache
+    )
     return Scenario(
-        sc.name, sc.description, sc.scene, sc.needle, sc.start, sc.goal, sc.planner, p, sc.base
+        sc.name,
+        sc.description,
+        sc.scene,
+        sc.needle,
+        sc.start,
+        sc.goal,
+        sc.planner,
+        p,
+        sc.base,
+        sc.collision_model,
     )

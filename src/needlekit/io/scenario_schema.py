@@ -192,10 +192,18 @@ _GOAL = {
 
 _PLANNER = _obj(
     {
-        "name": {"enum": ["rrt", "rcs", "rcs_star"]},
+        "name": {
+            "type": "string",
+            "minLength": 1,
+            "description": "a registered planner: rcs_star, rcs, rrt, or one another package registers",
+        },
         "time_limit_s": _POS,
         "seed": {"type": "integer", "minimum": 0},
-        "options": {"type": "object", "description": "planner-specific settings"},
+        "max_iterations": {"type": "integer", "minimum": 1},
+        "options": {
+            "type": "object",
+            "description": "settings of the named planner (unknown keys are an error)",
+        },
         "cost": _obj(
             {
                 "kind": {"enum": ["path_length", "clearance"]},
@@ -229,6 +237,12 @@ SCENARIO_SCHEMA: dict[str, Any] = {
         "start": _START,
         "goal": _GOAL,
         "planner": _PLANNER,
+        "collision_model": {
+            "enum": ["field", "voxel_centres"],
+            "description": "how collisions are decided: the scene's distance field (certified: "
+            "its error bound subtracted) or the reference planner's exact test against obstacle "
+            "voxel centres (needs a Med-RAD base); default field",
+        },
     },
     "required": ["version"],
     "additionalProperties": False,

@@ -126,10 +126,11 @@ def run_sweep_study(
     planners = list(dict.fromkeys(planners))
     if not planners:
         raise InvalidInputError("planners", "expected at least one planner")
-    for name in planners:
-        if name not in ("rcs_star", "rcs", "rrt"):
-            raise InvalidInputError("planners", f"unknown planner {name!r}")
-    sc, problem, obstacles = source.cached()
+    from needlekit.planning.interface import get_planner
+
+    for name in planners:  # unknown planners and options fail before any work
+        get_planner(name, (options or {}).get(name))
+    sc, problem = source.cached()
     dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
     sweeps = {}
     for name in planners:
@@ -138,7 +139,6 @@ def run_sweep_study(
             name,
             directions=dirs,
             time_limit_s=time_limit_s,
-            obstacles=obstacles,
             seed=seed,
             max_iterations=max_iterations,
             executor=executor,
@@ -159,7 +159,7 @@ def run_sweep_study(
     }
     if best is not None:
         p = problem.with_start_pose(best.start_pose)
-        check = verify_plan(p, best.plan, obstacles=obstacles, expected_cost_mm=best.cost_mm)
+        check = verify_plan(p, best.plan, expected_cost_mm=best.cost_mm)
     # all files or none: a report that cannot be written leaves the old sweep.json too
     with staged_outputs():
         files["sweep"] = write_json(sweep_path, record)
@@ -187,9 +187,7 @@ def _write_report(path, title: str, sweeps: dict, first: str, best, check, probl
     from needlekit.report.html_page import TableSection, TextSection
     from needlekit.report.sweep_report import sweep_sections, write_report_html
 
-    normal = None
-    if problem.entry_surface is not None:
-        normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
+    normal = problem.puncture_normal
     sections = sweep_sections(sweeps, normal=normal, scene=problem.scene)
     if best is not None:
         m = check.metrics

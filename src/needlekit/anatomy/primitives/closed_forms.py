@@ -254,15 +254,15 @@ class HalfSpace(_Primitive):
         norm = float(np.linalg.norm(n))
         if not norm > 1e-12:
             raise InvalidInputError("normal_mm", f"must be a non-zero vector, got {n.tolist()}")
-        self.normal = n / norm
+        self.unit_normal = n / norm
         self._set_pose(world_T_local)
 
     def _local_eval(self, q):
-        sd = (q - self.point_mm) @ self.normal
-        return sd, np.broadcast_to(self.normal, q.shape).copy()
+        sd = (q - self.point_mm) @ self.unit_normal
+        return sd, np.broadcast_to(self.unit_normal, q.shape).copy()
 
     def _local_bounds(self):
-        return self._axis_aligned_bounds(self.normal, self.point_mm)
+        return self._axis_aligned_bounds(self.unit_normal, self.point_mm)
 
     @staticmethod
     def _axis_aligned_bounds(n: np.ndarray, point: np.ndarray) -> np.ndarray:
@@ -279,12 +279,12 @@ class HalfSpace(_Primitive):
         -------
         ndarray, shape (2, 3)
         """
-        n_world = self._rot @ self.normal
+        n_world = self._rot @ self.unit_normal
         p_world = self._rot @ self.point_mm + self._trans
         return self._axis_aligned_bounds(n_world, p_world)
 
     def __repr__(self) -> str:
         return (
-            f"HalfSpace(point_mm={_fmt(self.point_mm)}, normal={_fmt(self.normal)}"
+            f"HalfSpace(point_mm={_fmt(self.point_mm)}, normal={_fmt(self.unit_normal)}"
             f"{self._pose_repr()})"
         )

@@ -14,10 +14,39 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit._validation import as_points, as_poses, as_positive
+from needlekit.anatomy.fields import DistanceField
+from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.anatomy.scene import Role, Scene
+from needlekit.constants import (
+    DEFAULT_GOAL_TOLERANCE_MM,
+    DEFAULT_MAX_HEADING_CHANGE_DEG,
+    DEFAULT_MAX_LENGTH_MM,
+    DEFAULT_NEEDLE_DIAMETER_MM,
+    DEFAULT_R_MIN_MM,
+    DEFAULT_START_EXCLUSION_MM,
+    MIN_NORMAL_GRADIENT,
+)
 from needlekit.errors import InvalidInputError
 
-__all__ = ["CostKind", "SteerableProblem"]
+__all__ = ["CollisionModel", "CostKind", "SteerableProblem"]
+
+
+class CollisionModel(enum.Enum):
+    """How a problem decides collisions: one model per problem, chosen explicitly.
+
+    FIELD
+        The scene's obstacle field: a point is clear when its distance to every obstacle,
+        less the field's stated error bound and half the sampling gap, is at least the
+        needle radius plus margin (certified: never clear when the truth is not).
+    VOXEL_CENTRES
+        The reference planner's exact test (``docs/notes/steerable-reference-planner.md``,
+        section 7): a sample collides when an obstacle voxel centre lies closer than the
+        needle radius plus half a voxel diagonal (plus margin), or it leaves the image.
+        Needs the problem's ``voxel_obstacles``; reproduces the reference's verdicts.
+    """
+
+    FIELD = "field"
+    VOXEL_CENTRES = "voxel_centres"
 
 
 class CostKind(enum.Enum):
@@ -82,25 +111,50 @@ class SteerableProblem:
         ``w`` of the clearance cost map (>= 0; extra cost per mm when touching an obstacle).
     cost_reach_mm : float
         ``R`` of the clearance cost map (> 0): beyond this clearance a mm costs 1.
+    collision_model : CollisionModel or str
+        ``"field"`` (default) or ``"voxel_centres"``.
+    voxel_obstacles : VoxelObstacles, optional
+        The obstacle voxels of the ``voxel_centres`` model (required by it, refused by
+        ``field``), built for this needle's diameter and margin.
+    entry_normal : array_like, shape (3,), optional
+        Normal of the entry surface at the start, pointing into the tissue entered, given
+        instead of the one the surface's distance gradient gives (e.g. where it is
+        undefined).
+    puncture_normal : ndarray, shape (3,) or None
+        The normal the puncture angle is measured against, pointing into the tissue
+        (computed by :meth:`tissue_normal` at the start point; None where undefined and
+        ``min_puncture_angle_deg`` is 0). ``metadata["puncture_normal_source"]`` says where
+        it came from.
+
+    Raises
+    ------
+    InvalidInputError
+        A field out of range, a collision model without what it needs, or a minimum
+        puncture angle that cannot be checked (no entry surface, or its normal undefined at
+        the start point).
     """
 
     scene: Scene
     goal_mm: np.ndarray
     start_pose: np.ndarray | None = None
     start_point_mm: np.ndarray | None = None
-    goal_tolerance_mm: float = 1.0
-    r_min_mm: float = 50.0
-    max_length_mm: float = 150.0
-    needle_diameter_mm: float = 1.0
+    goal_tolerance_mm: float = DEFAULT_GOAL_TOLERANCE_MM
+    r_min_mm: float = DEFAULT_R_MIN_MM
+    max_length_mm: float = DEFAULT_MAX_LENGTH_MM
+    needle_diameter_mm: float = DEFAULT_NEEDLE_DIAMETER_MM
     safety_margin_mm: float = 0.0
     min_puncture_angle_deg: float = 0.0
     entry_surface: str | None = None
-    max_heading_change_deg: float = 90.0
-    start_exclusion_mm: float = 3.0
+    max_heading_change_deg: float = DEFAULT_MAX_HEADING_CHANGE_DEG
+    start_exclusion_mm: float = DEFAULT_START_EXCLUSION_MM
     cost: CostKind = CostKind.PATH_LENGTH
     cost_weight: float = 1.0
     cost_reach_mm: float = 5.0
     metadata: dict = field(default_factory=dict)
+    collision_model: CollisionModel = CollisionModel.FIELD
+    voxel_obstacles: VoxelObstacles | None = field(default=None, repr=False, compare=False)
+    entry_normal: np.ndarray | None = None
+    puncture_normal: np.ndarray | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, Scene):
@@ -155,6 +209,106 @@ class SteerableProblem:
         except ValueError:
             kinds = ", ".join(k.value for k in CostKind)
             raise InvalidInputError("cost", f"expected one of {kinds}, got {self.cost!r}") from None
+        self._check_collision_model()
+        self._resolve_puncture_normal()
+
+    def _check_collision_model(self) -> None:
+        try:
+            model = CollisionModel(self.collision_model)
+        except ValueError:
+            kinds = ", ".join(k.value for k in CollisionModel)
+            raise InvalidInputError(
+                "collision_model", f"expected one of {kinds}, got {self.collision_model!r}"
+            ) from None
+        object.__setattr__(self, "collision_model", model)
+        obs = self.voxel_obstacles
+        if model is CollisionModel.VOXEL_CENTRES:
+            if not isinstance(obs, VoxelObstacles):
+                raise InvalidInputError(
+                    "voxel_obstacles",
+                    "the voxel_centres collision model needs the obstacle voxels "
+                    "(e.g. a Med-RAD case's voxel_obstacles(...))",
+                )
+            wanted = 0.5 * self.needle_diameter_mm + obs.voxel_radius_mm + self.safety_margin_mm
+            if abs(obs.min_distance_mm - wanted) > 1e-9:
+                raise InvalidInputError(
+                    "voxel_obstacles",
+                    f"built for a threshold of {obs.min_distance_mm:.4f} mm, but this needle "
+                    f"(diameter {self.needle_diameter_mm:g} mm, margin "
+                    f"{self.safety_margin_mm:g} mm) needs {wanted:.4f} mm",
+                )
+        elif obs is not None:
+            raise InvalidInputError(
+                "voxel_obstacles",
+                "given with the field collision model, which would ignore them; "
+                "set collision_model='voxel_centres'",
+            )
+
+    def _resolve_puncture_normal(self) -> None:
+        alpha = self.min_puncture_angle_deg
+        if self.entry_normal is not None:
+            n = np.asarray(self.entry_normal, dtype=float).reshape(-1)
+            norm = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
+            if not (np.all(np.isfinite(n)) and norm > 1e-12):
+                raise InvalidInputError(
+                    "entry_normal",
+                    f"expected a non-zero finite vector (3,), got {self.entry_normal!r}",
+                )
+            object.__setattr__(self, "entry_normal", n / norm)
+        normal, why = self.tissue_normal(self.start_point_mm)
+        if normal is None:
+            if alpha > 0:
+                raise InvalidInputError(
+                    "entry_surface",
+                    f"{why}, so min_puncture_angle_deg = {alpha:g} cannot be checked; "
+                    "give entry_normal",
+                )
+            return
+        object.__setattr__(self, "puncture_normal", normal)
+        self.metadata.setdefault("puncture_normal_source", why)
+
+    def tissue_normal(self, point_mm) -> tuple[np.ndarray | None, str]:
+        """The unit normal of the entry surface at a point, pointing into the tissue the
+        needle enters: the puncture angle is ``asin(direction . normal)``.
+
+        An ``entry_surface`` structure (skin) is entered: this is its inward normal. The
+        obstacle a start lies on (an airway the needle leaves through its wall, the default
+        entry surface of a transbronchial start) is left: its outward normal. The normal is the distance field's
+        gradient, accepted only where its length is at least
+        :data:`~needlekit.constants.MIN_NORMAL_GRADIENT` (a true distance has a unit gradient
+        wherever the normal is defined; on the medial axis it does not).
+
+        Parameters
+        ----------
+        point_mm : array_like, shape (3,)
+
+        Returns
+        -------
+        normal : ndarray, shape (3,) or None
+            None where it is undefined.
+        why : str
+            Where the normal comes from, or why it is undefined.
+        """
+        if self.entry_normal is not None:
+            return self.entry_normal, "entry_normal"
+        if self.entry_surface is None:
+            return None, (
+                "no entry surface: the scene has none and the start lies on no obstacle; name one"
+            )
+        s = self.scene[self.entry_surface]
+        p = np.asarray(point_mm, dtype=float).reshape(1, 3)
+        g = DistanceField._gradient(s.field, p)[0]  # central differences of the distance
+        length = float(np.linalg.norm(g))
+        if not (np.isfinite(length) and length >= MIN_NORMAL_GRADIENT):
+            return None, (
+                f"the normal of {self.entry_surface!r} is undefined at "
+                f"{np.round(p[0], 3).tolist()} (distance gradient of length {length:.3g})"
+            )
+        inward = s.role is Role.ENTRY_SURFACE  # skin: the needle enters the structure
+        n = g / length
+        return (-n if inward else n), (
+            f"{'inward' if inward else 'outward'} normal of {self.entry_surface}"
+        )
 
     def _default_entry_surface(self) -> str | None:
         """The scene's entry surface; else the obstacle the start lies on (within the start
@@ -196,49 +350,23 @@ class SteerableProblem:
 
     @classmethod
     def from_scenario(cls, scenario, **overrides) -> SteerableProblem:
-        """The problem a scenario file describes (see ``docs/scenarios.md``).
+        """The problem a scenario describes: a convenience for
+        :func:`needlekit.io.problems.problem_from_scenario`, where scenarios are read (the
+        planning layer does not read the io layer's shapes).
 
         Parameters
         ----------
-        scenario : needlekit.io.scenario.Scenario
+        scenario : needlekit.io.scenario.Scenario or path-like
+            A loaded scenario, or a scenario file.
         **overrides
             Attributes to set instead of the scenario's (e.g. ``r_min_mm=100``).
 
         Returns
         -------
         SteerableProblem
-
-        Raises
-        ------
-        InvalidInputError
-            The scenario has no start or no goal.
+            With the scenario's collision model (and its obstacle voxels when that is
+            ``voxel_centres``).
         """
-        if scenario.start is None:
-            raise InvalidInputError("start", "the scenario gives no start")
-        if scenario.goal is None:
-            raise InvalidInputError("goal", "the scenario gives no goal")
-        n = scenario.needle
-        kw = {
-            "scene": scenario.scene,
-            "goal_mm": scenario.goal.point_mm,
-            "start_pose": scenario.start.world_T_tip,
-            "start_point_mm": scenario.start.point_mm,
-            "goal_tolerance_mm": scenario.goal.tolerance_mm,
-            "r_min_mm": n.r_min_mm,
-            "max_length_mm": n.max_length_mm,
-            "needle_diameter_mm": n.diameter_mm,
-            "safety_margin_mm": n.safety_margin_mm,
-            "min_puncture_angle_deg": n.min_puncture_angle_deg,
-            "max_heading_change_deg": n.max_heading_change_deg,
-            "start_exclusion_mm": n.start_exclusion_mm,
-        }
-        cost = (scenario.planner or {}).get("cost")
-        if cost:
-            kw["cost"] = cost.get("kind", CostKind.PATH_LENGTH.value)
-            for key, name in (("weight", "cost_weight"), ("reach_mm", "cost_reach_mm")):
-                if key in cost:
-                    kw[name] = cost[key]
-        kw.update(overrides)
-        if kw.get("start_pose") is not None and "start_point_mm" not in overrides:
-            kw["start_point_mm"] = None
-        return cls(**kw)
+        from needlekit.io.problems import problem_from_scenario
+
+        return problem_from_scenario(scenario, **overrides)

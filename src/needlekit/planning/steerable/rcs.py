@@ -41,25 +41,30 @@ import heapq
 import itertools
 import logging
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
-from needlekit.constants import PLANNER_FINISH_RESERVE_S
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
+from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
-from needlekit.planning.steerable.validity import MotionValidator
-from needlekit.planning.steerable.verify import verify_approximate, verify_plan
+from needlekit.planning.steerable.search import SteerableSearch, precheck
 
-__all__ = ["LOOKAHEAD_RANKS", "Resolution", "solve_rcs"]
+__all__ = [
+    "LOOKAHEAD_RANKS",
+    "RCSOptions",
+    "RCSPlanner",
+    "RCSStarPlanner",
+    "Resolution",
+    "solve_rcs",
+]
 
 log = logging.getLogger(__name__)
 
@@ -214,12 +219,64 @@ def _cost_to_go(pose, problem: SteerableProblem) -> float:
     return math.inf if c is None else c.length_mm
 
 
+@dataclass(frozen=True)
+class RCSOptions:
+    """Settings of RCS and RCS*.
+
+    Attributes
+    ----------
+    resolution : Resolution
+        Primitive resolution (default: 16 mm to 0.125 mm, spins down to pi/32); a mapping
+        of its fields in scenario files.
+    """
+
+    resolution: Resolution = Resolution()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.resolution, Resolution):
+            raise InvalidInputError(
+                "resolution", f"expected a Resolution, got {type(self.resolution).__name__}"
+            )
+
+
+class RCSStarPlanner:
+    """RCS*: cost-ordered, resolution-optimal; certifies its plan when the search ends."""
+
+    name = "rcs_star"
+    family = "steerable"
+    options_type = RCSOptions
+    optimal = True
+
+    def __init__(self, options: RCSOptions | None = None) -> None:
+        self.options = RCSOptions() if options is None else options
+
+    def solve(self, problem: SteerableProblem, termination: Termination) -> PlanResult:
+        """Plan (see :func:`solve_rcs`).
+
+        Parameters
+        ----------
+        problem : SteerableProblem
+        termination : Termination
+
+        Returns
+        -------
+        PlanResult
+        """
+        return _search(problem, termination, self.optimal, self.name, self.options.resolution)
+
+
+class RCSPlanner(RCSStarPlanner):
+    """RCS: rank-ordered, resolution-complete and anytime."""
+
+    name = "rcs"
+    optimal = False
+
+
 def solve_rcs(
     problem: SteerableProblem,
     *,
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     optimal: bool = True,
-    obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
     resolution: Resolution | None = None,
 ) -> PlanResult:
@@ -233,8 +290,6 @@ def solve_rcs(
         Budget; the best plan so far is returned when it runs out.
     optimal : bool
         RCS* (cost-ordered, certifies optimality at the finest resolution) or RCS.
-    obstacles : VoxelObstacles, optional
-        Exact voxel-centre collision test (default: the scene's obstacle field).
     max_iterations : int, optional
         Budget in processed nodes.
     resolution : Resolution, optional
@@ -244,44 +299,32 @@ def solve_rcs(
     -------
     PlanResult
         ``SOLVED`` (``stats["certified"]`` when the search finished), ``INFEASIBLE`` (no
-        plan at the finest resolution, or the goal outside the start's reachable set),
-        ``APPROXIMATE`` (the budget ran out: the valid path that ended nearest the goal,
-        ``stats["goal_distance_mm"]``), ``TIMEOUT`` (not even that) or
-        ``INVALID_PROBLEM``.
+        plan at the finest resolution, or a verdict of the pre-checks,
+        :mod:`needlekit.planning.steerable.search`), ``APPROXIMATE`` (the budget ran out:
+        the valid path that ended nearest the goal, ``stats["goal_distance_mm"]``),
+        ``TIMEOUT`` (not even that) or ``INVALID_PROBLEM``.
     """
-    if problem.start_pose is None:
-        raise InvalidInputError(
-            "start_pose", "RCS needs a start pose (sweep directions for a start point)"
-        )
-    if not (np.isfinite(time_limit_s) and time_limit_s > 0):
-        raise InvalidInputError("time_limit_s", f"must be a finite number > 0, got {time_limit_s}")
-    name = "rcs_star" if optimal else "rcs"
-    validator = MotionValidator(problem, obstacles)
-    setup_s = validator.warm_up()  # JIT compilation is not search time
-    t0 = time.perf_counter()
-    search_s = time_limit_s - min(PLANNER_FINISH_RESERVE_S, 0.05 * time_limit_s)
+    planner = (RCSStarPlanner if optimal else RCSPlanner)(
+        RCSOptions(Resolution() if resolution is None else resolution)
+    )
+    return planner.solve(problem, Termination(time_limit_s, max_iterations))
+
+
+def _search(
+    problem: SteerableProblem,
+    termination: Termination,
+    optimal: bool,
+    name: str,
+    res: Resolution,
+) -> PlanResult:
+    search = SteerableSearch(problem, termination, name)
+    run = search.run
+    validator = search.validator
     start, goal = problem.start_pose, problem.goal_mm
-
-    def result(status, plan=None, cost=math.inf, **stats):
-        return PlanResult(status, name, plan, cost, time.perf_counter() - t0, goal, stats, start)
-
-    if validator.points_collide(start[:3, 3][None]):
-        return result(
-            PlanStatus.INVALID_PROBLEM, reason="start collides beyond the start exclusion"
-        )
-    if validator.obstacles is not None and validator.obstacles.collides(goal):
-        return result(PlanStatus.INVALID_PROBLEM, reason="goal collides with an obstacle")
-    if np.linalg.norm(goal - start[:3, 3]) > problem.max_length_mm:
-        return result(PlanStatus.INFEASIBLE, reason="goal farther than the maximum length")
+    verdict = precheck(problem, goal, validator)
+    if verdict is not None:
+        return search.result(verdict[0], reason=verdict[1])
     h0 = _cost_to_go(start, problem)
-    if not math.isfinite(h0):
-        return result(
-            PlanStatus.INFEASIBLE, reason="goal outside the start's reachable set (r_min torus)"
-        )
-
-    res = Resolution() if resolution is None else resolution
-    if not isinstance(res, Resolution):
-        raise InvalidInputError("resolution", f"expected a Resolution, got {type(res).__name__}")
     lengths, length_level, spins, spin_level = _tables(res)
     length_levels, spin_levels = res.length_levels, res.spin_levels
     kappa = problem.kappa_max_per_mm
@@ -293,8 +336,6 @@ def solve_rcs(
     buckets: dict[int, list] = {}
     best = math.inf
     best_plan: SteerablePlan | None = None
-    iterations = 0
-    rejected = 0
 
     def push(idx: int) -> None:
         n = nodes[idx]
@@ -376,7 +417,7 @@ def solve_rcs(
         return prims[::-1]
 
     def try_goal(idx: int) -> None:
-        nonlocal best, best_plan, rejected
+        nonlocal best, best_plan
         n = nodes[idx]
         conn = connect(n.pose, goal, problem.r_min_mm, problem.goal_tolerance_mm)
         if conn is None:
@@ -391,27 +432,14 @@ def solve_rcs(
         if cost >= best - PRUNE_EPS_MM:
             return
         plan = SteerablePlan(start, np.array(chain(idx) + conn.primitives.tolist()).reshape(-1, 3))
-        check = verify_plan(problem, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm)
-        if not check.ok:  # never report a path the independent check refuses
-            rejected += 1
-            log.warning(
-                "%s: candidate plan refused by the check: %s", name, "; ".join(check.violations)
-            )
-            return
-        best, best_plan = cost, plan
+        if search.check(plan):
+            best, best_plan = cost, plan
+            run.improved(cost)
 
     closest = (float(np.linalg.norm(start[:3, 3] - goal)), 0)  # (goal distance, node)
     try_goal(0)
     expand(0)
-    reason = "search space exhausted"
-    while buckets:
-        if time.perf_counter() - t0 > search_s:
-            reason = "time limit"
-            break
-        if max_iterations is not None and iterations >= max_iterations:
-            reason = "iteration limit"
-            break
-        iterations += 1
+    while buckets and run.keep_going():
         idx = pop()
         n = nodes[idx]
         parent = nodes[n.parent]
@@ -436,28 +464,16 @@ def solve_rcs(
 
     exhausted = not buckets
     stats = {
-        "iterations": iterations,
         "nodes": len(nodes),
         "certified": bool(exhausted and optimal and best_plan is not None),
         "exhausted": exhausted,
-        "reason": reason,
-        "refused_by_check": rejected,
         "duplicates": n_duplicates,
-        "setup_s": setup_s,
     }
     if best_plan is not None:
-        return result(PlanStatus.SOLVED, best_plan, best, **stats)
+        return search.result(PlanStatus.SOLVED, best_plan, best, **stats)
     if exhausted:
-        return result(
-            PlanStatus.INFEASIBLE, **{**stats, "reason": "no plan at the finest resolution"}
+        return search.result(
+            PlanStatus.INFEASIBLE, reason="no plan at the finest resolution", **stats
         )
-    if closest[1] > 0:  # the valid path that got nearest the goal
-        plan = SteerablePlan(start, np.array(chain(closest[1])).reshape(-1, 3))
-        check = verify_approximate(
-            problem, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm
-        )
-        if check.ok:
-            stats["goal_distance_mm"] = check.metrics["goal_distance_mm"]
-            return result(PlanStatus.APPROXIMATE, plan, nodes[closest[1]].g, **stats)
-        stats["refused_by_check"] += 1
-    return result(PlanStatus.TIMEOUT, **stats)
+    # the valid path that got nearest the goal
+    return search.approximate(chain(closest[1]), nodes[closest[1]].g, **stats)

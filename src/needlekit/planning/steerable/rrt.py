@@ -17,38 +17,115 @@ and reports the cheapest plan found per target. There is no rewiring.
 from __future__ import annotations
 
 import math
-import time
+from dataclasses import dataclass
 
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
-from needlekit.constants import PLANNER_FINISH_RESERVE_S
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
+from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
-from needlekit.planning.steerable.validity import MotionValidator
-from needlekit.planning.steerable.verify import verify_approximate, verify_plan
+from needlekit.planning.steerable.search import SteerableSearch, precheck
 
-__all__ = ["GOAL_BIAS", "solve_rrt", "solve_rrt_multi"]
+__all__ = [
+    "CONNECTIONS",
+    "GOAL_BIAS",
+    "RRTOptions",
+    "RRTPlanner",
+    "solve_rrt",
+    "solve_rrt_multi",
+]
 
 #: Probability of sampling a target itself while it has no plan yet.
 GOAL_BIAS: float = 0.05
+#: The greedy goal connections RRT can use.
+CONNECTIONS: tuple[str, ...] = ("arc_line", "arc")
 #: Samples drawn per iteration before giving up on finding a reachable one.
 MAX_SAMPLE_TRIES: int = 50
+
+
+@dataclass(frozen=True)
+class RRTOptions:
+    """Settings of RRT.
+
+    Attributes
+    ----------
+    connection : {"arc_line", "arc"}
+        Greedy connection from every new node to the targets: turn at r_min then straight
+        into the tau-ball, or one arc to the target itself (the reference's rule).
+    seed : int
+        Seed of the random samples (same seed and iteration budget, same tree).
+    """
+
+    connection: str = "arc_line"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.connection not in CONNECTIONS:
+            raise InvalidInputError(
+                "connection", f"expected 'arc_line' or 'arc', got {self.connection!r}"
+            )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise InvalidInputError("seed", f"expected a whole number >= 0, got {self.seed!r}")
+
+
+class RRTPlanner:
+    """Reachability-guided RRT with a greedy goal connection (anytime, multi-target)."""
+
+    name = "rrt"
+    family = "steerable"
+    options_type = RRTOptions
+
+    def __init__(self, options: RRTOptions | None = None) -> None:
+        self.options = RRTOptions() if options is None else options
+
+    def solve(self, problem: SteerableProblem, termination: Termination) -> PlanResult:
+        """Plan to the problem's goal (see :meth:`solve_multi`).
+
+        Parameters
+        ----------
+        problem : SteerableProblem
+        termination : Termination
+
+        Returns
+        -------
+        PlanResult
+        """
+        return self.solve_multi(problem, problem.goal_mm[None], termination)[0]
+
+    def solve_multi(
+        self, problem: SteerableProblem, goals_mm, termination: Termination
+    ) -> list[PlanResult]:
+        """Grow one tree and plan to several targets (see :func:`solve_rrt_multi`).
+
+        Parameters
+        ----------
+        problem : SteerableProblem
+            Start pose, limits and collision model (its own goal is ignored).
+        goals_mm : array_like, shape (k, 3)
+        termination : Termination
+            The budget of the whole tree.
+
+        Returns
+        -------
+        list of PlanResult
+            One per target, in order.
+        """
+        return _grow(problem, goals_mm, termination, self.options)
 
 
 def solve_rrt(
     problem: SteerableProblem,
     *,
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     seed: int | None = 0,
-    obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
     connection: str = "arc_line",
 ) -> PlanResult:
@@ -59,7 +136,6 @@ def solve_rrt(
     problem : SteerableProblem
     time_limit_s : float
     seed : int, optional
-    obstacles : VoxelObstacles, optional
     max_iterations : int, optional
     connection : {"arc_line", "arc"}
 
@@ -72,7 +148,6 @@ def solve_rrt(
         problem.goal_mm[None],
         time_limit_s=time_limit_s,
         seed=seed,
-        obstacles=obstacles,
         max_iterations=max_iterations,
         connection=connection,
     )[0]
@@ -82,9 +157,8 @@ def solve_rrt_multi(
     problem: SteerableProblem,
     goals_mm,
     *,
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     seed: int | None = 0,
-    obstacles: VoxelObstacles | None = None,
     max_iterations: int | None = None,
     connection: str = "arc_line",
 ) -> list[PlanResult]:
@@ -93,15 +167,14 @@ def solve_rrt_multi(
     Parameters
     ----------
     problem : SteerableProblem
-        Start pose, limits and tolerance (its own goal is ignored in favour of ``goals_mm``).
+        Start pose, limits, tolerance and collision model (its own goal is ignored in
+        favour of ``goals_mm``).
     goals_mm : array_like, shape (k, 3)
         Targets (RAS mm).
     time_limit_s : float
         Budget for the whole tree.
     seed : int, optional
-        Seed of the random samples (same seed, same tree).
-    obstacles : VoxelObstacles, optional
-        Exact voxel-centre collision test (default: the scene's obstacle field).
+        Seed of the random samples (same seed, same tree; default 0).
     max_iterations : int, optional
     connection : {"arc_line", "arc"}
         Greedy connection from every new node to the targets: turn at r_min then straight
@@ -112,46 +185,31 @@ def solve_rrt_multi(
     list of PlanResult
         One per target, in order: ``SOLVED`` with the cheapest plan found, else
         ``APPROXIMATE`` (the valid tree path that ended nearest the target,
-        ``stats["goal_distance_mm"]``) or ``TIMEOUT``
-        (or ``INFEASIBLE`` / ``INVALID_PROBLEM`` when that is known up front).
+        ``stats["goal_distance_mm"]``) or ``TIMEOUT`` (or ``INFEASIBLE`` /
+        ``INVALID_PROBLEM`` when a pre-check proves it,
+        :mod:`needlekit.planning.steerable.search`).
     """
-    if problem.start_pose is None:
-        raise InvalidInputError("start_pose", "RRT needs a start pose")
-    if not (np.isfinite(time_limit_s) and time_limit_s > 0):
-        raise InvalidInputError("time_limit_s", f"must be a finite number > 0, got {time_limit_s}")
+    options = RRTOptions(connection, 0 if seed is None else seed)
+    return _grow(problem, goals_mm, Termination(time_limit_s, max_iterations), options)
+
+
+def _grow(
+    problem: SteerableProblem, goals_mm, termination: Termination, options: RRTOptions
+) -> list[PlanResult]:
     goals = np.asarray(goals_mm, dtype=float).reshape(-1, 3)
     if len(goals) == 0 or not np.all(np.isfinite(goals)):
         raise InvalidInputError("goals_mm", "expected one or more finite points (k, 3)")
-    if connection not in ("arc_line", "arc"):
-        raise InvalidInputError("connection", f"expected 'arc_line' or 'arc', got {connection!r}")
+    connection = options.connection
     connect = goal_connection if connection == "arc_line" else single_arc_connection
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(options.seed)
+    search = SteerableSearch(problem, termination, "rrt")
+    run = search.run
+    validator = search.validator
     start = problem.start_pose
     r, tau, kappa = problem.r_min_mm, problem.goal_tolerance_mm, problem.kappa_max_per_mm
-    validator = MotionValidator(problem, obstacles)
-    validator.warm_up()  # JIT compilation is not search time
-    t0 = time.perf_counter()
-    search_s = time_limit_s - min(PLANNER_FINISH_RESERVE_S, 0.05 * time_limit_s)
     k = len(goals)
-
-    def finish(i, status, plan=None, cost=math.inf, **stats):
-        return PlanResult(
-            status, "rrt", plan, cost, time.perf_counter() - t0, goals[i], stats, start
-        )
-
-    if validator.points_collide(start[:3, 3][None]):
-        return [
-            finish(
-                i, PlanStatus.INVALID_PROBLEM, reason="start collides beyond the start exclusion"
-            )
-            for i in range(k)
-        ]
-    open_goals = [
-        i
-        for i in range(k)
-        if goal_connection(start, goals[i], r, tau) is not None
-        and np.linalg.norm(goals[i] - start[:3, 3]) <= problem.max_length_mm
-    ]
+    verdicts = [precheck(problem, goals[i], validator) for i in range(k)]
+    open_goals = [i for i in range(k) if verdicts[i] is None]
     # the sampling region: the ball spanned by the start and the targets
     centre = 0.5 * (start[:3, 3] + goals.mean(axis=0))
     radius = (
@@ -167,7 +225,7 @@ def solve_rrt_multi(
     lengths = [0.0]
     best = [math.inf] * k
     best_plans: list[SteerablePlan | None] = [None] * k
-    iterations = refused = 0
+    history: list[list] = [[] for _ in range(k)]  # per target: [time_s, cost] of each plan
 
     def chain(idx: int) -> list:
         out = []
@@ -177,7 +235,6 @@ def solve_rrt_multi(
         return out[::-1]
 
     def try_goals(idx: int) -> None:
-        nonlocal refused
         for i in open_goals:
             conn = connect(poses[idx], goals[i], r, tau)
             if conn is None or conn.primitives[0, 1] > kappa * (1 + 1e-12):
@@ -194,14 +251,10 @@ def solve_rrt_multi(
             plan = SteerablePlan(
                 start, np.array(chain(idx) + conn.primitives.tolist()).reshape(-1, 3)
             )
-            sub = (
-                problem
-                if i == 0 and np.allclose(goals[i], problem.goal_mm)
-                else _with_goal(problem, goals[i])
-            )
-            if not verify_plan(sub, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm).ok:
-                refused += 1
+            if not search.check(plan, None if single else goals[i]):
                 continue
+            run.improved(cost)
+            history[i].append([run.elapsed_s, cost])
             best[i], best_plans[i] = cost, plan
 
     def sample() -> np.ndarray | None:
@@ -215,15 +268,10 @@ def solve_rrt_multi(
                 return p
         return None
 
+    single = k == 1 and np.allclose(goals[0], problem.goal_mm)
     try_goals(0)
-    reason = "time limit"
-    while open_goals:
-        if time.perf_counter() - t0 > search_s:
-            break
-        if max_iterations is not None and iterations >= max_iterations:
-            reason = "iteration limit"
-            break
-        iterations += 1
+    run.reason = "time limit"  # RRT never exhausts its space: it stops on its budget
+    while open_goals and run.keep_going():
         q = sample()
         if q is None:
             continue
@@ -244,47 +292,18 @@ def solve_rrt_multi(
         lengths.append(lengths[near] + length)
         try_goals(len(poses) - 1)
 
-    def _approximate(i: int, stats: dict) -> PlanResult:
-        """The valid tree path that ended nearest target ``i``, else a timeout."""
-        gaps = np.linalg.norm(np.array(poses)[:, :3, 3] - goals[i], axis=1)
-        idx = int(np.argmin(gaps))
-        if idx > 0:
-            plan = SteerablePlan(start, np.array(chain(idx)).reshape(-1, 3))
-            sub = _with_goal(problem, goals[i])
-            check = verify_approximate(
-                sub, plan, obstacles=obstacles, spacing_mm=validator.spacing_mm
-            )
-            if check.ok:
-                stats = {**stats, "goal_distance_mm": check.metrics["goal_distance_mm"]}
-                return finish(i, PlanStatus.APPROXIMATE, plan, costs[idx], **stats)
-            stats = {**stats, "refused_by_check": stats["refused_by_check"] + 1}
-        return finish(i, PlanStatus.TIMEOUT, **stats)
-
     out = []
+    stats = {"nodes": len(poses), "connection": connection}
+    pts = np.array(poses)[:, :3, 3]
     for i in range(k):
-        stats = {
-            "iterations": iterations,
-            "nodes": len(poses),
-            "reason": reason,
-            "refused_by_check": refused,
-            "connection": connection,
-        }
-        if i not in open_goals:
-            out.append(
-                finish(
-                    i,
-                    PlanStatus.INFEASIBLE,
-                    reason="goal outside the start's reachable set or too far",
-                )
-            )
+        goal = None if single else goals[i]
+        stats["cost_history"] = history[i]
+        stats["first_solution_s"] = history[i][0][0] if history[i] else None
+        if verdicts[i] is not None:
+            out.append(search.result(verdicts[i][0], goal_mm=goal, reason=verdicts[i][1], **stats))
         elif best_plans[i] is not None:
-            out.append(finish(i, PlanStatus.SOLVED, best_plans[i], best[i], **stats))
-        else:
-            out.append(_approximate(i, stats))
+            out.append(search.result(PlanStatus.SOLVED, best_plans[i], best[i], goal, **stats))
+        else:  # the valid tree path that ended nearest the target
+            idx = int(np.argmin(np.linalg.norm(pts - goals[i], axis=1)))
+            out.append(search.approximate(chain(idx), costs[idx], goal, **stats))
     return out
-
-
-def _with_goal(problem: SteerableProblem, goal: np.ndarray) -> SteerableProblem:
-    from dataclasses import replace
-
-    return replace(problem, goal_mm=goal, start_point_mm=None)

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.result import PlanStatus
@@ -123,7 +122,7 @@ def effective_directions(directions, normal, min_puncture_angle_deg: float) -> n
     directions : array_like, shape (n, 3)
         Unit vectors.
     normal : array_like, shape (3,)
-        Outward unit normal of the punctured surface (pointing into the tissue entered).
+        Unit normal of the punctured surface, pointing into the tissue entered.
     min_puncture_angle_deg : float
         alpha, in [0, 90).
 
@@ -208,15 +207,14 @@ def _plan_one(task):
     """One direction of a sweep (module level, so process and Dask workers can run it)."""
     from needlekit.planning.steerable.solve import solve
 
-    problem, obstacles, source, direction, planner, time_limit_s, seed, max_iterations, opts = task
+    problem, source, direction, planner, time_limit_s, seed, max_iterations, opts = task
     if source is not None:  # built once per worker, reused for its other directions
-        _, problem, obstacles = source.cached()
+        _, problem = source.cached()
     p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
     return solve(
         p,
         planner,
         time_limit_s=time_limit_s,
-        obstacles=obstacles,
         seed=seed,
         max_iterations=max_iterations,
         options=opts,
@@ -227,11 +225,11 @@ def _plan_one(task):
 MAX_TASK_BYTES: int = 8 * 2**20
 
 
-def _check_task_size(problem, obstacles) -> None:
+def _check_task_size(problem) -> None:
     import pickle
 
     try:
-        size = len(pickle.dumps((problem, obstacles), protocol=pickle.HIGHEST_PROTOCOL))
+        size = len(pickle.dumps(problem, protocol=pickle.HIGHEST_PROTOCOL))
     except Exception as exc:
         raise InvalidInputError(
             "source",
@@ -252,7 +250,6 @@ def sweep(
     directions=None,
     normal=None,
     time_limit_s: float = 1.0,
-    obstacles: VoxelObstacles | None = None,
     executor: Executor | None = None,
     source=None,
     seed: int = 0,
@@ -267,22 +264,21 @@ def sweep(
     problem : SteerableProblem
         Start point, goal and limits (its start direction, if any, is ignored).
     planner : str
-        ``"rcs_star"``, ``"rcs"`` or ``"rrt"``.
+        A registered steerable planner (``"rcs_star"``, ``"rcs"``, ``"rrt"``, ...).
     directions : array_like, shape (n, 3), optional
         Candidates (default: :func:`sphere_directions` with :data:`DEFAULT_DIRECTIONS`).
     normal : array_like, shape (3,), optional
-        Outward normal of the punctured surface (default: the problem's entry surface's
-        normal at the start point; without one, every direction is effective).
+        Normal of the punctured surface pointing into the tissue entered (default: the
+        problem's ``puncture_normal``; without one, every direction is effective).
     time_limit_s : float
         Budget per direction.
-    obstacles : VoxelObstacles, optional
     executor : concurrent.futures.Executor, optional
         Runs the directions (see :func:`needlekit.batch.open_executor`: a process pool or
         a Dask cluster). Default: one after the other in this process.
     source : ScenarioSource, optional
-        How workers rebuild ``problem`` (and ``obstacles``): tasks then carry this small
+        How workers rebuild ``problem``: tasks then carry this small
         recipe instead of the scene, and each worker builds it once. Without it, tasks
-        carry ``problem`` and ``obstacles`` themselves (fine for small analytic scenes).
+        carry ``problem`` itself (fine for small analytic scenes).
     seed : int
         Seed of randomised planners (the same for every direction).
     max_iterations : int, optional
@@ -305,8 +301,8 @@ def sweep(
         else np.asarray(directions, dtype=float).reshape(-1, 3)
     )
     dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    if normal is None and problem.entry_surface is not None:
-        normal = problem.scene.normal(problem.start_point_mm, problem.entry_surface)
+    if normal is None:
+        normal = problem.puncture_normal
     if normal is not None and np.all(np.isfinite(normal)):
         eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
     else:
@@ -314,9 +310,9 @@ def sweep(
     # executors that run tasks elsewhere get the recipe, or a scene small enough to ship
     remote = executor is not None and not getattr(executor, "in_process", False)
     if remote and source is None:
-        _check_task_size(problem, obstacles)
+        _check_task_size(problem)
     recipe = remote and source is not None
-    carry = (None, None, source) if recipe else (problem, obstacles, None)
+    carry = (None, source) if recipe else (problem, None)
     tasks = [(*carry, d, planner, time_limit_s, seed, max_iterations, options) for d in dirs[eff]]
     done: list = [None] * len(tasks)
     finished = enumerate((map if executor is None else executor.map)(_plan_one, tasks))

@@ -2,19 +2,23 @@
 
 A motion is valid when every sample along it (every ``spacing_mm`` of arc length, end
 included) is collision-free, outside the start exclusion ball where obstacles are ignored,
-and the direction stays within the heading limit. Collisions come either from an exact
-voxel-centre test (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`, the reference
-planner's model for Med-RAD) or from the scene's obstacle field grown by the needle radius
-plus margin.
+and the direction stays within the heading limit. Collisions follow the problem's collision
+model (:class:`~needlekit.planning.steerable.problem.CollisionModel`):
+
+- ``field``: certified. A sample is clear only when the scene's obstacle field, grown by the
+  needle radius plus margin, exceeds the field's stated error bound plus half the sample
+  spacing there: the field is 1-Lipschitz, so every point between samples is then clear
+  too, whatever the field's error;
+- ``voxel_centres``: the reference planner's exact test against obstacle voxel centres
+  (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`), sample by sample as it does.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.geometry.arcs import propagate_arcs, sample_arcs
-from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
 
 __all__ = ["MotionValidator", "MOTION_SPACING_MM"]
 
@@ -28,29 +32,32 @@ class MotionValidator:
     Parameters
     ----------
     problem : SteerableProblem
-    obstacles : VoxelObstacles, optional
-        Exact voxel-centre collision test; default: the scene's obstacle field.
+        Its collision model decides collisions.
     spacing_mm : float
+        Largest gap between samples along a motion.
+
+    Attributes
+    ----------
+    threshold_mm : float
+        ``field`` model: the smallest grown-field value a sample must exceed (the field's
+        error bound plus half the spacing); 0 for ``voxel_centres``.
     """
 
-    def __init__(
-        self,
-        problem: SteerableProblem,
-        obstacles: VoxelObstacles | None = None,
-        spacing_mm: float = MOTION_SPACING_MM,
-    ) -> None:
+    def __init__(self, problem: SteerableProblem, spacing_mm: float = MOTION_SPACING_MM) -> None:
         self.problem = problem
-        self.obstacles = obstacles
         self.spacing_mm = float(spacing_mm)
         self.start = problem.start_pose
         self.start_point = problem.start_point_mm
         self.start_dir = None if problem.start_pose is None else problem.start_pose[:3, 2].copy()
         self.cos_heading = float(np.cos(np.radians(problem.max_heading_change_deg)))
-        self._field = (
-            None
-            if obstacles is not None
-            else problem.scene.obstacle_field(problem.clearance_margin_mm)
-        )
+        if problem.collision_model is CollisionModel.VOXEL_CENTRES:
+            self.obstacles = problem.voxel_obstacles
+            self._field = None
+            self.threshold_mm = 0.0
+        else:
+            self.obstacles = None
+            self._field = problem.scene.obstacle_field(problem.clearance_margin_mm)
+            self.threshold_mm = float(self._field.error_bound_mm) + 0.5 * self.spacing_mm
 
     def points_collide(self, points: np.ndarray) -> bool:
         """Whether any of the points (n, 3) collides (start exclusion applied).
@@ -75,7 +82,25 @@ class MotionValidator:
         far = np.linalg.norm(points - self.start_point, axis=1) >= excl
         if not far.any():
             return False
-        return bool((self._field.signed_distance(points[far]) < 0.0).any())
+        return bool((self._field.signed_distance(points[far]) < self.threshold_mm).any())
+
+    def goal_collides(self, goal_mm: np.ndarray) -> bool:
+        """Whether the goal point itself provably lies where the needle cannot be (no
+        start exclusion; for the field model, beyond the field's error bound, so that the
+        verdict holds for the true anatomy).
+
+        Parameters
+        ----------
+        goal_mm : ndarray, shape (3,)
+
+        Returns
+        -------
+        bool
+        """
+        g = np.asarray(goal_mm, dtype=float).reshape(1, 3)
+        if self.obstacles is not None:
+            return bool(self.obstacles.collides(g)[0])
+        return bool(self._field.signed_distance(g)[0] < -self._field.error_bound_mm)
 
     def motion_valid(self, pose: np.ndarray, spin: float, kappa: float, length: float) -> bool:
         """Whether the motion ``(spin, kappa, length)`` from ``pose`` is valid.

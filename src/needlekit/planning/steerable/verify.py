@@ -13,10 +13,17 @@ plan files. It re-derives the path from the plan's primitives alone and checks:
 - cost: when the caller states the plan's cost (a plan file's ``cost_mm``), it matches
   the cost recomputed from the primitives (path length, or the clearance cost map's
   integral);
-- clearance: no sample of the path (every ``spacing_mm``) collides. With
-  :class:`~needlekit.anatomy.occupancy.VoxelObstacles` this is the exact voxel-centre test
-  with the start exclusion; otherwise the scene's obstacle field must keep the needle
-  radius plus margin, outside the start exclusion ball.
+- clearance, certified: ``certified_clearance_mm`` is a lower bound on the distance from the
+  needle's surface to every obstacle outside the start exclusion, for the whole path, not
+  only its samples: the smallest sampled distance less half the sample gap, the field's
+  stated error bound and the needle radius. With the ``field`` collision model the plan
+  fails when it is below the safety margin. With ``voxel_centres`` the verdict is the
+  reference planner's exact test at every sample (an obstacle voxel centre closer than the
+  needle radius plus half a voxel diagonal, or a sample outside the image), and the bound is
+  the distance to the obstacle voxel balls, reported beside it.
+
+A rule that cannot be checked (e.g. a puncture angle whose surface normal is undefined at
+the start) counts as broken.
 """
 
 from __future__ import annotations
@@ -25,16 +32,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.anatomy.voxel_clearance import nearest_obstacle_distance
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
 from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
-from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
 
 __all__ = ["Verification", "verify_approximate", "verify_plan"]
 
 #: Slack on the checked limits (curvature, length, goal distance, angles): rounding only.
 VERIFY_SLACK: float = 1e-9
+#: Beyond this clearance (mm) the voxel-centre model reports the cap (its kernel visits only
+#: the voxels within it); far above any margin a plan is judged by.
+CLEARANCE_REPORT_CAP_MM: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -50,8 +60,9 @@ class Verification:
     metrics : dict
         ``cost`` (recomputed), ``length_mm``, ``goal_distance_mm``, ``max_curvature_per_mm``,
         ``max_heading_change_deg``, ``puncture_angle_deg`` (or None),
-        ``min_clearance_mm`` (the obstacle field's, outside the start exclusion) and
-        ``colliding_samples``.
+        ``min_clearance_mm`` (the smallest sampled clearance of the needle's surface, outside
+        the start exclusion: an estimate), ``certified_clearance_mm`` (a lower bound for the
+        whole path), ``collision_model`` and ``colliding_samples``.
     """
 
     ok: bool
@@ -75,7 +86,6 @@ def verify_plan(
     problem: SteerableProblem,
     plan: SteerablePlan,
     *,
-    obstacles: VoxelObstacles | None = None,
     spacing_mm: float = 0.25,
     expected_cost_mm: float | None = None,
 ) -> Verification:
@@ -84,12 +94,10 @@ def verify_plan(
     Parameters
     ----------
     problem : SteerableProblem
+        Its collision model decides the clearance rule.
     plan : SteerablePlan
-    obstacles : VoxelObstacles, optional
-        Exact voxel-centre collision test (with the start exclusion); without it, the
-        scene's obstacle field is used.
     spacing_mm : float
-        Spacing of the samples along the path.
+        Largest spacing of the samples along the path (the certified bound subtracts half).
     expected_cost_mm : float, optional
         The cost the plan claims; a violation when the recomputed cost differs by more
         than 1e-6 mm (relative 1e-9).
@@ -122,37 +130,55 @@ def verify_plan(
         bad.append(
             f"heading: turns {heading:.3f} deg from the start direction, limit {problem.max_heading_change_deg:g} deg"
         )
-    puncture = None
-    if problem.entry_surface is not None:
-        n = problem.scene.normal(start[:3, 3], problem.entry_surface)
-        if np.all(np.isfinite(n)):
-            puncture = float(np.degrees(np.arcsin(np.clip(d0 @ n, -1.0, 1.0))))
-            if puncture < problem.min_puncture_angle_deg - 1e-7:
-                bad.append(
-                    f"puncture angle: {puncture:.3f} deg to the {problem.entry_surface} surface, "
-                    f"minimum {problem.min_puncture_angle_deg:g} deg"
-                )
-    points = poses[:, :3, 3]
-    far = np.linalg.norm(points - start[:3, 3], axis=1) >= problem.start_exclusion_mm
-    field_clear = problem.scene.clearance(points[far]) if far.any() else np.array([np.inf])
-    min_clear = float(field_clear.min())
-    if obstacles is not None:
-        hits = obstacles.collides(
-            points, exclude_near=start[:3, 3], exclusion_mm=problem.start_exclusion_mm
+    puncture, why = _puncture_angle(problem, start)
+    if puncture is None and problem.min_puncture_angle_deg > 0:
+        bad.append(f"puncture angle: could not be checked ({why})")
+    elif puncture is not None and puncture < problem.min_puncture_angle_deg - 1e-7:
+        bad.append(
+            f"puncture angle: {puncture:.3f} deg to the {problem.entry_surface or 'entry'} surface, "
+            f"minimum {problem.min_puncture_angle_deg:g} deg"
         )
+    points = poses[:, :3, 3]
+    radius = 0.5 * problem.needle_diameter_mm
+    excl = problem.start_exclusion_mm
+    far = np.linalg.norm(points - start[:3, 3], axis=1) >= excl
+    half_gap = 0.5 * float(spacing_mm)
+    if problem.collision_model is CollisionModel.VOXEL_CENTRES:
+        obstacles = problem.voxel_obstacles
+        hits = obstacles.collides(points, exclude_near=start[:3, 3], exclusion_mm=excl)
         n_hits = int(np.count_nonzero(hits))
         if n_hits:
             first = points[np.flatnonzero(hits)[0]]
             bad.append(
                 f"collision: {n_hits} samples within {obstacles.min_distance_mm:.4f} mm of an "
-                f"obstacle voxel centre, first at {np.round(first, 2).tolist()}"
+                f"obstacle voxel centre or outside the image, first at {np.round(first, 2).tolist()}"
             )
+        ball = obstacles.voxel_radius_mm + radius
+        centre_d = nearest_obstacle_distance(
+            obstacles,
+            points,
+            cap_mm=ball + CLEARANCE_REPORT_CAP_MM,
+            exclude_near=start[:3, 3],
+            exclusion_mm=excl,
+        )
+        sampled = float(centre_d.min()) - ball if len(points) else np.inf
+        certified = sampled - half_gap
     else:
-        n_hits = int(np.count_nonzero(field_clear < problem.clearance_margin_mm))
-        if n_hits:
+        field = problem.scene.obstacle_field(0.0)
+        d = field.signed_distance(points[far]) if far.any() else np.array([np.inf])
+        sampled = float(d.min()) - radius
+        certified = sampled - half_gap - float(field.error_bound_mm)
+        n_hits = int(
+            np.count_nonzero(
+                d - radius - half_gap - field.error_bound_mm < problem.safety_margin_mm
+            )
+        )
+        if certified < problem.safety_margin_mm:
             bad.append(
-                f"collision: clearance {min_clear:.4f} mm below the needle's "
-                f"{problem.clearance_margin_mm:g} mm outside the start exclusion"
+                f"collision: certified clearance {certified:.4f} mm (sampled {sampled:.4f} mm, "
+                f"less half the {spacing_mm:g} mm sample gap and the field's "
+                f"{field.error_bound_mm:.4f} mm error bound) below the safety margin "
+                f"{problem.safety_margin_mm:g} mm, outside the start exclusion"
             )
     cost = plan_cost(problem, plan)
     if expected_cost_mm is not None and not (
@@ -166,17 +192,26 @@ def verify_plan(
         "max_curvature_per_mm": max_kappa,
         "max_heading_change_deg": heading,
         "puncture_angle_deg": puncture,
-        "min_clearance_mm": min_clear,
+        "min_clearance_mm": sampled,
+        "certified_clearance_mm": certified,
+        "collision_model": problem.collision_model.value,
         "colliding_samples": n_hits,
     }
     return Verification(not bad, tuple(bad), metrics)
+
+
+def _puncture_angle(problem: SteerableProblem, start: np.ndarray) -> tuple[float | None, str]:
+    """The angle (deg) between the start direction and the entry surface, or None and why."""
+    n, why = problem.tissue_normal(start[:3, 3])
+    if n is None:
+        return None, why
+    return float(np.degrees(np.arcsin(np.clip(start[:3, 2] @ n, -1.0, 1.0)))), ""
 
 
 def verify_approximate(
     problem: SteerableProblem,
     plan: SteerablePlan,
     *,
-    obstacles: VoxelObstacles | None = None,
     spacing_mm: float = 0.25,
 ) -> Verification:
     """Check a path that stops short of the goal (an approximate solution): every rule of
@@ -186,7 +221,6 @@ def verify_approximate(
     ----------
     problem : SteerableProblem
     plan : SteerablePlan
-    obstacles : VoxelObstacles, optional
     spacing_mm : float
 
     Returns
@@ -202,4 +236,4 @@ def verify_approximate(
         goal_tolerance_mm=max(problem.goal_tolerance_mm, reached),
         start_point_mm=None if problem.start_pose is not None else problem.start_point_mm,
     )
-    return verify_plan(relaxed, plan, obstacles=obstacles, spacing_mm=spacing_mm)
+    return verify_plan(relaxed, plan, spacing_mm=spacing_mm)

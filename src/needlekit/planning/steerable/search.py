@@ -1,0 +1,226 @@
+"""What every steerable-needle search shares, written once: the set-up outside the clock,
+the verdicts provable before searching, the check of every plan before it is reported,
+the nearest-path fallback and the result.
+
+Pre-checks, in order (each answers at once, before any search):
+
+1. the start collides beyond the start exclusion: ``INVALID_PROBLEM``;
+2. the goal lies in an obstacle (for the problem's collision model): ``INVALID_PROBLEM``;
+3. the start direction makes less than alpha with the entry surface: ``INVALID_PROBLEM``;
+4. the goal is farther than l_max (as the reference planner counts it): ``INFEASIBLE``;
+5. the goal lies outside the heading cone: with a heading limit ``H <= 90`` degrees every
+   direction of a path lies within ``H`` of the start direction, so every point it reaches
+   lies in the convex cone of half-angle ``H`` around it; a goal whose tau-ball misses the
+   cone is unreachable: ``INFEASIBLE``;
+6. the goal is outside the start's forward reachable set (behind the tip, or deeper than
+   tau inside the r_min horn torus; the reference's "goal point not in FRS"):
+   ``INFEASIBLE``;
+7. the shortest curvature-bounded path to the goal's tau-ball is not shorter than l_max:
+   ``INFEASIBLE``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from needlekit.planning.interface import SearchRun, Termination
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.goal import goal_connection
+from needlekit.planning.steerable.plan import SteerablePlan
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.result import PlanResult
+from needlekit.planning.steerable.validity import MotionValidator
+from needlekit.planning.steerable.verify import verify_approximate, verify_plan
+
+__all__ = ["SteerableSearch", "precheck"]
+
+log = logging.getLogger(__name__)
+
+#: Heading limits up to this (deg) make the set of reachable displacements a convex cone.
+CONVEX_HEADING_DEG: float = 90.0
+
+
+def precheck(
+    problem: SteerableProblem, goal_mm: np.ndarray, validator: MotionValidator
+) -> tuple[PlanStatus, str] | None:
+    """The verdict provable without searching (module notes), or None.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        With a start pose.
+    goal_mm : ndarray, shape (3,)
+    validator : MotionValidator
+
+    Returns
+    -------
+    (PlanStatus, str) or None
+        The status and the reason.
+    """
+    start = problem.start_pose
+    p0, d0 = start[:3, 3], start[:3, 2]
+    tau = problem.goal_tolerance_mm
+    if validator.points_collide(p0[None]):
+        return PlanStatus.INVALID_PROBLEM, "start collides beyond the start exclusion"
+    if validator.goal_collides(goal_mm):
+        return PlanStatus.INVALID_PROBLEM, "goal lies inside an obstacle (for this needle)"
+    if problem.puncture_normal is not None and problem.min_puncture_angle_deg > 0:
+        angle = math.degrees(math.asin(float(np.clip(d0 @ problem.puncture_normal, -1, 1))))
+        if angle < problem.min_puncture_angle_deg - 1e-7:
+            return (
+                PlanStatus.INVALID_PROBLEM,
+                f"the start direction makes {angle:.2f} deg with the {problem.entry_surface or 'entry'} "
+                f"surface, below the minimum puncture angle {problem.min_puncture_angle_deg:g} deg",
+            )
+    gap = goal_mm - p0
+    dist = float(np.linalg.norm(gap))
+    if dist > problem.max_length_mm:
+        return PlanStatus.INFEASIBLE, "goal farther than the maximum length"
+    heading = problem.max_heading_change_deg
+    if heading <= CONVEX_HEADING_DEG and dist > tau:
+        off = math.degrees(math.acos(float(np.clip(gap @ d0 / dist, -1.0, 1.0))))
+        slack = math.degrees(math.asin(tau / dist))
+        if off - slack > heading + 1e-9:
+            return (
+                PlanStatus.INFEASIBLE,
+                f"goal {off:.1f} deg off the start direction: beyond the heading limit "
+                f"of {heading:g} deg (every path stays inside that cone)",
+            )
+    conn = goal_connection(start, goal_mm, problem.r_min_mm, tau)
+    if conn is None:
+        return (
+            PlanStatus.INFEASIBLE,
+            "goal outside the start's reachable set (behind the tip or inside the r_min torus)",
+        )
+    if conn.length_mm >= problem.max_length_mm:
+        return (
+            PlanStatus.INFEASIBLE,
+            f"the shortest curvature-bounded path to the goal is {conn.length_mm:.2f} mm, "
+            f"not under the maximum length {problem.max_length_mm:g} mm",
+        )
+    return None
+
+
+class SteerableSearch:
+    """One steerable-needle search: set-up, clock, checked plans, result.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        With a start pose.
+    termination : Termination
+    planner : str
+        Name recorded in results.
+    """
+
+    def __init__(self, problem: SteerableProblem, termination: Termination, planner: str):
+        from needlekit.errors import InvalidInputError
+
+        if problem.start_pose is None:
+            raise InvalidInputError(
+                "start_pose", f"{planner} needs a start pose (sweep directions for a start point)"
+            )
+        if not isinstance(termination, Termination):
+            raise InvalidInputError(
+                "termination", f"expected a Termination, got {type(termination).__name__}"
+            )
+        t0 = time.perf_counter()
+        self.problem = problem
+        self.planner = planner
+        self.start = problem.start_pose
+        self.validator = MotionValidator(problem)
+        self.validator.warm_up()  # compiling kernels is set-up, not search
+        self.refused = 0
+        self._last_check: tuple | None = None  # (plan, Verification) of the last candidate
+        self.setup_s = time.perf_counter() - t0
+        self.run: SearchRun = termination.start()
+
+    def check(self, plan: SteerablePlan, goal_mm: np.ndarray | None = None) -> bool:
+        """Whether a candidate passes the independent check (counted and logged when not).
+
+        Parameters
+        ----------
+        plan : SteerablePlan
+        goal_mm : ndarray, shape (3,), optional
+            Another goal than the problem's (multi-target searches).
+
+        Returns
+        -------
+        bool
+        """
+        problem = self.problem if goal_mm is None else _with_goal(self.problem, goal_mm)
+        check = verify_plan(problem, plan, spacing_mm=self.validator.spacing_mm)
+        self._last_check = (plan, check)
+        if not check.ok:  # never report a path the independent check refuses
+            self.refused += 1
+            log.warning(
+                "%s: candidate plan refused by the check: %s",
+                self.planner,
+                "; ".join(check.violations),
+            )
+        return check.ok
+
+    def result(
+        self,
+        status: PlanStatus,
+        plan: SteerablePlan | None = None,
+        cost: float = math.inf,
+        goal_mm: np.ndarray | None = None,
+        **stats,
+    ) -> PlanResult:
+        """The result, with the figures every run records (:meth:`SearchRun.stats`),
+        ``setup_s`` and ``refused_by_check``.
+
+        Returns
+        -------
+        PlanResult
+        """
+        run = self.run.stats()
+        merged = {**run, "setup_s": self.setup_s, "refused_by_check": self.refused, **stats}
+        checked = self._last_check if plan is not None else None
+        if checked is not None and checked[0] is plan:  # the returned plan's own check
+            m = checked[1].metrics
+            merged["certified_clearance_mm"] = m["certified_clearance_mm"]
+            merged["min_clearance_mm"] = m["min_clearance_mm"]
+            merged["collision_model"] = m["collision_model"]
+        goal = self.problem.goal_mm if goal_mm is None else goal_mm
+        return PlanResult(
+            status, self.planner, plan, cost, run["planner_wall_s"], goal, merged, self.start
+        )
+
+    def approximate(
+        self, prims: list, cost: float, goal_mm: np.ndarray | None = None, **stats
+    ) -> PlanResult:
+        """The valid path that ended nearest the goal, as ``APPROXIMATE``, or ``TIMEOUT``
+        when there is none or it fails its check.
+
+        Parameters
+        ----------
+        prims : list of [spin, kappa, length]
+            Its primitives (empty: the start itself, no path).
+        cost : float
+
+        Returns
+        -------
+        PlanResult
+        """
+        if prims:
+            plan = SteerablePlan(self.start, np.array(prims, dtype=float).reshape(-1, 3))
+            problem = self.problem if goal_mm is None else _with_goal(self.problem, goal_mm)
+            check = verify_approximate(problem, plan, spacing_mm=self.validator.spacing_mm)
+            self._last_check = (plan, check)
+            if check.ok:
+                stats["goal_distance_mm"] = check.metrics["goal_distance_mm"]
+                return self.result(PlanStatus.APPROXIMATE, plan, cost, goal_mm, **stats)
+            self.refused += 1
+        return self.result(PlanStatus.TIMEOUT, goal_mm=goal_mm, **stats)
+
+
+def _with_goal(problem: SteerableProblem, goal: np.ndarray) -> SteerableProblem:
+    from dataclasses import replace
+
+    return replace(problem, goal_mm=goal, start_point_mm=None)

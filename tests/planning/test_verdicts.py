@@ -1,0 +1,195 @@
+"""Verdicts a pre-check proves (answered before any search step), nothing silently
+dropped, and one collision model per problem giving the same answer on every route."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from needlekit.anatomy.primitives import Capsule, HalfSpace, Sphere
+from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.cli import main
+from needlekit.errors import InvalidInputError
+from needlekit.geometry.se3 import pose_from_direction
+from needlekit.io.problems import load_problem
+from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.solve import solve
+from needlekit.planning.steerable.sweep import sweep
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+PLANNERS = ("rcs_star", "rcs", "rrt")
+
+
+def _scene(*obstacles):
+    parts = [Structure("body", Role.ALLOWED_REGION, Sphere([0.0, 0.0, 0.0], 200.0))]
+    parts += [Structure(f"o{i}", Role.OBSTACLE, f) for i, f in enumerate(obstacles)]
+    return Scene(parts)
+
+
+def _problem(goal, *obstacles, **kw):
+    return SteerableProblem(_scene(*obstacles), goal_mm=goal, start_pose=np.eye(4), **kw)
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_beyond_the_heading_cone_is_infeasible_before_searching(planner):
+    p = _problem([0.0, -40.0, 20.0], max_heading_change_deg=45.0)  # 63 deg off the axis
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert "heading limit of 45 deg" in res.stats["reason"]
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_behind_the_start_is_infeasible_before_searching(planner):
+    p = _problem([0.0, 0.0, -40.0])  # 40 mm straight behind, heading limit 90 deg
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_whose_shortest_path_exceeds_l_max_is_infeasible(planner):
+    # 90 mm away but 60 degrees to the side: the shortest r_min = 50 path is longer
+    goal = 90.0 * np.array([0.0, -np.sin(np.radians(60)), np.cos(np.radians(60))])
+    p = _problem(goal, max_length_mm=100.0)
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert "shortest curvature-bounded path" in res.stats["reason"]
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_inside_the_r_min_torus_is_outside_the_reachable_set(planner):
+    p = _problem([0.0, -10.0, 10.0])  # deep inside the turning circle
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INFEASIBLE and "reachable set" in res.stats["reason"]
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_inside_an_obstacle_is_said_so(planner):
+    p = _problem([0.0, 0.0, 60.0], Sphere([0.0, 0.0, 60.0], 5.0))
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INVALID_PROBLEM
+    assert res.stats["reason"] == "goal lies inside an obstacle (for this needle)"
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_start_direction_below_the_puncture_angle_is_invalid(planner):
+    # entry surface: the skin z = 0 of the body z >= 0; the start direction is 10 deg from it
+    wall = HalfSpace([0.0, 0.0, 0.0], [0.0, 0.0, -1.0])
+    scene = Scene([Structure("skin", Role.ENTRY_SURFACE, wall),
+                   Structure("body", Role.ALLOWED_REGION, Sphere([0, 0, 0], 200.0))])  # fmt: skip
+    start = pose_from_direction(
+        [0.0, 0.0, 0.0], [np.cos(np.radians(10)), 0.0, np.sin(np.radians(10))]
+    )
+    p = SteerableProblem(
+        scene, goal_mm=[50.0, 0.0, 10.0], start_pose=start, min_puncture_angle_deg=20.0
+    )
+    assert p.puncture_normal == pytest.approx([0.0, 0.0, 1.0])  # into the body
+    res = solve(p, planner, time_limit_s=5.0)
+    assert res.status is PlanStatus.INVALID_PROBLEM
+    assert (
+        "10.00 deg with the skin surface, below the minimum puncture angle 20"
+        in res.stats["reason"]
+    )
+
+
+def test_an_undefined_entry_normal_is_an_error_not_a_skipped_check():
+    # the start sits at the centre of a sphere: the distance gradient vanishes there
+    scene = Scene([Structure("airway", Role.OBSTACLE, Sphere([0.0, 0.0, 0.0], 2.0))])
+    with pytest.raises(
+        InvalidInputError, match="entry_surface: the normal of 'airway' is undefined"
+    ):
+        SteerableProblem(
+            scene, goal_mm=[0, 0, 50.0], start_pose=np.eye(4), min_puncture_angle_deg=20.0
+        )
+    # a given normal is the documented way out, and it is recorded
+    p = SteerableProblem(scene, goal_mm=[0, 0, 50.0], start_pose=np.eye(4),
+                         min_puncture_angle_deg=20.0, entry_normal=[0.0, 0.0, 2.0])  # fmt: skip
+    assert p.puncture_normal.tolist() == [0.0, 0.0, 1.0]
+    assert p.metadata["puncture_normal_source"] == "entry_normal"
+    # the lung phantom's start leaves the airway through its wall: the outward normal
+    _, lung = load_problem(EXAMPLES / "lung_phantom.yaml")
+    assert lung.metadata["puncture_normal_source"] == "outward normal of airways"
+    lone = Scene([Structure("body", Role.ALLOWED_REGION, Sphere([0, 0, 0], 200.0))])
+    with pytest.raises(
+        InvalidInputError, match=r"no entry surface.*min_puncture_angle_deg = 20 cannot"
+    ):
+        SteerableProblem(
+            lone, goal_mm=[0, 0, 50.0], start_pose=np.eye(4), min_puncture_angle_deg=20.0
+        )
+
+
+def test_the_collision_model_is_explicit():
+    scene = _scene(Capsule([-5, 10, 30], [5, 10, 30], 2.0))
+    with pytest.raises(
+        InvalidInputError, match="voxel_obstacles: the voxel_centres collision model needs"
+    ):
+        SteerableProblem(
+            scene, goal_mm=[0, 0, 50.0], start_pose=np.eye(4), collision_model="voxel_centres"
+        )
+    with pytest.raises(
+        InvalidInputError, match="collision_model: expected one of field, voxel_centres"
+    ):
+        SteerableProblem(scene, goal_mm=[0, 0, 50.0], start_pose=np.eye(4), collision_model="mesh")
+
+
+def test_a_phantom_scenario_cannot_ask_for_voxel_centres(tmp_path, capsys):
+    text = (EXAMPLES / "toy.yaml").read_text() + "collision_model: voxel_centres\n"
+    (tmp_path / "toy.yaml").write_text(text)
+    assert main(["plan", str(tmp_path / "toy.yaml"), "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: collision_model: voxel_centres needs obstacle voxels")
+
+
+def test_verify_works_with_a_half_space_entry_surface(tmp_path, capsys):
+    scenario = tmp_path / "wall.yaml"
+    scenario.write_text(
+        "version: 1\n"
+        "structures:\n"
+        "  - {name: skin, role: entry_surface, half_space: {point_mm: [0, 0, 0], normal_mm: [0, 0, -1]}}\n"
+        "  - {name: body, role: allowed_region, sphere: {center_mm: [0, 0, 60], radius_mm: 100}}\n"
+        "  - {name: target, role: target, sphere: {center_mm: [0, 10, 60], radius_mm: 5}}\n"
+        "needle: {min_puncture_angle_deg: 30, start_exclusion_mm: 0}\n"
+        "start: {point_mm: [0, 0, 0], direction: [0, 0, 1]}\n"
+        "goal: {point_mm: [0, 10, 60]}\n"
+    )
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(scenario), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["verify", str(scenario), str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["ok"] and report["metrics"]["puncture_angle_deg"] == pytest.approx(90.0)
+
+
+def _routes(scenario: Path, tmp_path: Path):
+    """(status, cost) through needlekit plan, from_scenario + solve, sweep and bench."""
+    out = tmp_path / "plan.json"
+    code = main(["plan", str(scenario), "--out", str(out), "--max-iterations", "5000",
+                 "--time-limit-s", "60"])  # fmt: skip
+    plan = json.loads(out.read_text())
+    problem = SteerableProblem.from_scenario(scenario)
+    direct = solve(problem, "rcs_star", time_limit_s=60.0, max_iterations=5000)
+    swept = sweep(problem, "rcs_star", directions=[problem.start_pose[:3, 2]],
+                  time_limit_s=60.0, max_iterations=5000).results[0]  # fmt: skip
+    bench = tmp_path / "bench.json"
+    assert main(["bench", "steerable", "--patients", "0", "--scenario", str(scenario),
+                 "--planners", "rcs_star", "--out", str(bench)]) == 0  # fmt: skip
+    row = json.loads(bench.read_text())["results"][0]
+    return code, [
+        (plan["status"], round(plan["cost_mm"], 6)),
+        (direct.status.value, round(direct.cost_mm, 6)),
+        (swept.status.value, round(swept.cost_mm, 6)),
+        (row["status"], round(row["cost_mm"], 6)),
+    ]
+
+
+def test_one_scenario_one_verdict_on_every_route_field_model(tmp_path):
+    code, answers = _routes(EXAMPLES / "toy.yaml", tmp_path)
+    assert code == 0 and answers == [answers[0]] * 4 and answers[0][0] == "solved"
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_one_scenario_one_verdict_on_every_route_voxel_centres(tmp_path):
+    code, answers = _routes(EXAMPLES / "medrad_lung1.yaml", tmp_path)
+    assert code == 0 and answers == [("solved", 58.257322)] * 4
