@@ -25,6 +25,7 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m needlekit._warmup
 	@touch $@
 
 install: $(STAMP)

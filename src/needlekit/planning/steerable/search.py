@@ -105,6 +105,37 @@ def precheck(
     return None
 
 
+def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
+    """Run every kernel a search and its plan check call once, on this problem, so that
+    numba's compilation (or loading from its cache) happens before the clock starts.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        With a start pose.
+    validator : MotionValidator
+    """
+    from needlekit.geometry.arcs import propagate_arcs
+    from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
+    from needlekit.planning.steerable.cost import chain_cost
+    from needlekit.planning.steerable.goal import single_arc_connection
+
+    validator.warm_up()
+    start, goal = problem.start_pose, problem.goal_mm
+    kappa, r, tau = problem.kappa_max_per_mm, problem.r_min_mm, problem.goal_tolerance_mm
+    goal_connection(start, goal, r, tau)
+    single_arc_connection(start, goal, r, tau)
+    propagate_arcs(start, 0.0, kappa, 1.0)
+    propagate_arcs(start, np.zeros(2), np.full(2, kappa), np.ones(2))
+    arc_line_lengths_from(start[None], goal, r)
+    is_reachable(start, goal, r)
+    prims = np.array([[0.0, kappa, 1.0], [0.0, 0.0, 1.0]])
+    chain_cost(problem, start, prims)
+    tiny = SteerablePlan(start, prims)
+    verify_plan(problem, tiny, spacing_mm=validator.spacing_mm)
+    verify_approximate(problem, tiny, spacing_mm=validator.spacing_mm)
+
+
 class SteerableSearch:
     """One steerable-needle search: set-up, clock, checked plans, result.
 
@@ -133,7 +164,7 @@ class SteerableSearch:
         self.planner = planner
         self.start = problem.start_pose
         self.validator = MotionValidator(problem)
-        self.validator.warm_up()  # compiling kernels is set-up, not search
+        warm_up(problem, self.validator)  # compiling kernels is set-up, not search
         self.refused = 0
         self._last_check: tuple | None = None  # (plan, Verification) of the last candidate
         self.setup_s = time.perf_counter() - t0

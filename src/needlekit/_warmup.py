@@ -1,0 +1,72 @@
+"""Compile needlekit's planning kernels ahead of use: ``python -m needlekit._warmup``.
+
+numba compiles a kernel the first time it runs and keeps the machine code in its cache
+(``cache=True``), so every later process loads it in milliseconds. ``make install`` (and so
+``make demo`` and ``make test``) runs this once, so that a user's first ``needlekit plan``
+does not spend seconds compiling. Planners also warm up before their clock starts
+(:func:`needlekit.planning.steerable.search.warm_up`), so budgets hold either way; this only
+moves the one-time cost to installation.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+__all__ = ["warm_up_kernels"]
+
+
+def warm_up_kernels() -> float:
+    """Plan once with every steerable planner on two tiny problems (the ``field`` model
+    over analytic shapes and a voxel grid, and the ``voxel_centres`` model).
+
+    Returns
+    -------
+    float
+        Seconds it took.
+    """
+    from needlekit.anatomy.occupancy import VoxelObstacles
+    from needlekit.anatomy.primitives import Capsule, Sphere
+    from needlekit.anatomy.scene import Role, Scene, Structure
+    from needlekit.anatomy.voxel import VoxelSDF
+    from needlekit.planning.steerable.problem import SteerableProblem
+    from needlekit.planning.steerable.solve import solve
+
+    t0 = time.perf_counter()
+    idx = np.arange(-20, 21)
+    grid = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).astype(float)
+    tube = np.hypot(grid[..., 0] - 6.0, grid[..., 1]) <= 2.0  # a vessel along z, 1 mm voxels
+    affine = np.eye(4)
+    affine[:3, 3] = -20.0
+    scene = Scene(
+        [
+            Structure("body", Role.ALLOWED_REGION, Sphere([0.0, 0.0, 0.0], 60.0)),
+            Structure("vessel", Role.OBSTACLE, VoxelSDF.from_mask(tube, affine)),
+            Structure("airway", Role.OBSTACLE, Capsule([-9, 0, -20], [-9, 0, 20], 2.0)),
+        ]
+    )
+    start = np.eye(4)
+    start[:3, 3] = [0.0, 0.0, -15.0]
+    field = SteerableProblem(scene, goal_mm=[0.0, 0.0, 15.0], start_pose=start)
+    # a prepared patient's occupancy comes read-only from the cache: a kernel type of its own
+    frozen, frozen_affine = tube.copy(), affine.copy()
+    frozen.flags.writeable = frozen_affine.flags.writeable = False
+    problems = [field] + [
+        SteerableProblem(
+            scene,
+            goal_mm=[0.0, 0.0, 15.0],
+            start_pose=start,
+            collision_model="voxel_centres",
+            voxel_obstacles=VoxelObstacles(occupancy, aff, needle_diameter_mm=1.0),
+        )
+        for occupancy, aff in ((tube, affine), (frozen, frozen_affine))
+    ]
+    for problem in problems:
+        for planner in ("rcs_star", "rcs", "rrt"):
+            solve(problem, planner, time_limit_s=60.0, max_iterations=20)
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":  # pragma: no cover - run by make install
+    print(f"needlekit: planning kernels compiled in {warm_up_kernels():.1f} s")
