@@ -11,6 +11,7 @@ import os
 import shutil
 import tempfile
 
+import numpy as np
 import pytest
 
 from needlekit.errors import InvalidInputError
@@ -71,3 +72,66 @@ def medrad_dir():
 def medrad_lung1(medrad_dir):
     """Med-RAD lung patient 1, loaded once per test process."""
     return load_medrad("lung", 1, medrad_dir)
+
+
+# -- the exact oracle of plans on phantoms -----------------------------------------------
+# A phantom's scene bakes its trees into voxel grids (with a stated error bound); its
+# ``exact_fields`` keep the closed forms. Plans on a phantom are re-checked against those:
+# the independent check of a plan must not share the planner's field.
+
+#: Arc-length spacing (mm) of the points at which the oracle measures a plan's clearance.
+EXACT_CHECK_SPACING_MM = 0.1
+
+_exact_fields: dict[int, tuple] = {}
+
+
+def exact_obstacle_field(phantom):
+    """The phantom's obstacle field from its exact structures (same names and roles as its
+    scene), built once per phantom."""
+    from needlekit.anatomy.scene import Scene, Structure
+
+    key = id(phantom)
+    if key not in _exact_fields:
+        structures = [
+            Structure(s.name, s.role, phantom.exact_fields[s.name])
+            for s in phantom.scene.structures
+        ]
+        # the phantom is kept beside its field so that its id stays its own
+        _exact_fields[key] = (phantom, Scene(structures).obstacle_field(0.0))
+    return _exact_fields[key][1]
+
+
+def check_exact_clearance(phantom, problem, plan, certified_clearance_mm=None) -> float:
+    """Re-check a plan on a phantom with exact distances; returns its exact clearance (mm,
+    from the needle's surface, outside the start exclusion ball, at points 0.1 mm apart).
+
+    Asserts that it is at least the problem's safety margin and at least the
+    ``certified_clearance_mm`` the planner reported (which claims to be a lower bound).
+    """
+    scene_roles = [(s.name, s.role) for s in problem.scene.structures]
+    assert scene_roles == [(s.name, s.role) for s in phantom.scene.structures]
+    field = exact_obstacle_field(phantom)
+    points = plan.points_mm(EXACT_CHECK_SPACING_MM)
+    start = plan.start_pose[:3, 3]
+    far = np.linalg.norm(points - start, axis=1) >= problem.start_exclusion_mm
+    assert far.any(), "the whole plan lies inside the start exclusion"
+    radius = 0.5 * problem.needle_diameter_mm
+    clearance = float(field.signed_distance(points[far]).min()) - radius
+    tol = float(field.error_bound_mm)
+    assert clearance >= problem.safety_margin_mm - tol, (
+        f"exact clearance {clearance:.6f} mm below the safety margin "
+        f"{problem.safety_margin_mm:g} mm"
+    )
+    if certified_clearance_mm is not None:
+        assert clearance >= float(certified_clearance_mm) - tol, (
+            f"exact clearance {clearance:.6f} mm below the certified "
+            f"{float(certified_clearance_mm):.6f} mm"
+        )
+    return clearance
+
+
+@pytest.fixture(scope="session")
+def exact_clearance():
+    """:func:`check_exact_clearance`, for tests on phantoms (conftest modules are not
+    importable under ``--import-mode=importlib``)."""
+    return check_exact_clearance
