@@ -19,8 +19,6 @@ from needlekit.control.qp import QPStatus
 from needlekit.control.vfi import Zone
 from needlekit.errors import InvalidInputError
 
-pytest.importorskip("daqp", reason="daqp solves the adaptation QP")
-
 NOMINAL = np.array([-650.0, 0.0, -450.0, 0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 0.0, 0.0, 0.0])
 SPREAD = np.array([200.0] * 3 + [np.radians(10)] * 3 + [10.0] * 3 + [np.radians(5)] * 3)
 SETTINGS = AdaptationSettings(NOMINAL - SPREAD, NOMINAL + SPREAD)

@@ -9,8 +9,6 @@ from needlekit.control.panda import PandaModel
 from needlekit.control.qp import QPStatus
 from needlekit.errors import InvalidInputError
 
-pytest.importorskip("daqp", reason="daqp solves the controller's QP")
-
 Q0 = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
 
 

@@ -8,8 +8,6 @@ from needlekit.control.dq import dq_conj, dq_from_matrix, dq_mul, dq_to_matrix, 
 from needlekit.control.panda import Q_DOT_MAX, Q_MAX, Q_MIN, PandaModel
 from needlekit.errors import InvalidInputError
 
-dqrobotics = pytest.importorskip("dqrobotics", reason="dqrobotics is the kinematics oracle")
-
 
 def _random_pose(rng, scale_mm):
     g = np.eye(4)

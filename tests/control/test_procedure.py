@@ -10,8 +10,6 @@ from needlekit.control.panda import PandaModel
 from needlekit.control.procedure import TrialSetup, quintic, run_trial
 from needlekit.errors import InvalidInputError
 
-pytest.importorskip("daqp", reason="daqp solves the controller's QPs")
-
 NOMINAL = np.array([-650.0, 0.0, -450.0, 0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 0.0, 0.0, 0.0])
 SPREAD = np.array([200.0] * 3 + [np.radians(10)] * 3 + [10.0] * 3 + [np.radians(5)] * 3)
 Q_READY = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])

@@ -20,8 +20,6 @@ from needlekit.studies.puncture_study import (
     summary_stats,
 )
 
-pytest.importorskip("daqp", reason="daqp solves the controller's QPs")
-
 
 def test_trials_follow_the_papers_distributions_and_stay_feasible():
     sc = PunctureScenario()

@@ -16,8 +16,6 @@ from needlekit.control.vfi import (
 )
 from needlekit.errors import InvalidInputError
 
-pytest.importorskip("dqrobotics", reason="dqrobotics is the VFI oracle")
-
 LINE = Line([400.0, 50.0, 300.0], [0.3, -0.2, 0.9])
 PLANE = Plane([420.0, 0.0, 250.0], [0.1, 0.2, 1.0])
 U = np.array([0.2, 0.1, -1.0]) / np.linalg.norm([0.2, 0.1, -1.0])

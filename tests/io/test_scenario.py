@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import trimesh
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -106,7 +107,6 @@ def test_pose_file_and_point_file(tmp_path):
 
 
 def test_mask_and_mesh_sources(tmp_path):
-    trimesh = pytest.importorskip("trimesh")
     from needlekit.io.volumes import write_mask_nifti
 
     m = np.zeros((30, 30, 30), bool)
