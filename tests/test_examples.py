@@ -6,19 +6,9 @@ import numpy as np
 import pytest
 
 from needlekit.anatomy.scene import Role
-from needlekit.errors import InvalidInputError
-from needlekit.io.medrad import medrad_root
 from needlekit.io.scenario import load_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
-
-def _have_medrad() -> bool:
-    try:
-        medrad_root()
-    except InvalidInputError:
-        return False
-    return True
 
 
 @pytest.mark.parametrize("name", ["toy", "lung_phantom", "liver_phantom", "neck_phantom"])
@@ -36,9 +26,8 @@ def test_example_loads(name):
         assert np.allclose(sc.start.world_T_tip[:3, 3], sc.start.point_mm)
 
 
-@pytest.mark.realdata
+@pytest.mark.realdata  # skips, saying why, without the data (tests/conftest.py)
 @pytest.mark.slow
-@pytest.mark.skipif(not _have_medrad(), reason="Med-RAD data not found (set NEEDLEKIT_MEDRAD)")
 def test_medrad_example_loads():
     sc = load_scenario(EXAMPLES / "medrad_lung1.yaml")
     assert sc.start.name == "start1" and sc.goal.name == "target"

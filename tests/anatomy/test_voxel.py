@@ -1,9 +1,7 @@
 """Voxel signed distance grids: kernels against references, error bounds against exact
 distances to the voxel surface, the outside-grid rule, helpers and malformed input."""
 
-import os
-from pathlib import Path
-
+import nibabel as nib
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -25,10 +23,6 @@ from needlekit.anatomy.voxel import (
     trilinear_reference,
 )
 from needlekit.errors import InvalidInputError
-
-REPO = Path(__file__).resolve().parents[2]
-MEDRAD = Path(os.environ.get("NEEDLEKIT_MEDRAD", REPO.parent / "shared" / "data" / "med-rad"))
-
 
 # ----------------------------------------------------------------------------------------
 # exact reference: signed distance to the boundary of the union of the set voxels' boxes
@@ -481,19 +475,14 @@ def test_from_function_rejects_bad_output_and_shape():
 # real anatomy
 
 
-def _medrad_case(name):
-    path = MEDRAD / "Lungs" / "TumorTargetEnvironments" / "Patient1" / f"{name}.nii.gz"
-    if not path.exists():
-        pytest.skip(f"Med-RAD data not found at {MEDRAD} (set NEEDLEKIT_MEDRAD)")
-    import nibabel as nib
-
-    img = nib.load(path)
+def _medrad_case(root, name):
+    img = nib.load(root / "Lungs" / "TumorTargetEnvironments" / "Patient1" / f"{name}.nii.gz")
     return np.asanyarray(img.dataobj) != 0, img.affine
 
 
 @pytest.mark.realdata
-def test_medrad_nodule_sdf_within_bound_of_its_voxel_surface():
-    mask, affine = _medrad_case("nodule")
+def test_medrad_nodule_sdf_within_bound_of_its_voxel_surface(medrad_dir):
+    mask, affine = _medrad_case(medrad_dir, "nodule")
     sdf = VoxelSDF.from_mask(mask, affine, padding_mm=3.0)
     assert sdf.error_bound_mm == pytest.approx(0.648, abs=2e-3)
     cropped, caff = crop_mask(mask, affine, padding_mm=3.0)

@@ -17,7 +17,6 @@ import pytest
 
 import needlekit
 from needlekit.anatomy.voxel import VoxelSDF
-from needlekit.errors import InvalidInputError
 from needlekit.io import anatomy_cache, medrad
 from needlekit.io.anatomy_cache import (
     CACHE_DIR_ENV,
@@ -28,7 +27,7 @@ from needlekit.io.anatomy_cache import (
     open_entry,
     write_entry,
 )
-from needlekit.io.medrad import MEDRAD_ENV, load_medrad
+from needlekit.io.medrad import load_medrad
 from needlekit.io.volumes import write_mask_nifti
 
 N = 48  # voxels per axis, 1 mm, centred on the origin
@@ -461,19 +460,8 @@ def test_values_that_cannot_be_stored_raise_and_leave_nothing(tmp_path):
 # the real data
 
 
-def _medrad_root():
-    try:
-        return medrad.medrad_root()
-    except InvalidInputError:
-        return None
-
-
-@pytest.mark.realdata
+@pytest.mark.realdata  # skips, saying why, without the data (tests/conftest.py)
 @pytest.mark.slow
-@pytest.mark.skipif(
-    _medrad_root() is None,
-    reason=f"Med-RAD data not found: set {MEDRAD_ENV} or place it at ../shared/data/med-rad",
-)
 def test_lung1_plans_and_verifies_the_same_through_the_cache(tmp_path, capsys):
     scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_lung1.yaml"
     cache = str(tmp_path / "cache")

@@ -1,4 +1,5 @@
-"""Med-RAD reader on the real data (skips when it is absent)."""
+"""Med-RAD reader: on the real data (tests marked ``realdata``, which skip when it is
+absent; the data comes from tests/conftest.py's fixtures) and on synthetic folders."""
 
 import os
 from pathlib import Path
@@ -13,33 +14,16 @@ from needlekit.io.medrad import MEDRAD_ENV, list_patients, load_medrad, medrad_r
 from needlekit.io.volumes import read_mask
 
 
-def _root():
-    try:
-        return medrad_root()
-    except InvalidInputError:
-        return None
+@pytest.mark.realdata
+def test_patients_are_listed(medrad_dir):
+    assert list_patients("lung", medrad_dir) == [1, 2, 3, 4, 5]
+    assert list_patients("liver", medrad_dir) == [1, 2, 3, 4, 5]
 
 
-ROOT = _root()
-needs_data = pytest.mark.skipif(
-    ROOT is None,
-    reason=f"Med-RAD data not found: set {MEDRAD_ENV} or place it at ../shared/data/med-rad",
-)
-pytestmark = [pytest.mark.realdata, needs_data]
-
-
-@pytest.fixture(scope="module")
-def lung1():
-    return load_medrad("lung", 1)
-
-
-def test_patients_are_listed():
-    assert list_patients("lung") == [1, 2, 3, 4, 5]
-    assert list_patients("liver") == [1, 2, 3, 4, 5]
-
-
+@pytest.mark.realdata
 @pytest.mark.slow
-def test_lung_case_has_the_promised_structures(lung1):
+def test_lung_case_has_the_promised_structures(medrad_lung1):
+    lung1 = medrad_lung1
     roles = {s.name: s.role for s in lung1.scene.structures}
     assert roles == {
         "pleuralBoundary": Role.ALLOWED_REGION,
@@ -71,10 +55,11 @@ def _airway_and_nodule(folder: Path):
     return files
 
 
+@pytest.mark.realdata
 @pytest.mark.slow
 @pytest.mark.parametrize("patient", [1, 2, 3, 4, 5])
-def test_lung_targets_in_nodule_and_starts_on_the_airway_wall(patient):
-    folder = ROOT / "Lungs" / "TumorTargetEnvironments" / f"Patient{patient}"
+def test_lung_targets_in_nodule_and_starts_on_the_airway_wall(medrad_dir, patient):
+    folder = medrad_dir / "Lungs" / "TumorTargetEnvironments" / f"Patient{patient}"
     nodule = VoxelSDF.from_mask(read_mask(folder / "nodule.nii.gz"))
     airway = VoxelSDF.from_mask(read_mask(folder / "bronchialTree.nii.gz"), padding_mm=5.0)
     case_target = np.loadtxt(folder / "target.txt")
@@ -86,10 +71,11 @@ def test_lung_targets_in_nodule_and_starts_on_the_airway_wall(patient):
         assert abs(d) <= 0.7 + airway.error_bound_mm, (patient, i, d)
 
 
+@pytest.mark.realdata
 @pytest.mark.slow
 @pytest.mark.parametrize("patient", [1, 2, 3, 4, 5])
-def test_liver_targets_lie_in_their_nodules(patient):
-    folder = ROOT / "Liver" / f"Patient{patient}"
+def test_liver_targets_lie_in_their_nodules(medrad_dir, patient):
+    folder = medrad_dir / "Liver" / f"Patient{patient}"
     files = {p.name.lower(): p for p in folder.iterdir()}
     targets = sorted(
         n for n in files if n.startswith("target") and n.endswith(".txt") and "_" not in n
@@ -105,9 +91,10 @@ def test_liver_targets_lie_in_their_nodules(patient):
         assert field.signed_distance(np.loadtxt(files[t])) <= field.error_bound_mm
 
 
+@pytest.mark.realdata
 @pytest.mark.slow
-def test_liver_case_pairs_starts_with_targets():
-    case = load_medrad("liver", 2)
+def test_liver_case_pairs_starts_with_targets(medrad_dir):
+    case = load_medrad("liver", 2, medrad_dir)
     assert set(case.targets_mm) == {"target1", "target2"}
     assert [(s.name, s.target) for s in case.starts] == [
         ("target1_start1", "target1"),
@@ -121,17 +108,18 @@ def test_liver_case_pairs_starts_with_targets():
 
 
 def test_bad_arguments(tmp_path, monkeypatch):
+    # a synthetic folder with one (empty) lung patient: no real data needed
+    empty = tmp_path / "Lungs" / "TumorTargetEnvironments" / "Patient1"
+    empty.mkdir(parents=True)
     with pytest.raises(InvalidInputError, match="organ"):
-        load_medrad("brain", 1)
+        load_medrad("brain", 1, tmp_path)
     with pytest.raises(InvalidInputError, match="patient"):
-        load_medrad("lung", 42)
+        load_medrad("lung", 42, tmp_path)
     with pytest.raises(InvalidInputError, match="root"):
         medrad_root(tmp_path / "nope")
     monkeypatch.setenv(MEDRAD_ENV, os.fspath(tmp_path / "missing"))
     with pytest.raises(InvalidInputError, match=MEDRAD_ENV):
         medrad_root()
-    empty = tmp_path / "Lungs" / "TumorTargetEnvironments" / "Patient1"
-    empty.mkdir(parents=True)
     with pytest.raises(InvalidInputError, match="missing segmentation"):
         load_medrad("lung", 1, tmp_path)
 
@@ -163,12 +151,13 @@ def test_masks_on_other_grids_are_aligned_through_their_affines(kind):
     assert np.allclose(a, b)
 
 
+@pytest.mark.realdata
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("organ", "patient"), [(o, p) for o in ("lung", "liver") for p in range(1, 6)]
 )
-def test_every_patient_loads_with_starts_targets_and_an_obstacle_field(organ, patient):
-    case = load_medrad(organ, patient)
+def test_every_patient_loads_with_starts_targets_and_an_obstacle_field(medrad_dir, organ, patient):
+    case = load_medrad(organ, patient, medrad_dir)
     assert case.starts and case.targets_mm
     field = case.scene.obstacle_field()
     starts = np.array([s.world_T_tip[:3, 3] for s in case.starts])
@@ -181,8 +170,10 @@ def test_every_patient_loads_with_starts_targets_and_an_obstacle_field(organ, pa
         assert s.target in case.targets_mm
 
 
+@pytest.mark.realdata
 @pytest.mark.slow
-def test_lung1_starts_clear_the_exact_collision_test_only_with_the_start_exclusion(lung1):
+def test_lung1_starts_clear_the_exact_collision_test_only_with_the_start_exclusion(medrad_lung1):
+    lung1 = medrad_lung1
     obs = lung1.voxel_obstacles(needle_diameter_mm=1.0)
     assert obs.min_distance_mm == pytest.approx(1.0236, abs=1e-4)
     for s in lung1.starts:

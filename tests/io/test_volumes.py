@@ -1,8 +1,6 @@
 """Masks from NIfTI and NRRD: affines against nibabel, LPS->RAS, round trips, bad files."""
 
 import gzip
-import os
-from pathlib import Path
 
 import nibabel as nib
 import nrrd
@@ -13,9 +11,6 @@ from scipy.spatial.transform import Rotation
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.volumes import Mask, read_mask, write_mask_nifti, write_mask_nrrd
-
-REPO = Path(__file__).resolve().parents[2]
-MEDRAD = Path(os.environ.get("NEEDLEKIT_MEDRAD", REPO.parent / "shared" / "data" / "med-rad"))
 
 
 def _mask(shape=(6, 7, 8), seed=0):
@@ -247,16 +242,9 @@ def test_writers_reject_bad_input_and_leave_no_file(tmp_path, call, match):
 # real data
 
 
-def _medrad(*parts):
-    path = MEDRAD.joinpath(*parts)
-    if not path.exists():
-        pytest.skip(f"Med-RAD data not found at {MEDRAD} (set NEEDLEKIT_MEDRAD)")
-    return path
-
-
 @pytest.mark.realdata
-def test_medrad_liver_mask_is_lps_oriented():
-    path = _medrad("Liver", "Patient1", "hepaticArtery.nii.gz")
+def test_medrad_liver_mask_is_lps_oriented(medrad_dir):
+    path = medrad_dir / "Liver" / "Patient1" / "hepaticArtery.nii.gz"
     mask = read_mask(path)
     img = nib.load(path)
     assert mask.axcodes() == ("L", "P", "S")
@@ -267,8 +255,8 @@ def test_medrad_liver_mask_is_lps_oriented():
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_medrad_lung_pleural_boundary():
-    path = _medrad("Lungs", "TumorTargetEnvironments", "Patient1", "pleuralBoundary.nii.gz")
+def test_medrad_lung_pleural_boundary(medrad_dir):
+    path = medrad_dir / "Lungs" / "TumorTargetEnvironments" / "Patient1" / "pleuralBoundary.nii.gz"
     mask = read_mask(path)
     assert mask.shape == (497, 331, 512)
     assert mask.axcodes() == ("R", "A", "S")
