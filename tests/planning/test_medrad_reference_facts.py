@@ -119,3 +119,37 @@ def test_bench_steerable_records_cases_and_the_reference(tmp_path):
     assert by_start[3]["status"] == "solved" and by_start[3]["certified"]
     assert by_start[1]["status"] == "infeasible"
     assert rec["summary"]["lung1_reference_agreement"] == "5/5"
+
+
+@pytest.mark.parametrize("planner", ["rcs_star", "rcs", "rrt"])
+def test_a_goal_40_mm_behind_start_1_is_infeasible_before_searching(lung1, planner):
+    from dataclasses import replace
+
+    from needlekit.planning.result import PlanStatus
+    from needlekit.planning.steerable.solve import solve
+
+    case, obstacles = lung1
+    prob = _problem(case, obstacles, 1, 50)
+    s = prob.start_pose
+    behind = replace(prob, goal_mm=s[:3, 3] - 40.0 * s[:3, 2], start_point_mm=None)
+    res = solve(behind, planner, time_limit_s=1.0)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert "beyond the heading limit of 90 deg" in res.stats["reason"]
+
+
+@pytest.mark.parametrize("planner", ["rcs_star", "rcs", "rrt"])
+def test_a_goal_in_an_obstacle_voxel_is_said_so(lung1, planner):
+    from dataclasses import replace
+
+    from needlekit.planning.result import PlanStatus
+    from needlekit.planning.steerable.solve import solve
+
+    case, obstacles = lung1
+    prob = _problem(case, obstacles, 1, 50)
+    # the obstacle voxel nearest the target, a few mm away
+    idx = np.argwhere(obstacles.occupancy[::4, ::4, ::4]) * 4
+    centres = idx @ obstacles.affine[:3, :3].T + obstacles.affine[:3, 3]
+    inside = centres[np.argmin(np.linalg.norm(centres - prob.goal_mm, axis=1))]
+    res = solve(replace(prob, goal_mm=inside, start_point_mm=None), planner, time_limit_s=1.0)
+    assert res.status is PlanStatus.INVALID_PROBLEM
+    assert res.stats["reason"] == "goal lies inside an obstacle (for this needle)"

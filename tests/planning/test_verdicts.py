@@ -193,3 +193,53 @@ def test_one_scenario_one_verdict_on_every_route_field_model(tmp_path):
 def test_one_scenario_one_verdict_on_every_route_voxel_centres(tmp_path):
     code, answers = _routes(EXAMPLES / "medrad_lung1.yaml", tmp_path)
     assert code == 0 and answers == [("solved", 58.257322)] * 4
+
+
+def _shell_problem(hole: bool):
+    """A goal inside a closed shell of obstacle voxels (1 mm), with or without a hole on the
+    side facing the start."""
+    from needlekit.anatomy.occupancy import VoxelObstacles
+
+    idx = np.arange(-40, 41)
+    g = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).astype(float)
+    r = np.linalg.norm(g - [0.0, 0.0, 20.0], axis=-1)
+    occ = (r >= 8.0) & (r <= 10.0)
+    if hole:  # a 6 mm wide tunnel through the shell toward the start
+        occ &= ~((np.hypot(g[..., 0], g[..., 1]) <= 3.0) & (g[..., 2] < 20.0))
+    affine = np.eye(4)
+    affine[:3, 3] = -40.0
+    scene = Scene([Structure("body", Role.ALLOWED_REGION, Sphere([0, 0, 0], 100.0))])
+    start = np.eye(4)
+    start[:3, 3] = [0.0, 0.0, -30.0]
+    obstacles = VoxelObstacles(occ, affine, needle_diameter_mm=1.0)
+    return SteerableProblem(scene, goal_mm=[0.0, 0.0, 20.0], start_pose=start,
+                            collision_model="voxel_centres", voxel_obstacles=obstacles)  # fmt: skip
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_goal_walled_off_from_the_start_is_proved_infeasible(planner):
+    res = solve(_shell_problem(hole=False), planner, time_limit_s=30.0)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert res.stats["reason"].startswith("reachable workspace is not connected to the goal")
+
+
+@pytest.mark.parametrize("planner", ["rcs_star", "rrt"])
+def test_a_tunnel_to_the_goal_keeps_it_reachable(planner):
+    # straight down the tunnel: the fill finds the way, and the planners go through it
+    res = solve(_shell_problem(hole=True), planner, time_limit_s=60.0, max_iterations=400)
+    assert res.status is PlanStatus.SOLVED and res.cost_mm == pytest.approx(49.0, abs=1e-9)
+
+
+def test_the_connectivity_proof_holds_only_where_samples_are_finer_than_voxels():
+    from needlekit.planning.steerable.workspace import goal_connected
+
+    p = _shell_problem(hole=False)
+    kw = {"max_length_mm": 150.0, "goal_tolerance_mm": 1.0, "exclusion_mm": 3.0}
+    assert (
+        goal_connected(p.voxel_obstacles, p.start_point_mm, p.goal_mm, spacing_mm=0.5, **kw)[0]
+        is False
+    )
+    assert (
+        goal_connected(p.voxel_obstacles, p.start_point_mm, p.goal_mm, spacing_mm=1.0, **kw)[0]
+        is None
+    )

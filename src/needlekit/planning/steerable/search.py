@@ -16,7 +16,11 @@ Pre-checks, in order (each answers at once, before any search):
    tau inside the r_min horn torus; the reference's "goal point not in FRS"):
    ``INFEASIBLE``;
 7. the shortest curvature-bounded path to the goal's tau-ball is not shorter than l_max:
-   ``INFEASIBLE``.
+   ``INFEASIBLE``;
+8. (``voxel_centres`` model) no chain of free voxels connects the start to the goal within
+   the region a path of length l_max can visit
+   (:func:`~needlekit.planning.steerable.workspace.goal_connected`; the reference's
+   "reachable workspace is not connected"): ``INFEASIBLE``.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
 from needlekit.planning.steerable.verify import verify_approximate, verify_plan
+from needlekit.planning.steerable.workspace import goal_connected
 
 __all__ = ["SteerableSearch", "precheck"]
 
@@ -102,6 +107,22 @@ def precheck(
             f"the shortest curvature-bounded path to the goal is {conn.length_mm:.2f} mm, "
             f"not under the maximum length {problem.max_length_mm:g} mm",
         )
+    if validator.obstacles is not None:
+        connected, _ = goal_connected(
+            validator.obstacles,
+            p0,
+            goal_mm,
+            max_length_mm=problem.max_length_mm,
+            goal_tolerance_mm=tau,
+            exclusion_mm=problem.start_exclusion_mm,
+            spacing_mm=validator.spacing_mm,
+        )
+        if connected is False:
+            return (
+                PlanStatus.INFEASIBLE,
+                "reachable workspace is not connected to the goal: no chain of free voxels "
+                "leads there within the maximum length",
+            )
     return None
 
 
@@ -122,6 +143,16 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
 
     validator.warm_up()
     start, goal = problem.start_pose, problem.goal_mm
+    if validator.obstacles is not None:  # the connectivity proof's kernel, on a tiny region
+        goal_connected(
+            validator.obstacles,
+            start[:3, 3],
+            start[:3, 3],
+            max_length_mm=0.0,
+            goal_tolerance_mm=problem.goal_tolerance_mm,
+            exclusion_mm=problem.start_exclusion_mm,
+            spacing_mm=validator.spacing_mm,
+        )
     kappa, r, tau = problem.kappa_max_per_mm, problem.r_min_mm, problem.goal_tolerance_mm
     goal_connection(start, goal, r, tau)
     single_arc_connection(start, goal, r, tau)
