@@ -16,6 +16,7 @@ from needlekit.cli._common import (
     _seed,
 )
 from needlekit.cli._paths import add_input, add_output
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 
 #: What ``needlekit puncture`` writes in its --out folder.
 PUNCTURE_FILES = ("puncture.json", "puncture.html")
@@ -388,8 +389,8 @@ def _build_parser() -> argparse.ArgumentParser:
     bs.add_argument(
         "--time-limit-s",
         type=_positive,
-        default=1.0,
-        help="budget per case and planner (default 1 s)",
+        default=DEFAULT_TIME_LIMIT_S,
+        help=f"budget per case and planner (default {DEFAULT_TIME_LIMIT_S:g} s)",
     )
     add_input(
         bs,

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.constants import DEFAULT_GOAL_TOLERANCE_MM
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -92,7 +93,7 @@ def load_problem(
         start = sc.start or StartSpec(
             overrides["start_pose"][:3, 3], overrides["start_pose"], "start_pose override"
         )
-        goal = sc.goal or GoalSpec(overrides["goal_mm"], 1.0, "goal override")
+        goal = sc.goal or GoalSpec(overrides["goal_mm"], DEFAULT_GOAL_TOLERANCE_MM, "goal override")
         sc = replace(sc, start=start, goal=goal)
     return sc, problem_from_scenario(sc, **overrides)
 

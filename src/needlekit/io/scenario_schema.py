@@ -9,6 +9,14 @@ from __future__ import annotations
 
 from typing import Any
 
+from needlekit.constants import (
+    DEFAULT_MAX_HEADING_CHANGE_DEG,
+    DEFAULT_MAX_LENGTH_MM,
+    DEFAULT_NEEDLE_DIAMETER_MM,
+    DEFAULT_R_MIN_MM,
+    DEFAULT_START_EXCLUSION_MM,
+)
+
 __all__ = ["SCENARIO_SCHEMA", "SCENARIO_VERSION", "SOURCE_KINDS", "PRIMITIVE_KINDS"]
 
 SCENARIO_VERSION = 1
@@ -159,7 +167,9 @@ _NEEDLE = _obj(
         "start_exclusion_mm": _NONNEG,
     },
     [],
-    "needle and its limits; defaults: 1 mm, 50 mm, 150 mm, 0 mm, 90 deg, 0 deg, 3 mm",
+    "needle and its limits; defaults: "
+    f"{DEFAULT_NEEDLE_DIAMETER_MM:g} mm, {DEFAULT_R_MIN_MM:g} mm, {DEFAULT_MAX_LENGTH_MM:g} mm, "
+    f"0 mm, {DEFAULT_MAX_HEADING_CHANGE_DEG:g} deg, 0 deg, {DEFAULT_START_EXCLUSION_MM:g} mm",
 )
 
 _START = {

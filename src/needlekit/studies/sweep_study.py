@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 
 __all__ = ["SweepStudy", "run_sweep_study"]
@@ -71,7 +72,7 @@ def run_sweep_study(
     report_path: str | os.PathLike | None = None,
     planners: Sequence[str] = ("rcs_star",),
     directions=None,
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     max_iterations: int | None = None,
     seed: int = 0,
     executor=None,
