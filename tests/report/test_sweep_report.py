@@ -53,6 +53,22 @@ def lung():
     return sc, runs, normal
 
 
+def test_every_plan_of_the_lung_sweep_clears_the_exact_anatomy(lung, exact_clearance):
+    # iteration budgets end each search: the same plans on any machine, each re-checked
+    # against the phantom's exact structures (not the voxel grids the planners used)
+    from needlekit.planning.steerable.problem import SteerableProblem
+
+    sc, runs, _ = lung
+    p = SteerableProblem.from_scenario(sc)
+    for pl in PLANNERS:
+        stats = runs[pl].stats
+        assert (stats["n_effective"], stats["n_solved"]) == (42, 5)
+        plans = [r for r in runs[pl].results if r is not None and r.plan is not None]
+        assert [r.status for r in plans] == [PlanStatus.SOLVED] * 5
+        for r in plans:
+            exact_clearance(sc.base, p, r.plan, r.stats["certified_clearance_mm"])
+
+
 def _fake_sweep(directions, effective, costs, planner="rcs", statuses=None) -> SweepResult:
     """A SweepResult from per-direction costs (None: not effective; inf: no plan), with the
     statistics computed as :func:`sweep` does."""
