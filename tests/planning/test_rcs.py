@@ -27,9 +27,10 @@ def _problem(*obstacles, goal=GOAL, **kw):
 
 def test_free_direct_connection_is_certified_at_the_root():
     prob = _problem()
-    res = solve_rcs(prob, time_limit_s=2.0)
+    res = solve_rcs(prob, time_limit_s=60.0)  # the search ends it, never the clock
     h0 = goal_connection(np.eye(4), GOAL, 50.0, 1.0).length_mm
     assert res.status is PlanStatus.SOLVED and res.stats["certified"]
+    assert (res.stats["iterations"], res.stats["reason"]) == (5, "search space exhausted")
     assert res.cost_mm == pytest.approx(h0)
     assert verify_plan(prob, res.plan).ok
 
@@ -100,7 +101,8 @@ def test_unreachable_goal_and_invalid_start():
 
 
 def test_result_json_has_the_plan_file_fields():
-    res = solve_rcs(_problem(), time_limit_s=1.0)
+    res = solve_rcs(_problem(), time_limit_s=60.0)  # certified after 5 iterations
+    assert res.stats["reason"] == "search space exhausted"
     d = res.to_dict()
     for key in (
         "status",
