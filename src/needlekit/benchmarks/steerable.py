@@ -176,6 +176,7 @@ def run_steerable_benchmark(
                     )
                     rows.append(
                         _row(res, patient=patient, start=start, r_min_mm=float(r))
+                        | {"collision_model": problem.collision_model.value}
                         | {"reference_cost_mm": ref}
                     )
                     if progress is not None:
@@ -187,7 +188,11 @@ def run_steerable_benchmark(
         _, problem = load_problem(path)
         for planner in planners:
             res = run(problem, planner)
-            rows.append(_row(res, scenario=str(path)) | {"reference_cost_mm": "n/a"})
+            rows.append(
+                _row(res, scenario=str(path))
+                | {"collision_model": problem.collision_model.value}
+                | {"reference_cost_mm": "n/a"}
+            )
             if progress is not None:
                 progress(f"{path} {planner}: {res.status.value}")
     return {
@@ -200,8 +205,8 @@ def run_steerable_benchmark(
             "scenarios": [str(p) for p in scenarios],
             "time_limit_s": time_limit_s,
             **BENCH_NEEDLE,
-            "collision_model": "voxel_centres: exact distance to obstacle voxel centres "
-            "(radius + half voxel diagonal)",
+            "medrad_collision_model": "voxel_centres: exact distance to obstacle voxel "
+            "centres (radius + half voxel diagonal); scenario cases use their own",
         },
         "fields": fields,
         "results": rows,
