@@ -28,19 +28,38 @@ from needlekit._validation import as_points, as_positive, unbatch
 from needlekit.anatomy.grids import _orthogonal_affine
 from needlekit.errors import InvalidInputError
 
-__all__ = ["VoxelObstacles", "nearest_obstacle_distance_reference"]
+__all__ = [
+    "VoxelObstacles",
+    "box_half_widths",
+    "nearest_obstacle_distance_reference",
+    "voxel_centre",
+]
+
+
+@numba.njit(cache=True, inline="always")
+def box_half_widths(affine, radius):  # pragma: no cover - compiled
+    """Voxels to either side, per axis, of a box holding every centre within ``radius``
+    of a point (the search box of the voxel-centre kernels)."""
+    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
+    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
+    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
+    return math.ceil(radius / h0), math.ceil(radius / h1), math.ceil(radius / h2)
+
+
+@numba.njit(cache=True, inline="always")
+def voxel_centre(affine, i, j, k):  # pragma: no cover - compiled
+    """World position (mm) of voxel ``(i, j, k)``'s centre."""
+    x = affine[0, 0] * i + affine[0, 1] * j + affine[0, 2] * k + affine[0, 3]
+    y = affine[1, 0] * i + affine[1, 1] * j + affine[1, 2] * k + affine[1, 3]
+    z = affine[2, 0] * i + affine[2, 1] * j + affine[2, 2] * k + affine[2, 3]
+    return x, y, z
 
 
 @numba.njit(cache=True)
 def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # pragma: no cover
     ni, nj, nk = occ.shape
     # the box of voxels around a point that can hold a centre within min_dist
-    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
-    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
-    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
-    r0 = math.ceil(min_dist / h0)
-    r1 = math.ceil(min_dist / h1)
-    r2 = math.ceil(min_dist / h2)
+    r0, r1, r2 = box_half_widths(affine, min_dist)
     md2 = min_dist * min_dist
     ex2 = excl_r * excl_r
     for n in range(points.shape[0]):
@@ -59,9 +78,7 @@ def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # p
                 for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
                     if not occ[i, j, k]:
                         continue
-                    cx = affine[0, 0] * i + affine[0, 1] * j + affine[0, 2] * k + affine[0, 3]
-                    cy = affine[1, 0] * i + affine[1, 1] * j + affine[1, 2] * k + affine[1, 3]
-                    cz = affine[2, 0] * i + affine[2, 1] * j + affine[2, 2] * k + affine[2, 3]
+                    cx, cy, cz = voxel_centre(affine, i, j, k)
                     d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
                     if d2 >= md2:
                         continue

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 
 from needlekit._validation import as_points, as_positive
-from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_centre
 
 __all__ = ["nearest_obstacle_distance"]
 
@@ -24,12 +24,7 @@ __all__ = ["nearest_obstacle_distance"]
 @numba.njit(cache=True)
 def _nearest(occ, inv, affine, cap, excl_point, excl_r, points, out):  # pragma: no cover
     ni, nj, nk = occ.shape
-    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
-    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
-    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
-    r0 = math.ceil(cap / h0)
-    r1 = math.ceil(cap / h1)
-    r2 = math.ceil(cap / h2)
+    r0, r1, r2 = box_half_widths(affine, cap)
     ex2 = excl_r * excl_r
     for n in range(points.shape[0]):
         x, y, z = points[n, 0], points[n, 1], points[n, 2]
@@ -46,9 +41,7 @@ def _nearest(occ, inv, affine, cap, excl_point, excl_r, points, out):  # pragma:
                 for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
                     if not occ[i, j, k]:
                         continue
-                    cx = affine[0, 0] * i + affine[0, 1] * j + affine[0, 2] * k + affine[0, 3]
-                    cy = affine[1, 0] * i + affine[1, 1] * j + affine[1, 2] * k + affine[1, 3]
-                    cz = affine[2, 0] * i + affine[2, 1] * j + affine[2, 2] * k + affine[2, 3]
+                    cx, cy, cz = voxel_centre(affine, i, j, k)
                     d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
                     if d2 >= best:
                         continue

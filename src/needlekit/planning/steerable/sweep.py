@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.result import PlanStatus
@@ -249,7 +250,7 @@ def sweep(
     *,
     directions=None,
     normal=None,
-    time_limit_s: float = 1.0,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     executor: Executor | None = None,
     source=None,
     seed: int = 0,

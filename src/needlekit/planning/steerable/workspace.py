@@ -27,7 +27,7 @@ import math
 import numba
 import numpy as np
 
-from needlekit.anatomy.occupancy import VoxelObstacles
+from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_centre
 
 __all__ = ["goal_connected"]
 
@@ -38,19 +38,11 @@ def _fill(
 ):  # pragma: no cover
     ni, nj, nk = occ.shape
     bi, bj, bk = visited.shape
-    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
-    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
-    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
-    r0 = math.ceil(free_r / h0)
-    r1 = math.ceil(free_r / h1)
-    r2 = math.ceil(free_r / h2)
+    r0, r1, r2 = box_half_widths(affine, free_r)
     fr2, ex2, reach2 = free_r * free_r, excl_r * excl_r, reach * reach
 
     def centre(i, j, k):
-        x = affine[0, 0] * i + affine[0, 1] * j + affine[0, 2] * k + affine[0, 3]
-        y = affine[1, 0] * i + affine[1, 1] * j + affine[1, 2] * k + affine[1, 3]
-        z = affine[2, 0] * i + affine[2, 1] * j + affine[2, 2] * k + affine[2, 3]
-        return x, y, z
+        return voxel_centre(affine, i, j, k)
 
     def free(i, j, k):
         # no obstacle centre (outside the start exclusion) closer than free_r
@@ -76,7 +68,11 @@ def _fill(
     # greedy best-first: voxels wait in buckets by their distance to the goal (in steps of
     # the smallest spacing), the nearest bucket first; when the goal is reachable the fill
     # heads straight for it, and when it is not, it exhausts the region all the same
-    step = min(h0, h1, h2)
+    step = min(
+        math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2),
+        math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2),
+        math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2),
+    )
     n_buckets = int(math.ceil(budget / step)) + 2
     first = np.full(n_buckets, -1, dtype=np.int64)
     nxt = np.empty(bi * bj * bk, dtype=np.int64)
