@@ -1,0 +1,1 @@
+"""Straight multi-needle planning: problem, CFRW, entries, sequence, ablation coverage."""
