@@ -43,6 +43,7 @@ MODULES = [
     "needlekit.control.em",
     "needlekit.control.procedure",
     "needlekit.io.plans",
+    "needlekit.io.markups",
     "needlekit.io.files",
     "needlekit.io.poses",
     "needlekit.io.volumes",
