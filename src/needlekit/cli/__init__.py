@@ -38,6 +38,7 @@ _HANDLERS = {
     "plan": "needlekit.cli.planning:_cmd_plan",
     "sweep": "needlekit.cli.planning:_cmd_sweep",
     "verify": "needlekit.cli.planning:_cmd_verify",
+    "markups": "needlekit.cli.markups:_cmd_markups",
     "puncture": "needlekit.cli.puncture:_cmd_puncture",
     "demo": "needlekit.cli.demo:_cmd_demo",
     "bench kinematics": "needlekit.cli.bench:_cmd_bench",

@@ -251,6 +251,21 @@ def _build_parser() -> argparse.ArgumentParser:
     _cache_options(ver)
     ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
+    mk = sub.add_parser(
+        "markups",
+        help="export a plan's tip path as a 3D Slicer Markups curve (.mrk.json, LPS)",
+        description="Write the tip path of plan.json as a Slicer Markups Curve: control points "
+        "at most --spacing-mm apart along the path, in LPS mm. Open it in Slicer with "
+        "File > Add Data.",
+    )
+    add_input(mk, "plan", help="plan file (plan.json, as `needlekit plan` writes it)")
+    add_output(mk, "--out", required=True, help="markups file to write (.mrk.json)")
+    mk.add_argument(
+        "--spacing-mm",
+        type=_positive,
+        help="largest spacing of the curve's control points along the path (default 2 mm)",
+    )
+
     pu = sub.add_parser(
         "puncture",
         help="simulate robotic punctures with adaptive VFI control (Tang et al., Section III)",
