@@ -201,6 +201,8 @@ def test_several_lines_checks_every_input_before_writing(tmp_path):
         write_markups_lines(out, [good, good], names=["a", "a"])
     with pytest.raises(InvalidInputError, match=r"^names\[0\]: must be a plain file name"):
         write_markups_lines(out, [good], names=["../escape"])
+    with pytest.raises(InvalidInputError, match=r"^names: expected a list of names"):
+        write_markups_lines(out, [good], names="a")
     with pytest.raises(InvalidInputError, match=r"^names: expected 2 names"):
         write_markups_lines(out, [good, good], names=["a"])
     with pytest.raises(InvalidInputError, match=r"^combined: 'a.mrk.json' is also"):

@@ -391,6 +391,8 @@ def write_markups_lines(
     pairs, _ = as_batch(trajectories_mm, "trajectories_mm", (2, 3))
     if names is None:
         names = [f"needle{i + 1}" for i in range(len(pairs))]
+    elif isinstance(names, str):
+        raise InvalidInputError("names", f"expected a list of names, got the string {names!r}")
     names = list(names)
     if len(names) != len(pairs):
         raise InvalidInputError(
