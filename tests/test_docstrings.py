@@ -17,6 +17,7 @@ MODULES = [
     "needlekit.io.meshes",
     "needlekit.anatomy.summary",
     "needlekit.anatomy.occupancy",
+    "needlekit.anatomy.needle_body",
     "needlekit.planning.steerable.problem",
     "needlekit.planning.steerable.plan",
     "needlekit.planning.steerable.goal",
