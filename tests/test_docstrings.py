@@ -50,6 +50,7 @@ MODULES = [
     "needlekit.io.volumes",
     "needlekit.io.medrad",
     "needlekit.io.scenario",
+    "needlekit.planning.straight.coverage",
 ]
 
 
