@@ -315,7 +315,7 @@ class AblationZone:
 def _directions(directions, m: int, needed: bool, name: str = "directions") -> np.ndarray:
     """Unit directions, shape (m, 3); +z when the zone does not depend on them."""
     if directions is None:
-        if needed:
+        if needed and m > 0:
             raise InvalidInputError(name, "this zone depends on the needle direction: give it")
         return np.tile([0.0, 0.0, 1.0], (m, 1))
     w, single = as_points(directions, name)
