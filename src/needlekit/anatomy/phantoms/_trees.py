@@ -46,6 +46,7 @@ import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
 from needlekit.anatomy.phantoms._shapes import round_cone
+from needlekit.geometry.segments import segment_distances
 
 __all__ = [
     "CollisionWorld",
@@ -110,52 +111,6 @@ def _any_perpendicular(u: np.ndarray) -> np.ndarray:
     e = np.zeros(3)
     e[int(np.argmin(np.abs(u)))] = 1.0
     return _unit(_cross(u, e))
-
-
-def segment_distances(p0, p1, q0, q1) -> np.ndarray:
-    """Distances between one segment ``p0-p1`` and many segments ``q0-q1``.
-
-    Parameters
-    ----------
-    p0, p1 : ndarray, shape (3,)
-    q0, q1 : ndarray, shape (m, 3)
-
-    Returns
-    -------
-    ndarray, shape (m,)
-        Exact closest distances (mm).
-    """
-    d1 = p1 - p0
-    d2 = q1 - q0
-    r = p0 - q0
-    a = float(d1 @ d1)
-    e = np.einsum("ij,ij->i", d2, d2)
-    f = np.einsum("ij,ij->i", d2, r)
-    c = r @ d1
-    b = d2 @ d1
-    e_safe = np.where(e > 1e-18, e, 1.0)
-    if a <= 1e-18:  # the first segment is a point
-        t = np.clip(f / e_safe, 0.0, 1.0) * (e > 1e-18)
-        s = np.zeros_like(t)
-    else:
-        denom = a * e - b * b
-        s = np.where(
-            denom > 1e-12 * a * e_safe,
-            np.clip((b * f - c * e) / np.where(denom > 0, denom, 1.0), 0, 1),
-            0.0,
-        )
-        t = (b * s + f) / e_safe
-        low = t < 0.0
-        high = t > 1.0
-        s = np.where(
-            low, np.clip(-c / a, 0.0, 1.0), np.where(high, np.clip((b - c) / a, 0.0, 1.0), s)
-        )
-        t = np.clip(t, 0.0, 1.0)
-        point_q = e <= 1e-18
-        s = np.where(point_q, np.clip(-c / a, 0.0, 1.0), s)
-        t = np.where(point_q, 0.0, t)
-    closest = (p0 + s[:, None] * d1) - (q0 + t[:, None] * d2)
-    return np.linalg.norm(closest, axis=1)
 
 
 @numba.njit(cache=True)

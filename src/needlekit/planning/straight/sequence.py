@@ -1,0 +1,346 @@
+"""Several straight needles, one after another (Liu et al. 2016, Fig. 4).
+
+The procedure: choose the order of insertion; for each needle in turn, take its target
+(displaced by the tissue deformation the needles placed so far cause), compute its CFRW
+with the anatomy and the placed needles as obstacles, choose the optimal trajectory in it,
+place the needle (it becomes an obstacle, tube and head), update the targets, and repeat.
+
+Order. With up to :data:`EXHAUSTIVE_ORDER_MAX` needles every order is tried; orders are
+ranked on the rigid anatomy (each target's CFRW map computed once, the placed needles'
+tubes tested in closed form against every direction of it), by the number of needles
+placed, then the total insertion length. The best order is then planned in full: with the
+deformation, the placed needles' bodies (heads included) and certified clearances. Beyond
+that many needles, a greedy order: next, the target whose CFRW (given the needles placed)
+has the fewest directions left (the most constrained first).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+from needlekit.geometry.segments import segment_distances
+from needlekit.planning.straight.cfrw import (
+    Blocked,
+    CFRWMap,
+    cfrw_map,
+    segment_clearance_bound,
+)
+from needlekit.planning.straight.entry import Entry, Objective, best_on_map
+from needlekit.planning.straight.problem import StraightProblem
+
+__all__ = ["EXHAUSTIVE_ORDER_MAX", "MultiNeedlePlan", "NeedleRecord", "plan_needles"]
+
+#: Up to this many needles every insertion order is tried (6! = 720 orders).
+EXHAUSTIVE_ORDER_MAX: int = 6
+
+
+@dataclass(frozen=True)
+class NeedleRecord:
+    """One needle of a multi-needle plan.
+
+    Attributes
+    ----------
+    order : int
+        Insertion order (1 = first).
+    target_index : int
+        Which of the given targets.
+    planned_target_mm : ndarray, shape (3,)
+        The target as given.
+    target_mm : ndarray, shape (3,)
+        The target aimed at: displaced by the deformation of the needles before it.
+    entry : Entry or None
+        The chosen trajectory (None: no trajectory in its CFRW).
+    needle_clearance_mm : float
+        Certified clearance of its tube from the needles placed before it (``inf`` for
+        the first).
+    blocked : dict
+        Its CFRW's directions per blocking reason (:class:`~.cfrw.Blocked`).
+    """
+
+    order: int
+    target_index: int
+    planned_target_mm: np.ndarray
+    target_mm: np.ndarray
+    entry: Entry | None
+    needle_clearance_mm: float
+    blocked: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """JSON-ready record (an item of ``multi.json``'s ``needles``).
+
+        Returns
+        -------
+        dict
+        """
+        e = self.entry
+        return {
+            "order": self.order,
+            "target_index": self.target_index,
+            "planned_target_mm": np.round(self.planned_target_mm, 6).tolist(),
+            "target_mm": np.round(self.target_mm, 6).tolist(),
+            "entry_mm": None if e is None else np.round(e.entry_mm, 6).tolist(),
+            "length_mm": None if e is None else e.length_mm,
+            "clearance_mm": None if e is None else e.clearance_mm,
+            "needle_clearance_mm": None
+            if not np.isfinite(self.needle_clearance_mm)
+            else float(self.needle_clearance_mm),
+            "theta_deg": None if e is None else float(np.degrees(e.theta_rad)),
+            "phi_deg": None if e is None else float(np.degrees(e.phi_rad)),
+            "normal_angle_deg": None if e is None else e.normal_angle_deg,
+            "blocked": self.blocked,
+        }
+
+
+@dataclass(frozen=True)
+class MultiNeedlePlan:
+    """The outcome of :func:`plan_needles`.
+
+    Attributes
+    ----------
+    needles : tuple of NeedleRecord
+        In insertion order.
+    order : tuple of int
+        Target indices in insertion order.
+    solved : bool
+        Every needle has a trajectory.
+    orders_tried : int
+    gamma_mm, needle_radius_mm : float
+    reason : str
+        Why not solved ("" when solved): the first needle without a trajectory and what
+        blocks its directions.
+    """
+
+    needles: tuple
+    order: tuple
+    solved: bool
+    orders_tried: int
+    gamma_mm: float
+    needle_radius_mm: float
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        """JSON-ready record (the ``multi.json`` format).
+
+        Returns
+        -------
+        dict
+        """
+        return {
+            "status": "solved" if self.solved else "infeasible",
+            "reason": self.reason,
+            "gamma_mm": self.gamma_mm,
+            "needle_radius_mm": self.needle_radius_mm,
+            "order": list(self.order),
+            "orders_tried": self.orders_tried,
+            "needles": [n.to_dict() for n in self.needles],
+        }
+
+
+def _rigid_rank(maps: list[CFRWMap], order, objective: Objective, radius: float, gamma: float):
+    """(needles placed, total length) of an order on the rigid maps, the placed tubes
+    tested in closed form."""
+    placed: list[tuple[np.ndarray, np.ndarray]] = []
+    total = 0.0
+    for j in order:
+        m = maps[j]
+        ok = m.feasible.copy()
+        if placed and ok.any():
+            idx = np.argwhere(ok)
+            tips = np.broadcast_to(m.problem.target_mm, (len(idx), 3))
+            ends = m.entry_mm[idx[:, 0], idx[:, 1]]
+            clear = np.full(len(idx), np.inf)
+            for tip, entry in placed:
+                clear = np.minimum(clear, segment_distances(tip, entry, tips, ends))
+            ok[idx[:, 0], idx[:, 1]] = clear - 2 * radius >= gamma
+        masked = _masked(m, ok)
+        e = best_on_map(masked, objective)
+        if e is None:
+            return len(placed), total
+        placed.append((e.target_mm, e.entry_mm))
+        total += e.length_mm
+    return len(placed), total
+
+
+def _masked(m: CFRWMap, ok: np.ndarray) -> CFRWMap:
+    from dataclasses import replace
+
+    blocked = np.where(ok | (m.blocked != Blocked.FREE), m.blocked, Blocked.CLEARANCE)
+    return replace(m, blocked=blocked)
+
+
+def plan_needles(
+    problem: StraightProblem,
+    targets_mm,
+    *,
+    order=None,
+    objective: Objective | str = Objective.MIN_LENGTH,
+    deformation=None,
+    resolution_deg: float = 1.0,
+    head=None,
+    body_factory=None,
+) -> MultiNeedlePlan:
+    """Plan straight needles to several targets, one after another (Fig. 4).
+
+    Parameters
+    ----------
+    problem : StraightProblem
+        Anatomy, needle and limits (its own target is ignored).
+    targets_mm : array_like, shape (k, 3)
+    order : sequence of int, optional
+        A fixed insertion order (target indices); default: searched (module notes).
+    objective : Objective or str
+        What each trajectory optimises (default the paper's shortest).
+    deformation : object, optional
+        ``deformation.displacement(points_mm (n, 3), placed) -> (n, 3)`` with ``placed`` the
+        needles so far (objects with ``tip_mm``, ``entry_mm``, ``radius_mm``); default:
+        rigid anatomy.
+    resolution_deg : float
+        CFRW grid step.
+    head : NeedleHead, optional
+        Passed to ``body_factory``.
+    body_factory : callable, optional
+        ``body_factory(tip_mm, entry_mm, radius_mm) -> DistanceField`` for a placed
+        needle; default :class:`~needlekit.anatomy.needle_body.NeedleBody` with the
+        paper's head.
+
+    Returns
+    -------
+    MultiNeedlePlan
+    """
+    targets = np.asarray(targets_mm, dtype=float).reshape(-1, 3)
+    k = len(targets)
+    if k == 0 or not np.all(np.isfinite(targets)):
+        raise InvalidInputError("targets_mm", "expected one or more finite points (k, 3)")
+    obj = Objective(objective)
+    radius, gamma = problem.needle.radius_mm, problem.gamma_mm
+    if body_factory is None:
+        from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
+
+        chosen_head = LIU_HEAD if head is None else head
+
+        def body_factory(tip, entry, r):
+            return NeedleBody(tip, entry, radius_mm=r, head=chosen_head)
+
+    if order is not None:
+        order = tuple(int(i) for i in order)
+        if sorted(order) != list(range(k)):
+            raise InvalidInputError("order", f"expected a permutation of 0..{k - 1}, got {order}")
+        orders_tried = 1
+    else:
+        maps = [cfrw_map(problem.with_target(t), resolution_deg=resolution_deg) for t in targets]
+        if k <= EXHAUSTIVE_ORDER_MAX:
+            ranked = []
+            for perm in itertools.permutations(range(k)):
+                n, total = _rigid_rank(maps, perm, obj, radius, gamma)
+                ranked.append((-n, total, perm))
+            ranked.sort()
+            order, orders_tried = ranked[0][2], len(ranked)
+        else:
+            order, orders_tried = _greedy_order(maps, obj, radius, gamma), 1
+
+    class _Placed:
+        def __init__(self, tip, entry, r):
+            self.tip_mm, self.entry_mm, self.radius_mm = tip, entry, r
+
+    placed: list = []
+    bodies: list = []
+    records = []
+    reason = ""
+    for rank, j in enumerate(order, start=1):
+        target = targets[j].copy()
+        if deformation is not None and placed:
+            target = target + np.asarray(deformation.displacement(target[None], placed))[0]
+        pr = problem.with_target(target).with_obstacles(*bodies)
+        # the anatomy alone, to report the clearance to it apart from the needles'
+        m = cfrw_map(pr, resolution_deg=resolution_deg)
+        e = best_on_map(m, obj)
+        needle_clear = np.inf
+        if e is not None and bodies:
+            from needlekit.anatomy.fields import union
+
+            b, _ = segment_clearance_bound(
+                union(*bodies),
+                e.target_mm[None],
+                ((e.entry_mm - e.target_mm) / e.length_mm)[None],
+                np.array([e.length_mm]),
+                cap_mm=radius + gamma + 10.0,
+            )
+            needle_clear = float(b[0]) - radius
+            anatomy = problem.with_target(target)
+            e = Entry(
+                e.entry_mm,
+                e.target_mm,
+                e.theta_rad,
+                e.phi_rad,
+                e.length_mm,
+                float(_anatomy_clearance(anatomy, e)),
+                e.normal_angle_deg,
+                e.iterations,
+            )
+        records.append(
+            NeedleRecord(rank, j, targets[j].copy(), target, e, needle_clear, m.counts())
+        )
+        if e is None:
+            c = m.counts()
+            worst = max((v, name) for name, v in c.items() if name != "free")
+            reason = (
+                f"needle {rank} (target {j}): no trajectory in its CFRW; of "
+                f"{m.blocked.size} directions, {c.get('clearance', 0)} come closer than gamma "
+                f"to an obstacle, {c.get('too_long', 0)} are too long, "
+                f"{c.get('normal_angle', 0)} too oblique, {c.get('angle_limit', 0)} outside "
+                f"the angle limits, {c.get('no_entry', 0)} without an entry (most: {worst[1]})"
+            )
+            break
+        placed.append(_Placed(e.target_mm, e.entry_mm, radius))
+        bodies.append(body_factory(e.target_mm, e.entry_mm, radius))
+    return MultiNeedlePlan(
+        tuple(records),
+        tuple(order),
+        len(records) == k and all(r.entry is not None for r in records),
+        orders_tried,
+        gamma,
+        radius,
+        reason,
+    )
+
+
+def _anatomy_clearance(problem: StraightProblem, e: Entry) -> float:
+    b, _ = segment_clearance_bound(
+        problem.obstacle_field(),
+        e.target_mm[None],
+        ((e.entry_mm - e.target_mm) / e.length_mm)[None],
+        np.array([e.length_mm]),
+        cap_mm=problem.clearance_needed_mm + 10.0,
+    )
+    return float(b[0]) - problem.needle.radius_mm
+
+
+def _greedy_order(maps, obj, radius, gamma) -> tuple:
+    left = list(range(len(maps)))
+    order: list[int] = []
+    placed: list = []
+    while left:
+        sizes = []
+        for j in left:
+            m = maps[j]
+            ok = m.feasible.copy()
+            if placed and ok.any():
+                idx = np.argwhere(ok)
+                tips = np.broadcast_to(m.problem.target_mm, (len(idx), 3))
+                ends = m.entry_mm[idx[:, 0], idx[:, 1]]
+                clear = np.full(len(idx), np.inf)
+                for tip, entry in placed:
+                    clear = np.minimum(clear, segment_distances(tip, entry, tips, ends))
+                ok[idx[:, 0], idx[:, 1]] = clear - 2 * radius >= gamma
+            sizes.append((int(ok.sum()), j, ok))
+        _, j, ok = min(sizes, key=lambda s: (s[0], s[1]))
+        order.append(j)
+        left.remove(j)
+        e = best_on_map(_masked(maps[j], ok), obj)
+        if e is not None:
+            placed.append((e.target_mm, e.entry_mm))
+    return tuple(order)
