@@ -18,6 +18,8 @@ MODULES = [
     "needlekit.anatomy.summary",
     "needlekit.anatomy.occupancy",
     "needlekit.anatomy.needle_body",
+    "needlekit.planning.straight.deformation",
+    "needlekit.planning.straight.displacement_grid",
     "needlekit.planning.steerable.problem",
     "needlekit.planning.steerable.plan",
     "needlekit.planning.steerable.goal",

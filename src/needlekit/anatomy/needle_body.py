@@ -66,6 +66,7 @@ from needlekit.errors import InvalidInputError
 
 __all__ = [
     "DEFAULT_SHAFT_OUTSIDE_MM",
+    "LIU_HEAD",
     "LIU_HEAD_EXPONENTS",
     "LIU_HEAD_LEVEL",
     "LIU_HEAD_SCALES_MM",
@@ -204,8 +205,8 @@ class NeedleHead:
         return Superquadric.from_liu(self.scales_mm, self.exponents, self.level, world_T_head)
 
 
-#: Eq. 4 as printed: the default head of :class:`NeedleBody`.
-_LIU_HEAD = NeedleHead()
+#: Eq. 4 as printed: the default head of :class:`NeedleBody` (284.6 mm long, 6.32 mm across).
+LIU_HEAD: NeedleHead = NeedleHead()
 
 
 def _point(value, name: str) -> np.ndarray:
@@ -248,7 +249,7 @@ class NeedleBody(UnionField):
     radius_mm : float
         Needle (tube) radius (mm), > 0.
     head : NeedleHead or None
-        The head; Eq. 4 (:class:`NeedleHead` ``()``) by default, None for a bare tube.
+        The head; Eq. 4 (:data:`LIU_HEAD`) by default, None for a bare tube.
     shaft_outside_mm : float
         Shaft length (mm) between the entry point and the head, >= 0
         (:data:`DEFAULT_SHAFT_OUTSIDE_MM`).
@@ -282,7 +283,7 @@ class NeedleBody(UnionField):
         entry_mm,
         *,
         radius_mm: float,
-        head: NeedleHead | None = _LIU_HEAD,
+        head: NeedleHead | None = LIU_HEAD,
         shaft_outside_mm: float = DEFAULT_SHAFT_OUTSIDE_MM,
     ) -> None:
         self.tip_mm = _point(tip_mm, "tip_mm")
