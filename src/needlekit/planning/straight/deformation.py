@@ -489,7 +489,7 @@ class CallableDeformation:
 
     Examples
     --------
-    >>> shift = CallableDeformation(lambda p, placed: np.tile([0.0, 0.0, -len(placed)], (len(p), 1)))
+    >>> shift = CallableDeformation(lambda p, n: np.tile([0.0, 0.0, -len(n)], (len(p), 1)))
     >>> needle = PlacedNeedle([0.0, 0.0, 0.0], [0.0, 0.0, 80.0], 0.5)
     >>> shift.displacement([1.0, 2.0, 3.0], [needle, needle]).tolist()
     [0.0, 0.0, -2.0]
