@@ -106,6 +106,32 @@ def test_deform_points_adds_the_displacement():
         deform_points(_Flat(), p, [NEEDLE])
 
 
+class _Duck:
+    """A needle record of another module: tip_mm, entry_mm, radius_mm only."""
+
+    def __init__(self, tip, entry, r):
+        self.tip_mm, self.entry_mm, self.radius_mm = tip, entry, r
+
+
+def test_objects_with_the_three_fields_count_as_placed_needles():
+    m = NeedleDragDeformation()
+    pts = np.random.default_rng(8).uniform(-30.0, 60.0, (50, 3))
+    duck = _Duck(TIP, ENTRY, 0.5)
+    np.testing.assert_array_equal(m.displacement(pts, [duck]), m.displacement(pts, [NEEDLE]))
+    seen = {}
+
+    def record(points, placed):
+        seen["n"] = placed
+        return np.zeros(points.shape)
+
+    CallableDeformation(record).displacement(pts, [duck])
+    assert isinstance(seen["n"][0], PlacedNeedle)
+    with pytest.raises(InvalidInputError, match=r"^placed\[0\]\.radius_mm: "):
+        m.displacement(pts, [_Duck(TIP, ENTRY, -1.0)])
+    with pytest.raises(InvalidInputError, match=r"^placed\[0\]\.entry_mm: "):
+        m.displacement(pts, [_Duck(TIP, TIP, 0.5)])
+
+
 @pytest.mark.parametrize("model", [NoDeformation(), NeedleDragDeformation()])
 def test_placed_must_be_a_sequence_of_needles(model):
     with pytest.raises(InvalidInputError, match=r"^placed: "):

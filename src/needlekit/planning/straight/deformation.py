@@ -166,16 +166,27 @@ class PlacedNeedle:
 
 
 def _as_placed(placed) -> tuple[PlacedNeedle, ...]:
+    """The needles as PlacedNeedle; any object with ``tip_mm``, ``entry_mm`` and
+    ``radius_mm`` is accepted (and checked) too."""
     if isinstance(placed, PlacedNeedle) or not isinstance(placed, Sequence):
         raise InvalidInputError(
             "placed", f"expected a sequence of PlacedNeedle, got {type(placed).__name__}"
         )
+    out = []
     for i, n in enumerate(placed):
-        if not isinstance(n, PlacedNeedle):
+        if isinstance(n, PlacedNeedle):
+            out.append(n)
+            continue
+        if not all(hasattr(n, a) for a in ("tip_mm", "entry_mm", "radius_mm")):
             raise InvalidInputError(
-                f"placed[{i}]", f"expected a PlacedNeedle, got {type(n).__name__}"
+                f"placed[{i}]",
+                f"expected a PlacedNeedle (tip_mm, entry_mm, radius_mm), got {type(n).__name__}",
             )
-    return tuple(placed)
+        try:
+            out.append(PlacedNeedle(n.tip_mm, n.entry_mm, n.radius_mm))
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"placed[{i}].{exc.field}", exc.reason) from exc
+    return tuple(out)
 
 
 @runtime_checkable
@@ -190,7 +201,8 @@ class DeformationModel(Protocol):
         points_mm : array_like, shape (3,) or (n, 3)
             Tissue points in the reference (planned) anatomy, world RAS (mm).
         placed : sequence of PlacedNeedle
-            The needles inserted so far, in insertion order (may be empty).
+            The needles inserted so far, in insertion order (may be empty). The built-in
+            models also take any objects with ``tip_mm``, ``entry_mm`` and ``radius_mm``.
 
         Returns
         -------
