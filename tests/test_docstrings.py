@@ -53,6 +53,18 @@ MODULES = [
     "needlekit.io.medrad",
     "needlekit.io.scenario",
     "needlekit.planning.straight.coverage",
+    "needlekit.planning.straight.problem",
+    "needlekit.planning.straight.cfrw",
+    "needlekit.planning.straight.entry",
+    "needlekit.planning.straight.sequence",
+    "needlekit.planning.straight.planner",
+    "needlekit.planning.straight.verify",
+    "needlekit.planning.steerable.search",
+    "needlekit.planning.steerable.workspace",
+    "needlekit.planning.interface",
+    "needlekit.planning.result",
+    "needlekit.geometry.segments",
+    "needlekit.anatomy.voxel_clearance",
 ]
 
 

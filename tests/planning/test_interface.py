@@ -131,6 +131,7 @@ def test_termination_refuses_bad_budgets(kwargs, field):
 
 def test_registry_serves_typed_options_and_refuses_unknown_ones():
     assert planner_names("steerable")[:3] == ["rcs_star", "rcs", "rrt"]
+    assert planner_names("straight")[0] == "liu_cfrw"
     p = get_planner("rcs_star", {"resolution": {"max_length_mm": 8.0, "length_levels": 3}})
     assert p.options == RCSOptions(Resolution(8.0, 3, 4))
     with pytest.raises(InvalidInputError, match="rcs_star takes resolution; unknown: bogus_option"):
@@ -242,4 +243,10 @@ def test_an_unknown_planner_is_refused_before_the_anatomy_loads(tmp_path, capsys
     out = str(tmp_path / "p.json")
     assert main(["plan", str(EXAMPLES / "toy.yaml"), "--planner", "astar", "--out", out]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == "error: planner: unknown planner 'astar'; available: rcs_star, rcs, rrt"
+    assert err == "error: planner: unknown planner 'astar'; available: rcs_star, rcs, rrt, liu_cfrw"
+    assert main(["plan", str(EXAMPLES / "toy.yaml"), "--planner", "liu_cfrw", "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert (
+        err
+        == "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt"
+    )

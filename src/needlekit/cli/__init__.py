@@ -39,6 +39,8 @@ _HANDLERS = {
     "sweep": "needlekit.cli.planning:_cmd_sweep",
     "verify": "needlekit.cli.planning:_cmd_verify",
     "markups": "needlekit.cli.markups:_cmd_markups",
+    "cfrw": "needlekit.cli.straight:_cmd_cfrw",
+    "multi": "needlekit.cli.straight:_cmd_multi",
     "puncture": "needlekit.cli.puncture:_cmd_puncture",
     "demo": "needlekit.cli.demo:_cmd_demo",
     "bench kinematics": "needlekit.cli.bench:_cmd_bench",

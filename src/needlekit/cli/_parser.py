@@ -251,6 +251,62 @@ def _build_parser() -> argparse.ArgumentParser:
     _cache_options(ver)
     ver.add_argument("--json", action="store_true", help="print JSON instead of text")
 
+    cf = sub.add_parser(
+        "cfrw",
+        help="the collision-free reachable workspace of a straight needle (Liu et al. 2016)",
+        description="Map every direction to one target of the scenario's straight block: entry, "
+        "length, certified clearance, blocking reason; boundary layers; best entries; Pareto front.",
+    )
+    add_input(cf, "scenario", help="scenario file with a straight block (YAML)")
+    add_output(cf, "--out", default="cfrw.json", help="map to write (default cfrw.json)")
+    cf.add_argument("--target", type=_positive_int, default=1, help="which target (default 1)")
+    cf.add_argument(
+        "--resolution-deg", type=_positive, help="grid step (default: the scenario's, else 1)"
+    )
+    cf.add_argument(
+        "--layers",
+        type=_positive,
+        nargs="+",
+        default=[150.0, 160.0, 170.0],
+        metavar="H_MM",
+        help="heights of the boundary layers above the target (default 150 160 170, Fig. 11)",
+    )
+    _cache_options(cf)
+
+    mu = sub.add_parser(
+        "multi",
+        help="plan several straight needles one after another (Liu et al. 2016, Fig. 4)",
+        description="CFRW per needle, the optimal entry in it, placed needles as obstacles, "
+        "targets moved by the deformation; write multi.json; exit 0 when every needle is planned.",
+    )
+    add_input(mu, "scenario", help="scenario file with a straight block (YAML)")
+    add_output(mu, "--out", default="multi.json", help="plan to write (default multi.json)")
+    add_output(
+        mu, "--markups", folder=True, help="also write each trajectory as a Slicer line (.mrk.json)"
+    )
+    mu.add_argument(
+        "--planner", default="liu_cfrw", metavar="NAME", help="straight planner (default liu_cfrw)"
+    )
+    mu.add_argument(
+        "--resolution-deg", type=_positive, help="CFRW grid step (default: the scenario's, else 1)"
+    )
+    mu.add_argument(
+        "--objective",
+        choices=["min_length", "max_clearance", "min_normal_angle"],
+        help="what each trajectory optimises (default: the scenario's, else min_length)",
+    )
+    mu.add_argument(
+        "--order",
+        type=_positive_int,
+        nargs="+",
+        metavar="K",
+        help="fixed insertion order (1-based targets)",
+    )
+    mu.add_argument(
+        "--time-limit-s", type=_positive, default=3600.0, help="budget (default 3600 s)"
+    )
+    _cache_options(mu)
+
     mk = sub.add_parser(
         "markups",
         help="export a plan's tip path as a 3D Slicer Markups curve (.mrk.json, LPS)",

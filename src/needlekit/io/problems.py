@@ -316,6 +316,7 @@ def planner_settings(
     seed: int | None = None,
     max_iterations: int | None = None,
     options: dict | None = None,
+    family: str = "steerable",
 ) -> PlannerSettings:
     """Merge a scenario's ``planner`` block with overrides, and check every option.
 
@@ -331,6 +332,8 @@ def planner_settings(
     options : dict, optional
         Per planner name, settings that override the block's (e.g.
         ``{"rrt": {"connection": "arc"}}``).
+    family : str
+        The planners' family (``steerable`` or ``straight``): others are refused.
 
     Returns
     -------
@@ -344,7 +347,7 @@ def planner_settings(
     import dataclasses
 
     from needlekit.constants import DEFAULT_TIME_LIMIT_S
-    from needlekit.planning.interface import get_planner, planner_class
+    from needlekit.planning.interface import get_planner, planner_class, planner_names
 
     block = dict(block or {})
     if names is None:
@@ -361,6 +364,12 @@ def planner_settings(
         opts = dict(block.get("options") or {}) if name == block.get("name") else {}
         opts.update((options or {}).get(name) or {})
         factory = planner_class(name)
+        if factory.family != family:
+            raise InvalidInputError(
+                "planner",
+                f"{name!r} plans {factory.family} needles; {family} planners: "
+                f"{', '.join(planner_names(family))}",
+            )
         fields = {f.name for f in dataclasses.fields(factory.options_type)}
         if "seed" in fields:  # the flag wins over the block's options, which win over its seed
             opts["seed"] = seed if seed_given else opts.get("seed", seed)
@@ -377,3 +386,68 @@ def planner_settings(
         max_iterations if max_iterations is not None else block.get("max_iterations"),
         checked,
     )
+
+
+def multi_problem_from_scenario(scenario, *, targets_mm=None):
+    """The straight multi-needle problem a scenario's ``straight`` block describes.
+
+    The needle is the scenario's (radius half its diameter plus nothing: gamma is the
+    block's safety distance; ``max_length_mm``). Sigma's z axis (``up``) defaults to the
+    reverse of the start's z axis (the direction the needle comes from), else RAS +z; the
+    approach cone, when given, is around that same direction.
+
+    Parameters
+    ----------
+    scenario : needlekit.io.scenario.Scenario or path-like
+    targets_mm : array_like, shape (k, 3), optional
+        Replace the block's targets.
+
+    Returns
+    -------
+    problem : MultiNeedleProblem
+    options : dict
+        The planner settings of the block (``resolution_deg``, ``objective``, ``order``).
+
+    Raises
+    ------
+    InvalidInputError
+        No ``straight`` block, or a field out of range (named).
+    """
+    from needlekit.io.scenario import Scenario, load_scenario
+    from needlekit.planning.straight.deformation import GridDeformation, NeedleDragDeformation
+    from needlekit.planning.straight.planner import MultiNeedleProblem
+    from needlekit.planning.straight.problem import StraightNeedle, StraightProblem
+
+    sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    block = dict(sc.straight or {})
+    if not block:
+        raise InvalidInputError("straight", "the scenario has no straight block")
+    targets = block["targets"] if targets_mm is None else np.asarray(targets_mm, dtype=float)
+    came_from = (
+        None if sc.start is None or sc.start.world_T_tip is None else -sc.start.world_T_tip[:3, 2]
+    )
+    up = block.get("up", came_from if came_from is not None else np.array([0.0, 0.0, 1.0]))
+    kw = {}
+    for key in ("gamma_mm", "theta_range_deg", "phi_range_deg", "max_normal_angle_deg"):
+        if key in block:
+            kw[key] = block[key]
+    if "approach_cone_deg" in block:
+        if came_from is None:
+            raise InvalidInputError(
+                "straight.approach_cone_deg", "needs a start pose (its reversed z is the axis)"
+            )
+        kw["approach_direction"] = came_from
+        kw["approach_cone_deg"] = block["approach_cone_deg"]
+    needle = StraightNeedle(0.5 * sc.needle.diameter_mm, sc.needle.max_length_mm)
+    problem = StraightProblem(
+        sc.scene, np.asarray(targets)[0], block["entry_surface"], needle, up=up, **kw
+    )
+    deformation = block.get("deformation", "none")
+    if deformation == "needle_drag":
+        model = NeedleDragDeformation()
+    elif isinstance(deformation, dict):
+        model = GridDeformation(deformation["grid"])
+    else:
+        model = None
+    options = {k: block[k] for k in ("resolution_deg", "objective", "order") if k in block}
+    return MultiNeedleProblem(problem, targets, model), options

@@ -143,6 +143,9 @@ class Scenario:
     collision_model : str
         ``"field"`` or ``"voxel_centres"`` (see
         :class:`needlekit.planning.steerable.problem.CollisionModel`).
+    straight : dict
+        The ``straight`` block (straight multi-needle planning), its ``targets`` resolved to
+        points (mm, RAS) and its ``deformation`` grid path made absolute.
     """
 
     name: str
@@ -155,6 +158,7 @@ class Scenario:
     path: Path | None = None
     base: Any = None
     collision_model: str = "field"
+    straight: dict = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------------------
@@ -368,6 +372,34 @@ def _pick(items: list[tuple[str, np.ndarray]], key, what: str, ctx: _Ctx, where:
     raise ctx.error(where, f"no {what} named {key!r} (have {', '.join(names)})")
 
 
+def _straight(spec, ctx: _Ctx, base, goal) -> dict:
+    """The straight block with its targets as points and file paths made absolute."""
+    if spec is None:
+        return {}
+    out = dict(spec)
+    targets = []
+    for i, t in enumerate(spec.get("targets", [])):
+        if isinstance(t, list):
+            targets.append(ctx.point(t))
+        else:
+            targets.append(
+                np.array(_pick(_case_targets(base), t, "target", ctx, f"straight.targets[{i}]")[1])
+            )
+    if not targets:
+        if goal is None:
+            raise ctx.error("straight.targets", "give targets, or a goal")
+        targets = [goal.point_mm]
+    out["targets"] = np.array(targets, dtype=float)
+    if "up" in spec:
+        out["up"] = ctx.point(spec["up"])  # a direction: LPS files turn it as points
+    deformation = spec.get("deformation")
+    if isinstance(deformation, dict):
+        out["deformation"] = {
+            "grid": str(ctx.file(deformation["grid"], "straight.deformation.grid"))
+        }
+    return out
+
+
 def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
     given = [k for k in ("pose", "pose_file", "case_start", "point_mm") if k in spec]
     if len(given) != 1:
@@ -487,6 +519,7 @@ def parse_scenario(
         None,
         base,
         data.get("collision_model", "field"),
+        _straight(data.get("straight"), ctx, base, goal),
     )
 
 
@@ -606,15 +639,6 @@ def load_scenario(
     sc = parse_scenario(
         data, base_dir=p.parent, source=p.name, cache_dir=cache_dir, use_cache=use_cache
     )
-    return Scenario(
-        sc.name,
-        sc.description,
-        sc.scene,
-        sc.needle,
-        sc.start,
-        sc.goal,
-        sc.planner,
-        p,
-        sc.base,
-        sc.collision_model,
-    )
+    from dataclasses import replace
+
+    return replace(sc, path=p)

@@ -228,6 +228,43 @@ _PLANNER = _obj(
     [],
 )
 
+_RANGE2: dict[str, Any] = {"type": "array", "items": _NUM, "minItems": 2, "maxItems": 2}
+
+_STRAIGHT = _obj(
+    {
+        "entry_surface": {
+            "type": "string",
+            "minLength": 1,
+            "description": "structure the needles enter through (skin; a Med-RAD liver's capsule)",
+        },
+        "targets": {
+            "type": "array",
+            "minItems": 1,
+            "items": {"anyOf": [_VEC3, {"type": ["string", "integer"]}]},
+            "description": "points (mm) or targets of the base (name or number); default the goal",
+        },
+        "gamma_mm": _NONNEG,
+        "theta_range_deg": _RANGE2,
+        "phi_range_deg": _RANGE2,
+        "up": _VEC3,
+        "max_normal_angle_deg": _POS,
+        "approach_cone_deg": _POS,
+        "resolution_deg": _POS,
+        "objective": {"enum": ["min_length", "max_clearance", "min_normal_angle"]},
+        "order": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+        "deformation": {
+            "anyOf": [
+                {"enum": ["none", "needle_drag"]},
+                _obj({"grid": _PATH}, ["grid"], "a displacement field file (NIfTI or .npz)"),
+            ]
+        },
+    },
+    ["entry_surface"],
+    "straight multi-needle planning (Liu et al. 2016): entry surface, targets, gamma, the "
+    "Sigma-frame angle limits, the normal-angle limit, the approach cone around the start's "
+    "reversed direction, the CFRW grid step, the objective, a fixed order, the deformation",
+)
+
 #: The JSON Schema (draft 2020-12) of a scenario file.
 SCENARIO_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -247,6 +284,7 @@ SCENARIO_SCHEMA: dict[str, Any] = {
         "start": _START,
         "goal": _GOAL,
         "planner": _PLANNER,
+        "straight": _STRAIGHT,
         "collision_model": {
             "enum": ["field", "voxel_centres"],
             "description": "how collisions are decided: the scene's distance field (certified: "

@@ -85,7 +85,19 @@ class Planner(Protocol):
     options_type: type
 
     def solve(self, problem: Any, termination: Termination) -> Any:
-        """Plan; always returns a result (never raises for an unsolvable problem)."""
+        """Plan; always returns a result (never raises for an unsolvable problem).
+
+        Parameters
+        ----------
+        problem : object
+            The family's problem.
+        termination : Termination
+
+        Returns
+        -------
+        object
+            The family's result (a status, the plan if any, statistics).
+        """
         ...
 
 
@@ -186,7 +198,16 @@ class SearchRun:
         return time.perf_counter() - self.t0
 
     def stop(self, reason: str) -> None:
-        """Stop the search (the next :meth:`keep_going` answers False) with a reason."""
+        """Stop the search (the next :meth:`keep_going` answers False) with a reason.
+
+        Parameters
+        ----------
+        reason : str
+
+        Returns
+        -------
+        None
+        """
         if not self.stopped:
             self.stopped, self.reason = True, reason
 
@@ -214,7 +235,16 @@ class SearchRun:
         return True
 
     def improved(self, cost: float) -> None:
-        """Record a better plan (its cost) at the current time."""
+        """Record a better plan (its cost) at the current time.
+
+        Parameters
+        ----------
+        cost : float
+
+        Returns
+        -------
+        None
+        """
         now = self.elapsed_s
         if self.first_solution_s is None:
             self.first_solution_s = now
@@ -319,6 +349,10 @@ def register_planner(name: str, factory: Callable[..., Planner], *, replace: boo
     replace : bool
         Allow replacing a planner of the same name.
 
+    Returns
+    -------
+    None
+
     Raises
     ------
     InvalidInputError
@@ -343,7 +377,16 @@ def register_planner(name: str, factory: Callable[..., Planner], *, replace: boo
 
 
 def unregister_planner(name: str) -> None:
-    """Remove a planner from the registry (no error when absent)."""
+    """Remove a planner from the registry (no error when absent).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    None
+    """
     with _LOCK:
         _REGISTRY.pop(name, None)
 
@@ -355,8 +398,9 @@ def _load_builtins() -> None:
     _BUILTINS_LOADED = True
     from needlekit.planning.steerable.rcs import RCSPlanner, RCSStarPlanner
     from needlekit.planning.steerable.rrt import RRTPlanner
+    from needlekit.planning.straight.planner import LiuPlanner
 
-    for cls in (RCSStarPlanner, RCSPlanner, RRTPlanner):
+    for cls in (RCSStarPlanner, RCSPlanner, RRTPlanner, LiuPlanner):
         _REGISTRY.setdefault(cls.name, cls)
 
 

@@ -7,8 +7,9 @@ the status says what it means.
 from __future__ import annotations
 
 import enum
+from dataclasses import dataclass, field
 
-__all__ = ["PlanStatus"]
+__all__ = ["PlanStatus", "Verification"]
 
 
 class PlanStatus(enum.Enum):
@@ -41,3 +42,27 @@ class PlanStatus(enum.Enum):
     def has_plan(self) -> bool:
         """Whether a path comes with this status."""
         return self in (PlanStatus.SOLVED, PlanStatus.APPROXIMATE)
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Outcome of an independent check of a plan (steerable ``verify_plan``, straight
+    ``verify_multi``).
+
+    Attributes
+    ----------
+    ok : bool
+        No violation.
+    violations : tuple of str
+        One line per broken rule, naming it and the measured value.
+    metrics : dict
+        ``cost`` (recomputed), ``length_mm``, ``goal_distance_mm``, ``max_curvature_per_mm``,
+        ``max_heading_change_deg``, ``puncture_angle_deg`` (or None),
+        ``min_clearance_mm`` (the smallest sampled clearance of the needle's surface, outside
+        the start exclusion: an estimate), ``certified_clearance_mm`` (a lower bound for the
+        whole path), ``collision_model`` and ``colliding_samples``.
+    """
+
+    ok: bool
+    violations: tuple[str, ...]
+    metrics: dict = field(default_factory=dict)

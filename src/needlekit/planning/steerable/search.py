@@ -237,6 +237,16 @@ class SteerableSearch:
         """The result, with the figures every run records (:meth:`SearchRun.stats`),
         ``setup_s`` and ``refused_by_check``.
 
+        Parameters
+        ----------
+        status : PlanStatus
+        plan : SteerablePlan, optional
+        cost : float
+        goal_mm : ndarray, shape (3,), optional
+            Another goal than the problem's (multi-target searches).
+        **stats
+            Further statistics.
+
         Returns
         -------
         PlanResult

@@ -28,12 +28,11 @@ the start) counts as broken.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from needlekit.anatomy.voxel_clearance import nearest_obstacle_distance
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
+from needlekit.planning.result import Verification
 from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
@@ -45,29 +44,6 @@ VERIFY_SLACK: float = 1e-9
 #: Beyond this clearance (mm) the voxel-centre model reports the cap (its kernel visits only
 #: the voxels within it); far above any margin a plan is judged by.
 CLEARANCE_REPORT_CAP_MM: float = 10.0
-
-
-@dataclass(frozen=True)
-class Verification:
-    """Outcome of :func:`verify_plan`.
-
-    Attributes
-    ----------
-    ok : bool
-        No violation.
-    violations : tuple of str
-        One line per broken rule, naming it and the measured value.
-    metrics : dict
-        ``cost`` (recomputed), ``length_mm``, ``goal_distance_mm``, ``max_curvature_per_mm``,
-        ``max_heading_change_deg``, ``puncture_angle_deg`` (or None),
-        ``min_clearance_mm`` (the smallest sampled clearance of the needle's surface, outside
-        the start exclusion: an estimate), ``certified_clearance_mm`` (a lower bound for the
-        whole path), ``collision_model`` and ``colliding_samples``.
-    """
-
-    ok: bool
-    violations: tuple[str, ...]
-    metrics: dict = field(default_factory=dict)
 
 
 def _dense_poses(plan: SteerablePlan, spacing_mm: float) -> np.ndarray:

@@ -182,6 +182,7 @@ def plan_needles(
     resolution_deg: float = 1.0,
     head=None,
     body_factory=None,
+    keep_going=None,
 ) -> MultiNeedlePlan:
     """Plan straight needles to several targets, one after another (Fig. 4).
 
@@ -206,6 +207,9 @@ def plan_needles(
         ``body_factory(tip_mm, entry_mm, radius_mm) -> DistanceField`` for a placed
         needle; default :class:`~needlekit.anatomy.needle_body.NeedleBody` with the
         paper's head.
+    keep_going : callable, optional
+        ``keep_going() -> bool``, asked before each CFRW map (a budget); False stops the
+        planning, which is then not solved.
 
     Returns
     -------
@@ -231,7 +235,11 @@ def plan_needles(
             raise InvalidInputError("order", f"expected a permutation of 0..{k - 1}, got {order}")
         orders_tried = 1
     else:
-        maps = [cfrw_map(problem.with_target(t), resolution_deg=resolution_deg) for t in targets]
+        maps = []
+        for t in targets:
+            if keep_going is not None and not keep_going():
+                return _stopped(radius, gamma)
+            maps.append(cfrw_map(problem.with_target(t), resolution_deg=resolution_deg))
         if k <= EXHAUSTIVE_ORDER_MAX:
             ranked = []
             for perm in itertools.permutations(range(k)):
@@ -251,6 +259,9 @@ def plan_needles(
     records = []
     reason = ""
     for rank, j in enumerate(order, start=1):
+        if keep_going is not None and not keep_going():
+            reason = f"the budget ran out before needle {rank}"
+            break
         target = targets[j].copy()
         if deformation is not None and placed:
             target = target + np.asarray(deformation.displacement(target[None], placed))[0]
@@ -306,6 +317,10 @@ def plan_needles(
         radius,
         reason,
     )
+
+
+def _stopped(radius: float, gamma: float) -> MultiNeedlePlan:
+    return MultiNeedlePlan((), (), False, 0, gamma, radius, "the budget ran out while mapping")
 
 
 def _anatomy_clearance(problem: StraightProblem, e: Entry) -> float:

@@ -1,0 +1,147 @@
+"""``needlekit cfrw`` and ``needlekit multi``: straight-needle planning on scenarios."""
+
+from __future__ import annotations
+
+import argparse
+
+from needlekit.cli._common import EXIT_OK
+
+
+def _multi_problem(args: argparse.Namespace):
+    from needlekit.io.problems import multi_problem_from_scenario
+    from needlekit.io.scenario import load_scenario
+
+    sc = load_scenario(args.scenario)
+    return sc, *multi_problem_from_scenario(sc)
+
+
+def _cmd_cfrw(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from needlekit.errors import InvalidInputError
+    from needlekit.io.files import write_json
+    from needlekit.planning.straight.cfrw import cfrw_map
+    from needlekit.planning.straight.entry import Objective, best_on_map, pareto_front
+
+    _, multi, options = _multi_problem(args)
+    k = len(multi.targets_mm)
+    if not 1 <= args.target <= k:
+        raise InvalidInputError("--target", f"expected 1 to {k}, got {args.target}")
+    problem = multi.problem.with_target(multi.targets_mm[args.target - 1])
+    res = args.resolution_deg or options.get("resolution_deg", 1.0)
+    m = cfrw_map(problem, resolution_deg=res)
+    record = m.to_dict()
+    record["layers"] = {
+        f"{h:g}": [np.round(p, 4).tolist() for p in m.layer(h)] for h in args.layers
+    }
+    record["best"] = {
+        o.value: (None if (e := best_on_map(m, o)) is None else e.to_dict()) for o in Objective
+    }
+    record["pareto_front"] = [
+        {
+            "theta_deg": float(np.degrees(m.theta_rad[i])),
+            "phi_deg": float(np.degrees(m.phi_rad[j])),
+            "length_mm": float(m.length_mm[i, j]),
+            "clearance_mm": float(m.clearance_mm[i, j]),
+        }
+        for i, j in pareto_front(m)
+    ]
+    write_json(args.out, record)
+    c = m.counts()
+    best = record["best"]["min_length"]
+    line = (
+        f"CFRW of target {args.target}: {c['free']} of {m.blocked.size} directions at "
+        f"{res:g} deg clear by gamma {problem.gamma_mm:g} mm"
+    )
+    if best is not None:
+        line += f"; shortest {best['length_mm']:.2f} mm, clearance {best['clearance_mm']:.2f} mm"
+    print(f"{line} -> {args.out}")
+    return EXIT_OK if c["free"] else 1
+
+
+def _cmd_multi(args: argparse.Namespace) -> int:
+    from needlekit.io.files import staged_outputs, write_json
+    from needlekit.planning.interface import Termination, get_planner
+
+    _, multi, options = _multi_problem(args)
+    if args.resolution_deg is not None:
+        options["resolution_deg"] = args.resolution_deg
+    if args.objective is not None:
+        options["objective"] = args.objective
+    if args.order is not None:
+        options["order"] = [i - 1 for i in args.order]
+    planner = get_planner(args.planner, options)
+    plan = planner.solve(multi, Termination(args.time_limit_s))
+    record = plan.to_dict()
+    record["planner"] = args.planner
+    record["scenario"] = str(args.scenario)
+    record["coverage"] = None
+    with staged_outputs():
+        write_json(args.out, record)
+        if args.markups is not None and plan.solved:
+            from needlekit.io.markups import write_markups_lines
+
+            pairs = [(n.entry.entry_mm, n.entry.target_mm) for n in plan.needles]
+            write_markups_lines(
+                args.markups, pairs, names=[f"needle{n.order}" for n in plan.needles]
+            )
+    for n in plan.needles:
+        e = n.entry
+        if e is None:
+            continue
+        nc = (
+            ""
+            if n.needle_clearance_mm == float("inf")
+            else f", {n.needle_clearance_mm:.2f} mm from earlier needles"
+        )
+        print(
+            f"needle {n.order} -> target {n.target_index + 1}: length {e.length_mm:.2f} mm, "
+            f"clearance {e.clearance_mm:.2f} mm{nc}"
+        )
+    status = "solved" if plan.solved else f"not solved: {plan.reason}"
+    print(f"{args.planner}: {status} ({plan.orders_tried} orders tried) -> {args.out}")
+    return EXIT_OK if plan.solved else 1
+
+
+def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
+    """``needlekit verify SCENARIO multi.json``: re-check every needle from the file.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    data : dict
+        The multi.json document.
+
+    Returns
+    -------
+    int
+        0 when every needle passes, else 1.
+    """
+    import json
+
+    from needlekit.planning.straight.verify import verify_multi
+
+    _, multi, _ = _multi_problem(args)
+    check = verify_multi(multi.problem, data)
+    if args.json:
+        print(
+            json.dumps(
+                {"ok": check.ok, "violations": list(check.violations), **check.metrics}, indent=2
+            )
+        )
+    else:
+        for row in check.metrics["needles"]:
+            extra = (
+                f", {row['needle_clearance_mm']:.3f} mm from earlier needles"
+                if "needle_clearance_mm" in row
+                else ""
+            )
+            print(
+                f"needle {row['order']}: length {row['length_mm']:.3f} mm, certified clearance "
+                f"{row['clearance_mm']:.3f} mm{extra}, theta {row['theta_deg']:.2f} deg, "
+                f"normal angle {row['normal_angle_deg']:.2f} deg"
+            )
+        print("ok" if check.ok else "VIOLATED")
+        for v in check.violations:
+            print(f"  - {v}")
+    return EXIT_OK if check.ok else 1
