@@ -35,6 +35,8 @@ MODULES = [
     "needlekit.planning.steerable.cost",
     "needlekit.report.sweep_report",
     "needlekit.report.html_page",
+    "needlekit.report.straight_figures",
+    "needlekit.report.straight_report",
     "needlekit.studies.sweep_study",
     "needlekit.control.dq",
     "needlekit.control.panda",
