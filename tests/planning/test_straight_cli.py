@@ -108,3 +108,11 @@ def test_a_scenario_without_a_straight_block_is_an_input_error(tmp_path, capsys)
     path.write_text(SCENARIO.split("straight:")[0])
     assert main(["multi", str(path), "--out", str(tmp_path / "m.json")]) == 2
     assert capsys.readouterr().err.strip() == "error: straight: the scenario has no straight block"
+
+
+@pytest.mark.slow
+def test_multi_writes_its_report(scenario, tmp_path):
+    out, page = tmp_path / "multi.json", tmp_path / "multi.html"
+    assert main(["multi", str(scenario), "--out", str(out), "--report", str(page)]) == 0
+    html = page.read_text()
+    assert html.count("<script") >= 1 and "Fig. 11" in html and 'src="http' not in html

@@ -155,3 +155,28 @@ def test_a_walled_off_target_says_what_blocks_it():
     )
     with pytest.raises(InvalidInputError, match="order"):
         plan_needles(_problem(), [[0.0, 0, 0], [0, -15.0, 0]], order=[0, 0])
+
+
+def test_capped_queries_of_placed_needles_certify_the_same_clearance():
+    # the heads answer far points from their enclosing capsule: below the cap the
+    # certified clearance is the same as with exact distances everywhere
+    from needlekit.anatomy.needle_body import NeedleBody
+    from needlekit.planning.straight.cfrw import segment_clearance_bound
+    from needlekit.planning.straight.problem import directions_of
+
+    body = NeedleBody([0.0, 0.0, 0.0], [0.0, 30.0, 95.0], radius_mm=1.0)
+
+    class Exact:  # the same field without capped shortcuts
+        error_bound_mm = body.error_bound_mm
+
+        def capped_distance(self, p, cap):
+            return body._signed_distance(p)
+
+    rng = np.random.default_rng(3)
+    u = directions_of(rng.uniform(0, 1.2, 200), rng.uniform(-np.pi, np.pi, 200), np.eye(4))
+    origins = np.tile([0.0, -15.0, 0.0], (200, 1))
+    lengths = np.full(200, 100.0)
+    fast, _ = segment_clearance_bound(body, origins, u, lengths, cap_mm=12.5)
+    slow, _ = segment_clearance_bound(Exact(), origins, u, lengths, cap_mm=12.5)
+    assert np.allclose(fast, slow, atol=1e-9)
+    assert (fast < 12.5 - 1e-6).sum() > 20  # some segments pass near the needle

@@ -25,6 +25,7 @@ from needlekit.errors import InvalidInputError
 
 __all__ = [
     "GRADIENT_STEP_MM",
+    "BoundedField",
     "ComplementField",
     "DistanceField",
     "LazyField",
@@ -126,6 +127,26 @@ class DistanceField(ABC):
             out = np.where(norm > 1e-12, g / norm, np.nan)
         return unbatch(out, single)
 
+    def capped_distance(self, points: np.ndarray, cap_mm: float) -> np.ndarray:
+        """Signed distance where it is below ``cap_mm``; elsewhere any value between
+        ``cap_mm`` and the distance (a lower bound that is at least the cap).
+
+        Queries that only need ``min(distance, cap)`` (certified clearance along paths,
+        sphere tracing) call this, so fields whose exact distance is costly can answer far
+        points from a cheap bound (:class:`BoundedField`). This default is exact.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Validated world points (float64).
+        cap_mm : float
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        return self._signed_distance(points)
+
     def inflated(self, margin_mm: float) -> DistanceField:
         """The field of this structure grown by ``margin_mm`` (e.g. needle radius plus a
         safety margin): ``d - margin_mm``.
@@ -167,6 +188,52 @@ class OffsetField(DistanceField):
         return b
 
 
+class BoundedField(DistanceField):
+    """A field with a cheap enclosing shape: exact everywhere, and cheap for capped
+    queries far from it.
+
+    Parameters
+    ----------
+    field : DistanceField
+        The exact, costly field (e.g. a superquadric).
+    bound : DistanceField
+        A shape containing ``field``'s (so its distance is a lower bound of ``field``'s
+        outside), e.g. an enclosing capsule.
+
+    Examples
+    --------
+    >>> from needlekit.anatomy.primitives import Capsule, Sphere
+    >>> f = BoundedField(Sphere([0, 0, 0], 1.0), Sphere([0, 0, 0], 2.0))
+    >>> pts = np.array([[10.0, 0, 0], [1.5, 0, 0]])
+    >>> f.signed_distance(pts).tolist(), f.capped_distance(pts, 5.0).tolist()
+    ([9.0, 0.5], [8.0, 0.5])
+    """
+
+    def __init__(self, field: DistanceField, bound: DistanceField) -> None:
+        for name, f in (("field", field), ("bound", bound)):
+            if not isinstance(f, DistanceField):
+                raise InvalidInputError(name, f"expected a DistanceField, got {type(f).__name__}")
+        self.field = field
+        self.bound = bound
+        self.error_bound_mm = field.error_bound_mm
+
+    def _signed_distance(self, points: np.ndarray) -> np.ndarray:
+        return self.field._signed_distance(points)
+
+    def capped_distance(self, points: np.ndarray, cap_mm: float) -> np.ndarray:
+        lower = self.bound._signed_distance(points) - self.bound.error_bound_mm
+        near = lower < cap_mm
+        if near.any():
+            lower[near] = self.field.capped_distance(points[near], cap_mm)
+        return lower
+
+    def _gradient(self, points: np.ndarray) -> np.ndarray:
+        return self.field._gradient(points)
+
+    def bounds(self) -> np.ndarray:
+        return self.field.bounds()
+
+
 class UnionField(DistanceField):
     """Minimum of several fields: the signed distance to their union (exact outside all
     of them; inside, a bound on the depth)."""
@@ -186,6 +253,12 @@ class UnionField(DistanceField):
         out = self.fields[0]._signed_distance(points)
         for f in self.fields[1:]:
             np.minimum(out, f._signed_distance(points), out=out)
+        return out
+
+    def capped_distance(self, points: np.ndarray, cap_mm: float) -> np.ndarray:
+        out = self.fields[0].capped_distance(points, cap_mm)
+        for f in self.fields[1:]:
+            np.minimum(out, f.capped_distance(points, cap_mm), out=out)
         return out
 
     def _gradient(self, points: np.ndarray) -> np.ndarray:

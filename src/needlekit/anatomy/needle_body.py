@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit._validation import as_points, as_positive, as_scalar
-from needlekit.anatomy.fields import UnionField
+from needlekit.anatomy.fields import BoundedField, UnionField
 from needlekit.anatomy.primitives import MIN_AXIS_LENGTH_MM, Capsule, Superquadric
 from needlekit.errors import InvalidInputError
 
@@ -315,7 +315,15 @@ class NeedleBody(UnionField):
             centre = self.head_start_mm + 0.5 * head.length_mm * self.axis_unit
             self.world_T_head = _head_frame(self.axis_unit, centre)
             self.head_field = head.superquadric(self.world_T_head)
-            parts.append(self.head_field)
+            # an enclosing capsule answers capped queries far from the head cheaply: the
+            # head lies within |x'| <= a_x and, across, within b 2^(1/2 - 1/e) of the axis
+            a = head.semi_axes_mm
+            e = float(head.exponents[1])
+            across = float(max(a[1], a[2])) * 2.0 ** max(0.0, 0.5 - 1.0 / e)
+            self.head_bound = Capsule(
+                centre - a[0] * self.axis_unit, centre + a[0] * self.axis_unit, across
+            )
+            parts.append(BoundedField(self.head_field, self.head_bound))
         super().__init__(parts)
 
     def __repr__(self) -> str:

@@ -284,6 +284,9 @@ def _build_parser() -> argparse.ArgumentParser:
     add_output(
         mu, "--markups", folder=True, help="also write each trajectory as a Slicer line (.mrk.json)"
     )
+    add_output(
+        mu, "--report", help="also write a self-contained HTML report (Fig. 11/14/17, scene)"
+    )
     mu.add_argument(
         "--planner", default="liu_cfrw", metavar="NAME", help="straight planner (default liu_cfrw)"
     )

@@ -78,6 +78,16 @@ def _cmd_multi(args: argparse.Namespace) -> int:
     record["coverage"] = None
     with staged_outputs():
         write_json(args.out, record)
+        if args.report is not None:
+            from needlekit.report.straight_report import write_straight_report
+
+            write_straight_report(
+                args.report,
+                plan=plan,
+                maps=list(plan.maps),
+                scene=multi.problem.scene,
+                title=f"Straight multi-needle plan: {args.scenario}",
+            )
         if args.markups is not None and plan.solved:
             from needlekit.io.markups import write_markups_lines
 

@@ -114,7 +114,7 @@ def segment_clearance_bound(
     active = np.arange(n)
     while active.size:
         p = o[active] + t[active, None] * u[active]
-        d = field.signed_distance(p)
+        d = field.capped_distance(p, cap_mm)  # exact below the cap, a lower bound above
         k = active
         seen = np.isfinite(d_prev[k])
         gap = t[k] - t_prev[k]

@@ -112,6 +112,9 @@ class MultiNeedlePlan:
     reason : str
         Why not solved ("" when solved): the first needle without a trajectory and what
         blocks its directions.
+    maps : tuple of CFRWMap
+        Each needle's CFRW map in insertion order, as its trajectory was chosen on it
+        (for reports; not in :meth:`to_dict`).
     """
 
     needles: tuple
@@ -121,6 +124,7 @@ class MultiNeedlePlan:
     gamma_mm: float
     needle_radius_mm: float
     reason: str = ""
+    maps: tuple = field(default=(), repr=False, compare=False)
 
     def to_dict(self) -> dict:
         """JSON-ready record (the ``multi.json`` format).
@@ -257,6 +261,7 @@ def plan_needles(
     placed: list = []
     bodies: list = []
     records = []
+    kept: list = []
     reason = ""
     for rank, j in enumerate(order, start=1):
         if keep_going is not None and not keep_going():
@@ -268,6 +273,7 @@ def plan_needles(
         pr = problem.with_target(target).with_obstacles(*bodies)
         # the anatomy alone, to report the clearance to it apart from the needles'
         m = cfrw_map(pr, resolution_deg=resolution_deg)
+        kept.append(m)
         e = best_on_map(m, obj)
         needle_clear = np.inf
         if e is not None and bodies:
@@ -316,6 +322,7 @@ def plan_needles(
         gamma,
         radius,
         reason,
+        tuple(kept),
     )
 
 
