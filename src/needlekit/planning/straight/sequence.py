@@ -151,22 +151,28 @@ def _rigid_rank(maps: list[CFRWMap], order, objective: Objective, radius: float,
     total = 0.0
     for j in order:
         m = maps[j]
-        ok = m.feasible.copy()
-        if placed and ok.any():
-            idx = np.argwhere(ok)
-            tips = np.broadcast_to(m.problem.target_mm, (len(idx), 3))
-            ends = m.entry_mm[idx[:, 0], idx[:, 1]]
-            clear = np.full(len(idx), np.inf)
-            for tip, entry in placed:
-                clear = np.minimum(clear, segment_distances(tip, entry, tips, ends))
-            ok[idx[:, 0], idx[:, 1]] = clear - 2 * radius >= gamma
-        masked = _masked(m, ok)
+        masked = _masked(m, _clear_of_placed(m, placed, radius, gamma))
         e = best_on_map(masked, objective)
         if e is None:
             return len(placed), total
         placed.append((e.target_mm, e.entry_mm))
         total += e.length_mm
     return len(placed), total
+
+
+def _clear_of_placed(m: CFRWMap, placed, radius: float, gamma: float) -> np.ndarray:
+    """The map's CFRW less the directions whose tube comes closer than gamma to a placed
+    needle's tube (axes' distances in closed form)."""
+    ok = m.feasible.copy()
+    if placed and ok.any():
+        idx = np.argwhere(ok)
+        tips = np.broadcast_to(m.problem.target_mm, (len(idx), 3))
+        ends = m.entry_mm[idx[:, 0], idx[:, 1]]
+        clear = np.full(len(idx), np.inf)
+        for tip, entry in placed:
+            clear = np.minimum(clear, segment_distances(tip, entry, tips, ends))
+        ok[idx[:, 0], idx[:, 1]] = clear - 2 * radius >= gamma
+    return ok
 
 
 def _masked(m: CFRWMap, ok: np.ndarray) -> CFRWMap:
@@ -348,16 +354,7 @@ def _greedy_order(maps, obj, radius, gamma) -> tuple:
     while left:
         sizes = []
         for j in left:
-            m = maps[j]
-            ok = m.feasible.copy()
-            if placed and ok.any():
-                idx = np.argwhere(ok)
-                tips = np.broadcast_to(m.problem.target_mm, (len(idx), 3))
-                ends = m.entry_mm[idx[:, 0], idx[:, 1]]
-                clear = np.full(len(idx), np.inf)
-                for tip, entry in placed:
-                    clear = np.minimum(clear, segment_distances(tip, entry, tips, ends))
-                ok[idx[:, 0], idx[:, 1]] = clear - 2 * radius >= gamma
+            ok = _clear_of_placed(maps[j], placed, radius, gamma)
             sizes.append((int(ok.sum()), j, ok))
         _, j, ok = min(sizes, key=lambda s: (s[0], s[1]))
         order.append(j)
