@@ -63,7 +63,7 @@ def _cmd_multi(args: argparse.Namespace) -> int:
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.interface import Termination, get_planner
 
-    _, multi, options = _multi_problem(args)
+    sc, multi, options = _multi_problem(args)
     if args.resolution_deg is not None:
         options["resolution_deg"] = args.resolution_deg
     if args.objective is not None:
@@ -71,11 +71,18 @@ def _cmd_multi(args: argparse.Namespace) -> int:
     if args.order is not None:
         options["order"] = [i - 1 for i in args.order]
     planner = get_planner(args.planner, options)
-    plan = planner.solve(multi, Termination(args.time_limit_s))
+    coverage = None
+    if isinstance(sc.straight.get("targets"), str):  # targets: coverage
+        plan, coverage = _plan_coverage(sc, multi, planner, args)
+    else:
+        plan = planner.solve(multi, Termination(args.time_limit_s))
     record = plan.to_dict()
     record["planner"] = args.planner
     record["scenario"] = str(args.scenario)
-    record["coverage"] = None
+    record["coverage"] = None if coverage is None else coverage.to_dict()
+    if coverage is not None and not coverage.ok:
+        record["status"] = "infeasible"
+        record["reason"] = record["reason"] or coverage.reason
     with staged_outputs():
         write_json(args.out, record)
         if args.report is not None:
@@ -110,7 +117,68 @@ def _cmd_multi(args: argparse.Namespace) -> int:
         )
     status = "solved" if plan.solved else f"not solved: {plan.reason}"
     print(f"{args.planner}: {status} ({plan.orders_tried} orders tried) -> {args.out}")
+    if coverage is not None:
+        rep = coverage.planned or coverage.chosen.report
+        print(
+            f"coverage: {rep.coverage:.4f} of tumour + margin ({rep.region_volume_ml:.1f} mL), "
+            f"tumour {rep.tumour_coverage:.4f}, {rep.needles} needles, healthy ablated "
+            f"{rep.healthy_ablated_ml:.1f} mL"
+            + ("" if coverage.ok else f"; not covered: {coverage.reason}")
+        )
+        return EXIT_OK if plan.solved and coverage.ok else 1
     return EXIT_OK if plan.solved else 1
+
+
+def _plan_coverage(sc, multi, planner, args):
+    """Choose targets covering the tumour plus margin, plan them, re-check the coverage."""
+    from dataclasses import replace
+
+    from needlekit.io.problems import coverage_region
+    from needlekit.planning.interface import Termination
+    from needlekit.planning.straight.ablation import (
+        AblationOutcome,
+        choose_needle_targets,
+        planned_coverage,
+    )
+    from needlekit.planning.straight.sequence import MultiNeedlePlan
+
+    region, settings = coverage_region(sc, multi.problem)
+    chosen = choose_needle_targets(
+        multi.problem,
+        region,
+        settings["zone"],
+        max_needles=settings["max_needles"],
+        coverage_goal=settings["coverage_goal"],
+    )
+    if chosen.needles == 0:
+        p = multi.problem
+        plan = MultiNeedlePlan((), (), False, 0, p.gamma_mm, p.needle.radius_mm, "no target")
+        outcome = AblationOutcome.of(chosen, None, None, settings["max_needles"])
+        return replace(plan, reason=outcome.reason), outcome
+    plan = planner.solve(
+        replace(multi, targets_mm=chosen.targets_mm), Termination(args.time_limit_s)
+    )
+    planned = planned_coverage(region, settings["zone"], plan)
+    outcome = AblationOutcome.of(chosen, plan, planned, settings["max_needles"])
+    if plan.solved and chosen.status.value == "covered" and not outcome.ok:
+        # the real directions lost coverage: choose again along them, plan once more
+        again = choose_needle_targets(
+            multi.problem,
+            region,
+            settings["zone"],
+            max_needles=settings["max_needles"],
+            coverage_goal=settings["coverage_goal"],
+            directions_from=plan,
+        )
+        if again.needles:
+            plan2 = planner.solve(
+                replace(multi, targets_mm=again.targets_mm), Termination(args.time_limit_s)
+            )
+            planned2 = planned_coverage(region, settings["zone"], plan2)
+            outcome2 = AblationOutcome.of(again, plan2, planned2, settings["max_needles"])
+            if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
+                return plan2, outcome2
+    return plan, outcome
 
 
 def verify_multi_file(args: argparse.Namespace, data: dict) -> int:

@@ -372,11 +372,18 @@ def _pick(items: list[tuple[str, np.ndarray]], key, what: str, ctx: _Ctx, where:
     raise ctx.error(where, f"no {what} named {key!r} (have {', '.join(names)})")
 
 
-def _straight(spec, ctx: _Ctx, base, goal) -> dict:
+def _straight(spec, ctx: _Ctx, base, goal, structures=()) -> dict:
     """The straight block with its targets as points and file paths made absolute."""
     if spec is None:
         return {}
     out = dict(spec)
+    if spec.get("targets") == "coverage":
+        out["coverage"] = _coverage(spec.get("coverage") or {}, ctx, base, structures)
+        if "up" in spec:
+            out["up"] = ctx.point(spec["up"])
+        return _straight_deformation(out, spec, ctx)
+    if "coverage" in spec:
+        raise ctx.error("straight.coverage", "only goes with targets: coverage")
     targets = []
     for i, t in enumerate(spec.get("targets", [])):
         if isinstance(t, list):
@@ -392,12 +399,62 @@ def _straight(spec, ctx: _Ctx, base, goal) -> dict:
     out["targets"] = np.array(targets, dtype=float)
     if "up" in spec:
         out["up"] = ctx.point(spec["up"])  # a direction: LPS files turn it as points
+    return _straight_deformation(out, spec, ctx)
+
+
+def _straight_deformation(out: dict, spec: dict, ctx: _Ctx) -> dict:
     deformation = spec.get("deformation")
     if isinstance(deformation, dict):
         out["deformation"] = {
             "grid": str(ctx.file(deformation["grid"], "straight.deformation.grid"))
         }
     return out
+
+
+def _coverage(spec: dict, ctx: _Ctx, base, structures) -> dict:
+    """The coverage block with its defaults, the zone checked and the tumour named."""
+    from needlekit.anatomy.scene import Role
+    from needlekit.planning.straight.coverage import AblationZone
+
+    z = dict(spec.get("zone") or {"kind": "ellipsoid"})
+    kind = z["kind"]
+    where = "straight.coverage.zone"
+    if kind == "sphere":
+        wrong = [k for k in ("length_mm", "diameter_mm") if k in z]
+        if wrong or "radius_mm" not in z:
+            raise ctx.error(where, "a sphere takes radius_mm (not length_mm, diameter_mm)")
+        lengths = (2.0 * z["radius_mm"], 2.0 * z["radius_mm"])
+    else:
+        if "radius_mm" in z:
+            raise ctx.error(f"{where}.radius_mm", "only for kind: sphere")
+        lengths = (z.get("length_mm", 30.0), z.get("diameter_mm", 20.0))
+        if lengths[0] < lengths[1]:
+            raise ctx.error(
+                f"{where}.length_mm",
+                f"the zone is longest along the needle: length_mm {lengths[0]:g} < "
+                f"diameter_mm {lengths[1]:g}",
+            )
+    zone = AblationZone(kind, *lengths, z.get("tip_offset_mm", 0.0))
+    targets = [s.name for s in structures if s.role is Role.TARGET]
+    name = spec.get("structure")
+    if name is None:
+        if not targets:
+            raise ctx.error("straight.coverage.structure", "the scene has no target structure")
+        name = targets[0]
+    elif name not in {s.name for s in structures}:
+        raise ctx.error(
+            "straight.coverage.structure",
+            f"no structure named {name!r} (targets: {', '.join(targets) or 'none'})",
+        )
+    return {
+        "zone": zone,
+        "margin_mm": float(spec.get("margin_mm", 5.0)),
+        "max_needles": int(spec.get("max_needles", 6)),
+        "coverage_goal": float(spec.get("coverage_goal", 1.0)),
+        "structure": name,
+        "voxel_mm": float(spec.get("voxel_mm", 1.0)),
+        "clip_to_body": bool(spec.get("clip_to_body", True)),
+    }
 
 
 def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
@@ -519,7 +576,7 @@ def parse_scenario(
         None,
         base,
         data.get("collision_model", "field"),
-        _straight(data.get("straight"), ctx, base, goal),
+        _straight(data.get("straight"), ctx, base, goal, structures),
     )
 
 

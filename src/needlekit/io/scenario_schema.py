@@ -230,6 +230,54 @@ _PLANNER = _obj(
 
 _RANGE2: dict[str, Any] = {"type": "array", "items": _NUM, "minItems": 2, "maxItems": 2}
 
+_COVERAGE = _obj(
+    {
+        "zone": _obj(
+            {
+                "kind": {
+                    "enum": ["sphere", "ellipsoid"],
+                    "description": "sphere, or a spheroid whose long axis is the needle",
+                },
+                "length_mm": {**_POS, "description": "ellipsoid: extent along the needle"},
+                "diameter_mm": {**_POS, "description": "ellipsoid: extent across the needle"},
+                "radius_mm": {**_POS, "description": "sphere: its radius"},
+                "tip_offset_mm": {
+                    **_NONNEG,
+                    "description": "zone centre this far behind the tip, toward the entry "
+                    "(default 0)",
+                },
+            },
+            ["kind"],
+            "one needle's ablation zone (default ellipsoid 30 x 20 mm, an assumption)",
+        ),
+        "margin_mm": {**_NONNEG, "description": "ablative margin around the tumour (default 5)"},
+        "max_needles": {"type": "integer", "minimum": 1, "description": "default 6"},
+        "coverage_goal": {
+            "type": "number",
+            "exclusiveMinimum": 0,
+            "maximum": 1,
+            "description": "fraction of tumour-plus-margin voxels to cover (default 1)",
+        },
+        "structure": {
+            "type": "string",
+            "minLength": 1,
+            "description": "the tumour structure (default the scene's first target)",
+        },
+        "voxel_mm": {
+            **_POS,
+            "description": "voxel size of a tumour given as a field (analytic, phantom); "
+            "masks keep their own grid (default 1)",
+        },
+        "clip_to_body": {
+            "type": "boolean",
+            "description": "count the margin only inside the entry surface (the organ; "
+            "default true)",
+        },
+    },
+    [],
+    "with targets: coverage: the ablation zone, margin, most needles, goal and tumour",
+)
+
 _STRAIGHT = _obj(
     {
         "entry_surface": {
@@ -238,11 +286,19 @@ _STRAIGHT = _obj(
             "description": "structure the needles enter through (skin; a Med-RAD liver's capsule)",
         },
         "targets": {
-            "type": "array",
-            "minItems": 1,
-            "items": {"anyOf": [_VEC3, {"type": ["string", "integer"]}]},
-            "description": "points (mm) or targets of the base (name or number); default the goal",
+            "anyOf": [
+                {
+                    "type": "array",
+                    "minItems": 1,
+                    "items": {"anyOf": [_VEC3, {"type": ["string", "integer"]}]},
+                },
+                {"const": "coverage"},
+            ],
+            "description": "points (mm) or targets of the base (name or number); or the string "
+            "coverage: targets chosen so that ablation zones cover the tumour plus a margin "
+            "(see coverage); default the goal",
         },
+        "coverage": _COVERAGE,
         "gamma_mm": _NONNEG,
         "theta_range_deg": _RANGE2,
         "phi_range_deg": _RANGE2,

@@ -743,6 +743,8 @@ class _Cover:
 def _greedy(cov: _Cover, goal: int, max_needles: int) -> None:
     while cov.covered < goal and len(cov.chosen) < max_needles:
         g = cov.gains(cov.count == 0)
+        if not g.size:  # no candidate (all refused by ``allowed``)
+            break
         best = int(np.argmax(g))  # ties: the first candidate in lattice order
         if g[best] <= 0:
             break
@@ -818,6 +820,7 @@ def choose_targets(
     coverage_goal: float = DEFAULT_COVERAGE_GOAL,
     candidate_spacing_mm: float | None = None,
     refine: bool = True,
+    allowed: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> CoveragePlan:
     """Needle targets whose zones cover the region with few needles.
 
@@ -855,6 +858,10 @@ def choose_targets(
         zone's smaller semi-axis.
     refine : bool
         Run the local search after the greedy cover.
+    allowed : callable, optional
+        ``allowed(targets_mm (m, 3), directions (m, 3)) -> bool (m,)``: which candidate
+        needle targets may be used (e.g. inside the organ and clear of vessels); the others
+        are dropped before the cover, so full coverage may no longer be reachable.
 
     Returns
     -------
@@ -891,6 +898,13 @@ def choose_targets(
         w = _directions(direction(centres.copy()), len(centres), zone.needs_direction, "direction")
     else:
         w = _directions(direction, len(centres), zone.needs_direction, "direction")
+    if allowed is not None:
+        keep = np.asarray(allowed(centres + zone.tip_offset_mm * w, w.copy()), dtype=bool)
+        if keep.shape != (len(centres),):
+            raise InvalidInputError(
+                "allowed", f"expected {len(centres)} booleans, got {keep.shape}"
+            )
+        centres, w = centres[keep], w[keep]
     A = _cover_matrix(region, zone, centres, w)
     n = A.shape[1]
     goal = min(n, math.ceil(goal_frac * n - 1e-9 * n))
