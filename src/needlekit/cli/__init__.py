@@ -47,6 +47,7 @@ _HANDLERS = {
     "bench fields": "needlekit.cli.bench:_cmd_bench",
     "bench control": "needlekit.cli.bench:_cmd_bench",
     "bench steerable": "needlekit.cli.bench:_cmd_bench",
+    "bench straight": "needlekit.cli.bench:_cmd_bench",
 }
 
 

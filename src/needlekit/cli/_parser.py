@@ -472,4 +472,25 @@ def _build_parser() -> argparse.ArgumentParser:
         folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
+    bt = bench_sub.add_parser(
+        "straight",
+        help="straight multi-needle planning: 1-degree CFRW map, layer, whole plan, check",
+    )
+    add_output(bt, "--out", help="write the record as JSON here")
+    bt.add_argument(
+        "--repeat", type=_positive_int, default=3, help="timed runs per stage (median, min)"
+    )
+    bt.add_argument(
+        "--livers",
+        type=_seed,
+        nargs="+",
+        default=[4],
+        help="Med-RAD livers, each from examples/medrad_liverN.yaml (default 4; 0 for none)",
+    )
+    add_input(
+        bt,
+        "--medrad",
+        folder=True,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
     return parser

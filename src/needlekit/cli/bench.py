@@ -1,4 +1,4 @@
-"""``needlekit bench kinematics|fields|steerable|control``."""
+"""``needlekit bench kinematics|fields|steerable|control|straight``."""
 
 from __future__ import annotations
 
@@ -68,6 +68,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                     else f"  (reference {row['reference_cost_mm']})"
                 )
             )
+    elif args.bench_command == "straight":
+        import sys
+
+        from needlekit.benchmarks.straight import run_straight_benchmark
+
+        record = run_straight_benchmark(
+            repeat=args.repeat,
+            livers=tuple(n for n in args.livers if n != 0),
+            medrad_dir=args.medrad,
+            progress=lambda name: print(f"bench straight: {name}", file=sys.stderr),
+        )
     else:
         raise NeedlekitError(f"bench: unknown suite {args.bench_command!r}")
     if args.out is not None:
