@@ -61,6 +61,7 @@ MODULES = [
     "needlekit.planning.straight.sequence",
     "needlekit.planning.straight.planner",
     "needlekit.planning.straight.verify",
+    "needlekit.planning.straight.ablation",
     "needlekit.planning.steerable.search",
     "needlekit.planning.steerable.workspace",
     "needlekit.planning.interface",
