@@ -134,14 +134,21 @@ def _prepare(path: Path, medrad_dir):
     """Load the scenario as ``needlekit multi`` does and build every field the plan reads
     (lazy voxel fields included), so that the stages after it time planning alone."""
     from needlekit.io.problems import multi_problem_from_scenario
+    from needlekit.io.scenario import load_scenario
 
     with _medrad_env(medrad_dir):
-        multi, options = multi_problem_from_scenario(path)
+        sc = load_scenario(path)
+        multi, options = multi_problem_from_scenario(sc)
     problem = multi.problem
     target = multi.targets_mm[:1]
     problem.scene[problem.entry_surface].field.signed_distance(target)
     problem.obstacle_field().signed_distance(target)
-    return multi, dict(options)
+    return sc, multi, dict(options)
+
+
+def _uses_coverage(sc) -> bool:
+    """The scenario's targets are chosen by ablation coverage (``targets: coverage``)."""
+    return isinstance((sc.straight or {}).get("targets"), str)
 
 
 def _map_split(m, repeat: int) -> dict:
@@ -185,15 +192,90 @@ def _map_split(m, repeat: int) -> dict:
     }
 
 
-def _plan(multi, options: dict, resolution_deg: float):
+def _plan(sc, multi, options: dict, resolution_deg: float):
+    """The whole plan as ``needlekit multi`` makes it: (plan, coverage outcome or None,
+    seconds per step).
+
+    With ``targets: coverage``: the tumour-plus-margin region, the targets chosen, the
+    trajectories planned, the coverage re-checked along them and, when those directions
+    lost it, one more round of targets chosen along them and planned (as the command
+    does). Otherwise the scenario's targets are planned.
+    """
+    from dataclasses import replace
+
     from needlekit.planning.interface import Termination, get_planner
 
-    opts = {**options, "resolution_deg": resolution_deg}
-    return get_planner("liu_cfrw", opts).solve(multi, Termination(PLAN_TIME_LIMIT_S))
+    planner = get_planner("liu_cfrw", {**options, "resolution_deg": resolution_deg})
+    steps: dict[str, float] = {}
+
+    def step(name, fn):
+        t0 = time.perf_counter()
+        out = fn()
+        steps[name] = steps.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    def solve(targets):
+        return step(
+            "trajectories_s",
+            lambda: planner.solve(
+                replace(multi, targets_mm=targets), Termination(PLAN_TIME_LIMIT_S)
+            ),
+        )
+
+    if not _uses_coverage(sc):
+        return solve(multi.targets_mm), None, steps
+    from needlekit.io.problems import coverage_region
+    from needlekit.planning.straight.ablation import (
+        AblationOutcome,
+        choose_needle_targets,
+        planned_coverage,
+    )
+
+    region, settings = step("coverage_region_s", lambda: coverage_region(sc, multi.problem))
+    zone, most, goal = settings["zone"], settings["max_needles"], settings["coverage_goal"]
+
+    def choose(**kw):
+        return step(
+            "choose_targets_s",
+            lambda: choose_needle_targets(
+                multi.problem, region, zone, max_needles=most, coverage_goal=goal, **kw
+            ),
+        )
+
+    chosen = choose()
+    if chosen.needles == 0:
+        return None, AblationOutcome.of(chosen, None, None, most), steps
+    plan = solve(chosen.targets_mm)
+    planned = step("coverage_check_s", lambda: planned_coverage(region, zone, plan))
+    outcome = AblationOutcome.of(chosen, plan, planned, most)
+    if plan.solved and chosen.status.value == "covered" and not outcome.ok:
+        steps["second_round"] = 1.0
+        again = choose(directions_from=plan)
+        if again.needles:
+            plan2 = solve(again.targets_mm)
+            planned2 = step("coverage_check_s", lambda: planned_coverage(region, zone, plan2))
+            outcome2 = AblationOutcome.of(again, plan2, planned2, most)
+            if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
+                return plan2, outcome2, steps
+    return plan, outcome, steps
 
 
-def _plan_outcome(plan) -> dict:
+def _plan_outcome(plan, coverage, steps: dict) -> dict:
+    out: dict[str, Any] = {"steps_s": steps, "coverage": None}
+    if coverage is not None:
+        rep = coverage.planned or coverage.chosen.report
+        out["coverage"] = {
+            "ok": bool(coverage.ok),
+            "reason": coverage.reason,
+            "coverage": float(rep.coverage),
+            "needles": int(rep.needles),
+        }
+    if plan is None:
+        return {**out, "solved": False, "reason": coverage.reason, "needles": 0,
+                "needles_placed": 0, "orders_tried": 0, "order": [], "lengths_mm": [],
+                "clearances_mm": []}  # fmt: skip
     return {
+        **out,
         "solved": bool(plan.solved),
         "reason": plan.reason,
         "needles": len(plan.needles),
@@ -207,15 +289,37 @@ def _plan_outcome(plan) -> dict:
     }
 
 
+def _first_target(sc, multi) -> tuple[np.ndarray, str]:
+    """The target of the timed map: the scenario's first, or with ``targets: coverage``
+    the first target the coverage chooses (the stand-in till then may sit in a vessel)."""
+    if not _uses_coverage(sc):
+        return multi.targets_mm[0], "the scenario's first target"
+    from needlekit.io.problems import coverage_region
+    from needlekit.planning.straight.ablation import choose_needle_targets
+
+    region, st = coverage_region(sc, multi.problem)
+    chosen = choose_needle_targets(
+        multi.problem,
+        region,
+        st["zone"],
+        max_needles=st["max_needles"],
+        coverage_goal=st["coverage_goal"],
+    )
+    if chosen.needles == 0:
+        return multi.targets_mm[0], "the tumour's centre (coverage chose no target)"
+    return chosen.targets_mm[0], "the first target the coverage chooses"
+
+
 def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medrad_dir) -> dict:
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.verify import verify_multi
 
     case: dict[str, Any] = {"name": name, "scenario": str(path)}
-    prep, (multi, options) = _timed(lambda: _prepare(path, medrad_dir), repeat)
+    prep, (sc, multi, options) = _timed(lambda: _prepare(path, medrad_dir), repeat)
     case["prepare"] = {**prep, "excluded": True}
     scenario_res = float(options.get("resolution_deg", resolution_deg))
-    problem = multi.problem.with_target(multi.targets_mm[0])
+    target, target_from = _first_target(sc, multi)
+    problem = multi.problem.with_target(target)
 
     def one_map():
         return cfrw_map(problem, resolution_deg=resolution_deg)
@@ -224,15 +328,15 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
     one_map()
     first = time.perf_counter() - t0
     map_t, m = _timed(one_map, repeat)
-    counts = m.counts()
     case["cfrw_map"] = {
         **map_t,
         "first_call_s": first,
         "resolution_deg": resolution_deg,
         "target_mm": problem.target_mm.tolist(),
+        "target": target_from,
         "grid": list(m.blocked.shape),
         "directions": int(m.blocked.size),
-        "counts": counts,
+        "counts": m.counts(),
         "split": _map_split(m, repeat),
     }
     layer_t, polylines = _timed(lambda: m.layer(layer_h_mm), repeat)
@@ -242,24 +346,30 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
         "polylines": len(polylines),
         "vertices": int(sum(len(p) for p in polylines)),
     }
-    plan_t, plan = _timed(lambda: _plan(multi, options, resolution_deg), repeat)
+
+    def whole_plan():
+        return _plan(sc, multi, options, resolution_deg)
+
+    plan_t, (plan, coverage, steps) = _timed(whole_plan, repeat)
     case["multi_plan"] = {
         **plan_t,
         "resolution_deg": resolution_deg,
-        "targets": len(multi.targets_mm),
-        **_plan_outcome(plan),
+        "targets": len(plan.needles) if plan is not None else 0,
+        "targets_from": "coverage" if _uses_coverage(sc) else "scenario",
+        **_plan_outcome(plan, coverage, steps),
     }
     if scenario_res != resolution_deg:
         t0 = time.perf_counter()
-        own = _plan(multi, options, scenario_res)
+        own = _plan(sc, multi, options, scenario_res)
         case["multi_plan_scenario_resolution"] = {
             "time_s": time.perf_counter() - t0,
             "resolution_deg": scenario_res,
-            **_plan_outcome(own),
+            **_plan_outcome(*own),
         }
-    record = plan.to_dict()
-    ver_t, check = _timed(lambda: verify_multi(multi.problem, record), repeat)
-    case["verify"] = {**ver_t, "ok": bool(check.ok), "violations": list(check.violations)}
+    if plan is not None:
+        record = plan.to_dict()
+        ver_t, check = _timed(lambda: verify_multi(multi.problem, record), repeat)
+        case["verify"] = {**ver_t, "ok": bool(check.ok), "violations": list(check.violations)}
     met = {
         "cfrw_map_1deg_s": (
             map_t["median_s"] <= TARGETS_S["cfrw_map_1deg_s"] if resolution_deg == 1.0 else None
@@ -271,7 +381,7 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
     if met["cfrw_map_1deg_s"] is False:
         case["cfrw_map"]["profile"] = _profile(one_map)
     if not met["multi_plan_s"]:
-        case["multi_plan"]["profile"] = _profile(lambda: _plan(multi, options, resolution_deg))
+        case["multi_plan"]["profile"] = _profile(whole_plan)
     return case
 
 
@@ -356,12 +466,23 @@ def _rows(case: dict) -> list[dict]:
                 f"lengths {ol} mm",
             }
         )
-    rows.append(
-        {
-            "name": f"{name} verify",
-            "summary": f"{t(case['verify'])}  {'ok' if case['verify']['ok'] else 'VIOLATED'}",
-        }
-    )
+    if mp["coverage"] is not None:
+        cov, st = mp["coverage"], mp["steps_s"]
+        parts = ", ".join(
+            f"{k.removesuffix('_s')} {v:.2f} s" for k, v in st.items() if k[-2:] == "_s"
+        )
+        rows.append(
+            {
+                "name": "  coverage and steps",
+                "summary": f"coverage {cov['coverage']:.4f} with {cov['needles']} needles "
+                f"({'ok' if cov['ok'] else cov['reason']}); last run: {parts}",
+            }
+        )
+    if "verify" in case:
+        v = case["verify"]
+        rows.append(
+            {"name": f"{name} verify", "summary": f"{t(v)}  {'ok' if v['ok'] else 'VIOLATED'}"}
+        )
     return rows
 
 
