@@ -47,6 +47,7 @@ def test_bench_straight_on_the_phantom_writes_the_record(capsys, tmp_path):
         _timing(case[stage])
         assert len(case[stage]["runs_s"]) == 1
     assert case["prepare"]["excluded"] is True
+    assert case["prepare"]["first_s"] == case["prepare"]["runs_s"][0]
     # met is the median against the target, whatever the median is
     assert case["met"] == {
         "cfrw_map_1deg_s": case["cfrw_map"]["median_s"] <= 1.0,
@@ -69,6 +70,8 @@ def test_bench_straight_on_the_phantom_writes_the_record(capsys, tmp_path):
     plan = case["multi_plan"]
     assert plan["solved"] and plan["needles"] == plan["needles_placed"] == plan["targets"] == 3
     assert plan["orders_tried"] == 6  # 3! orders, all tried
+    assert plan["targets_from"] == "scenario" and plan["coverage"] is None
+    assert plan["steps_s"]["rounds"] == 1 and plan["steps_s"]["trajectories_s"] > 0
     assert plan["lengths_mm"] == pytest.approx(LENGTHS_1DEG_MM, abs=0.01)
     own = case["multi_plan_scenario_resolution"]
     assert own["resolution_deg"] == 2.0 and own["solved"] and own["needles_placed"] == 3
