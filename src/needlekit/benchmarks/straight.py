@@ -225,38 +225,20 @@ def _plan(sc, multi, options: dict, resolution_deg: float):
     if not _uses_coverage(sc):
         return solve(multi.targets_mm), None, steps
     from needlekit.io.problems import coverage_region
-    from needlekit.planning.straight.ablation import (
-        AblationOutcome,
-        choose_needle_targets,
-        planned_coverage,
-    )
+    from needlekit.planning.straight.ablation import plan_with_coverage
 
     region, settings = step("coverage_region_s", lambda: coverage_region(sc, multi.problem))
-    zone, most, goal = settings["zone"], settings["max_needles"], settings["coverage_goal"]
-
-    def choose(**kw):
-        return step(
-            "choose_targets_s",
-            lambda: choose_needle_targets(
-                multi.problem, region, zone, max_needles=most, coverage_goal=goal, **kw
-            ),
-        )
-
-    chosen = choose()
-    if chosen.needles == 0:
-        return None, AblationOutcome.of(chosen, None, None, most), steps
-    plan = solve(chosen.targets_mm)
-    planned = step("coverage_check_s", lambda: planned_coverage(region, zone, plan))
-    outcome = AblationOutcome.of(chosen, plan, planned, most)
-    if plan.solved and chosen.status.value == "covered" and not outcome.ok:
-        steps["rounds"] = 2
-        again = choose(directions_from=plan)
-        if again.needles:
-            plan2 = solve(again.targets_mm)
-            planned2 = step("coverage_check_s", lambda: planned_coverage(region, zone, plan2))
-            outcome2 = AblationOutcome.of(again, plan2, planned2, most)
-            if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
-                return plan2, outcome2, steps
+    plan, outcome = plan_with_coverage(
+        multi.problem,
+        region,
+        settings["zone"],
+        lambda targets: planner.solve(
+            replace(multi, targets_mm=targets), Termination(PLAN_TIME_LIMIT_S)
+        ),
+        max_needles=settings["max_needles"],
+        coverage_goal=settings["coverage_goal"],
+        timings=steps,
+    )
     return plan, outcome, steps
 
 

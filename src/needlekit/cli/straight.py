@@ -135,49 +135,23 @@ def _plan_coverage(sc, multi, planner, args):
 
     from needlekit.io.problems import coverage_region
     from needlekit.planning.interface import Termination
-    from needlekit.planning.straight.ablation import (
-        AblationOutcome,
-        choose_needle_targets,
-        planned_coverage,
-    )
+    from needlekit.planning.straight.ablation import plan_with_coverage
     from needlekit.planning.straight.sequence import MultiNeedlePlan
 
     region, settings = coverage_region(sc, multi.problem)
-    chosen = choose_needle_targets(
+    plan, outcome = plan_with_coverage(
         multi.problem,
         region,
         settings["zone"],
+        lambda targets: planner.solve(
+            replace(multi, targets_mm=targets), Termination(args.time_limit_s)
+        ),
         max_needles=settings["max_needles"],
         coverage_goal=settings["coverage_goal"],
     )
-    if chosen.needles == 0:
+    if plan is None:
         p = multi.problem
-        plan = MultiNeedlePlan((), (), False, 0, p.gamma_mm, p.needle.radius_mm, "no target")
-        outcome = AblationOutcome.of(chosen, None, None, settings["max_needles"])
-        return replace(plan, reason=outcome.reason), outcome
-    plan = planner.solve(
-        replace(multi, targets_mm=chosen.targets_mm), Termination(args.time_limit_s)
-    )
-    planned = planned_coverage(region, settings["zone"], plan)
-    outcome = AblationOutcome.of(chosen, plan, planned, settings["max_needles"])
-    if plan.solved and chosen.status.value == "covered" and not outcome.ok:
-        # the real directions lost coverage: choose again along them, plan once more
-        again = choose_needle_targets(
-            multi.problem,
-            region,
-            settings["zone"],
-            max_needles=settings["max_needles"],
-            coverage_goal=settings["coverage_goal"],
-            directions_from=plan,
-        )
-        if again.needles:
-            plan2 = planner.solve(
-                replace(multi, targets_mm=again.targets_mm), Termination(args.time_limit_s)
-            )
-            planned2 = planned_coverage(region, settings["zone"], plan2)
-            outcome2 = AblationOutcome.of(again, plan2, planned2, settings["max_needles"])
-            if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
-                return plan2, outcome2
+        plan = MultiNeedlePlan((), (), False, 0, p.gamma_mm, p.needle.radius_mm, outcome.reason)
     return plan, outcome
 
 

@@ -39,6 +39,7 @@ __all__ = [
     "AblationOutcome",
     "choose_needle_targets",
     "clip_region",
+    "plan_with_coverage",
     "planned_coverage",
     "voxelise",
 ]
@@ -301,3 +302,74 @@ class AblationOutcome:
             "planned": None if self.planned is None else self.planned.to_dict(),
             "chosen": self.chosen.to_dict(),
         }
+
+
+def plan_with_coverage(
+    problem: StraightProblem,
+    region: TargetRegion,
+    zone: AblationZone,
+    solve,
+    *,
+    max_needles: int,
+    coverage_goal: float,
+    timings: dict | None = None,
+) -> tuple[MultiNeedlePlan | None, AblationOutcome]:
+    """Choose targets covering the region, plan them, re-check the coverage along the
+    planned needles, and when their real directions lost it, choose once more along them
+    and plan again (the better of the two rounds is kept).
+
+    Parameters
+    ----------
+    problem : StraightProblem
+    region : TargetRegion
+        Tumour plus margin.
+    zone : AblationZone
+    solve : callable
+        ``solve(targets_mm (k, 3)) -> MultiNeedlePlan`` (e.g. the ``liu_cfrw`` planner).
+    max_needles : int
+    coverage_goal : float
+    timings : dict, optional
+        Filled with the seconds of each step (``choose_targets_s``, ``trajectories_s``,
+        ``coverage_check_s``, summed over rounds) and ``rounds``.
+
+    Returns
+    -------
+    plan : MultiNeedlePlan or None
+        None when no target could be chosen.
+    outcome : AblationOutcome
+    """
+    import time
+
+    steps = {} if timings is None else timings
+    steps["rounds"] = 1
+
+    def step(name, fn):
+        t0 = time.perf_counter()
+        out = fn()
+        steps[name] = steps.get(name, 0.0) + time.perf_counter() - t0
+        return out
+
+    def choose(**kw):
+        return step(
+            "choose_targets_s",
+            lambda: choose_needle_targets(
+                problem, region, zone, max_needles=max_needles, coverage_goal=coverage_goal, **kw
+            ),
+        )
+
+    chosen = choose()
+    if chosen.needles == 0:
+        return None, AblationOutcome.of(chosen, None, None, max_needles)
+    plan = step("trajectories_s", lambda: solve(chosen.targets_mm))
+    planned = step("coverage_check_s", lambda: planned_coverage(region, zone, plan))
+    outcome = AblationOutcome.of(chosen, plan, planned, max_needles)
+    if plan.solved and chosen.status is CoverageStatus.COVERED and not outcome.ok:
+        steps["rounds"] = 2
+        again = choose(directions_from=plan)
+        if again.needles:
+            plan2 = step("trajectories_s", lambda: solve(again.targets_mm))
+            planned2 = step("coverage_check_s", lambda: planned_coverage(region, zone, plan2))
+            outcome2 = AblationOutcome.of(again, plan2, planned2, max_needles)
+            if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
+                return plan2, outcome2
+    return plan, outcome
