@@ -17,6 +17,7 @@ from needlekit.cli._parser import DEMO_FILES, PUNCTURE_FILES
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TOY = str(EXAMPLES / "toy.yaml")
+MULTI = str(EXAMPLES / "liver_phantom_multi.yaml")
 
 
 def _tree(root):
@@ -79,6 +80,10 @@ FILE_OUTPUTS = [
     (["bench", "fields"], "--out"),
     (["bench", "control"], "--out"),
     (["bench", "steerable"], "--out"),
+    (["bench", "straight"], "--out"),
+    (["cfrw", MULTI], "--out"),
+    (["multi", MULTI], "--out"),
+    (["multi", MULTI], "--report"),
 ]
 #: Every output folder flag, and the files the command writes in it.
 FOLDER_OUTPUTS = [(["puncture"], "--out", PUNCTURE_FILES), (["demo"], "--out", DEMO_FILES)]
