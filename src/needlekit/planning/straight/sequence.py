@@ -144,19 +144,27 @@ class MultiNeedlePlan:
         }
 
 
-def _rigid_rank(maps: list[CFRWMap], order, objective: Objective, radius: float, gamma: float):
+def _rigid_rank(
+    maps: list[CFRWMap], order, objective: Objective, radius: float, gamma: float, memo=None
+):
     """(needles placed, total length) of an order on the rigid maps, the placed tubes
-    tested in closed form."""
-    placed: list[tuple[np.ndarray, np.ndarray]] = []
+    tested in closed form. ``memo`` (a dict) keeps each prefix's outcome, so orders that
+    share a prefix share its work (k! orders have far fewer distinct prefixes)."""
+    memo = {} if memo is None else memo
+    placed: tuple = ()
     total = 0.0
-    for j in order:
-        m = maps[j]
-        masked = _masked(m, _clear_of_placed(m, placed, radius, gamma))
-        e = best_on_map(masked, objective)
-        if e is None:
+    for n in range(1, len(order) + 1):
+        key = tuple(order[:n])
+        if key not in memo:
+            m = maps[order[n - 1]]
+            e = best_on_map(_masked(m, _clear_of_placed(m, placed, radius, gamma)), objective)
+            memo[key] = (
+                None if e is None else (placed + ((e.target_mm, e.entry_mm),), total + e.length_mm)
+            )
+        step = memo[key]
+        if step is None:
             return len(placed), total
-        placed.append((e.target_mm, e.entry_mm))
-        total += e.length_mm
+        placed, total = step
     return len(placed), total
 
 
@@ -251,9 +259,9 @@ def plan_needles(
                 return _stopped(radius, gamma)
             maps.append(cfrw_map(problem.with_target(t), resolution_deg=resolution_deg))
         if k <= EXHAUSTIVE_ORDER_MAX:
-            ranked = []
+            ranked, memo = [], {}
             for perm in itertools.permutations(range(k)):
-                n, total = _rigid_rank(maps, perm, obj, radius, gamma)
+                n, total = _rigid_rank(maps, perm, obj, radius, gamma, memo)
                 ranked.append((-n, total, perm))
             ranked.sort()
             order, orders_tried = ranked[0][2], len(ranked)
