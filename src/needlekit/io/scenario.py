@@ -342,6 +342,20 @@ def _base(spec: dict, ctx: _Ctx, cache: dict | None = None):
     return load_medrad(m["organ"], m["patient"], root, **(cache or {}))
 
 
+def _dropped(scene: Scene, spec: dict, ctx: _Ctx) -> Scene:
+    """The base scene without the structures ``phantom.drop`` names (its combined
+    obstacle field rebuilt from the rest)."""
+    drop = spec.get("phantom", {}).get("drop", [])
+    if not drop:
+        return scene
+    for i, n in enumerate(drop):
+        if n not in scene.names:
+            have = ", ".join(scene.names)
+            raise ctx.error(f"base.phantom.drop[{i}]", f"no structure named {n!r} (have {have})")
+    kept = [s for s in scene.structures if s.name not in drop]
+    return Scene(kept, name=scene.name)
+
+
 def _case_starts(base) -> list[tuple[str, np.ndarray]]:
     if base is None:
         return []
@@ -548,13 +562,14 @@ def parse_scenario(
     names: set[str] = set()
     extra = [_structure(i, s, ctx, names) for i, s in enumerate(data.get("structures", []))]
     if base is not None:
-        clash = names & set(base.scene.names)
+        base_scene = _dropped(base.scene, data["base"], ctx)
+        clash = names & set(base_scene.names)
         if clash:
             raise ctx.error(
                 "structures", f"names already in the base scene: {', '.join(sorted(clash))}"
             )
-        structures = list(base.scene.structures) + extra
-        obstacle = _combined(base.scene, extra)
+        structures = list(base_scene.structures) + extra
+        obstacle = _combined(base_scene, extra)
     else:
         structures, obstacle = extra, None
     if not structures:

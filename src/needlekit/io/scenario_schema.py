@@ -139,6 +139,13 @@ _BASE = {
                 "name": {"enum": ["lung", "liver", "neck"]},
                 "seed": {"type": "integer", "minimum": 0},
                 "voxel_size_mm": _POS,
+                "drop": {
+                    "type": "array",
+                    "items": {"type": "string", "minLength": 1},
+                    "uniqueItems": True,
+                    "description": "names of the phantom's structures to leave out "
+                    "(e.g. its vessel trees, to put other vessels in their place)",
+                },
             },
             ["name"],
         ),
