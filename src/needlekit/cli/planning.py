@@ -129,21 +129,18 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
-    import json as _json
-    from pathlib import Path
-
+    from needlekit.io.files import read_json_object
     from needlekit.io.plans import read_plan_json
     from needlekit.planning.steerable.verify import verify_plan
 
-    try:  # a multi-needle record (multi.json) is checked by the straight planner's rules
-        doc = _json.loads(Path(args.plan).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError):
-        doc = None
-    if isinstance(doc, dict) and "needles" in doc:
+    # a malformed file fails here, before the anatomy loads; a multi-needle record
+    # (multi.json) is checked by the straight planner's rules
+    doc = read_json_object(args.plan, "plan")
+    if "needles" in doc:
         from needlekit.cli.straight import verify_multi_file
 
         return verify_multi_file(args, doc)
-    plan, _, data = read_plan_json(args.plan)  # a malformed file fails before the anatomy loads
+    plan, _, data = read_plan_json(args.plan)
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
     _, problem = _source(args).load()

@@ -23,6 +23,7 @@ from typing import Any
 
 __all__ = [
     "atomic_write",
+    "read_json_object",
     "output_path_problem",
     "staged_outputs",
     "write_json",
@@ -321,3 +322,35 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     """
     text = json.dumps(data, indent=2, allow_nan=False, ensure_ascii=False) + "\n"
     return write_text(path, text)
+
+
+def read_json_object(path: str | os.PathLike, what: str) -> dict:
+    """Read a JSON file whose top level is an object, with one-line errors naming it.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (``"plan"``, ``"markups"``).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    InvalidInputError
+        Missing file, not JSON, or not an object at the top level.
+    """
+    from needlekit.errors import InvalidInputError
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(str(p), f"{what} file not found")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInputError(str(p), f"not a JSON {what} file ({exc})") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(str(p), "expected a JSON object at the top level")
+    return data

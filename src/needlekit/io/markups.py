@@ -38,7 +38,6 @@ Examples
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -50,7 +49,7 @@ import numpy as np
 
 from needlekit._validation import as_batch, as_points
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.files import read_json_object, staged_outputs, write_json
 
 __all__ = [
     "DEFAULT_CURVE_SPACING_MM",
@@ -593,14 +592,7 @@ def read_markups(path: str | os.PathLike) -> list[Markup]:
         numbers (NaN included), an orientation that is not 9 numbers.
     """
     p = Path(path)
-    if not p.is_file():
-        raise InvalidInputError(str(p), "markups file not found")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(str(p), f"not a JSON markups file ({exc})") from None
-    if not isinstance(data, dict):
-        raise InvalidInputError(str(p), "expected a JSON object at the top level")
+    data = read_json_object(p, "markups")
     schema = data.get("@schema")
     if schema is None:
         raise InvalidInputError(f"{p.name}: @schema", f"missing; expected {MARKUPS_SCHEMA}")

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import write_json
+from needlekit.io.files import read_json_object, write_json
 
 __all__ = ["read_plan_json", "write_plan_json"]
 
@@ -54,14 +53,7 @@ def read_plan_json(path: str | os.PathLike):
     from needlekit.planning.steerable.plan import SteerablePlan
 
     p = Path(path)
-    if not p.is_file():
-        raise InvalidInputError(str(p), "plan file not found")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(str(p), f"not a JSON plan file ({exc})") from None
-    if not isinstance(data, dict):
-        raise InvalidInputError(str(p), "expected a JSON object at the top level")
+    data = read_json_object(p, "plan")
     try:
         goal = np.asarray(data["goal_mm"], dtype=float).reshape(3)
     except (KeyError, TypeError, ValueError):

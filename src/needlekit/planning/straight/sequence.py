@@ -247,6 +247,7 @@ def plan_needles(
         def body_factory(tip, entry, r):
             return NeedleBody(tip, entry, radius_mm=r, head=chosen_head)
 
+    maps = None
     if order is not None:
         order = tuple(int(i) for i in order)
         if sorted(order) != list(range(k)):
@@ -286,7 +287,10 @@ def plan_needles(
             target = target + np.asarray(deformation.displacement(target[None], placed))[0]
         pr = problem.with_target(target).with_obstacles(*bodies)
         # the anatomy alone, to report the clearance to it apart from the needles'
-        m = cfrw_map(pr, resolution_deg=resolution_deg)
+        if maps is not None and not bodies and np.array_equal(target, targets[j]):
+            m = maps[j]  # nothing placed or moved yet: the ranking's map is this one
+        else:
+            m = cfrw_map(pr, resolution_deg=resolution_deg)
         kept.append(m)
         e = best_on_map(m, obj)
         needle_clear = np.inf
