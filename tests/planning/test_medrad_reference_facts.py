@@ -74,14 +74,17 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
 
     case, obstacles = lung1
     prob = _problem(case, obstacles, start, r_min)
-    res = solve_rcs(prob, time_limit_s=1.0)
     expected = REFERENCE.get((start, r_min), "none")
     if expected == "none":  # start 2: the reference finds no plan within 1 s
-        # no plan reaching the goal: at most the valid path that got nearest it
-        assert res.status in (PlanStatus.TIMEOUT, PlanStatus.APPROXIMATE)
-        if res.plan is not None:
-            assert res.stats["goal_distance_mm"] > prob.goal_tolerance_mm
-    elif expected is None:
+        # an iteration budget, not the clock: no plan reaching the goal, the valid path
+        # that got nearest it comes back as approximate
+        res = solve_rcs(prob, time_limit_s=120.0, max_iterations=3000)
+        assert res.status is PlanStatus.APPROXIMATE and res.stats["reason"] == "iteration limit"
+        nearest = {50: 55.20311468459407, 100: 55.32267572699005}[r_min]
+        assert res.stats["goal_distance_mm"] == pytest.approx(nearest, abs=1e-6)
+        return
+    res = solve_rcs(prob, time_limit_s=1.0)  # the reference's budget; these certify
+    if expected is None:
         assert res.status is PlanStatus.INFEASIBLE
     else:
         assert res.status is PlanStatus.SOLVED and res.stats["certified"]
