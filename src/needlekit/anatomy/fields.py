@@ -49,6 +49,10 @@ class DistanceField(ABC):
 
     #: Largest possible |reported - true| signed distance (mm) anywhere.
     error_bound_mm: float = 0.0
+    #: A Lipschitz constant of the reported field (``|d(x) - d(y)| <= L |x - y|``), or
+    #: None when not known: 1 for exact distances; an interpolated grid states its own. A
+    #: ray that steps ``|d| / L`` never steps over a sign change of the field itself.
+    lipschitz_bound: float | None = None
 
     @abstractmethod
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
@@ -174,6 +178,7 @@ class OffsetField(DistanceField):
         self.base = base
         self.margin_mm = float(margin_mm)
         self.error_bound_mm = base.error_bound_mm
+        self.lipschitz_bound = base.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return self.base._signed_distance(points) - self.margin_mm
@@ -216,6 +221,7 @@ class BoundedField(DistanceField):
         self.field = field
         self.bound = bound
         self.error_bound_mm = field.error_bound_mm
+        self.lipschitz_bound = field.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return self.field._signed_distance(points)
@@ -248,6 +254,12 @@ class UnionField(DistanceField):
                 )
         self.fields = tuple(fields)
         self.error_bound_mm = max(f.error_bound_mm for f in self.fields)
+
+    @property  # type: ignore[override]
+    def lipschitz_bound(self) -> float | None:
+        # the minimum of L_i-Lipschitz functions is max(L_i)-Lipschitz
+        ls = [f.lipschitz_bound for f in self.fields]
+        return None if any(v is None for v in ls) else max(ls)
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         out = self.fields[0]._signed_distance(points)
@@ -305,6 +317,7 @@ class TransformedField(DistanceField):
         self._rot = g[0, :3, :3]
         self._trans = g[0, :3, 3]
         self.error_bound_mm = local.error_bound_mm
+        self.lipschitz_bound = local.lipschitz_bound
 
     def _to_local(self, points: np.ndarray) -> np.ndarray:
         return (points - self._trans) @ self._rot
@@ -333,6 +346,7 @@ class ComplementField(DistanceField):
     def __init__(self, base: DistanceField) -> None:
         self.base = base
         self.error_bound_mm = base.error_bound_mm
+        self.lipschitz_bound = base.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return -self.base._signed_distance(points)
@@ -388,6 +402,10 @@ class LazyField(DistanceField):
     @property  # type: ignore[override]
     def error_bound_mm(self) -> float:
         return self.get().error_bound_mm
+
+    @property  # type: ignore[override]
+    def lipschitz_bound(self) -> float | None:
+        return self.get().lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return self.get()._signed_distance(points)

@@ -341,6 +341,7 @@ class ExactMeshDistance(DistanceField):
         self._tri = np.ascontiguousarray(self.mesh.triangles, dtype=np.float64)
         #: Rounding of float64 closest-point and solid-angle sums: exact for practical use.
         self.error_bound_mm = 0.0
+        self.lipschitz_bound = 1.0  # an exact distance
 
     def inside(self, points) -> np.ndarray:
         """Whether points lie inside the mesh (|winding number| > 0.5).

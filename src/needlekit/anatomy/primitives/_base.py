@@ -95,11 +95,14 @@ class _Primitive(DistanceField):
     """A shape defined in a local frame and placed by ``world_T_local``.
 
     Subclasses implement :meth:`_local_eval` (signed distance and outward unit normal of
-    local points) and :meth:`_local_bounds`; the pose, gradients, closest points and
-    world bounds are handled here.
+    local points) and :meth:`_local_bounds`, and may override :meth:`_local_distance`
+    when the distance alone is cheaper than with its normal (distance queries are most of
+    a planner's calls); the pose, gradients, closest points and world bounds are handled
+    here.
     """
 
     error_bound_mm = 0.0
+    lipschitz_bound = 1.0  # exact distances
 
     def _set_pose(self, world_T_local) -> None:
         if world_T_local is None:
@@ -130,11 +133,32 @@ class _Primitive(DistanceField):
     def _to_world_vectors(self, v: np.ndarray) -> np.ndarray:
         return v @ self._rot.T if self._posed else v
 
+    def _local_distance(self, q: np.ndarray) -> np.ndarray:
+        """Signed distance ``(n,)`` of local points alone (the normals not computed)."""
+        return self._local_eval(q)[0]
+
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
-        return self._local_eval(self._to_local(points))[0]
+        return self._local_distance(self._to_local(points))
 
     def _gradient(self, points: np.ndarray) -> np.ndarray:
         return self._to_world_vectors(self._local_eval(self._to_local(points))[1])
+
+    def value_and_gradient(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance and its unit gradient (world) of points, from one evaluation.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            World points (RAS, mm).
+
+        Returns
+        -------
+        signed_distance : ndarray, shape (n,)
+        gradient : ndarray, shape (n, 3)
+        """
+        p, _ = as_points(points, "points")
+        sd, normal = self._local_eval(self._to_local(p))
+        return sd, self._to_world_vectors(normal)
 
     def closest_point(self, points) -> np.ndarray:
         """Closest surface point ``p - d(p) * grad d(p)`` (world RAS, mm).

@@ -54,6 +54,9 @@ class Sphere(_Primitive):
         r = np.linalg.norm(v, axis=1)
         return r - self.radius_mm, _safe_unit(v, r, np.array([1.0, 0.0, 0.0]))
 
+    def _local_distance(self, q):
+        return np.linalg.norm(q - self.center_mm, axis=1) - self.radius_mm
+
     def _local_bounds(self):
         return np.stack([self.center_mm - self.radius_mm, self.center_mm + self.radius_mm])
 
@@ -93,15 +96,20 @@ class Capsule(_Primitive):
         length = math.sqrt(self._len2)
         self._perp = _unit_perpendicular(self._axis / length if length > 0 else np.eye(3)[2])
 
-    def _local_eval(self, q):
+    def _axis_offset(self, q):
         w = q - self.p0_mm
         if self._len2 > 0.0:
             s = np.clip((w @ self._axis) / self._len2, 0.0, 1.0)
-            v = w - s[:, None] * self._axis
-        else:
-            v = w
+            return w - s[:, None] * self._axis
+        return w
+
+    def _local_eval(self, q):
+        v = self._axis_offset(q)
         r = np.linalg.norm(v, axis=1)
         return r - self.radius_mm, _safe_unit(v, r, self._perp)
+
+    def _local_distance(self, q):
+        return np.linalg.norm(self._axis_offset(q), axis=1) - self.radius_mm
 
     def _local_bounds(self):
         lo = np.minimum(self.p0_mm, self.p1_mm) - self.radius_mm

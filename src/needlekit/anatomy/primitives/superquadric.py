@@ -415,6 +415,17 @@ class Superquadric(_Primitive):
         self._set_pose(world_T_local)
         self._enclosing = None
 
+    @property
+    def max_depth_mm(self) -> float:
+        """How deep any point lies inside (mm): at most the smallest semi-axis (the solid
+        lies in the box of its semi-axes, so a ball inside it is no wider).
+
+        Returns
+        -------
+        float
+        """
+        return float(np.min(self.semi_axes_mm))
+
     def _enclosing_capsule(self):
         """A capsule containing the shape: along its longest axis, as long, and as wide as
         the box of the other two semi-axes (every term of the sum is at most 1, so the
@@ -542,6 +553,12 @@ class Superquadric(_Primitive):
         _superquadric_kernel(np.ascontiguousarray(q), self.semi_axes_mm, self.exponents, sd, x)
         grad = _sq_grad(x, self.semi_axes_mm, self.exponents)
         return sd, grad / np.linalg.norm(grad, axis=1, keepdims=True)
+
+    def _local_distance(self, q):
+        sd = np.empty(q.shape[0])
+        x = np.empty_like(q)
+        _superquadric_kernel(np.ascontiguousarray(q), self.semi_axes_mm, self.exponents, sd, x)
+        return sd
 
     def _local_bounds(self):
         return np.stack([-self.semi_axes_mm, self.semi_axes_mm])

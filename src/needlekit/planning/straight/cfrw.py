@@ -16,6 +16,28 @@ intervals, less the field's stated error bound and the needle radius, is the cer
 clearance (reported up to ``cap``). A direction belongs to the CFRW when that clearance is
 at least gamma (the paper's safety distance), and the other limits hold.
 
+Convex obstacles and placed needles. The clearance of a union is the smallest of its
+parts', so each placed needle is bounded on its own (:func:`obstacle_segment_bound`,
+:func:`clearance_bound`). Its tube is a capsule: the distance between the candidate
+segment and the tube's axis, less the radius, is exact in closed form. Its head (Eq. 4's
+superquadric, every exponent >= 2) is convex, and the signed distance to a convex solid is
+a convex function, so along a segment its tangent lines lie below it:
+:func:`convex_segment_bound` keeps a bracket where the slope changes sign, bounds the
+minimum by where the two end tangents meet (or by the 1-Lipschitz bound, whichever is
+higher), and splits until the bound and the best sample differ by at most
+:data:`CONVEX_TOL_MM`; each slope is widened by its error (the projection's error over the
+distance) and each part let go keeps its tangent's bound, so the result stays a lower
+bound. Segments farther than the cap from the head's enclosing capsule (closed form) are
+certified at the cap without evaluating the head, and a segment found inside the head gets
+the head's depth bound. :meth:`CFRWMap.with_obstacles` adds placed needles to a map of the
+anatomy without searching the entries or tracing the anatomy again; the result equals
+:func:`cfrw_map` of the problem with them, number for number.
+
+Entry points. From the target, each ray marches in steps of ``|d| / L`` (``L`` the entry
+surface field's Lipschitz bound: 1 for exact distances, computed from the grid for voxel
+fields), so no sign change of the field is stepped over (but for parts shorter than
+:data:`ENTRY_MIN_STEP_MM`), then bisects the crossing to :data:`ENTRY_TOL_MM`.
+
 The CFRW's boundary is drawn, as in the paper's Fig. 11, in layered planes ``z = h`` of
 Sigma: each direction meets the plane at ``h tan(theta) (cos phi, sin phi)``. Boundary
 points are found on the grid (marching squares over ``clearance - gamma``) and refined by
@@ -34,6 +56,7 @@ import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.segments import segment_distances
 from needlekit.planning.straight.problem import StraightProblem, directions_of
 
 __all__ = [
@@ -41,8 +64,11 @@ __all__ = [
     "Blocked",
     "CFRWMap",
     "cfrw_map",
+    "clearance_bound",
+    "convex_segment_bound",
     "entry_points",
     "inside_polylines",
+    "obstacle_segment_bound",
     "segment_clearance_bound",
 ]
 
@@ -52,12 +78,22 @@ NEAR_STEP_MM: float = 0.5
 #: Clearances above gamma by more than this are reported as this (mm): the map certifies
 #: them as "at least"; it bounds the work of the sphere tracing.
 CLEARANCE_CAP_ABOVE_GAMMA_MM: float = 10.0
+#: Largest gap (mm) between a convex obstacle's certified bound along a segment and the
+#: smallest distance sampled on it (:func:`convex_segment_bound`).
+CONVEX_TOL_MM: float = 1e-3
+#: Splits of a segment's bracket before :func:`convex_segment_bound` reports the bound so
+#: far (each split keeps at most three quarters of the bracket: 200 mm shrink below 1e-3 mm
+#: in 43).
+CONVEX_MAX_ITER: int = 60
 #: Boundary trajectories clear the obstacles by gamma to within this (mm).
 BOUNDARY_TOL_MM: float = 0.01
 #: Sampling step (mm) of the fine clearance that boundary refinement uses.
 FINE_STEP_MM: float = 0.02
 #: Entry points are located to within this (mm) along the ray.
 ENTRY_TOL_MM: float = 1e-4
+#: Smallest step (mm) of the march toward the entry surface: a part of the ray outside
+#: the body shorter than this, before the first crossing found, can be stepped over.
+ENTRY_MIN_STEP_MM: float = 0.05
 
 
 class Blocked(enum.IntEnum):
@@ -132,6 +168,208 @@ def segment_clearance_bound(
     return np.minimum(bound, cap_mm) - float(field.error_bound_mm), at
 
 
+def convex_segment_bound(
+    field,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    cap_mm: float,
+    tol_mm: float = CONVEX_TOL_MM,
+) -> np.ndarray:
+    """Certified lower bound of a convex solid's signed distance along segments, within
+    ``tol_mm`` of the true minimum (module notes: convex obstacles).
+
+    Parameters
+    ----------
+    field : DistanceField
+        A convex solid with ``value_and_gradient(points) -> (sd (n,), unit grad (n, 3))``
+        and ``max_depth_mm`` (a :class:`~needlekit.anatomy.primitives.Superquadric`:
+        every exponent >= 2).
+    origins, directions : ndarray, shape (n, 3)
+    lengths : ndarray, shape (n,)
+    cap_mm : float
+        Bounds above this are reported as this.
+    tol_mm : float
+        Largest gap between the bound and the smallest distance sampled.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``min(cap, lower bound) - error_bound``. A segment found inside the solid (a
+        sampled distance <= 0) gets ``-max_depth_mm - error_bound``: the field must state
+        how deep its solid goes (``max_depth_mm``), the one bound that needs no search.
+    """
+    o = np.asarray(origins, dtype=float).reshape(-1, 3)
+    u = np.asarray(directions, dtype=float).reshape(-1, 3)
+    L = np.asarray(lengths, dtype=float).reshape(-1)
+    n = len(o)
+    err = float(field.error_bound_mm)
+    cap = float(cap_mm)
+    out = np.full(n, cap)
+
+    def sample(idx, t):
+        f, g = field.value_and_gradient(o[idx] + t[:, None] * u[idx])
+        # a slope from a closest point off by err (mm) is off by at most err / f
+        return f, np.einsum("ij,ij->i", g, u[idx]), err / np.maximum(f, 1e-12)
+
+    idx = np.arange(n)
+    a, b = np.zeros(n), L.copy()
+    fa, sa, ea = sample(idx, a)
+    fb, sb, eb = sample(idx, b)
+    floor = np.full(n, np.inf)  # lower bound over the parts of the segment let go
+    inside = np.zeros(n, dtype=bool)
+    for it in range(CONVEX_MAX_ITER + 1):
+        dips = (fa <= 0.0) | (fb <= 0.0)
+        inside[idx[dips]] = True
+        lo_a, hi_b = sa - ea, sb + eb  # slopes widened by their error: tangents stay below
+        w = b - a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_meet = np.clip((fb - fa + lo_a * a - hi_b * b) / (lo_a - hi_b), a, b)
+            tangent = fa + lo_a * (t_meet - a)
+        lower = np.maximum(np.where(np.isfinite(tangent), tangent, -np.inf), 0.5 * (fa + fb - w))
+        lower = np.where(lo_a >= 0.0, fa, np.where(hi_b <= 0.0, fb, lower))  # monotone
+        lower = np.minimum(lower, floor)
+        upper = np.minimum(fa, fb)
+        done = dips | (lower >= cap) | (upper - lower <= tol_mm) | (w <= 0.0) | (lo_a >= 0.0)
+        done |= (hi_b <= 0.0) | (it == CONVEX_MAX_ITER)  # the last: the bound so far
+        fin = done & ~dips
+        out[idx[fin]] = np.minimum(lower[fin], cap)
+        keep = ~done
+        if not keep.any():
+            break
+        idx, a, b, fa, sa, ea, fb, sb, eb, t_meet, w, floor = (
+            v[keep] for v in (idx, a, b, fa, sa, ea, fb, sb, eb, t_meet, w, floor)
+        )
+        # split near where the tangents meet, never nearer an end than a quarter
+        m = np.clip(t_meet, a + 0.25 * w, b - 0.25 * w)
+        fm, sm, em = sample(idx, m)
+        right = sm < 0.0  # falling at m: the minimum lies right of m, up to the slope error
+        # the part let go is bounded by m's tangent, its slope widened toward the part
+        floor = np.minimum(
+            floor,
+            np.where(
+                right,
+                fm - np.maximum(sm + em, 0.0) * (m - a),
+                fm + np.minimum(sm - em, 0.0) * (b - m),
+            ),
+        )
+        a = np.where(right, m, a)
+        b = np.where(right, b, m)
+        fa, sa, ea = (np.where(right, x, y) for x, y in ((fm, fa), (sm, sa), (em, ea)))
+        fb, sb, eb = (np.where(right, y, x) for x, y in ((fm, fb), (sm, sb), (em, eb)))
+    # a segment through the solid: no point of it lies deeper than the solid's depth
+    out[inside] = -float(field.max_depth_mm)
+    return out - err
+
+
+def obstacle_segment_bound(
+    field: DistanceField,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    cap_mm: float,
+    step_mm: float = NEAR_STEP_MM,
+) -> np.ndarray:
+    """Certified lower bound of one obstacle's distance along segments, in closed form
+    where the obstacle allows it.
+
+    - a :class:`~needlekit.anatomy.primitives.Capsule` (a placed needle's tube): exact,
+      the distance between the capsule's axis and each segment less its radius
+      (:func:`~needlekit.geometry.segments.segment_distances`);
+    - a :class:`~needlekit.anatomy.needle_body.NeedleBody`: its tube so, and its head
+      sphere-traced (:func:`segment_clearance_bound`) only along the segments that come
+      within the cap of the head's enclosing capsule (closed form); the others are
+      certified at the cap;
+    - any other field: :func:`segment_clearance_bound`.
+
+    Parameters
+    ----------
+    field : DistanceField
+    origins, directions : ndarray, shape (n, 3)
+        Segment starts and unit directions (world, mm).
+    lengths : ndarray, shape (n,)
+    cap_mm : float
+        Bounds above this are reported as this.
+    step_mm : float
+        Sphere-tracing step near the obstacle, where one is traced.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``min(cap, lower bound of the distance over the segment) - error_bound`` (the
+        closed forms state no error).
+    """
+    from needlekit.anatomy.needle_body import NeedleBody
+    from needlekit.anatomy.primitives import Capsule
+
+    o = np.asarray(origins, dtype=float).reshape(-1, 3)
+    u = np.asarray(directions, dtype=float).reshape(-1, 3)
+    L = np.asarray(lengths, dtype=float).reshape(-1)
+    if isinstance(field, Capsule):
+        return np.minimum(_capsule_segment_distance(field, o, u, L), float(cap_mm))
+    if isinstance(field, NeedleBody):
+        out = np.minimum(_capsule_segment_distance(field.tube, o, u, L), float(cap_mm))
+        if field.head_field is not None:
+            near = np.flatnonzero(_capsule_segment_distance(field.head_bound, o, u, L) < cap_mm)
+            if near.size:
+                head = convex_segment_bound(
+                    field.head_field, o[near], u[near], L[near], cap_mm=cap_mm
+                )
+                out[near] = np.minimum(out[near], head)
+        return out
+    return segment_clearance_bound(field, o, u, L, cap_mm=cap_mm, step_mm=step_mm)[0]
+
+
+def _capsule_segment_distance(capsule, o: np.ndarray, u: np.ndarray, L: np.ndarray):
+    """Exact signed distance from a capsule to each segment ``o + t u``, ``t in [0, L]``."""
+    p0, p1 = capsule.p0_mm, capsule.p1_mm
+    if capsule._posed:
+        p0 = capsule._rot @ p0 + capsule._trans
+        p1 = capsule._rot @ p1 + capsule._trans
+    return segment_distances(p0, p1, o, o + L[:, None] * u) - capsule.radius_mm
+
+
+def clearance_bound(
+    problem: StraightProblem,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    cap_mm: float,
+    step_mm: float = NEAR_STEP_MM,
+) -> np.ndarray:
+    """Certified lower bound of the distance from segments to every obstacle of a problem:
+    the anatomy's union sphere-traced at once, each extra obstacle (a placed needle) on its
+    own by :func:`obstacle_segment_bound`; the minimum of the parts.
+
+    Parameters
+    ----------
+    problem : StraightProblem
+    origins, directions : ndarray, shape (n, 3)
+    lengths : ndarray, shape (n,)
+    cap_mm, step_mm : float
+        As :func:`segment_clearance_bound`.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Distance of the segment's axis (the needle radius not subtracted).
+    """
+    o = np.asarray(origins, dtype=float).reshape(-1, 3)
+    u = np.asarray(directions, dtype=float).reshape(-1, 3)
+    L = np.asarray(lengths, dtype=float).reshape(-1)
+    anatomy = problem.anatomy_field()
+    if anatomy is None:
+        out = np.full(len(o), float(cap_mm))
+    else:
+        out, _ = segment_clearance_bound(anatomy, o, u, L, cap_mm=cap_mm, step_mm=step_mm)
+    for f in problem.extra_obstacles:
+        np.minimum(out, obstacle_segment_bound(f, o, u, L, cap_mm=cap_mm, step_mm=step_mm), out=out)
+    return out
+
+
 def entry_points(
     body: DistanceField, target_mm: np.ndarray, directions: np.ndarray, max_length_mm: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -158,6 +396,7 @@ def entry_points(
     u = np.asarray(directions, dtype=float).reshape(-1, 3)
     n = len(u)
     reach = float(max_length_mm) * 1.25 + 5.0
+    lip = body.lipschitz_bound
     err = float(body.error_bound_mm)
     t = np.zeros(n)
     lo = np.zeros(n)
@@ -168,7 +407,10 @@ def entry_points(
         out = d >= 0.0
         hi[active[out]] = t[active[out]]
         lo[active[~out]] = t[active[~out]]
-        step = np.maximum(-d - err, 0.05)
+        # no sign change of the field within |d| / L; without L, of the true surface
+        # within |d| - err
+        safe = -d / lip if lip is not None else -d - err
+        step = np.maximum(safe, ENTRY_MIN_STEP_MM)
         t[active] = t[active] + step
         keep = ~out & (t[active] <= reach)
         active = active[keep]
@@ -247,6 +489,48 @@ class CFRWMap:
         """
         return {b.name.lower(): int(np.count_nonzero(self.blocked == b)) for b in Blocked}
 
+    def with_obstacles(self, *fields: DistanceField, step_mm: float = NEAR_STEP_MM) -> CFRWMap:
+        """The CFRW once more obstacles are in place (the needles placed so far): the
+        intersection of this map's CFRW with the new obstacles' (issue 11, point 2).
+
+        Directions, entries, lengths and normal angles are this map's (the entry surface
+        is unchanged); each clearance is lowered to each new obstacle's certified bound
+        (:func:`obstacle_segment_bound`), and directions that lose gamma become blocked by
+        clearance. The result is the map :func:`cfrw_map` makes of
+        ``problem.with_obstacles(*fields)`` with the same step, number for number, without
+        searching the entries or tracing the anatomy again.
+
+        Parameters
+        ----------
+        *fields : DistanceField
+        step_mm : float
+            Sphere-tracing step near the new obstacles (as :func:`cfrw_map`'s).
+
+        Returns
+        -------
+        CFRWMap
+        """
+        from dataclasses import replace
+
+        pr = self.problem.with_obstacles(*fields)
+        clearance = self.clearance_mm.reshape(-1).copy()
+        check = np.flatnonzero(np.isfinite(clearance))
+        if check.size and fields:
+            cap = pr.clearance_needed_mm + CLEARANCE_CAP_ABOVE_GAMMA_MM
+            o = np.broadcast_to(pr.target_mm, (check.size, 3))
+            u = self.directions.reshape(-1, 3)[check]
+            L = self.length_mm.reshape(-1)[check]
+            for f in fields:
+                b = obstacle_segment_bound(f, o, u, L, cap_mm=cap, step_mm=step_mm)
+                np.minimum(clearance[check], b - pr.needle.radius_mm, out=b)
+                clearance[check] = b
+        blocked = self.blocked.reshape(-1).copy()
+        blocked[(blocked == Blocked.FREE) & ~(clearance >= pr.gamma_mm)] = Blocked.CLEARANCE
+        shape = self.blocked.shape
+        return replace(
+            self, problem=pr, clearance_mm=clearance.reshape(shape), blocked=blocked.reshape(shape)
+        )
+
     def clearance_of(
         self, theta_rad, phi_rad, *, step_mm: float = FINE_STEP_MM, cap_mm: float | None = None
     ) -> np.ndarray:
@@ -275,8 +559,8 @@ class CFRWMap:
         ok = np.isfinite(length)
         if ok.any():
             cap = pr.gamma_mm + CLEARANCE_CAP_ABOVE_GAMMA_MM if cap_mm is None else cap_mm
-            b, _ = segment_clearance_bound(
-                pr.obstacle_field(),
+            b = clearance_bound(
+                pr,
                 np.broadcast_to(pr.target_mm, (int(ok.sum()), 3)),
                 u[ok],
                 length[ok],
@@ -542,8 +826,8 @@ def cfrw_map(
     check &= (blocked == 0) | (blocked == Blocked.NORMAL_ANGLE)
     if check.any():
         cap = problem.clearance_needed_mm + CLEARANCE_CAP_ABOVE_GAMMA_MM
-        b, _ = segment_clearance_bound(
-            problem.obstacle_field(),
+        b = clearance_bound(
+            problem,
             np.broadcast_to(problem.target_mm, (int(check.sum()), 3)),
             flat[check],
             length[check],

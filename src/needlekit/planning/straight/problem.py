@@ -251,6 +251,17 @@ class StraightProblem:
         parts = [s.field for s in self.scene.by_role(Role.OBSTACLE)]
         return union(*parts, *self.extra_obstacles)
 
+    def anatomy_field(self) -> DistanceField | None:
+        """The union of the scene's obstacles alone (None when it has none: every obstacle
+        is an extra one).
+
+        Returns
+        -------
+        DistanceField or None
+        """
+        parts = [s.field for s in self.scene.by_role(Role.OBSTACLE)]
+        return union(*parts) if parts else None
+
     def with_target(self, target_mm) -> StraightProblem:
         """The same problem for another target.
 

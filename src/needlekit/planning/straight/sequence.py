@@ -27,6 +27,7 @@ from needlekit.planning.straight.cfrw import (
     Blocked,
     CFRWMap,
     cfrw_map,
+    obstacle_segment_bound,
     segment_clearance_bound,
 )
 from needlekit.planning.straight.entry import Entry, Objective, best_on_map
@@ -149,15 +150,25 @@ def _rigid_rank(
 ):
     """(needles placed, total length) of an order on the rigid maps, the placed tubes
     tested in closed form. ``memo`` (a dict) keeps each prefix's outcome, so orders that
-    share a prefix share its work (k! orders have far fewer distinct prefixes)."""
+    share a prefix share its work (k! orders have far fewer distinct prefixes), and the
+    directions each placed trajectory blocks in each map (a trajectory recurs in many
+    prefixes)."""
     memo = {} if memo is None else memo
     placed: tuple = ()
     total = 0.0
     for n in range(1, len(order) + 1):
         key = tuple(order[:n])
         if key not in memo:
-            m = maps[order[n - 1]]
-            e = best_on_map(_masked(m, _clear_of_placed(m, placed, radius, gamma)), objective)
+            j = order[n - 1]
+            m = maps[j]
+            ok = m.feasible.copy()
+            for tip, entry in placed:
+                # one placed trajectory blocks the same directions of map j in every order
+                pair = (j, tip.tobytes(), entry.tobytes())
+                if pair not in memo:
+                    memo[pair] = _clear_of_placed(m, ((tip, entry),), radius, gamma)
+                ok &= memo[pair]
+            e = best_on_map(_masked(m, ok), objective)
             memo[key] = (
                 None if e is None else (placed + ((e.target_mm, e.entry_mm),), total + e.length_mm)
             )
@@ -285,26 +296,26 @@ def plan_needles(
         target = targets[j].copy()
         if deformation is not None and placed:
             target = target + np.asarray(deformation.displacement(target[None], placed))[0]
-        pr = problem.with_target(target).with_obstacles(*bodies)
-        # the anatomy alone, to report the clearance to it apart from the needles'
-        if maps is not None and not bodies and np.array_equal(target, targets[j]):
-            m = maps[j]  # nothing placed or moved yet: the ranking's map is this one
+        if maps is not None and np.array_equal(target, targets[j]):
+            base = maps[j]  # the target did not move: the ranking's map of the anatomy
         else:
-            m = cfrw_map(pr, resolution_deg=resolution_deg)
+            base = cfrw_map(problem.with_target(target), resolution_deg=resolution_deg)
+        # the anatomy's map less what the placed needles block (CFRWMap.with_obstacles)
+        m = base.with_obstacles(*bodies)
         kept.append(m)
         e = best_on_map(m, obj)
         needle_clear = np.inf
         if e is not None and bodies:
-            from needlekit.anatomy.fields import union
-
-            b, _ = segment_clearance_bound(
-                union(*bodies),
-                e.target_mm[None],
-                ((e.entry_mm - e.target_mm) / e.length_mm)[None],
-                np.array([e.length_mm]),
-                cap_mm=radius + gamma + 10.0,
-            )
-            needle_clear = float(b[0]) - radius
+            u = ((e.entry_mm - e.target_mm) / e.length_mm)[None]
+            needle_clear = min(
+                float(
+                    obstacle_segment_bound(
+                        b, e.target_mm[None], u, np.array([e.length_mm]),
+                        cap_mm=radius + gamma + 10.0,
+                    )[0]
+                )
+                for b in bodies
+            ) - radius  # fmt: skip
             anatomy = problem.with_target(target)
             e = Entry(
                 e.entry_mm,
