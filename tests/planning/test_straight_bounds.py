@@ -10,6 +10,7 @@ from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.anatomy.voxel import VoxelSDF
 from needlekit.planning.straight.cfrw import (
     CONVEX_TOL_MM,
+    Blocked,
     cfrw_map,
     convex_segment_bound,
     entry_points,
@@ -121,9 +122,19 @@ def test_map_with_placed_needles_is_the_map_of_the_problem_with_them():
         assert np.array_equal(getattr(added, name), getattr(direct, name), equal_nan=True), name
     assert np.array_equal(added.blocked, direct.blocked)
     assert added.problem.extra_obstacles == bodies
-    # the placed needles only take directions away
+    # the placed needles only take directions away, and those are told apart
     assert np.all(added.feasible <= base.feasible)
-    assert added.feasible.sum() < base.feasible.sum()
+    taken = base.feasible & ~added.feasible
+    assert taken.any()
+    assert np.all(added.blocked[taken] == Blocked.PLACED_NEEDLE)
+    assert np.array_equal(added.blocked[~taken], base.blocked[~taken])
+    c = added.counts()
+    assert c["placed_needle"] == int(taken.sum())
+    words = added.blocking_summary()
+    within = added.blocked.size - c["angle_limit"]
+    assert words.startswith(f"of {within} directions within the angle limits")
+    assert f"{c['placed_needle']} closer than gamma to a needle placed before" in words
+    assert f"{c['clearance']} closer than gamma to the anatomy" in words
 
 
 def _slab_mask(gap_voxels):
@@ -157,3 +168,4 @@ def test_entry_march_stops_at_the_first_crossing_of_a_voxel_surface():
         )
         assert float(sdf.signed_distance(entry[0])) == pytest.approx(0.0, abs=1e-3)
         assert entry[0, 0] == pytest.approx(9.5, abs=0.1)  # not the far end at x = 37.5
+        assert length[0] == pytest.approx(entry[0, 0] - start)

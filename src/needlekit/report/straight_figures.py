@@ -35,14 +35,15 @@ _THETA, _PHI = "\N{GREEK SMALL LETTER THETA}", "\N{GREEK SMALL LETTER PHI}"
 _GAMMA = "\N{GREEK SMALL LETTER GAMMA}"
 _INK, _FILL = "#222222", "rgba(0, 158, 115, 0.28)"
 #: Colour of each blocking reason (index: the :class:`Blocked` code).
-_REASON_COLOURS = ("#009E73", "#c7c7c7", "#7f7f7f", "#E69F00", "#CC79A7", "#D55E00")
+_REASON_COLOURS = ("#009E73", "#c7c7c7", "#7f7f7f", "#E69F00", "#CC79A7", "#D55E00", "#0072B2")
 _REASON_LABELS = (
     "in the CFRW",
     "outside the angle limits",
     "no entry within reach",
     "too long",
     "too oblique to the surface",
-    f"closer than {_GAMMA} to an obstacle",
+    f"closer than {_GAMMA} to the anatomy",
+    f"closer than {_GAMMA} to a placed needle",
 )
 
 

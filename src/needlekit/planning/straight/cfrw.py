@@ -50,7 +50,7 @@ closed boundary polylines, holes included (:func:`inside_polylines`).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -104,7 +104,18 @@ class Blocked(enum.IntEnum):
     NO_ENTRY = 2  # the ray does not leave the body within the needle's length
     TOO_LONG = 3
     NORMAL_ANGLE = 4  # too oblique to the entry surface
-    CLEARANCE = 5  # closer than gamma to an obstacle
+    CLEARANCE = 5  # closer than gamma to the anatomy (a vessel, a scene obstacle)
+    PLACED_NEEDLE = 6  # clear of the anatomy, closer than gamma to a needle placed before
+
+
+#: Each reason a direction within the angle limits is blocked, in words.
+_BLOCKED_WORDS = {
+    Blocked.NO_ENTRY: "without an entry within reach",
+    Blocked.TOO_LONG: "too long",
+    Blocked.NORMAL_ANGLE: "too oblique to the entry surface",
+    Blocked.CLEARANCE: "closer than gamma to the anatomy",
+    Blocked.PLACED_NEEDLE: "closer than gamma to a needle placed before",
+}
 
 
 def segment_clearance_bound(
@@ -489,6 +500,29 @@ class CFRWMap:
         """
         return {b.name.lower(): int(np.count_nonzero(self.blocked == b)) for b in Blocked}
 
+    def blocking_summary(self) -> str:
+        """What keeps the directions within the angle limits out of the CFRW, in words.
+
+        Returns
+        -------
+        str
+            e.g. ``"of 16560 directions within the angle limits (of 32760), 444 free,
+            16116 closer than gamma to the anatomy; most blocked: closer than gamma to the
+            anatomy"``.
+        """
+        c = self.counts()
+        n = int(self.blocked.size)
+        within = n - c["angle_limit"]
+        if within == 0:
+            return f"all {n} directions lie outside the angle limits"
+        parts = [f"{c['free']} free"] + [
+            f"{c[b.name.lower()]} {_BLOCKED_WORDS[b]}" for b in _BLOCKED_WORDS if c[b.name.lower()]
+        ]
+        head = f"of {within} directions within the angle limits (of {n}), " + ", ".join(parts)
+        blocked = [(c[b.name.lower()], -int(b), b) for b in _BLOCKED_WORDS]
+        count, _, most = max(blocked)
+        return head + (f"; most blocked: {_BLOCKED_WORDS[most]}" if count else "")
+
     def with_obstacles(self, *fields: DistanceField, step_mm: float = NEAR_STEP_MM) -> CFRWMap:
         """The CFRW once more obstacles are in place (the needles placed so far): the
         intersection of this map's CFRW with the new obstacles' (issue 11, point 2).
@@ -510,9 +544,10 @@ class CFRWMap:
         -------
         CFRWMap
         """
-        from dataclasses import replace
+        return self._lowered(self.problem.with_obstacles(*fields), fields, step_mm)
 
-        pr = self.problem.with_obstacles(*fields)
+    def _lowered(self, pr: StraightProblem, fields, step_mm: float) -> CFRWMap:
+        """This map for the problem ``pr``, its clearances lowered to ``fields``'."""
         clearance = self.clearance_mm.reshape(-1).copy()
         check = np.flatnonzero(np.isfinite(clearance))
         if check.size and fields:
@@ -525,7 +560,7 @@ class CFRWMap:
                 np.minimum(clearance[check], b - pr.needle.radius_mm, out=b)
                 clearance[check] = b
         blocked = self.blocked.reshape(-1).copy()
-        blocked[(blocked == Blocked.FREE) & ~(clearance >= pr.gamma_mm)] = Blocked.CLEARANCE
+        blocked[(blocked == Blocked.FREE) & ~(clearance >= pr.gamma_mm)] = Blocked.PLACED_NEEDLE
         shape = self.blocked.shape
         return replace(
             self, problem=pr, clearance_mm=clearance.reshape(shape), blocked=blocked.reshape(shape)
@@ -577,7 +612,7 @@ class CFRWMap:
         margin = self.margin_mm
         free = self.feasible
         level[free] = np.maximum(margin[free], 1e-9)
-        by_clearance = self.blocked == Blocked.CLEARANCE
+        by_clearance = (self.blocked == Blocked.CLEARANCE) | (self.blocked == Blocked.PLACED_NEEDLE)
         level[by_clearance] = np.minimum(margin[by_clearance], -1e-9)
         return level
 
@@ -826,19 +861,22 @@ def cfrw_map(
     check &= (blocked == 0) | (blocked == Blocked.NORMAL_ANGLE)
     if check.any():
         cap = problem.clearance_needed_mm + CLEARANCE_CAP_ABOVE_GAMMA_MM
-        b = clearance_bound(
-            problem,
-            np.broadcast_to(problem.target_mm, (int(check.sum()), 3)),
-            flat[check],
-            length[check],
-            cap_mm=cap,
-            step_mm=step_mm,
-        )
+        anatomy = problem.anatomy_field()
+        b = np.full(int(check.sum()), cap)
+        if anatomy is not None:
+            b, _ = segment_clearance_bound(
+                anatomy,
+                np.broadcast_to(problem.target_mm, (int(check.sum()), 3)),
+                flat[check],
+                length[check],
+                cap_mm=cap,
+                step_mm=step_mm,
+            )
         clearance[check] = b - problem.needle.radius_mm
     blocked[(blocked == 0) & ~(clearance >= problem.gamma_mm)] = Blocked.CLEARANCE
     shape = (m, k)
-    return CFRWMap(
-        problem,
+    anatomy_map = CFRWMap(
+        problem,  # its clearance, for now, the anatomy's alone
         theta,
         phi,
         u,
@@ -848,6 +886,8 @@ def cfrw_map(
         normal_angle.reshape(shape),
         blocked.reshape(shape),
     )
+    # the placed needles after the anatomy, so that what they block is told apart
+    return anatomy_map._lowered(problem, problem.extra_obstacles, step_mm)
 
 
 def inside_polylines(points_xy, polylines) -> np.ndarray:

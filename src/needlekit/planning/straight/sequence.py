@@ -197,7 +197,7 @@ def _clear_of_placed(m: CFRWMap, placed, radius: float, gamma: float) -> np.ndar
 def _masked(m: CFRWMap, ok: np.ndarray) -> CFRWMap:
     from dataclasses import replace
 
-    blocked = np.where(ok | (m.blocked != Blocked.FREE), m.blocked, Blocked.CLEARANCE)
+    blocked = np.where(ok | (m.blocked != Blocked.FREE), m.blocked, Blocked.PLACED_NEEDLE)
     return replace(m, blocked=blocked)
 
 
@@ -331,14 +331,8 @@ def plan_needles(
             NeedleRecord(rank, j, targets[j].copy(), target, e, needle_clear, m.counts())
         )
         if e is None:
-            c = m.counts()
-            worst = max((v, name) for name, v in c.items() if name != "free")
             reason = (
-                f"needle {rank} (target {j}): no trajectory in its CFRW; of "
-                f"{m.blocked.size} directions, {c.get('clearance', 0)} come closer than gamma "
-                f"to an obstacle, {c.get('too_long', 0)} are too long, "
-                f"{c.get('normal_angle', 0)} too oblique, {c.get('angle_limit', 0)} outside "
-                f"the angle limits, {c.get('no_entry', 0)} without an entry (most: {worst[1]})"
+                f"needle {rank} (target {j}): no trajectory in its CFRW; {m.blocking_summary()}"
             )
             break
         placed.append(_Placed(e.target_mm, e.entry_mm, radius))
