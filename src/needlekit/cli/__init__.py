@@ -26,7 +26,12 @@ from needlekit.errors import NeedlekitError
 __all__ = ["main"]
 
 #: Commands with sub-commands, and the attribute that holds the sub-command.
-_GROUPS = {"kinematics": "kin_command", "scene": "scene_command", "bench": "bench_command"}
+_GROUPS = {
+    "kinematics": "kin_command",
+    "scene": "scene_command",
+    "study": "study_command",
+    "bench": "bench_command",
+}
 
 #: What runs each command: ``module:function(args) -> exit status``, imported only then.
 _HANDLERS = {
@@ -43,6 +48,7 @@ _HANDLERS = {
     "multi": "needlekit.cli.straight:_cmd_multi",
     "puncture": "needlekit.cli.puncture:_cmd_puncture",
     "demo": "needlekit.cli.demo:_cmd_demo",
+    "study livers": "needlekit.cli.study:_cmd_study_livers",
     "bench kinematics": "needlekit.cli.bench:_cmd_bench",
     "bench fields": "needlekit.cli.bench:_cmd_bench",
     "bench control": "needlekit.cli.bench:_cmd_bench",

@@ -378,6 +378,35 @@ def _build_parser() -> argparse.ArgumentParser:
         help="output folder (default out/demo)",
     )
 
+    study = sub.add_parser("study", help="studies over many real cases, one table each")
+    study_sub = study.add_subparsers(dest="study_command", metavar="STUDY", parser_class=_Parser)
+    sl = study_sub.add_parser(
+        "livers",
+        help="every Med-RAD liver nodule ablated by straight needles (issue 11)",
+        description="For each Med-RAD liver, each start pose and its nodule, and each gamma: "
+        "targets chosen to cover the nodule plus margin, trajectories planned as `needlekit "
+        "multi` plans examples/medrad_liver4.yaml, every planned needle re-checked; what "
+        "blocks a case that is not covered is said.",
+    )
+    add_output(sl, "--out", default="livers.json", help="study record (default livers.json)")
+    sl.add_argument("--livers", type=_positive_int, nargs="+", help="patients (default every one)")
+    sl.add_argument(
+        "--gamma",
+        type=_non_negative,
+        nargs="+",
+        default=[1.5, 3.0],
+        metavar="MM",
+        help="safety distances (default 1.5 3)",
+    )
+    sl.add_argument("--resolution-deg", type=_positive, help="CFRW grid step (default 1)")
+    add_input(
+        sl,
+        "--medrad",
+        folder=True,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
+    _cache_options(sl)
+
     bench = sub.add_parser(
         "bench", help="benchmarks that record machine, versions, inputs and figures"
     )

@@ -118,10 +118,13 @@ def _cmd_multi(args: argparse.Namespace) -> int:
     status = "solved" if plan.solved else f"not solved: {plan.reason}"
     print(f"{args.planner}: {status} ({plan.orders_tried} orders tried) -> {args.out}")
     if coverage is not None:
+        from needlekit.planning.straight.coverage import fraction_text
+
         rep = coverage.planned or coverage.chosen.report
         print(
-            f"coverage: {rep.coverage:.4f} of tumour + margin ({rep.region_volume_ml:.1f} mL), "
-            f"tumour {rep.tumour_coverage:.4f}, {rep.needles} needles, healthy ablated "
+            f"coverage: {fraction_text(rep.coverage)} of tumour + margin "
+            f"({rep.region_volume_ml:.1f} mL), tumour {fraction_text(rep.tumour_coverage)}, "
+            f"{rep.needles} needles, healthy ablated "
             f"{rep.healthy_ablated_ml:.1f} mL"
             + ("" if coverage.ok else f"; not covered: {coverage.reason}")
         )

@@ -29,6 +29,7 @@ from needlekit.planning.straight.coverage import (
     TargetRegion,
     choose_targets,
     evaluate_coverage,
+    fraction_text,
 )
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.planning.straight.sequence import MultiNeedlePlan
@@ -255,7 +256,8 @@ class AblationOutcome:
         goal = chosen.coverage_goal
         if chosen.status is not CoverageStatus.COVERED:
             reason = (
-                f"coverage: {max_needles} needles reach {chosen.report.coverage:.4f} of the "
+                f"coverage: {max_needles} needles reach {fraction_text(chosen.report.coverage)} "
+                "of the "
                 f"tumour plus margin, goal {goal:g} (reachable targets only; lower bound "
                 f"{chosen.needles_lower_bound} needles)"
             )
@@ -269,7 +271,9 @@ class AblationOutcome:
                 chosen,
                 planned,
                 False,
-                f"coverage: {planned.coverage:.4f} with the planned directions, goal {goal:g}",
+                f"coverage: {fraction_text(planned.coverage)} with the planned directions "
+                f"({planned.uncovered_ml * 1000:.1f} uL of tumour plus margin uncovered), "
+                f"goal {goal:g}",
             )
         return cls(chosen, planned, True, "")
 

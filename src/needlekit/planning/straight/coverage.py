@@ -60,6 +60,7 @@ __all__ = [
     "TargetRegion",
     "choose_targets",
     "evaluate_coverage",
+    "fraction_text",
     "target_region",
 ]
 
@@ -940,3 +941,25 @@ def choose_targets(
         greedy_needles=greedy_needles,
         needles_lower_bound=math.ceil(goal / biggest) if biggest else 0,
     )
+
+
+def fraction_text(value: float, digits: int = 4) -> str:
+    """A coverage fraction rounded down, so that short of 1 never reads as 1.
+
+    Parameters
+    ----------
+    value : float
+        In [0, 1].
+    digits : int
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> fraction_text(0.99997), fraction_text(1.0), fraction_text(0.43166)
+    ('0.9999', '1.0000', '0.4316')
+    """
+    scale = 10**digits
+    return f"{math.floor(value * scale + 1e-9) / scale:.{digits}f}"
