@@ -3,6 +3,9 @@ S(u, v) and exact signed distance."""
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
@@ -11,19 +14,50 @@ from needlekit.anatomy.fields import DistanceField
 # the skin: an elliptic cylinder with its parametric surface S(u, v)
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _ellipse_root_kernel(r0, z0, z1, g, iterations, out):  # pragma: no cover - compiled
+    for k in range(z0.shape[0]):
+        n0 = r0 * z0[k]
+        lo = z1[k] - 1.0  # F(lo) >= 0
+        hi = 0.0 if g[k] < 0.0 else math.hypot(n0, z1[k]) - 1.0  # F(hi) <= 0
+        # F(s) = (n0 / (s + r0))^2 + (z1 / (s + 1))^2 - 1 is convex and decreasing for
+        # s > -1, so Newton's steps from lo stay below the root and rise to it; a step
+        # that fails to rise (rounding) ends the search, a bisection step keeps the
+        # bracket when one would leave it
+        s = lo
+        for _ in range(iterations):
+            a = n0 / (s + r0)
+            b = z1[k] / (s + 1.0)
+            f = a * a + b * b - 1.0
+            if f <= 0.0:
+                hi = s
+                break
+            lo = s
+            df = -2.0 * (a * a / (s + r0) + b * b / (s + 1.0))
+            nxt = s - f / df
+            if not nxt < hi:
+                nxt = 0.5 * (s + hi)
+            if not nxt > s:
+                break
+            s = nxt
+        out[k] = s
+
+
 def _ellipse_root(r0, z0, z1, g, iterations: int = 160):
-    """Eberly's bisection for the root ``s`` of ``(r0 z0 / (s + r0))^2 + (z1 / (s + 1))^2
-    = 1`` (vectorised; 160 halvings reach double precision from any start bracket)."""
-    n0 = r0 * z0
-    s0 = z1 - 1.0
-    s1 = np.where(g < 0.0, 0.0, np.hypot(n0, z1) - 1.0)
-    s = 0.5 * (s0 + s1)
-    for _ in range(iterations):
-        s = 0.5 * (s0 + s1)
-        val = (n0 / (s + r0)) ** 2 + (z1 / (s + 1.0)) ** 2 - 1.0
-        s0 = np.where(val > 0.0, s, s0)
-        s1 = np.where(val < 0.0, s, s1)
-    return s
+    """The root ``s`` of ``(r0 z0 / (s + r0))^2 + (z1 / (s + 1))^2 = 1`` on Eberly's
+    bracket, by Newton's method from its left end (a numba loop per point; the function
+    is convex and decreasing there, so the steps rise monotonically to the root, to
+    rounding)."""
+    out = np.empty(len(z0))
+    _ellipse_root_kernel(
+        float(r0),
+        np.ascontiguousarray(z0, dtype=np.float64),
+        np.ascontiguousarray(z1, dtype=np.float64),
+        np.ascontiguousarray(g, dtype=np.float64),
+        int(iterations),
+        out,
+    )
+    return out
 
 
 def ellipse_signed_distance(x, y, a: float, b: float) -> np.ndarray:
