@@ -80,10 +80,16 @@ def test_voxelise_counts_a_ball():
 def test_multi_chooses_plans_and_rechecks_the_coverage(tmp_path, capsys):
     path = _write(tmp_path, SCENARIO)
     out = tmp_path / "multi.json"
-    assert main(["multi", str(path), "--out", str(out)]) == 0
+    report = tmp_path / "multi.html"
+    assert main(["multi", str(path), "--out", str(out), "--report", str(report)]) == 0
     assert "coverage: 1.0000" in capsys.readouterr().out
     rec = json.loads(out.read_text())
     c = rec["coverage"]
+    # the report shows the coverage table and draws one ablation zone per needle
+    html = report.read_text()
+    assert "Ablation coverage" in html and "healthy tissue ablated (mL)" in html
+    assert "ellipsoid 30 x 24 mm along the needle" in html
+    assert html.count('"legendgroup":"zones"') == len(rec["needles"])
     assert rec["status"] == "solved" and c["status"] == "covered" and c["reason"] == ""
     assert c["coverage"] == 1.0 and c["needles"] == len(rec["needles"]) <= 4
     assert c["zone"] == {"kind": "ellipsoid", "length_mm": 30.0, "diameter_mm": 24.0,

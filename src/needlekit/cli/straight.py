@@ -93,6 +93,8 @@ def _cmd_multi(args: argparse.Namespace) -> int:
                 plan=plan,
                 maps=list(plan.maps),
                 scene=multi.problem.scene,
+                zones=None if coverage is None else coverage.chosen.zone,
+                coverage=coverage,
                 title=f"Straight multi-needle plan: {args.scenario}",
             )
         if args.markups is not None and plan.solved:

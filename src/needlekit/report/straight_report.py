@@ -367,8 +367,42 @@ def _check_maps(plan: MultiNeedlePlan, maps) -> list:
     return [None if m is None else _check_map(m, f"maps[{i}]") for i, m in enumerate(maps)]
 
 
+def _coverage_section(outcome) -> TableSection:
+    """The ablation coverage of the plan, as measured along the planned needles."""
+    from needlekit.planning.straight.coverage import fraction_text
+
+    rep = outcome.planned or outcome.chosen.report
+    z = outcome.chosen.zone
+    zone = (
+        f"sphere of {z.diameter_mm:g} mm"
+        if z.kind == "sphere"
+        else f"ellipsoid {z.length_mm:g} x {z.diameter_mm:g} mm along the needle"
+    )
+    rows = [
+        {"quantity": "status", "value": "covered" if outcome.ok else "not covered"},
+        {"quantity": "tumour plus margin covered", "value": fraction_text(rep.coverage)},
+        {"quantity": "tumour covered", "value": fraction_text(rep.tumour_coverage)},
+        {"quantity": "needles", "value": str(rep.needles)},
+        {"quantity": "tumour (mL)", "value": f"{rep.tumour_volume_ml:.1f}"},
+        {"quantity": "tumour plus margin (mL)", "value": f"{rep.region_volume_ml:.1f}"},
+        {"quantity": "healthy tissue ablated (mL)", "value": f"{rep.healthy_ablated_ml:.1f}"},
+        {"quantity": "zone", "value": zone},
+        {"quantity": "goal", "value": f"{outcome.chosen.coverage_goal:g}"},
+    ]
+    if outcome.reason:
+        rows.append({"quantity": "why not covered", "value": outcome.reason})
+    return TableSection(
+        "Ablation coverage",
+        rows,
+        "Fractions of the tumour-plus-margin voxels inside some ablation zone, each zone along "
+        "its planned needle (rounded down); healthy tissue ablated: zone volume outside the "
+        "tumour.",
+    )
+
+
 def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
-                      heights_mm=LIU_HEIGHTS_MM, head=None, max_cells: int = 80) -> list:  # fmt: skip
+                      heights_mm=LIU_HEIGHTS_MM, head=None, max_cells: int = 80,
+                      coverage=None) -> list:  # fmt: skip
     """The report's sections, in page order (for :func:`write_report_html`).
 
     Parameters
@@ -386,6 +420,9 @@ def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
         As :func:`scene_figure`.
     max_cells : int
         Resolution of the anatomy's surfaces.
+    coverage : AblationOutcome, optional
+        The ablation coverage of a plan whose targets were chosen for it (a table of it
+        follows the summary).
 
     Returns
     -------
@@ -418,11 +455,15 @@ def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
         TableSection(
             "Directions of each CFRW map by blocking reason",
             blocking_table(plan),
-            "free: in the CFRW; clearance: closer than gamma to the anatomy or a placed "
-            "needle; too_long, normal_angle, angle_limit, no_entry: the needle's length, "
-            "the angle to the surface normal, Eq. 2's angle box, no entry point.",
+            "free: in the CFRW; clearance: closer than gamma to the anatomy; "
+            "placed_needle: clear of the anatomy, closer than gamma to a needle placed "
+            "before; too_long, normal_angle, angle_limit, no_entry: the needle's length, "
+            "the angle to the surface normal, Eq. 2's angle box (and approach cone), no "
+            "entry point.",
         ),
     ]
+    if coverage is not None:
+        sections.insert(1, _coverage_section(coverage))
     hs = _heights(heights_mm)
     for r, m in zip(plan.needles, maps, strict=True):
         if m is None:
@@ -471,6 +512,7 @@ def write_straight_report(
     heights_mm=LIU_HEIGHTS_MM,
     head=None,
     max_cells: int = 80,
+    coverage=None,
 ) -> Path:
     """Write a multi-needle plan's report as one self-contained HTML page, atomically.
 
@@ -491,6 +533,8 @@ def write_straight_report(
     heights_mm : sequence of float
     head : NeedleHead, optional
     max_cells : int
+    coverage : AblationOutcome, optional
+        As :func:`straight_sections`.
 
     Returns
     -------
@@ -498,6 +542,7 @@ def write_straight_report(
         The destination.
     """
     sections = straight_sections(
-        plan, maps, scene, zones=zones, heights_mm=heights_mm, head=head, max_cells=max_cells
-    )
+        plan, maps, scene, zones=zones, heights_mm=heights_mm, head=head, max_cells=max_cells,
+        coverage=coverage,
+    )  # fmt: skip
     return write_report_html(path, title=title, sections=sections)
