@@ -19,7 +19,8 @@ __all__ = ["warm_up_kernels"]
 
 def warm_up_kernels() -> float:
     """Plan once with every steerable planner on two tiny problems (the ``field`` model
-    over analytic shapes and a voxel grid, and the ``voxel_centres`` model).
+    over analytic shapes and a voxel grid, and the ``voxel_centres`` model), and two
+    straight needles.
 
     Returns
     -------
@@ -65,7 +66,30 @@ def warm_up_kernels() -> float:
     for problem in problems:
         for planner in ("rcs_star", "rcs", "rrt"):
             solve(problem, planner, time_limit_s=60.0, max_iterations=20)
+    _warm_up_straight(scene["vessel"].field)
     return time.perf_counter() - t0
+
+
+def _warm_up_straight(vessel) -> None:
+    """Two straight needles through the phantom's elliptic skin past a voxel vessel and a
+    superquadric (the ellipse root, the superquadric projection, the trilinear kernels)."""
+    from needlekit.anatomy.phantoms._skin import EllipticCylinderSkin
+    from needlekit.anatomy.primitives import Superquadric
+    from needlekit.anatomy.scene import Role, Scene, Structure
+    from needlekit.planning.straight.problem import StraightProblem
+    from needlekit.planning.straight.sequence import plan_needles
+
+    pose = np.eye(4)
+    pose[:3, 3] = [0.0, 0.0, 30.0]
+    scene = Scene(
+        [
+            Structure("skin", Role.ENTRY_SURFACE, EllipticCylinderSkin([0, 0], [60, 45], [0, 6.3], [-60, 60])),
+            Structure("vessel", Role.OBSTACLE, vessel),
+            Structure("duct", Role.OBSTACLE, Superquadric([20.0, 3.0, 3.0], [8.0, 2.0, 2.0], pose)),
+        ]
+    )  # fmt: skip
+    problem = StraightProblem(scene, [0.0, 0.0, 0.0], "skin", up=[0.0, 1.0, 0.0])
+    plan_needles(problem, [[0.0, 0.0, 0.0], [0.0, 0.0, 8.0]], resolution_deg=10.0)
 
 
 if __name__ == "__main__":  # pragma: no cover - run by make install
