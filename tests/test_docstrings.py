@@ -67,7 +67,11 @@ MODULES = [
     "needlekit.planning.interface",
     "needlekit.planning.result",
     "needlekit.geometry.segments",
+    "needlekit.geometry.segment_mesh",
     "needlekit.anatomy.voxel_clearance",
+    "needlekit.planning.straight.approach",
+    "needlekit.report.approach_report",
+    "needlekit.studies.liver_study",
 ]
 
 

@@ -84,9 +84,45 @@ FILE_OUTPUTS = [
     (["cfrw", MULTI], "--out"),
     (["multi", MULTI], "--out"),
     (["multi", MULTI], "--report"),
+    (["approach", MULTI], "--out"),
+    (["approach", MULTI], "--report"),
+    (["markups", TOY], "--out"),  # any existing file passes the input check
+    (["study", "livers"], "--out"),
+    (["bench", "approach"], "--out"),
 ]
 #: Every output folder flag, and the files the command writes in it.
 FOLDER_OUTPUTS = [(["puncture"], "--out", PUNCTURE_FILES), (["demo"], "--out", DEMO_FILES)]
+
+#: Output flags the two tests above leave out, and why.
+NOT_LISTED = {
+    ("multi", "--markups"): "a folder of files named after the needles planned: the folder "
+    "checks without a fixed file (read-only, a file) are the same code as puncture's",
+}
+
+
+def test_every_output_flag_is_tested():
+    import argparse
+
+    from needlekit.cli._parser import _build_parser
+    from needlekit.cli._paths import _SPECS
+
+    def walk(p, path=()):
+        for spec in p.get_default(_SPECS) or ():
+            if spec.output:
+                yield (*path, spec.name)
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    yield from walk(sub, (*path, name))
+
+    def command(argv):
+        return tuple(a for a in argv if not a.endswith(".yaml"))
+
+    listed = {(*command(a), f) for a, f in FILE_OUTPUTS}
+    listed |= {(*command(a), f) for a, f, _ in FOLDER_OUTPUTS}
+    listed |= set(NOT_LISTED)
+    assert set(walk(_build_parser())) == listed
+
 
 #: Ways an output file cannot be written: the path, and the reason printed.
 FILE_FAILURES = {

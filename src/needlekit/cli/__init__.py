@@ -46,6 +46,7 @@ _HANDLERS = {
     "markups": "needlekit.cli.markups:_cmd_markups",
     "cfrw": "needlekit.cli.straight:_cmd_cfrw",
     "multi": "needlekit.cli.straight:_cmd_multi",
+    "approach": "needlekit.cli.straight:_cmd_approach",
     "puncture": "needlekit.cli.puncture:_cmd_puncture",
     "demo": "needlekit.cli.demo:_cmd_demo",
     "study livers": "needlekit.cli.study:_cmd_study_livers",
@@ -54,6 +55,7 @@ _HANDLERS = {
     "bench control": "needlekit.cli.bench:_cmd_bench",
     "bench steerable": "needlekit.cli.bench:_cmd_bench",
     "bench straight": "needlekit.cli.bench:_cmd_bench",
+    "bench approach": "needlekit.cli.bench:_cmd_bench",
 }
 
 

@@ -310,6 +310,28 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     _cache_options(mu)
 
+    ap = sub.add_parser(
+        "approach",
+        help="which skin triangles a straight needle can come from (Slicer's "
+        "PercutaneousApproachAnalysis, exactly, and with needlekit's criteria)",
+        description="For one target, every triangle of the entry surface's mesh: the line to "
+        "the target against the obstacles' meshes (PAA's test, exact), and the needle's "
+        "certified clearance, inside-the-body, length and angle limits (needlekit's); the "
+        "accessible area fractions and shortest lines. Exit 1 when no triangle is accessible.",
+    )
+    add_input(ap, "scenario", help="scenario file with a straight block (YAML)")
+    add_output(ap, "--out", default="approach.json", help="analysis (default approach.json)")
+    add_output(ap, "--report", help="also write a self-contained HTML view of the skin map")
+    ap.add_argument("--target", type=_positive_int, default=1, help="which target (default 1)")
+    ap.add_argument(
+        "--max-cells",
+        type=_positive_int,
+        default=200,
+        help="marching-cubes samples per axis for structures without a mesh file (default 200)",
+    )
+    ap.add_argument("--summary-only", action="store_true", help="leave the per-triangle arrays out")
+    _cache_options(ap)
+
     mk = sub.add_parser(
         "markups",
         help="export a plan's tip path as a 3D Slicer Markups curve (.mrk.json, LPS)",
@@ -497,6 +519,21 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     add_input(
         bs,
+        "--medrad",
+        folder=True,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
+    ba = bench_sub.add_parser(
+        "approach",
+        help="approach analysis on Med-RAD liver 4 beside Slicer's PercutaneousApproachAnalysis "
+        "(its VTK procedure, when vtk is installed)",
+    )
+    add_output(ba, "--out", help="write the record as JSON here")
+    ba.add_argument(
+        "--repeat", type=_positive_int, default=3, help="timed runs per side (median, min)"
+    )
+    add_input(
+        ba,
         "--medrad",
         folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",

@@ -1,4 +1,4 @@
-"""``needlekit bench kinematics|fields|steerable|control|straight``."""
+"""``needlekit bench kinematics|fields|steerable|control|straight|approach``."""
 
 from __future__ import annotations
 
@@ -79,6 +79,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             medrad_dir=args.medrad,
             progress=lambda name: print(f"bench straight: {name}", file=sys.stderr),
         )
+    elif args.bench_command == "approach":
+        from needlekit.benchmarks.approach import run_approach_benchmark
+
+        record = run_approach_benchmark(repeat=args.repeat, medrad_dir=args.medrad)
     else:
         raise NeedlekitError(f"bench: unknown suite {args.bench_command!r}")
     if args.out is not None:

@@ -202,3 +202,74 @@ def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
         for v in check.violations:
             print(f"  - {v}")
     return EXIT_OK if check.ok else 1
+
+
+def _cmd_approach(args: argparse.Namespace) -> int:
+    """``needlekit approach``: PAA's approach analysis, and needlekit's, on a scenario."""
+    import time
+
+    import numpy as np
+
+    from needlekit.anatomy.scene import Role
+    from needlekit.errors import InvalidInputError
+    from needlekit.io.files import staged_outputs, write_json
+    from needlekit.planning.straight.approach import approach_analysis, structure_mesh
+
+    _, multi, _ = _multi_problem(args)
+    k = len(multi.targets_mm)
+    if not 1 <= args.target <= k:
+        raise InvalidInputError("--target", f"expected 1 to {k}, got {args.target}")
+    problem = multi.problem
+    target = np.asarray(multi.targets_mm[args.target - 1], dtype=float)
+    t0 = time.perf_counter()
+    skin = structure_mesh(problem.scene[problem.entry_surface], max_cells=args.max_cells)
+    obstacles = {
+        s.name: structure_mesh(s, max_cells=args.max_cells)
+        for s in problem.scene.by_role(Role.OBSTACLE)
+    }
+    mesh_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    a = approach_analysis(
+        target,
+        skin,
+        list(obstacles.values()),
+        field=problem.obstacle_field(),
+        needle_radius_mm=problem.needle.radius_mm,
+        gamma_mm=problem.gamma_mm,
+        max_length_mm=problem.needle.max_length_mm,
+        max_normal_angle_deg=problem.max_normal_angle_deg,
+    )
+    analysis_s = time.perf_counter() - t1
+    record = a.to_dict(per_face=not args.summary_only)
+    record["scenario"] = str(args.scenario)
+    record["skin"] = {"structure": problem.entry_surface, "faces": int(len(skin.faces))}
+    record["obstacles"] = {name: int(len(m.faces)) for name, m in obstacles.items()}
+    record["timings_s"] = {"meshes": mesh_s, "analysis": analysis_s}
+    with staged_outputs():
+        write_json(args.out, record)
+        if args.report is not None:
+            from needlekit.report.approach_report import write_approach_report
+
+            write_approach_report(
+                args.report, a, skin, obstacles, title=f"Approach analysis: {args.scenario}"
+            )
+    for label, key in (("PAA (line, no thickness)", "paa"), ("needlekit", "needlekit")):
+        s = record[key]
+        best = s["shortest"]
+        line = f"{label}: score {s['score']:.4f}"
+        line += (
+            "; no accessible triangle"
+            if best is None
+            else f"; shortest {best['length_mm']:.2f} mm from "
+            f"({', '.join(f'{c:.2f}' for c in best['entry_mm'])})"
+        )
+        print(line)
+    b = record["blocked"]
+    print(
+        f"{record['faces']} skin triangles: {b['obstacle_on_line']} with an obstacle on the "
+        f"line, {b['clearance_below_gamma']} closer than gamma {problem.gamma_mm:g} mm to an "
+        f"obstacle (needle radius {problem.needle.radius_mm:g} mm), {b['leaves_body']} leaving "
+        f"the body, {b['too_long']} too long, {b['too_oblique']} too oblique "
+        f"({analysis_s:.2f} s) -> {args.out}"
+    )
+    return EXIT_OK if record["needlekit"]["shortest"] is not None else 1

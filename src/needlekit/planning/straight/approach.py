@@ -1,0 +1,359 @@
+"""Approach analysis on a skin mesh: what 3D Slicer's PercutaneousApproachAnalysis computes,
+exactly, and what it cannot (``needlekit approach``; ``needlekit bench approach`` runs
+PAA's own procedure beside it).
+
+PercutaneousApproachAnalysis (PAA; Slicer extension of the SNR lab) answers, for a target
+point and a skin model, which skin triangles a straight needle can come from: for each
+triangle, the line from its centre to the target is tested against the obstacle models
+(a VTK BSP tree); the **approach score** is the accessible skin area over the whole skin
+area, and the shortest accessible line is reported with its skin point. Its label-wise
+mode repeats this for every voxel of a target label map. It models no needle thickness,
+no safety margin, no angle limits, and counts lines that leave and re-enter the body.
+
+:func:`approach_analysis` computes the same per-triangle answer exactly (each line against
+every obstacle triangle, :class:`~needlekit.geometry.segment_mesh.SegmentMeshIntersector`:
+Moller-Trumbore in float64 over a uniform grid, no tolerance), the same score and shortest
+line, and beside them needlekit's own criteria, each optional. Exactly, to rounding: PAA's
+BSP tree counts a line within its tolerance (0.001) of an obstacle as a hit, this does
+not; and a line through an obstacle's edge or vertex within rounding can be missed by both
+neighbouring triangles (Moller-Trumbore is not watertight), which for a closed obstacle
+takes two such grazes, one where the line enters and one where it leaves.
+
+- **the needle's thickness and a safety distance**: the certified clearance of the
+  needle's surface (radius ``r``) to the obstacles' distance field, at least gamma
+  (:func:`~needlekit.planning.straight.cfrw.clearance_bound`: a lower bound, the field's
+  error bound subtracted);
+- **inside the body**: the line from the target meets the skin first at its own triangle
+  (it does not leave the body and come back);
+- **the needle's length** and **the angle to the skin's inward normal**.
+
+``accessible_paa`` is PAA's answer (no obstacle triangle on the line); ``accessible`` is
+needlekit's (all of the above). :func:`approach_scores` is the label-wise mode: the score
+of every target voxel. ``needlekit approach`` runs both on a scenario (its entry surface
+as the skin, its obstacles as the obstacle models).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+
+__all__ = ["ApproachAnalysis", "approach_analysis", "approach_scores", "structure_mesh"]
+
+#: Fraction of a line's length, near its skin end, left out when asking whether the line
+#: meets the skin before its own triangle (the own triangle is met at the end).
+_OWN_FACE_SLACK: float = 1e-9
+
+
+@dataclass(frozen=True)
+class ApproachAnalysis:
+    """The approach analysis of one target on a skin mesh (per skin triangle).
+
+    Attributes
+    ----------
+    target_mm : ndarray, shape (3,)
+    centres_mm : ndarray, shape (n, 3)
+        Skin triangle centres (the entry points).
+    areas_mm2 : ndarray, shape (n,)
+    length_mm : ndarray, shape (n,)
+        Centre to target.
+    hit : ndarray of bool, shape (n,)
+        The line meets an obstacle triangle (PAA's test, exact).
+    leaves_body : ndarray of bool, shape (n,)
+        The line from the target meets the skin before its own triangle.
+    normal_angle_deg : ndarray, shape (n,)
+        Angle between the insertion direction and the triangle's inward normal.
+    clearance_mm : ndarray, shape (n,) or None
+        Certified clearance of the needle's surface (None without a distance field).
+    accessible_paa : ndarray of bool, shape (n,)
+        PAA's answer: no obstacle on the line.
+    accessible : ndarray of bool, shape (n,)
+        needlekit's: no obstacle, clearance >= gamma, inside the body, length and angle
+        within their limits.
+    settings : dict
+        ``needle_radius_mm``, ``gamma_mm``, ``max_length_mm``, ``max_normal_angle_deg``.
+    """
+
+    target_mm: np.ndarray
+    centres_mm: np.ndarray
+    areas_mm2: np.ndarray
+    length_mm: np.ndarray
+    hit: np.ndarray
+    leaves_body: np.ndarray
+    normal_angle_deg: np.ndarray
+    clearance_mm: np.ndarray | None
+    accessible_paa: np.ndarray
+    accessible: np.ndarray
+    settings: dict
+
+    @staticmethod
+    def _score(areas, ok) -> float:
+        total = float(areas.sum())
+        return float(areas[ok].sum()) / total if total > 0 else 0.0
+
+    @property
+    def score_paa(self) -> float:
+        """PAA's approach score: accessible skin area over all skin area."""
+        return self._score(self.areas_mm2, self.accessible_paa)
+
+    @property
+    def score(self) -> float:
+        """The same with needlekit's criteria."""
+        return self._score(self.areas_mm2, self.accessible)
+
+    def shortest(self, paa: bool = False) -> dict | None:
+        """The shortest accessible line: ``{"face", "length_mm", "entry_mm"}`` or None.
+
+        Parameters
+        ----------
+        paa : bool
+            By PAA's criterion instead of needlekit's.
+
+        Returns
+        -------
+        dict or None
+        """
+        ok = self.accessible_paa if paa else self.accessible
+        if not ok.any():
+            return None
+        idx = np.flatnonzero(ok)
+        i = int(idx[np.argmin(self.length_mm[idx])])
+        return {
+            "face": i,
+            "length_mm": float(self.length_mm[i]),
+            "entry_mm": self.centres_mm[i].tolist(),
+        }
+
+    def to_dict(self, *, per_face: bool = True) -> dict:
+        """JSON-ready record (``approach.json``).
+
+        Parameters
+        ----------
+        per_face : bool
+            Include the per-triangle arrays.
+
+        Returns
+        -------
+        dict
+        """
+        out = {
+            "target_mm": self.target_mm.tolist(),
+            "faces": int(len(self.areas_mm2)),
+            "skin_area_mm2": float(self.areas_mm2.sum()),
+            "settings": dict(self.settings),
+            "paa": {"score": self.score_paa, "shortest": self.shortest(paa=True)},
+            "needlekit": {"score": self.score, "shortest": self.shortest()},
+            "blocked": {
+                "obstacle_on_line": int(self.hit.sum()),
+                "leaves_body": int(self.leaves_body.sum()),
+                "clearance_below_gamma": (
+                    0
+                    if self.clearance_mm is None
+                    else int(np.sum(~self.hit & ~(self.clearance_mm >= self.settings["gamma_mm"])))
+                ),
+                "too_long": int(np.sum(self.length_mm > self.settings["max_length_mm"])),
+                "too_oblique": int(
+                    np.sum(self.normal_angle_deg > self.settings["max_normal_angle_deg"])
+                ),
+            },
+        }
+        if per_face:
+            out["per_face"] = {
+                "centre_mm": np.round(self.centres_mm, 4).tolist(),
+                "area_mm2": np.round(self.areas_mm2, 6).tolist(),
+                "length_mm": np.round(self.length_mm, 4).tolist(),
+                "accessible_paa": self.accessible_paa.astype(int).tolist(),
+                "accessible": self.accessible.astype(int).tolist(),
+                "clearance_mm": (
+                    None
+                    if self.clearance_mm is None
+                    else np.where(
+                        np.isfinite(self.clearance_mm), np.round(self.clearance_mm, 4), None
+                    ).tolist()
+                ),
+            }
+        return out
+
+
+def _mesh_arrays(mesh, name: str) -> tuple[np.ndarray, np.ndarray]:
+    v = np.asarray(getattr(mesh, "vertices", mesh[0] if isinstance(mesh, tuple) else None))
+    f = np.asarray(getattr(mesh, "faces", mesh[1] if isinstance(mesh, tuple) else None))
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise InvalidInputError(name, "expected a triangle mesh (vertices (m, 3), faces (k, 3))")
+    return np.asarray(v, dtype=float), np.asarray(f, dtype=np.int64)
+
+
+def _obstacle_intersector(obstacles):
+    from needlekit.geometry.segment_mesh import SegmentMeshIntersector
+
+    parts = list(obstacles) if isinstance(obstacles, (list, tuple)) else [obstacles]
+    verts, faces, base = [], [], 0
+    for i, m in enumerate(parts):
+        v, f = _mesh_arrays(m, f"obstacles[{i}]")
+        verts.append(v)
+        faces.append(f + base)
+        base += len(v)
+    if not verts:
+        raise InvalidInputError("obstacles", "expected one or more obstacle meshes")
+    return SegmentMeshIntersector(np.concatenate(verts), np.concatenate(faces))
+
+
+def approach_analysis(
+    target_mm,
+    skin,
+    obstacles,
+    *,
+    field=None,
+    needle_radius_mm: float = 0.0,
+    gamma_mm: float = 0.0,
+    max_length_mm: float = np.inf,
+    max_normal_angle_deg: float = 90.0,
+    obstacle_hits=None,
+    skin_hits=None,
+) -> ApproachAnalysis:
+    """Which skin triangles a straight needle can come from (module notes).
+
+    Parameters
+    ----------
+    target_mm : array_like, shape (3,)
+    skin : trimesh.Trimesh or (vertices, faces)
+        The entry surface, closed, outward normals (flipped if the mesh is inside out).
+    obstacles : mesh or sequence of meshes
+        The obstacle models (PAA's test runs on these).
+    field : DistanceField, optional
+        The obstacles' signed distance, for the certified clearance (needle radius and
+        gamma); without it only the lines are tested.
+    needle_radius_mm, gamma_mm : float
+    max_length_mm : float
+    max_normal_angle_deg : float
+        Largest angle between the needle and the skin's inward normal (90: no limit).
+    obstacle_hits, skin_hits : SegmentMeshIntersector, optional
+        Prepared intersectors (to reuse over many targets).
+
+    Returns
+    -------
+    ApproachAnalysis
+    """
+    from needlekit._validation import as_points
+    from needlekit.geometry.segment_mesh import SegmentMeshIntersector
+
+    p, single = as_points(target_mm, "target_mm")
+    if not single:
+        raise InvalidInputError("target_mm", "expected one point (3,)")
+    target = p[0]
+    for name, v in (("needle_radius_mm", needle_radius_mm), ("gamma_mm", gamma_mm)):
+        if not (np.isfinite(v) and v >= 0):
+            raise InvalidInputError(name, f"must be a finite number >= 0, got {v!r}")
+    sv, sf = _mesh_arrays(skin, "skin")
+    tri = sv[sf]
+    centres = tri.mean(axis=1)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    normals = cross / np.maximum(2.0 * areas, 1e-300)[:, None]
+    # outward: the signed volume of a closed outward mesh is positive
+    if float(np.einsum("ij,ij->", tri[:, 0], cross)) < 0.0:
+        normals = -normals
+    obstacle_hits = _obstacle_intersector(obstacles) if obstacle_hits is None else obstacle_hits
+    skin_hits = SegmentMeshIntersector(sv, sf) if skin_hits is None else skin_hits
+    n = len(sf)
+    ends = np.broadcast_to(target, (n, 3))
+    hit = obstacle_hits.any_hit(centres, ends)
+    d = centres - target
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(length, 1e-300)[:, None]
+    # the line from the target reaches the skin first at its own triangle
+    t_first, face_first = skin_hits.first_hit(ends, centres)
+    leaves = (face_first != np.arange(n)) & (t_first < 1.0 - _OWN_FACE_SLACK)
+    normal_angle = np.degrees(np.arccos(np.clip(np.sum(u * normals, axis=1), -1.0, 1.0)))
+    clearance = None
+    ok = ~hit & ~leaves & (length <= max_length_mm) & (normal_angle <= max_normal_angle_deg)
+    if field is not None:
+        from needlekit.planning.straight.cfrw import (
+            CLEARANCE_CAP_ABOVE_GAMMA_MM,
+            segment_clearance_bound,
+        )
+
+        clearance = np.full(n, np.nan)
+        check = np.flatnonzero(~hit)
+        if check.size:
+            cap = needle_radius_mm + gamma_mm + CLEARANCE_CAP_ABOVE_GAMMA_MM
+            b, _ = segment_clearance_bound(field, ends[check], u[check], length[check], cap_mm=cap)
+            clearance[check] = b - needle_radius_mm
+        ok &= clearance >= gamma_mm
+    settings = {
+        "needle_radius_mm": float(needle_radius_mm),
+        "gamma_mm": float(gamma_mm),
+        "max_length_mm": float(max_length_mm),
+        "max_normal_angle_deg": float(max_normal_angle_deg),
+    }
+    return ApproachAnalysis(
+        target, centres, areas, length, hit, leaves, normal_angle, clearance, ~hit, ok, settings
+    )
+
+
+def approach_scores(targets_mm, skin, obstacles) -> np.ndarray:
+    """PAA's label-wise mode: the approach score (accessible skin area fraction, PAA's
+    criterion) of each target point, e.g. every voxel centre of a target label.
+
+    Parameters
+    ----------
+    targets_mm : array_like, shape (k, 3)
+    skin : mesh
+    obstacles : mesh or sequence of meshes
+
+    Returns
+    -------
+    ndarray, shape (k,)
+    """
+    from needlekit._validation import as_points
+
+    pts, _ = as_points(targets_mm, "targets_mm")
+    sv, sf = _mesh_arrays(skin, "skin")
+    tri = sv[sf]
+    centres = tri.mean(axis=1)
+    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    hits = _obstacle_intersector(obstacles)
+    total = float(areas.sum())
+    out = np.empty(len(pts))
+    for i, t in enumerate(pts):
+        blocked = hits.any_hit(centres, np.broadcast_to(t, centres.shape))
+        out[i] = float(areas[~blocked].sum()) / total
+    return out
+
+
+def structure_mesh(structure, *, max_cells: int = 200):
+    """A structure's surface as a triangle mesh: its mesh file when it came from one,
+    else marching cubes on its field (as a segmentation becomes a model in Slicer).
+
+    Parameters
+    ----------
+    structure : Structure
+    max_cells : int
+        Largest number of samples along an axis for marching cubes.
+
+    Returns
+    -------
+    trimesh.Trimesh
+    """
+    from pathlib import Path
+
+    import trimesh
+
+    from needlekit.anatomy.summary import surface_mesh
+
+    src = Path(structure.source) if structure.source else None
+    if src is not None and src.suffix.lower() in (".stl", ".obj", ".ply", ".vtk", ".off"):
+        mesh = trimesh.load(src, force="mesh")
+    else:
+        v, f = surface_mesh(structure.field, max_cells=max_cells)
+        if len(f) == 0:
+            raise InvalidInputError(
+                structure.name, "its surface could not be meshed (empty or unbounded)"
+            )
+        mesh = trimesh.Trimesh(v, f, process=True)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh

@@ -1,0 +1,193 @@
+"""The approach analysis on a skin mesh: Slicer's PercutaneousApproachAnalysis (PAA), exactly,
+and needlekit's criteria beside it (issue 11: everything PAA does, and what it cannot)."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from needlekit.anatomy.mesh import ExactMeshDistance
+from needlekit.cli import main
+from needlekit.errors import InvalidInputError
+from needlekit.planning.straight.approach import approach_analysis, approach_scores
+
+R = 60.0
+
+
+def _brute_hits(p0, p1, mesh):
+    """The oracle: every segment against every triangle (Moller-Trumbore, closed)."""
+    tri = np.asarray(mesh.triangles)
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    e1, e2 = b - a, c - a
+    out = np.zeros(len(p0), dtype=bool)
+    for i in range(len(p0)):
+        d = p1[i] - p0[i]
+        h = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, h)
+        ok = det != 0.0
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = p0[i] - a
+        u = inv * np.einsum("ij,ij->i", s, h)
+        q = np.cross(s, e1)
+        v = inv * (q @ d)
+        t = inv * np.einsum("ij,ij->i", e2, q)
+        out[i] = np.any(ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1))
+    return out
+
+
+def _scene():
+    skin = trimesh.creation.icosphere(subdivisions=3, radius=R)
+    plate = trimesh.creation.box([30.0, 30.0, 2.0])
+    plate.apply_translation([5.0, 0.0, 25.0])
+    vessel = trimesh.creation.cylinder(radius=3.0, height=80.0)
+    vessel.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    vessel.apply_translation([0.0, 15.0, -20.0])
+    return skin, [plate, vessel]
+
+
+def test_the_line_test_is_paa_s_answer_exactly():
+    skin, obstacles = _scene()
+    target = np.array([0.0, 0.0, 0.0])
+    a = approach_analysis(target, skin, obstacles)
+    both = trimesh.util.concatenate(obstacles)
+    want = _brute_hits(a.centres_mm, np.broadcast_to(target, a.centres_mm.shape), both)
+    assert np.array_equal(a.hit, want)
+    assert 0 < want.sum() < len(want)
+    # PAA's score: the accessible skin area over all of it; its shortest accessible line
+    areas = np.asarray(skin.area_faces)
+    assert a.score_paa == pytest.approx(areas[~want].sum() / areas.sum(), rel=1e-12)
+    lengths = np.linalg.norm(np.asarray(skin.triangles_center) - target, axis=1)
+    best = a.shortest(paa=True)
+    assert best["length_mm"] == pytest.approx(lengths[~want].min())
+    # label-wise: the score of each target point
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0], [0.0, -20.0, 5.0]])
+    scores = approach_scores(pts, skin, obstacles)
+    assert scores[0] == pytest.approx(a.score_paa, rel=1e-12)
+    for p, s in zip(pts, scores, strict=True):
+        h = _brute_hits(a.centres_mm, np.broadcast_to(p, a.centres_mm.shape), both)
+        assert s == pytest.approx(areas[~h].sum() / areas.sum(), rel=1e-12)
+
+
+def test_needle_thickness_and_gamma_only_take_triangles_away():
+    skin, obstacles = _scene()
+    field = ExactMeshDistance(trimesh.util.concatenate(obstacles))
+    target = [0.0, 0.0, 0.0]
+    thin = approach_analysis(target, skin, obstacles, field=field)
+    thick = approach_analysis(
+        target, skin, obstacles, field=field, needle_radius_mm=1.0, gamma_mm=3.0
+    )
+    assert np.all(thick.accessible <= thin.accessible)
+    assert np.all(thin.accessible <= thin.accessible_paa)
+    assert thick.score < thin.score <= thin.score_paa
+    # the clearance is certified: never above the exact distance along the line
+    ok = np.flatnonzero(thick.accessible)[:40]
+    t = np.linspace(0.0, 1.0, 2001)[:, None]
+    for i in ok:
+        pts = np.asarray(target) + t * (thick.centres_mm[i] - np.asarray(target))
+        exact = field.signed_distance(pts).min() - 1.0
+        assert thick.clearance_mm[i] <= exact + 1e-9
+        assert thick.clearance_mm[i] >= 3.0
+
+
+def test_lines_that_leave_the_body_are_refused_by_needlekit_only():
+    ring = trimesh.creation.torus(40.0, 12.0)  # a tube around the z axis
+    target = np.array([40.0, 0.0, 0.0])  # inside the tube
+    far = trimesh.creation.box([1.0, 1.0, 1.0])
+    far.apply_translation([0.0, 0.0, 200.0])  # an obstacle out of the way
+    a = approach_analysis(target, ring, [far])
+    assert not a.hit.any() and a.score_paa == pytest.approx(1.0)
+    # the far side of the ring is reached only through the hole: out of the body and in
+    far_side = a.centres_mm[:, 0] < -30.0
+    assert np.all(a.leaves_body[far_side])
+    near_outer = a.centres_mm[:, 0] > 51.0
+    assert not np.any(a.leaves_body[near_outer])
+    assert 0.0 < a.score < 1.0
+
+
+def test_bad_inputs_name_the_field():
+    skin, obstacles = _scene()
+    with pytest.raises(InvalidInputError, match="target_mm"):
+        approach_analysis([0.0, np.nan, 0.0], skin, obstacles)
+    with pytest.raises(InvalidInputError, match="gamma_mm"):
+        approach_analysis([0.0, 0.0, 0.0], skin, obstacles, gamma_mm=-1.0)
+    with pytest.raises(InvalidInputError, match="skin"):
+        approach_analysis([0.0, 0.0, 0.0], (np.zeros((3, 3)), np.zeros((0, 3))), obstacles)
+
+
+SCENARIO = """\
+version: 1
+name: a mesh skin and a mesh vessel
+structures:
+  - {{name: skin, role: entry_surface, mesh: {{path: {skin}, voxel_size_mm: 1.0}}}}
+  - {{name: vessel, role: obstacle, mesh: {{path: {vessel}, voxel_size_mm: 0.5}}}}
+needle: {{diameter_mm: 2.0, max_length_mm: 100}}
+straight:
+  entry_surface: skin
+  targets: [[0, 0, 0]]
+  gamma_mm: 1.5
+"""
+
+
+def test_the_command_writes_the_analysis_and_its_view(tmp_path, capsys):
+    skin_mesh, (plate, _) = _scene()
+    skin = tmp_path / "skin.stl"
+    skin_mesh.export(skin)
+    vessel = tmp_path / "plate.stl"
+    plate.export(vessel)
+    path = tmp_path / "case.yaml"
+    path.write_text(SCENARIO.format(skin=skin, vessel=vessel))
+    out, report = tmp_path / "approach.json", tmp_path / "approach.html"
+    assert main(["approach", str(path), "--out", str(out), "--report", str(report)]) == 0
+    text = capsys.readouterr().out
+    assert "PAA (line, no thickness): score" in text and "needlekit: score" in text
+    rec = json.loads(out.read_text())
+    assert rec["faces"] == len(skin_mesh.faces) == rec["skin"]["faces"]
+    assert rec["obstacles"] == {"vessel": len(plate.faces)}
+    assert 0 < rec["needlekit"]["score"] < rec["paa"]["score"] < 1
+    assert rec["settings"] == {
+        "needle_radius_mm": 1.0, "gamma_mm": 1.5, "max_length_mm": 100.0,
+        "max_normal_angle_deg": 90.0,
+    }  # fmt: skip
+    face = rec["per_face"]
+    assert len(face["accessible"]) == rec["faces"]
+    # the mesh files are read as they are: PAA's answer on them, exactly
+    a = approach_analysis([0.0, 0.0, 0.0], skin_mesh, [plate])
+    assert face["accessible_paa"] == (~a.hit).astype(int).tolist()
+    html = report.read_text()
+    assert "Skin map" in html and "shortest (PAA)" in html
+    code = main(["approach", str(path), "--target", "2", "--out", str(tmp_path / "x.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and err == "error: --target: expected 1 to 1, got 2\n"
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_bench_approach_runs_on_liver_4_and_says_why_the_reference_is_missing(
+    medrad_dir, monkeypatch
+):
+    import sys
+
+    from needlekit.benchmarks.approach import run_approach_benchmark
+
+    monkeypatch.setitem(sys.modules, "vtk", None)  # as on a machine without the [paa] extra
+    rec = run_approach_benchmark(repeat=1, medrad_dir=medrad_dir)
+    (case,) = rec["cases"]
+    assert case["reference"] == {"skipped": "vtk not installed (pip install 'needlekit[paa]')"}
+    assert case["skin_faces"] > 100_000 and case["obstacle_faces"] > 10_000
+    # the liver capsule from the case's target: PAA's line test lets more through than
+    # needlekit's needle of 1 mm radius with gamma 1.5 mm inside the body
+    assert 0.0 < case["needlekit_full"]["score"] < case["needlekit_lines"]["score"] < 1.0
+    assert case["label_wise"]["voxels"] == 16
+    assert [r["name"] for r in rec["results"]] == [
+        "medrad_liver4 lines", "medrad_liver4 needlekit", "medrad_liver4 label-wise",
+    ]  # fmt: skip
+
+
+def test_bench_approach_without_the_data_says_so(tmp_path):
+    from needlekit.benchmarks.approach import run_approach_benchmark
+
+    rec = run_approach_benchmark(repeat=1, medrad_dir=tmp_path)
+    (case,) = rec["cases"]
+    assert case["name"] == "medrad_liver4" and "no Med-RAD liver 4" in case["skipped"]
+    assert rec["results"][0]["summary"].startswith("skipped: no Med-RAD liver 4")
