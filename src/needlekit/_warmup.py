@@ -90,6 +90,17 @@ def _warm_up_straight(vessel) -> None:
     )  # fmt: skip
     problem = StraightProblem(scene, [0.0, 0.0, 0.0], "skin", up=[0.0, 1.0, 0.0])
     plan_needles(problem, [[0.0, 0.0, 0.0], [0.0, 0.0, 8.0]], resolution_deg=10.0)
+    # the approach analysis' segment-mesh kernels, serial and parallel
+    import trimesh
+
+    from needlekit.geometry.segment_mesh import PARALLEL_MIN_SEGMENTS, SegmentMeshIntersector
+
+    ball = trimesh.creation.icosphere(subdivisions=1, radius=10.0)
+    hits = SegmentMeshIntersector(ball.vertices, ball.faces)
+    for n in (4, PARALLEL_MIN_SEGMENTS):
+        ends = np.random.default_rng(0).normal(scale=20.0, size=(n, 3))
+        hits.any_hit(np.zeros((n, 3)), ends)
+        hits.first_hit(np.zeros((n, 3)), ends)
 
 
 if __name__ == "__main__":  # pragma: no cover - run by make install
