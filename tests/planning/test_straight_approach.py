@@ -54,6 +54,9 @@ def test_the_line_test_is_paa_s_answer_exactly():
     want = _brute_hits(a.centres_mm, np.broadcast_to(target, a.centres_mm.shape), both)
     assert np.array_equal(a.hit, want)
     assert 0 < want.sum() < len(want)
+    # no length limit given: null in the record, which JSON can hold
+    rec = json.loads(json.dumps(a.to_dict(), allow_nan=False))
+    assert rec["settings"]["max_length_mm"] is None
     # PAA's score: the accessible skin area over all of it; its shortest accessible line
     areas = np.asarray(skin.area_faces)
     assert a.score_paa == pytest.approx(areas[~want].sum() / areas.sum(), rel=1e-12)

@@ -59,6 +59,19 @@ def test_cfrw_writes_the_map_layers_and_best_entries(scenario, tmp_path, capsys)
     assert main(["cfrw", str(scenario), "--out", str(out), "--target", "3"]) == 2
 
 
+def test_directions_without_a_value_are_null_in_the_map(scenario, tmp_path):
+    # a needle too short for part of the sphere: those directions are not evaluated
+    short = tmp_path / "short.yaml"
+    short.write_text(scenario.read_text().replace("max_length_mm: 150", "max_length_mm: 100.5"))
+    out = tmp_path / "cfrw.json"
+    assert main(["cfrw", str(short), "--out", str(out), "--target", "2", "--layers", "50"]) == 0
+    data = json.loads(out.read_text())
+    clearance = np.array(data["clearance_mm"], dtype=object)
+    missing = np.vectorize(lambda v: v is None)(clearance)
+    assert data["counts"]["too_long"] == int(missing.sum()) > 0
+    assert all(isinstance(v, float) for v in clearance[~missing])
+
+
 def test_multi_plans_exports_and_verifies(scenario, tmp_path, capsys):
     out, marks = tmp_path / "multi.json", tmp_path / "marks"
     assert main(["multi", str(scenario), "--out", str(out), "--markups", str(marks)]) == 0

@@ -143,7 +143,8 @@ class ApproachAnalysis:
             "target_mm": self.target_mm.tolist(),
             "faces": int(len(self.areas_mm2)),
             "skin_area_mm2": float(self.areas_mm2.sum()),
-            "settings": dict(self.settings),
+            # JSON has no infinity: a limit not set is null
+            "settings": {k: (v if np.isfinite(v) else None) for k, v in self.settings.items()},
             "paa": {"score": self.score_paa, "shortest": self.shortest(paa=True)},
             "needlekit": {"score": self.score, "shortest": self.shortest()},
             "blocked": {

@@ -765,7 +765,8 @@ class CFRWMap:
         """
 
         def grid(a, digits=4):
-            return np.where(np.isfinite(a), np.round(a, digits), np.nan).tolist()
+            # JSON has no NaN: a direction without a value (not evaluated) is null
+            return np.where(np.isfinite(a), np.round(a, digits), None).tolist()
 
         pr = self.problem
         return {
