@@ -46,7 +46,7 @@ def test_pose_from_direction():
 
 
 @pytest.mark.slow
-def test_lung_phantom_sweep_orders_planners_as_feng_table4(exact_clearance):
+def test_lung_phantom_sweep_mean_costs_as_measured(exact_clearance):
     from needlekit.anatomy.phantoms import lung_phantom
 
     ph = lung_phantom(0)
@@ -65,7 +65,11 @@ def test_lung_phantom_sweep_orders_planners_as_feng_table4(exact_clearance):
         )
         assert (s.stats["n_effective"], s.stats["n_solved"]) == (178, 18)
     mean = {p: s.stats["mean_cost_mm"] for p, s in runs.items()}
-    assert mean["rcs_star"] <= mean["rcs"] + 1e-9 <= mean["rrt"] + 2e-9
+    # what needlekit measures here (iteration budgets: the same on any machine): RCS* is
+    # lowest, as in Feng's Table 4, but RCS < RRT, where Feng has RRT < RCS; on this
+    # phantom every solved direction is the direct turn-then-straight path, so the three
+    # differ by under 1 mm (docs/steerable.md)
+    assert mean == pytest.approx({"rcs_star": 32.474056, "rcs": 33.366337, "rrt": 33.381740})
     # RRT's default greedy connection, arc then line, is never worse than one arc here
     arc_line = sweep(prob, "rrt", **kw)
     assert arc_line.stats["n_solved"] == runs["rrt"].stats["n_solved"]
