@@ -107,3 +107,31 @@ def test_healpix_directions_are_equal_area(nside):
             )
     with pytest.raises(InvalidInputError, match="nside"):
         healpix_directions(0)
+
+
+def test_the_progress_learns_the_total_before_the_first_direction():
+    from pathlib import Path
+
+    from needlekit.cli._common import sweep_progress
+    from needlekit.io.problems import load_problem
+
+    _, problem = load_problem(Path(__file__).parents[2] / "examples" / "toy.yaml")
+    calls = []
+
+    class Progress:
+        def set_total(self, n):
+            calls.append(("total", n))
+
+        def __call__(self, result):
+            calls.append(("done", result is not None))
+
+    dirs = sphere_directions(24)
+    s = sweep(problem, "rcs_star", directions=dirs, max_iterations=20, progress=Progress())
+    n = int(s.effective.sum())
+    assert 0 < n < len(dirs)
+    assert calls == [("total", n)] + [("done", True)] * n
+    # the command's bars take the total too (tqdm then shows the share done and time left)
+    with sweep_progress() as progress:
+        update = progress("rcs_star")
+        update.set_total(n)
+        assert update.bar.total == n

@@ -148,10 +148,24 @@ def sweep_progress() -> Iterator:
 
     bars: list = []
 
+    class _Update:
+        """One direction done; the total (the effective directions) set before the first,
+        so that the bar shows the share done and an estimate of the time left."""
+
+        def __init__(self, bar) -> None:
+            self.bar = bar
+
+        def __call__(self, _result) -> None:
+            self.bar.update(1)
+
+        def set_total(self, n: int) -> None:
+            self.bar.total = n
+            self.bar.refresh()
+
     def progress(planner: str):
         bar = tqdm(desc=f"sweep {planner:8s}", unit="dir", disable=None)
         bars.append(bar)
-        return lambda _: bar.update(1)
+        return _Update(bar)
 
     try:
         yield progress

@@ -285,7 +285,8 @@ def sweep(
     max_iterations : int, optional
         Iteration budget per direction, beside the time limit (reproducible sweeps).
     progress : callable, optional
-        Called once per finished direction.
+        Called once per finished direction (with its result); if it has
+        ``set_total(n)``, that is called first with the number of directions to plan.
     options : dict, optional
         Planner settings (see :func:`~needlekit.planning.steerable.solve.solve`).
 
@@ -316,6 +317,8 @@ def sweep(
     carry = (None, source) if recipe else (problem, None)
     tasks = [(*carry, d, planner, time_limit_s, seed, max_iterations, options) for d in dirs[eff]]
     done: list = [None] * len(tasks)
+    if progress is not None and hasattr(progress, "set_total"):
+        progress.set_total(len(tasks))  # a bar can show how far along it is, and the time left
     finished = enumerate((map if executor is None else executor.map)(_plan_one, tasks))
     for k, res in finished:
         done[k] = res
