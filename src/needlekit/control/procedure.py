@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from time import perf_counter
@@ -127,8 +128,10 @@ class ProcedureSettings:
         (:class:`~needlekit.control.adaptation.MeasurementHistory`); 0: the newest
         measurement alone, as Eq. 3 is written.
     guide_samples : int
-        Bronchoscope samples averaged into the guide line, after which it stays fixed; 0:
-        the running mean of all of them (the target does not move).
+        Bronchoscope samples averaged into the guide line, after which it stays fixed: 1
+        (the default) is the paper's simulation, the guide line from one noisy
+        measurement of the target; 100 is the 1 s at 100 Hz of its mannequin experiments;
+        0 the running mean of every sample of the trial (the target does not move).
     """
 
     dt_s: float = 0.001
@@ -147,7 +150,7 @@ class ProcedureSettings:
     target_tolerance_mm: float = 3.0
     log_every: int = 10
     vfi_share: float = 0.5
-    guide_samples: int = 0
+    guide_samples: int = 1
     history_keyframes: int = 40
 
 
@@ -188,11 +191,23 @@ class TrialResult:
         Final distance from the real tip to the real target.
     angle_error_deg : float
         Final angle between the real needle and the real guide line.
-    max_guide_distance_mm, max_cone_angle_deg, min_plane_distance_mm : float
-        During PUNCTURE, once the real tip is inside the guide cylinder and the needle inside
-        the cone (the VFIs pull them in when the puncture starts outside): the real tip's
-        largest distance from the real guide line and the largest needle angle; and over
-        the whole PUNCTURE the smallest signed distance of the tip from the target's plane.
+    max_guide_distance_mm, max_cone_angle_deg : float
+        Over the whole PUNCTURE, from its first step: the real tip's largest distance from
+        the real guide line and the real needle's largest angle to it (whether or not the
+        tip ever entered the guide cylinder).
+    start_guide_distance_mm, start_cone_angle_deg : float
+        The same at the first step of PUNCTURE (the start point is reached within the
+        approach tolerance, so the tip may start outside the cylinder; the VFIs then only
+        let it come closer).
+    max_guide_distance_inside_mm, max_cone_angle_inside_deg : float
+        The same once the real tip is inside the guide cylinder and the needle inside the
+        cone (the VFIs pull them in when the puncture starts outside); NaN if it never was.
+    min_plane_distance_mm : float
+        Over the whole PUNCTURE, the smallest signed distance of the tip from the target's
+        plane.
+    reached_estimated, reached : bool
+        The estimated tip ended within ``target_tolerance_mm`` of the measured target (what
+        the robot knows), and the real tip within it of the real target (what happened).
     min_patient_distance_mm : float
         Smallest distance of a robot point from the patient cylinder's axis before PUNCTURE.
     phase_times_s : dict
@@ -219,6 +234,12 @@ class TrialResult:
     max_cone_angle_deg: float
     min_plane_distance_mm: float
     min_patient_distance_mm: float
+    start_guide_distance_mm: float = math.nan
+    start_cone_angle_deg: float = math.nan
+    max_guide_distance_inside_mm: float = math.nan
+    max_cone_angle_inside_deg: float = math.nan
+    reached_estimated: bool = False
+    reached: bool = False
     phase_times_s: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
     log: dict = field(default_factory=dict)
@@ -313,8 +334,10 @@ def run_trial(
     true_base_r, true_needle_r = truth.world_T_base[:3, :3], truth.flange_T_tip[:3, :3]
     patient_line = true_guide.patient_line(cs.patient_axis)
     robot_points = np.asarray(cs.robot_points, dtype=np.int64)
-    max_line = max_cone = 0.0
-    inside = False  # the real tip has entered the guide cylinder and the cone
+    max_line = max_cone = 0.0  # over the whole puncture
+    start_line = start_cone = math.nan
+    in_line = in_cone = math.nan  # once the real tip has entered the cylinder and the cone
+    inside = False
     cone_deg = float(np.degrees(cs.cone_angle_rad))
     min_plane = min_patient = np.inf
     last_task: tuple = (None, None)  # the controller's latest (step, task error)
@@ -424,9 +447,13 @@ def run_trial(
         to_line = _distance_from_line(tip_true, true_guide.line)
         angle = _angle_deg(axis_true, true_guide.insertion_direction)
         if phase is Phase.PUNCTURE:
+            if math.isnan(start_line):
+                start_line, start_cone = to_line, angle
+            max_line, max_cone = max(max_line, to_line), max(max_cone, angle)
             inside = inside or (to_line <= cs.guide_radius_mm and angle <= cone_deg)
             if inside:
-                max_line, max_cone = max(max_line, to_line), max(max_cone, angle)
+                in_line = to_line if math.isnan(in_line) else max(in_line, to_line)
+                in_cone = angle if math.isnan(in_cone) else max(in_cone, angle)
         if phase is Phase.PUNCTURE:
             min_plane = min(min_plane, float(rel @ true_guide.direction))
         elif phase in (Phase.ALIGN, Phase.APPROACH, Phase.WAIT):
@@ -463,20 +490,32 @@ def run_trial(
         counts["steps"] += 1
     final = truth.tip_pose(q)
     counts["needle_lost"] = needle.n_lost
+    miss = float(np.linalg.norm(final[:3, 3] - true_guide.target_mm))
+    reached_estimated = reached = False
     if status == "completed":
         short = float(np.linalg.norm(est.state(q).tip_mm - guide.target_mm))
-        if short > ps.target_tolerance_mm:  # by the robot's own estimate
+        reached_estimated = short <= ps.target_tolerance_mm
+        reached = miss <= ps.target_tolerance_mm
+        if not reached_estimated:  # by the robot's own estimate
             status, reason = "aborted", f"the puncture stopped {short:.1f} mm short of the target"
+        elif not reached:  # the robot believes it is there; the real tip is not
+            reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"
 
     return TrialResult(
         status,
         reason,
-        float(np.linalg.norm(final[:3, 3] - true_guide.target_mm)),
+        miss,
         _angle_deg(final[:3, 2], true_guide.insertion_direction),
         max_line,
         max_cone,
         min_plane,
         min_patient,
+        start_line,
+        start_cone,
+        in_line,
+        in_cone,
+        reached_estimated,
+        reached,
         times,
         counts,
         {k: np.asarray(v) for k, v in log.items()},

@@ -329,8 +329,16 @@ def puncture_sections(summary: dict, trials: list[dict]) -> list:
         f"{'exact' if opts['exact_sensors'] else 'noisy (1 mm, 0.2 deg, 100 Hz)'}, "
         f"stability radius {opts['stability_radius_mm']} mm, "
         f"{opts['history_keyframes']} measurement keyframes, guide line from "
-        f"{opts['guide_samples'] or 'all'} bronchoscope samples."
+        f"{opts['guide_samples'] or 'all'} bronchoscope sample"
+        f"{'' if opts['guide_samples'] == 1 else 's'}. Constraints are checked on the real tip "
+        f"and needle from the start of the puncture."
     )
+    reached = summary.get("reached_target")
+    if reached is not None:
+        text += (
+            f" Target reached (within the target tolerance): {reached['estimated']} by the "
+            f"robot's estimate, {reached['real']} by the real tip."
+        )
     viol = [
         {
             "constraint": k,
