@@ -126,6 +126,11 @@ def test_mask_and_mesh_sources(tmp_path):
     assert abs(float(cube.signed_distance([25.0, 14.5, 14.5])) - 5.5) <= cube.error_bound_mm
     ball = sc.scene["ball"].field
     assert abs(float(ball.signed_distance([0.0, 0.0, 15.0])) - 5.0) <= ball.error_bound_mm + 0.2
+    # without a voxel size the mesh gets its largest side / 256, within 0.25-2 mm
+    del data["structures"][1]["mesh"]["voxel_size_mm"]
+    ball = load_scenario(write(tmp_path, data)).scene["ball"].field
+    assert np.allclose(ball.spacing_mm, 0.25)  # a 20 mm ball: 20 / 256 < 0.25
+    assert abs(float(ball.signed_distance([0.0, 0.0, 15.0])) - 5.0) <= ball.error_bound_mm + 0.2
 
 
 @pytest.mark.parametrize(

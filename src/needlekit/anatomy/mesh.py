@@ -38,6 +38,7 @@ from needlekit.errors import InvalidInputError
 
 __all__ = [
     "DEFAULT_MESH_PADDING_MM",
+    "default_voxel_size_mm",
     "ExactMeshDistance",
     "voxelize_mesh_sdf",
     "winding_numbers",
@@ -47,6 +48,31 @@ __all__ = [
 #: Default margin (mm) of the grid around a mesh (same reasoning as
 #: :data:`needlekit.anatomy.voxel.DEFAULT_MASK_PADDING_MM`).
 DEFAULT_MESH_PADDING_MM: float = 10.0
+#: A mesh's default grid: this many voxels along its largest side, the spacing kept within
+#: [MIN, MAX] mm (a body-sized skin stays near 1-2 mm, a vessel below a millimetre).
+DEFAULT_MESH_VOXELS: int = 256
+DEFAULT_MESH_VOXEL_MIN_MM: float = 0.25
+DEFAULT_MESH_VOXEL_MAX_MM: float = 2.0
+
+
+def default_voxel_size_mm(mesh: trimesh.Trimesh) -> float:
+    """The grid spacing a mesh gets when none is given: its largest side over
+    :data:`DEFAULT_MESH_VOXELS`, clipped to [:data:`DEFAULT_MESH_VOXEL_MIN_MM`,
+    :data:`DEFAULT_MESH_VOXEL_MAX_MM`].
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+
+    Returns
+    -------
+    float
+        Spacing (mm).
+    """
+    side = float(np.max(np.ptp(np.asarray(mesh.vertices, dtype=float), axis=0)))
+    return float(
+        np.clip(side / DEFAULT_MESH_VOXELS, DEFAULT_MESH_VOXEL_MIN_MM, DEFAULT_MESH_VOXEL_MAX_MM)
+    )
 
 #: Default width of the exact-distance band, in voxel diagonals: the region where a
 #: needle's clearance is decided (within ~2 voxels of a wall) gets the tighter bound ``r``.

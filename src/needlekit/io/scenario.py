@@ -308,13 +308,14 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
         field_ = VoxelSDF.from_mask(Mask(mask.data, mask.affine, path))
         source = str(path)
     elif kind == "mesh":
-        from needlekit.anatomy.mesh import voxelize_mesh_sdf
+        from needlekit.anatomy.mesh import default_voxel_size_mm, voxelize_mesh_sdf
         from needlekit.io.meshes import read_mesh
 
         path = ctx.file(src["path"], f"{sub}.path")
         mesh = read_mesh(path)
-        kw = {k: src[k] for k in ("voxel_size_mm", "padding_mm") if k in src}
-        field_ = ctx.placed(voxelize_mesh_sdf(mesh, **kw))
+        kw = {k: src[k] for k in ("padding_mm",) if k in src}
+        voxel = src.get("voxel_size_mm", default_voxel_size_mm(mesh))
+        field_ = ctx.placed(voxelize_mesh_sdf(mesh, voxel, **kw))
         source = str(path)
     else:
         field_ = _primitive(kind, src, ctx, sub)
