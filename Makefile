@@ -9,11 +9,16 @@ OUT    ?= out/demo
 # Two workers suit the 2-core machines CI and the developers use; override with JOBS=1.
 JOBS   ?= 2
 
-.PHONY: help install demo test test-fast lint bench clean
+# Debian's Chromium and its driver, for the test that opens every report kind in a real
+# browser (tests/test_browser.py): installed once when missing and apt-get can.
+CHROMIUM ?= /usr/bin/chromium
+
+.PHONY: help install demo test test-fast lint bench clean browser
 
 help:
 	@echo "make demo   - create .venv, install needlekit, run the demo into $(OUT)"
 	@echo "make test   - create .venv, install needlekit with test extras, run the tests"
+	@echo "make browser - install Debian's chromium and chromium-driver (for the browser test)"
 	@echo "make lint   - ruff check"
 	@echo "make bench  - run the benchmarks into out/bench"
 	@echo "make clean  - remove .venv, out/ and caches"
@@ -33,7 +38,16 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/needlekit demo --out $(OUT)
 
-test: $(STAMP)
+browser:
+	@if [ -x $(CHROMIUM) ] && [ -x /usr/bin/chromedriver ]; then :; \
+	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+		echo "installing Debian's chromium and chromium-driver for the browser test"; \
+		apt-get install -y -qq chromium chromium-driver >/dev/null \
+		|| (apt-get update -qq && apt-get install -y -qq chromium chromium-driver >/dev/null) \
+		|| echo "could not install chromium: the browser test will be skipped"; \
+	else echo "no chromium and no root apt-get: the browser test will be skipped"; fi
+
+test: $(STAMP) browser
 	$(BIN)/python -m pytest -n $(JOBS) -q
 
 test-fast: $(STAMP)

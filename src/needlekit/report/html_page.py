@@ -129,6 +129,18 @@ def _check_sections(sections) -> list:
     return out
 
 
+#: Put in each page's head, before plotly.js: 2D canvas contexts are created with
+#: ``willReadFrequently``. plotly.js reads its text canvases back with ``getImageData``,
+#: and Chromium otherwise warns in the console, once per page, that such readbacks are
+#: faster with the hint; with it the reads stay on the CPU, as the warning advises.
+CANVAS_READBACK_HINT = (
+    "<script>(function(){var g=HTMLCanvasElement.prototype.getContext;"
+    "HTMLCanvasElement.prototype.getContext=function(t,o){if(t==='2d'){"
+    "o=Object.assign({willReadFrequently:true},o||{});}return g.call(this,t,o);};})();"
+    "</script>"
+)
+
+
 def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
     """Write figures, tables and text as one self-contained HTML page, atomically.
 
@@ -163,7 +175,8 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
         with open(tmp, "w", encoding="utf-8") as f:
             f.write("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>")
             f.write("<meta name='viewport' content='width=device-width, initial-scale=1'>")
-            f.write(f"<title>{esc(title)}</title><style>{_CSS}</style></head>\n")
+            f.write(f"<title>{esc(title)}</title><style>{_CSS}</style>")
+            f.write(f"{CANVAS_READBACK_HINT}</head>\n")
             f.write(f"<body><main><h1>{esc(title)}</h1>\n")
             with_js = True
             for s in items:

@@ -151,7 +151,10 @@ def write_scene_html(fig, path: str | os.PathLike) -> Path:
     -------
     Path
     """
+    from needlekit.report.html_page import CANVAS_READBACK_HINT
+
     html = fig.to_html(include_plotlyjs=True, full_html=True)
+    html = html.replace("<head>", f"<head>{CANVAS_READBACK_HINT}", 1)
     return atomic_write(path, lambda p: p.write_text(html, encoding="utf-8"))
 
 
@@ -172,13 +175,15 @@ def write_scenes_html(figures, path: str | os.PathLike, *, title: str = "needlek
     """
     import html as _html
 
+    from needlekit.report.html_page import CANVAS_READBACK_HINT
+
     parts = []
     for i, (heading, fig) in enumerate(figures):
         body = fig.to_html(include_plotlyjs=(i == 0), full_html=False, default_height="720px")
         parts.append(f"<section><h2>{_html.escape(heading)}</h2>{body}</section>")
     page = (
         "<!DOCTYPE html><html><head><meta charset='utf-8'>"
-        f"<title>{_html.escape(title)}</title>"
+        f"<title>{_html.escape(title)}</title>{CANVAS_READBACK_HINT}"
         "<style>body{font-family:system-ui,sans-serif;margin:1.5em;color:#222}"
         "h1{font-weight:600}h2{font-weight:500;margin-top:1.5em}</style></head><body>"
         f"<h1>{_html.escape(title)}</h1>{''.join(parts)}</body></html>"
