@@ -218,3 +218,18 @@ def test_rotation_log_kernel_matches_so3_log_near_zero_and_pi():
             w = scale * axis / np.linalg.norm(axis)
             r = so3_exp(w)
             np.testing.assert_allclose(_rotation_log(r), so3_log(r), atol=1e-7)
+
+
+def test_unclamped_vfi_rows_pull_the_estimate_in_at_the_vfi_rate():
+    from dataclasses import replace
+
+    a = NOMINAL.copy()
+    m, _, pj = _estimate_at(a, Q0)
+    violated = StepVFI("guide", 10.0, 1.0, Zone.INSIDE, 5.0, np.ones(7), np.ones(12))
+    raw = replace(SETTINGS, clamp_vfi_rows=False)
+    out = adaptation_step(
+        a, m.tip_pose(Q0), m.tip_pose(Q0), pj, raw, vfis=[violated], vfi_share=0.5
+    )
+    assert out.status is QPStatus.OPTIMAL
+    # the VFI law as written: d_dot <= -(1 - share) gain (d - safe) = -0.5 * 5 * 9
+    assert np.ones(12) @ out.a_dot == pytest.approx(-22.5, abs=1e-6)

@@ -154,3 +154,20 @@ def test_control_benchmark_times_every_step(capsys, tmp_path):
     assert kin["max_abs_diff"] < 1e-9
     assert rec["machine"]["versions"]["dqrobotics"] and rec["trial_status"] == ["completed"]
     assert "control step (all)" in capsys.readouterr().out
+
+
+def test_without_redraws_every_trial_keeps_its_first_guide_line():
+    from needlekit.studies.puncture_study import PunctureScenario, sample_trial
+
+    kept, redrawn = PunctureScenario(redraw_guides=False), PunctureScenario()
+    needed = 0
+    for i in range(40):
+        s1, d1 = sample_trial(kept, np.random.default_rng(i), i)
+        s2, d2 = sample_trial(redrawn, np.random.default_rng(i), i)
+        assert d1 == 1
+        if d2 == 1:  # the first draw was acceptable: the same trial either way
+            assert np.array_equal(s1.guide_direction, s2.guide_direction)
+        else:
+            needed += 1
+            assert not np.array_equal(s1.guide_direction, s2.guide_direction)
+    assert needed > 0  # the filter does turn some first draws down

@@ -74,6 +74,7 @@ def default_voxel_size_mm(mesh: trimesh.Trimesh) -> float:
         np.clip(side / DEFAULT_MESH_VOXELS, DEFAULT_MESH_VOXEL_MIN_MM, DEFAULT_MESH_VOXEL_MAX_MM)
     )
 
+
 #: Default width of the exact-distance band, in voxel diagonals: the region where a
 #: needle's clearance is decided (within ~2 voxels of a wall) gets the tighter bound ``r``.
 DEFAULT_EXACT_BAND_DIAGONALS: float = 2.0

@@ -389,6 +389,18 @@ def _build_parser() -> argparse.ArgumentParser:
         "measurement, the paper's simulation; 100: 1 s at 100 Hz as its mannequin trials; "
         "0: every sample of the trial, running)",
     )
+    pu.add_argument(
+        "--no-vfi-clamp",
+        action="store_true",
+        help="the adaptation's VFI rows as the VFI law writes them (default: never pull the "
+        "estimate back into a constraint it violates)",
+    )
+    pu.add_argument(
+        "--no-redraw",
+        action="store_true",
+        help="keep each trial's first guide-line draw (default: redraw one whose start point "
+        "lies inside the patient cylinder or out of the arm's reach)",
+    )
     pu.add_argument("--no-report", action="store_true", help="skip the HTML report")
     _executor_options(pu)
 

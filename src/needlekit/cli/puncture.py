@@ -12,7 +12,11 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
-    from needlekit.studies.puncture_study import TrialOptions, run_puncture_study
+    from needlekit.studies.puncture_study import (
+        PunctureScenario,
+        TrialOptions,
+        run_puncture_study,
+    )
 
     for name in ("history", "guide_samples"):
         if getattr(args, name) < 0:
@@ -24,7 +28,9 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         stability_radius_mm=args.stability_radius_mm,
         history_keyframes=args.history,
         guide_samples=args.guide_samples,
+        clamp_vfi_rows=not args.no_vfi_clamp,
     )
+    scenario = PunctureScenario(redraw_guides=not args.no_redraw)
     with (
         open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
         tqdm(total=args.trials, desc="puncture", unit="trial", disable=None) as bar,
@@ -38,6 +44,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
             args.out,
             trials=args.trials,
             seed=args.seed,
+            scenario=scenario,
             options=options,
             executor=None if args.executor == "serial" else ex,
             progress=progress,

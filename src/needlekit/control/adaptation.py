@@ -85,6 +85,10 @@ class AdaptationSettings:
         is ``max(0, eta (r^2 - ||x_err||^2) / 2)``); outside it is the paper's row
         ``x_err^T J_x,a a_dot <= 0``. ``0`` gives the paper's row everywhere. Units: the
         task error's (mm; axis rows weighted by the controller's ``axis_scale_mm``).
+    clamp_vfi_rows : bool
+        A VFI row's right-hand side is kept at ``>= 0`` (the estimate is never pulled back
+        into a constraint it already violates; the joints do that). False: the rows as
+        the VFI law writes them.
     """
 
     lower: np.ndarray
@@ -94,6 +98,7 @@ class AdaptationSettings:
     orientation_scale_mm: float = 100.0
     bound_gain: float = 10.0
     stability_radius_mm: float = 1.5
+    clamp_vfi_rows: bool = True
 
     def __post_init__(self) -> None:
         lo = np.asarray(self.lower, dtype=float).reshape(-1)
@@ -405,7 +410,8 @@ def adaptation_step(
             continue
         r, b = vfi_row(v.distance, v.jac_a, v.safe, v.zone, (1.0 - vfi_share) * v.gain)
         rows.append(r)
-        rhs.append(max(b, 0.0))  # never pull the estimate in: only forbid pushing it out
+        # never pull the estimate in: only forbid pushing it out
+        rhs.append(max(b, 0.0) if settings.clamp_vfi_rows else b)
     if step is not None and task_error is not None:
         jx = task_parameter_jacobian(step, pj, controller or ControllerSettings())
         e = np.asarray(task_error, dtype=float)

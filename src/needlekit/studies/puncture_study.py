@@ -84,6 +84,9 @@ class PunctureScenario:
         shoulder, guide lines leaning towards the robot).
     max_draws : int
         Guide-line draws per trial before giving up.
+    redraw_guides : bool
+        Redraw a guide line whose start point lies inside the patient cylinder or out of
+        the arm's comfortable reach (False: every trial keeps its first draw).
     """
 
     nominal_base: tuple = (-650.0, 0.0, -450.0, 0.0, 0.0, 0.0)
@@ -99,6 +102,7 @@ class PunctureScenario:
     min_wrist_reach_mm: float = 300.0
     max_wrist_reach_mm: float = 700.0
     max_draws: int = 1000
+    redraw_guides: bool = True
 
     @property
     def nominal_parameters(self) -> np.ndarray:
@@ -132,12 +136,15 @@ class TrialOptions:
         Bronchoscope samples averaged into the guide line: 1 (the paper's simulation: one
         noisy measurement of the target), 100 (the 1 s at 100 Hz of its mannequin
         experiments), or 0 (the running mean of every sample of the trial).
+    clamp_vfi_rows : bool
+        :attr:`needlekit.control.adaptation.AdaptationSettings.clamp_vfi_rows`.
     """
 
     exact_sensors: bool = False
     stability_radius_mm: float = 1.5
     history_keyframes: int = 40
     guide_samples: int = 1
+    clamp_vfi_rows: bool = True
 
 
 def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: int):
@@ -187,7 +194,7 @@ def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: in
         rel = start - target
         off_axis = np.linalg.norm(rel - axis * (rel @ axis))
         wrist = start + back * lg
-        if (
+        if not scenario.redraw_guides or (
             off_axis >= cs.patient_radius_mm
             and scenario.min_wrist_reach_mm
             <= np.linalg.norm(wrist - shoulder)
@@ -223,7 +230,10 @@ def trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
 
     spread = scenario.spread
     adaptation = AdaptationSettings(
-        initial - spread, initial + spread, stability_radius_mm=options.stability_radius_mm
+        initial - spread,
+        initial + spread,
+        stability_radius_mm=options.stability_radius_mm,
+        clamp_vfi_rows=options.clamp_vfi_rows,
     )
     procedure = ProcedureSettings(
         start_distance_mm=scenario.start_distance_mm,
