@@ -9,7 +9,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.rcs import solve_rcs
-from needlekit.planning.steerable.rrt import solve_rrt, solve_rrt_multi
+from needlekit.planning.steerable.rrt import solve_rrt, solve_rrt_multi, solve_rrt_per_target
 from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
 GOAL = np.array([0.0, -20.0, 60.0])
@@ -58,6 +58,25 @@ def test_one_tree_reaches_several_targets():
         assert np.linalg.norm(r.plan.end_pose()[:3, 3] - g) <= 1.0 + 1e-9
         # all plans start on the same tree: the same start pose
         assert np.allclose(r.plan.start_pose, np.eye(4))
+
+
+def test_the_lecture_s_multi_target_rrt_starts_a_tree_from_the_start_for_each_target():
+    goals = np.array([[0.0, -20.0, 60.0], [15.0, 5.0, 55.0], [-10.0, 10.0, 70.0]])
+    prob = _problem(BLOCKER)
+    # the same total iteration budget: one tree of 1500, or three trees of 500
+    one = solve_rrt_multi(prob, goals, time_limit_s=60.0, seed=1, max_iterations=1500)
+    per = solve_rrt_per_target(prob, goals, time_limit_s=60.0, seed=1, max_iterations=500)
+    assert [r.stats["iterations"] for r in per] == [500, 500, 500]
+    assert [r.stats["nodes"] for r in per] == [339, 416, 429]  # a tree each
+    assert {r.stats["nodes"] for r in one} == {1231}  # one tree for all
+    for g, r in zip(goals, per, strict=True):
+        assert r.status is PlanStatus.SOLVED and verify_plan(_problem(BLOCKER, goal=g), r.plan).ok
+        assert np.allclose(r.plan.start_pose, np.eye(4))
+    # measured: the shared tree is as good or slightly better at the same budget
+    assert [r.cost_mm for r in one] == pytest.approx([63.904089, 56.454084, 70.488174], abs=1e-6)
+    assert [r.cost_mm for r in per] == pytest.approx([63.907788, 56.454084, 70.488174], abs=1e-6)
+    with pytest.raises(InvalidInputError, match="goals_mm"):
+        solve_rrt_per_target(prob, np.zeros((0, 3)))
 
 
 def test_budget_and_bad_input():

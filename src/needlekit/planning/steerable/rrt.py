@@ -41,6 +41,7 @@ __all__ = [
     "RRTPlanner",
     "solve_rrt",
     "solve_rrt_multi",
+    "solve_rrt_per_target",
 ]
 
 #: Probability of sampling a target itself while it has no plan yet.
@@ -191,6 +192,51 @@ def solve_rrt_multi(
     """
     options = RRTOptions(connection, 0 if seed is None else seed)
     return _grow(problem, goals_mm, Termination(time_limit_s, max_iterations), options)
+
+
+def solve_rrt_per_target(
+    problem: SteerableProblem,
+    goals_mm,
+    *,
+    time_limit_s: float = DEFAULT_TIME_LIMIT_S,
+    seed: int | None = 0,
+    max_iterations: int | None = None,
+    connection: str = "arc_line",
+) -> list[PlanResult]:
+    """The lecture's multi-target RRT: a new tree from the start node for each target.
+
+    The lecture reaches several targets one after another, "for each target, we start from
+    the start node and repeat this process"; :func:`solve_rrt_multi` grows one tree that
+    serves every target instead. Here each target gets a tree of its own, grown toward it
+    alone (the same goal bias, sampling ball of start and that target, and connection).
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        Start pose, limits, tolerance and collision model (its own goal is ignored).
+    goals_mm : array_like, shape (k, 3)
+        Targets (RAS mm), planned in order.
+    time_limit_s : float
+        Budget of each target's tree.
+    seed : int, optional
+        Seed of each tree's random samples (default 0; every tree starts from it).
+    max_iterations : int, optional
+        Iteration budget of each tree.
+    connection : {"arc_line", "arc"}
+
+    Returns
+    -------
+    list of PlanResult
+        One per target, in order, as :func:`solve_rrt` returns it.
+    """
+    options = RRTOptions(connection, 0 if seed is None else seed)
+    goals = np.asarray(goals_mm, dtype=float).reshape(-1, 3)
+    if len(goals) == 0 or not np.all(np.isfinite(goals)):
+        raise InvalidInputError("goals_mm", "expected one or more finite points (k, 3)")
+    return [
+        _grow(problem, g[None], Termination(time_limit_s, max_iterations), options)[0]
+        for g in goals
+    ]
 
 
 def _grow(
