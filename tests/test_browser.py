@@ -66,6 +66,12 @@ def reports(tmp_path_factory):
 
     run("scene", ["scene", "render", toy, "--out", str(out / "scene.html")], out / "scene.html")
     run(
+        "goals",
+        ["plan", toy, "--planner", "rrt", "--goals", "20,30,40", "10,35,45", "--max-iterations",
+         "300", "--out", str(out / "goals.json"), "--report", str(out / "goals.html")],
+        out / "goals.html",
+    )  # fmt: skip
+    run(
         "sweep",
         ["sweep", toy, "--out", str(out / "sweep.json"), "--report", str(out / "sweep.html"),
          "--directions", "64", "--max-iterations", "20", "--planner", "rcs_star", "rrt"],
@@ -146,7 +152,9 @@ def _not_blank(png: bytes) -> bool:
     return len(colours) > 50 and float(img.std()) > 0.02
 
 
-@pytest.mark.parametrize("kind", ["scene", "sweep", "multi", "puncture", "approach", "scenes"])
+@pytest.mark.parametrize(
+    "kind", ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes"]
+)
 def test_every_report_renders_its_3d_views_without_console_warnings(
     browser, reports, kind, tmp_path
 ):

@@ -72,6 +72,7 @@ def _one_error_line(capsys, argv):
 #: Every output file flag: the command before it, and the flag.
 FILE_OUTPUTS = [
     (["plan", TOY], "--out"),
+    (["plan", TOY], "--report"),
     (["sweep", TOY], "--out"),
     (["sweep", TOY], "--plan"),
     (["sweep", TOY], "--report"),

@@ -181,6 +181,21 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     add_output(planp, "--out", default="plan.json", help="plan file to write (default plan.json)")
     planp.add_argument(
+        "--goals",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        nargs="+",
+        metavar="X,Y,Z",
+        help="several targets (RAS mm): a plan to each, written together to --out",
+    )
+    planp.add_argument(
+        "--multi",
+        choices=["per-target", "one-tree"],
+        default="per-target",
+        help="with --goals: a new search from the start for each target, as the lecture "
+        "does (default), or one RRT tree for all of them (rrt only)",
+    )
+    add_output(planp, "--report", help="with --goals: a self-contained HTML view of the plans")
+    planp.add_argument(
         "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
     )
     planp.add_argument(

@@ -333,6 +333,21 @@ class SteerableProblem:
         """Needle radius plus safety margin (mm)."""
         return 0.5 * self.needle_diameter_mm + self.safety_margin_mm
 
+    def with_goal(self, goal_mm) -> SteerableProblem:
+        """The same problem to another goal.
+
+        Parameters
+        ----------
+        goal_mm : array_like, shape (3,)
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        from dataclasses import replace
+
+        return replace(self, goal_mm=np.asarray(goal_mm, dtype=float))
+
     def with_start_pose(self, start_pose) -> SteerableProblem:
         """The same problem from another start pose (same start point or not).
 
