@@ -23,11 +23,14 @@ from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.sweep import SweepResult, sphere_directions, sweep_stats
 from needlekit.report.sweep_report import (
+    FIG9_OFFSET,
     FigureSection,
     TableSection,
     TextSection,
     cost_per_direction_figure,
     direction_sphere_figure,
+    direction_table,
+    goal_connection_rule,
     sweep_sections,
     sweep_table,
     write_report_html,
@@ -187,18 +190,25 @@ def test_cost_lines_follow_the_effective_directions_in_sweep_order(lung):
     _, runs, _ = lung
     fig = cost_per_direction_figure(runs)
     labels = {"rcs_star": "RCS*", "rcs": "RCS", "rrt": "RRT"}
-    for name, sw in runs.items():
+    n = len(runs)
+    sizes = []
+    for j, (name, sw) in enumerate(runs.items()):
         label = labels[name]
         (line,) = _traces(fig, label)
         idx = np.flatnonzero(sw.effective)
         costs = _costs(sw)[idx]
-        assert list(line.x) == list(range(1, len(idx) + 1))
+        # each planner a little to the side of the direction's position, so equal costs
+        # never hide one series behind another
+        shift = (j - (n - 1) / 2) * FIG9_OFFSET
+        assert list(line.x) == pytest.approx([i + shift for i in range(1, len(idx) + 1)])
+        sizes.append(line.marker.size)
         assert [None if np.isnan(c) else c for c in costs] == list(line.y)  # gaps, no zeros
         assert line.connectgaps is False and line.mode == "lines+markers"
         assert [int(c[0]) for c in line.customdata] == list(idx)
         (best,) = _traces(fig, f"{label} best")
         k = list(idx).index(sw.stats["best_index"])
-        assert (best.x[0], best.y[0]) == (k + 1, pytest.approx(sw.stats["best_cost_mm"]))
+        assert best.x[0] == pytest.approx(k + 1 + shift)
+        assert best.y[0] == pytest.approx(sw.stats["best_cost_mm"])
         assert best.y[0] == pytest.approx(np.nanmin(costs))
         (mean,) = _traces(fig, f"{label} mean")
         assert mean.line.dash == "dash" and mean.line.color == line.line.color
@@ -206,6 +216,22 @@ def test_cost_lines_follow_the_effective_directions_in_sweep_order(lung):
         assert mean.y[0] == pytest.approx(np.nanmean(costs))
     colours = {_traces(fig, labels[n])[0].line.color for n in runs}
     assert len(colours) == len(runs)
+    assert len(set(sizes)) == len(runs)  # and marker sizes apart
+
+
+def test_tables_2_3_and_the_goal_connections(lung):
+    _, runs, _ = lung
+    rows = direction_table(runs)
+    solved = {i for sw in runs.values() for i in np.flatnonzero(np.isfinite(_costs(sw)))}
+    assert len(rows) == len(solved) > 0
+    row = rows[0]
+    assert list(row) == ["effective #", "direction", "RCS* cost (mm)", "RCS cost (mm)",
+                         "RRT cost (mm)"]  # fmt: skip
+    assert goal_connection_rule("rcs_star").startswith("turn at r_min, then straight")
+    assert goal_connection_rule("rcs") == "one arc to the target itself"
+    assert "one arc" in goal_connection_rule("rrt", {"connection": "arc"})
+    assert "into the tau-ball" in goal_connection_rule("rrt", {})
+    assert goal_connection_rule("mine").startswith("its own")
 
 
 # ---------------------------------------------------------------------------------------

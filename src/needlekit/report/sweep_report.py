@@ -32,12 +32,16 @@ from needlekit.report.html_page import (
 from needlekit.report.scene3d import scene_figure
 
 __all__ = [
+    "FIG9_OFFSET",
+    "GOAL_CONNECTIONS",
     "FigureSection",
     "TableSection",
     "TextSection",
     "best_paths_figure",
     "cost_per_direction_figure",
     "direction_sphere_figure",
+    "direction_table",
+    "goal_connection_rule",
     "sweep_sections",
     "sweep_table",
     "write_report_html",
@@ -51,6 +55,18 @@ _PLANNER_COLOURS = {"rcs": _PALETTE[0], "rcs_star": _PALETTE[1], "rrt": _GREEN}
 _SPARE_COLOURS = (_PURPLE, _ORANGE, _SKY)
 _PLANNER_LABELS = {"rcs": "RCS", "rcs_star": "RCS*", "rrt": "RRT"}
 _SYMBOLS = ("circle", "diamond", "square", "triangle-up", "x")
+#: Horizontal distance between the planners' series in Fig. 9 (a direction's position).
+FIG9_OFFSET: float = 0.2
+#: How each built-in planner joins the goal (the rule that decides its costs).
+GOAL_CONNECTIONS = {
+    "rcs_star": "turn at r_min, then straight, ending tau short of the target",
+    "rcs": "one arc to the target itself",
+    "rrt": {
+        "arc_line": "greedy from every new node: turn at r_min, then straight into the tau-ball",
+        "arc": "greedy from every new node: one arc to the target itself",
+    },
+}
+
 _TABLE_KEYS = ("n_effective", "n_solved", "best_cost_mm", "best_direction", "mean_cost_mm")
 _TABLE_KEYS += ("cost_before_lowest_mm", "time_s")
 
@@ -256,9 +272,14 @@ def cost_per_direction_figure(sweeps: Mapping[str, SweepResult], *, title=None):
     sweeps = _check_sweeps(sweeps)
     fig = go.Figure()
     spare = iter(_SPARE_COLOURS * len(sweeps))
+    n = len(sweeps)
     for j, (name, sw) in enumerate(sweeps.items()):
         idx = np.flatnonzero(np.asarray(sw.effective, dtype=bool))
-        c, x = _costs(sw)[idx], np.arange(1, len(idx) + 1)
+        # planners often find the same cost: each series sits a little to the side of the
+        # direction's position (FIG9_OFFSET apart) and has its own marker size, so that
+        # one never hides another
+        shift = (j - (n - 1) / 2) * FIG9_OFFSET
+        c, x = _costs(sw)[idx], np.arange(1, len(idx) + 1) + shift
         colour, label = _PLANNER_COLOURS.get(name) or next(spare), _label(name)
         custom = np.column_stack([idx, np.asarray(sw.directions, dtype=float)[idx]])
         hover = f"{label}<br>effective #%{{x}} (direction #%{{customdata[0]}})<br>"
@@ -271,7 +292,12 @@ def cost_per_direction_figure(sweeps: Mapping[str, SweepResult], *, title=None):
             mode="lines+markers",
             name=label,
             line={"color": colour, "width": 2},
-            marker={"size": 7, "symbol": _SYMBOLS[j % len(_SYMBOLS)], "opacity": 0.85},
+            marker={
+                "size": max(5, 11 - 3 * j),
+                "symbol": _SYMBOLS[j % len(_SYMBOLS)],
+                "opacity": 0.85,
+                "line": {"width": 1, "color": colour},
+            },
             connectgaps=False,
             customdata=custom,
             **group,
@@ -286,7 +312,7 @@ def cost_per_direction_figure(sweeps: Mapping[str, SweepResult], *, title=None):
                 "line": {"width": 1, "color": _INK},
             }
             fig.add_scatter(
-                x=[k + 1],
+                x=[k + 1 + shift],
                 y=[float(c[k])],
                 mode="markers",
                 name=f"{label} best",
@@ -387,9 +413,60 @@ def sweep_table(sweeps: Mapping[str, SweepResult]) -> list[dict]:
     ]
 
 
-def sweep_sections(sweeps: Mapping[str, SweepResult], *, normal=None, scene=None) -> list:
-    """The standard sections of a sweep report: summary, Table 4, Fig. 8, Fig. 9 and, given
-    the scene, the best paths.
+def direction_table(sweeps: Mapping[str, SweepResult]) -> list[dict]:
+    """Feng's Tables 2-3: every effective direction some planner solved, with each
+    planner's cost.
+
+    Parameters
+    ----------
+    sweeps : mapping of str to SweepResult
+
+    Returns
+    -------
+    list of dict
+        ``effective #`` (1-based, sweep order), ``direction`` (x, y, z) and one cost
+        column per planner (mm, ``"-"`` without a plan), in sweep order.
+    """
+    sweeps = _check_sweeps(sweeps)
+    sw = next(iter(sweeps.values()))
+    idx = np.flatnonzero(np.asarray(sw.effective, dtype=bool))
+    costs = {k: _costs(s) for k, s in sweeps.items()}
+    rows = []
+    for pos, i in enumerate(idx, start=1):
+        if all(np.isnan(c[i]) for c in costs.values()):
+            continue
+        d = np.asarray(sw.directions[i], dtype=float)
+        row = {"effective #": pos, "direction": f"({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f})"}
+        for k, c in costs.items():
+            row[f"{_label(k)} cost (mm)"] = "-" if np.isnan(c[i]) else f"{c[i]:.3f}"
+        rows.append(row)
+    return rows
+
+
+def goal_connection_rule(planner: str, options: Mapping | None = None) -> str:
+    """How a planner joins the goal, in words (:data:`GOAL_CONNECTIONS`).
+
+    Parameters
+    ----------
+    planner : str
+    options : mapping, optional
+        The planner's options (RRT's ``connection``).
+
+    Returns
+    -------
+    str
+    """
+    rule = GOAL_CONNECTIONS.get(planner)
+    if isinstance(rule, dict):
+        return rule[(options or {}).get("connection", "arc_line")]
+    return rule or "its own (a planner from a plug-in)"
+
+
+def sweep_sections(
+    sweeps: Mapping[str, SweepResult], *, normal=None, scene=None, options=None
+) -> list:
+    """The standard sections of a sweep report: summary, each planner's goal connection,
+    Table 4, Tables 2-3, Fig. 8, Fig. 9 and, given the scene, the best paths.
 
     Parameters
     ----------
@@ -397,6 +474,8 @@ def sweep_sections(sweeps: Mapping[str, SweepResult], *, normal=None, scene=None
     normal : array_like, shape (3,), optional
         Outward normal of the entry surface, drawn on the direction spheres.
     scene : needlekit.anatomy.scene.Scene, optional
+    options : mapping of str to mapping, optional
+        Each planner's options (its goal connection depends on them).
 
     Returns
     -------
@@ -412,11 +491,31 @@ def sweep_sections(sweeps: Mapping[str, SweepResult], *, normal=None, scene=None
         "the sum of the solved directions' costs in sweep order up to and including the lowest."
     )
     sphere = direction_sphere_figure(sweeps, normal=normal)
+    rules = [
+        {"planner": _label(k), "goal connection": goal_connection_rule(k, (options or {}).get(k))}
+        for k in sweeps
+    ]
     out = [
         TextSection(text),
+        TableSection(
+            "How each planner joins the goal",
+            rules,
+            "The connection decides the costs: planners that find the same path to the same "
+            "point differ by it alone.",
+        ),
         TableSection("Summary per planner (Table 4)", sweep_table(sweeps)),
+        TableSection(
+            "Cost per solved effective direction (Tables 2-3)",
+            direction_table(sweeps),
+            "Every effective direction some planner solved, in sweep order.",
+        ),
         FigureSection("Effective puncture region and solved directions (Fig. 8)", sphere),
-        FigureSection("Cost per effective direction (Fig. 9)", cost_per_direction_figure(sweeps)),
+        FigureSection(
+            "Cost per effective direction (Fig. 9)",
+            cost_per_direction_figure(sweeps),
+            f"Each planner's series sits {FIG9_OFFSET:g} of a position beside the next, with "
+            "its own marker size, so that equal costs stay visible.",
+        ),
     ]
     if scene is not None:
         out.append(FigureSection("Best path per planner", best_paths_figure(scene, sweeps)))

@@ -180,16 +180,17 @@ def run_sweep_study(
                 best,
                 check,
                 problem,
+                options or {},
             )
     return SweepStudy(sweeps, best, check, files)
 
 
-def _write_report(path, title: str, sweeps: dict, first: str, best, check, problem):
+def _write_report(path, title: str, sweeps: dict, first: str, best, check, problem, options):
     from needlekit.report.html_page import TableSection, TextSection
     from needlekit.report.sweep_report import sweep_sections, write_report_html
 
     normal = problem.puncture_normal
-    sections = sweep_sections(sweeps, normal=normal, scene=problem.scene)
+    sections = sweep_sections(sweeps, normal=normal, scene=problem.scene, options=options)
     if best is not None:
         m = check.metrics
         cert = (
