@@ -313,7 +313,7 @@ def test_html_is_one_self_contained_page(report):
     assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
     assert page.count(PLOTLY_JS_HEAD) == 1  # plotly.js inlined exactly once
     n_figures = sum(isinstance(s, FigureSection) for s in sections)
-    assert n_figures == 3
+    assert n_figures == 4  # Fig. 8, Fig. 9, Fig. 7 and the best paths
     assert page.count('class="plotly-graph-div"') == n_figures
     assert page.index(PLOTLY_JS_HEAD) < page.index('class="plotly-graph-div"')
     assert not re.search(r"<script[^>]+src=", page)  # nothing fetched: opens offline
@@ -441,3 +441,17 @@ def test_best_paths_figure_draws_each_planners_best_plan(lung, report):
             lo, hi = fig.layout.scene[axis].range
             k = "xyz".index(axis[0])
             assert lo <= pts[:, k].min() and pts[:, k].max() <= hi
+
+
+def test_fig7_draws_every_valid_path_of_the_first_planner(lung):
+    from needlekit.report.sweep_report import valid_paths_figure
+
+    sc, runs, _ = lung
+    sw = runs["rcs_star"]
+    fig = valid_paths_figure(sc.scene, sw)
+    lines = [t for t in fig.data if t.type == "scatter3d" and t.name.startswith("direction #")]
+    solved = [r for r in sw.results if r is not None and r.status.value == "solved"]
+    assert len(lines) == len(solved) == sw.stats["n_solved"]
+    (best,) = [t for t in lines if t.name.endswith("(best)")]
+    assert best.name.startswith(f"direction #{sw.stats['best_index']}:")
+    assert best.line.color == "#d62728" and best.showlegend

@@ -44,6 +44,7 @@ __all__ = [
     "goal_connection_rule",
     "sweep_sections",
     "sweep_table",
+    "valid_paths_figure",
     "write_report_html",
 ]
 
@@ -393,6 +394,68 @@ def best_paths_figure(scene, sweeps: Mapping[str, SweepResult], *, max_cells: in
     return fig
 
 
+def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
+    """Feng's Fig. 7: every valid path of one planner's sweep (one per solved direction),
+    coloured by cost from the cheapest (dark) to the costliest (light), the best in red.
+
+    Parameters
+    ----------
+    scene : needlekit.anatomy.scene.Scene
+    sweep : SweepResult
+    max_cells : int
+        Resolution limit of the surfaces (samples per axis).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    import plotly.graph_objects as go
+    from plotly.colors import sample_colorscale
+
+    from needlekit.report.scene3d import scene_figure
+
+    solved = [
+        (i, r) for i, r in enumerate(sweep.results)
+        if r is not None and r.plan is not None and r.status.value == "solved"
+    ]  # fmt: skip
+    goals = [r.goal_mm for _, r in solved][:1]
+    fig = scene_figure(
+        scene,
+        targets_mm=np.array(goals) if goals else None,
+        max_cells=max_cells,
+        title="",
+    )
+    if not solved:
+        return fig
+    costs = np.array([r.cost_mm for _, r in solved])
+    lo, hi = float(costs.min()), float(costs.max())
+    t = (costs - lo) / (hi - lo) if hi > lo else np.zeros_like(costs)
+    colours = sample_colorscale(_COST_SCALE, t.tolist())
+    best = sweep.stats.get("best_index")
+    paths = []
+    for (i, r), colour in zip(solved, colours, strict=True):
+        p = r.plan.points_mm(0.5)
+        paths.append(p)
+        is_best = i == best
+        fig.add_trace(
+            go.Scatter3d(
+                x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="lines",
+                name=f"direction #{i}: {r.cost_mm:.2f} mm" + (" (best)" if is_best else ""),
+                line={"width": 7 if is_best else 3, "color": _RED if is_best else colour},
+                legendgroup="best" if is_best else "paths", showlegend=is_best,
+                hovertemplate=f"direction #{i}<br>cost {r.cost_mm:.3f} mm<extra></extra>",
+            )
+        )  # fmt: skip
+    pts = np.vstack(paths)
+    lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
+    half = 0.5 * float(np.max(hi3 - lo3)) + 15.0  # zoom onto the paths
+    ranges = {
+        f"{a}axis_range": [c - half, c + half] for a, c in zip("xyz", (lo3 + hi3) / 2, strict=True)
+    }
+    fig.update_scenes(aspectmode="cube", **ranges)
+    return fig
+
+
 def sweep_table(sweeps: Mapping[str, SweepResult]) -> list[dict]:
     """Feng's Table 4, one row per planner, from the sweeps' statistics.
 
@@ -518,5 +581,14 @@ def sweep_sections(
         ),
     ]
     if scene is not None:
+        first = next(iter(sweeps))
+        out.append(
+            FigureSection(
+                f"Every valid path of {_label(first)} (Fig. 7)",
+                valid_paths_figure(scene, sweeps[first]),
+                "One path per solved effective direction, dark (cheapest) to light "
+                "(costliest); the best in red.",
+            )
+        )
         out.append(FigureSection("Best path per planner", best_paths_figure(scene, sweeps)))
     return out
