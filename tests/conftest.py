@@ -85,19 +85,21 @@ EXACT_CHECK_SPACING_MM = 0.1
 _exact_fields: dict[int, tuple] = {}
 
 
-def exact_obstacle_field(phantom):
+def exact_obstacle_field(phantom, extra=()):
     """The phantom's obstacle field from its exact structures (same names and roles as its
-    scene), built once per phantom."""
+    scene), with ``extra`` structures a scenario adds (exact themselves: closed forms),
+    built once per phantom and extras."""
     from needlekit.anatomy.scene import Scene, Structure
 
-    key = id(phantom)
+    key = (id(phantom), tuple(s.name for s in extra))
     if key not in _exact_fields:
         structures = [
             Structure(s.name, s.role, phantom.exact_fields[s.name])
             for s in phantom.scene.structures
         ]
         # the phantom is kept beside its field so that its id stays its own
-        _exact_fields[key] = (phantom, Scene(structures).obstacle_field(0.0))
+        field = Scene([*structures, *extra]).obstacle_field(0.0)
+        _exact_fields[key] = (phantom, field)
     return _exact_fields[key][1]
 
 
@@ -109,8 +111,11 @@ def check_exact_clearance(phantom, problem, plan, certified_clearance_mm=None) -
     ``certified_clearance_mm`` the planner reported (which claims to be a lower bound).
     """
     scene_roles = [(s.name, s.role) for s in problem.scene.structures]
-    assert scene_roles == [(s.name, s.role) for s in phantom.scene.structures]
-    field = exact_obstacle_field(phantom)
+    base = [(s.name, s.role) for s in phantom.scene.structures]
+    assert scene_roles[: len(base)] == base
+    extra = problem.scene.structures[len(base) :]  # added by the scenario: closed forms
+    assert all(s.field.error_bound_mm == 0.0 for s in extra)
+    field = exact_obstacle_field(phantom, tuple(extra))
     points = plan.points_mm(EXACT_CHECK_SPACING_MM)
     start = plan.start_pose[:3, 3]
     far = np.linalg.norm(points - start, axis=1) >= problem.start_exclusion_mm

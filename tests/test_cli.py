@@ -262,10 +262,15 @@ def test_demo_writes_figures_and_phantom_views(capsys, tmp_path, exact_clearance
         544 * (1 - np.sin(np.radians(20))) / 2, abs=3
     )
     # iteration budgets end every search: the same numbers on any machine
-    for p in ("rcs_star", "rcs", "rrt"):
-        assert (st[p]["n_effective"], st[p]["n_solved"]) == (178, 18)
+    solved = {p: (st[p]["n_effective"], st[p]["n_solved"]) for p in ("rcs_star", "rcs", "rrt")}
+    assert solved == {"rcs_star": (178, 5), "rcs": (178, 6), "rrt": (178, 2)}
     mean = [st[p]["mean_cost_mm"] for p in ("rcs_star", "rcs", "rrt")]
-    assert mean[0] <= min(mean[1], mean[2]) + 1e-9  # RCS* is optimal per direction
+    # the crossing vessel makes the best path bend around it (a case where planning
+    # matters): RCS*'s best has a detour beyond the turn-then-straight connection, and the
+    # mean costs order as Feng's Table 4, RCS* < RRT < RCS
+    assert mean == pytest.approx([32.448558, 33.545845, 33.047463], abs=1e-5)
+    assert mean[0] < mean[2] < mean[1]
+    assert len(sweep["best_plans"]["rcs_star"]["primitives"]) == 3
     plan = json.loads((lung / "plan.json").read_text())
     assert plan["cost_mm"] == pytest.approx(st["rcs_star"]["best_cost_mm"]) and plan["check"]["ok"]
     assert np.linalg.norm(np.diff(plan["points_mm"], axis=0), axis=1).max() <= 0.5 + 1e-9
