@@ -127,6 +127,7 @@ def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
     assert t["reached"] and t["reached_estimated"]
     assert doc["reached_target"] == {"estimated": 1, "real": 1, "missed_by_real_tip": []}
     assert doc["options"]["guide_samples"] == 1
+    assert "target reached (within the target tolerance): 1 by the robot's estimate, 1 by" in text
     assert len(t["log"]["t_s"]) == len(t["log"]["measured_to_line_mm"]) > 100
     html = (out / "puncture.html").read_text()
     assert "like Fig. 4" in html and "like Fig. 5" in html and "Tang et al." in html

@@ -61,6 +61,11 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         f"{s['completed']} of {s['trials']} trials completed, {s['aborted']['count']} aborted; "
         f"{v['total']} constraint violations beyond the measurement noise"
     )
+    r = s["reached_target"]
+    print(
+        f"target reached (within the target tolerance): {r['estimated']} by the robot's "
+        f"estimate, {r['real']} by the real tip"
+    )
     for a in s["aborted"]["trials"]:
         print(f"  trial {a['trial']}: {a['reason']}")
     for path in study.files.values():
