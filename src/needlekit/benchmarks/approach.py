@@ -22,7 +22,6 @@ apart. Speed is measured, never asserted.
 
 from __future__ import annotations
 
-import statistics
 import time
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from needlekit.benchmarks.record import machine_info
+from needlekit.benchmarks.straight import _timed
 
 __all__ = ["run_approach_benchmark"]
 
@@ -37,15 +37,6 @@ __all__ = ["run_approach_benchmark"]
 PAA_TOLERANCE: float = 0.001
 #: Target voxels of the label-wise comparison (PAA's loop is slow: a sample of them).
 LABEL_VOXELS: int = 16
-
-
-def _timed(fn, repeat: int):
-    runs, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        runs.append(time.perf_counter() - t0)
-    return {"median_s": statistics.median(runs), "min_s": min(runs), "runs_s": runs}, out
 
 
 def _vtk_polydata(meshes):

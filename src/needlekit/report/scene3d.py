@@ -17,7 +17,7 @@ from needlekit.anatomy.scene import Role, Scene
 from needlekit.anatomy.summary import surface_mesh
 from needlekit.io.files import atomic_write
 
-__all__ = ["scene_figure", "write_scene_html", "write_scenes_html"]
+__all__ = ["scene_figure", "write_scene_html", "write_scenes_html", "zoom_onto"]
 
 _ROLE_STYLE = {
     Role.ALLOWED_REGION: ("#9ecae1", 0.12),
@@ -136,6 +136,29 @@ def scene_figure(
         template="plotly_white",
     )
     return fig
+
+
+def zoom_onto(fig, points_mm, margin_mm: float = 15.0) -> None:
+    """Zoom a scene figure onto points (e.g. needle paths, small beside the whole scene): a
+    cube around them, ``margin_mm`` wider than their largest side on every side.
+
+    Parameters
+    ----------
+    fig : plotly.graph_objects.Figure
+    points_mm : array_like, shape (n, 3)
+    margin_mm : float
+
+    Returns
+    -------
+    None
+    """
+    pts = np.asarray(points_mm, dtype=float).reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    half = 0.5 * float(np.max(hi - lo)) + float(margin_mm)
+    ranges = {
+        f"{a}axis_range": [c - half, c + half] for a, c in zip("xyz", (lo + hi) / 2, strict=True)
+    }
+    fig.update_scenes(aspectmode="cube", **ranges)
 
 
 def write_scene_html(fig, path: str | os.PathLike) -> Path:

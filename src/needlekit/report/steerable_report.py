@@ -33,7 +33,7 @@ def goals_figure(problem, results, *, title: str = "", max_cells: int = 96):
     -------
     plotly.graph_objects.Figure
     """
-    from needlekit.report.scene3d import scene_figure
+    from needlekit.report.scene3d import scene_figure, zoom_onto
 
     drawn = [(i, r) for i, r in enumerate(results, start=1) if r.plan is not None]
     paths = [r.plan.points_mm(0.5) for _, r in drawn]
@@ -47,13 +47,7 @@ def goals_figure(problem, results, *, title: str = "", max_cells: int = 96):
         max_cells=max_cells,
         title=title,
     )
-    pts = np.vstack([*paths, goals, np.asarray(problem.start_pose)[None, :3, 3]])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    half = 0.5 * float(np.max(hi - lo)) + 15.0  # zoom onto the paths
-    ranges = {
-        f"{a}axis_range": [c - half, c + half] for a, c in zip("xyz", (lo + hi) / 2, strict=True)
-    }
-    fig.update_scenes(aspectmode="cube", **ranges)
+    zoom_onto(fig, np.vstack([*paths, goals, np.asarray(problem.start_pose)[None, :3, 3]]))
     return fig
 
 

@@ -412,7 +412,7 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
     import plotly.graph_objects as go
     from plotly.colors import sample_colorscale
 
-    from needlekit.report.scene3d import scene_figure
+    from needlekit.report.scene3d import scene_figure, zoom_onto
 
     solved = [
         (i, r) for i, r in enumerate(sweep.results)
@@ -446,13 +446,7 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
                 hovertemplate=f"direction #{i}<br>cost {r.cost_mm:.3f} mm<extra></extra>",
             )
         )  # fmt: skip
-    pts = np.vstack(paths)
-    lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
-    half = 0.5 * float(np.max(hi3 - lo3)) + 15.0  # zoom onto the paths
-    ranges = {
-        f"{a}axis_range": [c - half, c + half] for a, c in zip("xyz", (lo3 + hi3) / 2, strict=True)
-    }
-    fig.update_scenes(aspectmode="cube", **ranges)
+    zoom_onto(fig, np.vstack(paths))
     return fig
 
 
