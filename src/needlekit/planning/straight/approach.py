@@ -187,6 +187,19 @@ def _mesh_arrays(mesh, name: str) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(v, dtype=float), np.asarray(f, dtype=np.int64)
 
 
+def _skin_faces(skin):
+    """A skin mesh's vertices, faces, triangle centres, areas and outward unit normals."""
+    sv, sf = _mesh_arrays(skin, "skin")
+    tri = sv[sf]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    areas = 0.5 * np.linalg.norm(cross, axis=1)
+    normals = cross / np.maximum(2.0 * areas, 1e-300)[:, None]
+    # outward: the signed volume of a closed outward mesh is positive
+    if float(np.einsum("ij,ij->", tri[:, 0], cross)) < 0.0:
+        normals = -normals
+    return sv, sf, tri.mean(axis=1), areas, normals
+
+
 def _obstacle_intersector(obstacles):
     from needlekit.geometry.segment_mesh import SegmentMeshIntersector
 
@@ -248,15 +261,7 @@ def approach_analysis(
     for name, v in (("needle_radius_mm", needle_radius_mm), ("gamma_mm", gamma_mm)):
         if not (np.isfinite(v) and v >= 0):
             raise InvalidInputError(name, f"must be a finite number >= 0, got {v!r}")
-    sv, sf = _mesh_arrays(skin, "skin")
-    tri = sv[sf]
-    centres = tri.mean(axis=1)
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    areas = 0.5 * np.linalg.norm(cross, axis=1)
-    normals = cross / np.maximum(2.0 * areas, 1e-300)[:, None]
-    # outward: the signed volume of a closed outward mesh is positive
-    if float(np.einsum("ij,ij->", tri[:, 0], cross)) < 0.0:
-        normals = -normals
+    sv, sf, centres, areas, normals = _skin_faces(skin)
     obstacle_hits = _obstacle_intersector(obstacles) if obstacle_hits is None else obstacle_hits
     skin_hits = SegmentMeshIntersector(sv, sf) if skin_hits is None else skin_hits
     n = len(sf)
@@ -312,10 +317,7 @@ def approach_scores(targets_mm, skin, obstacles) -> np.ndarray:
     from needlekit._validation import as_points
 
     pts, _ = as_points(targets_mm, "targets_mm")
-    sv, sf = _mesh_arrays(skin, "skin")
-    tri = sv[sf]
-    centres = tri.mean(axis=1)
-    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    _, _, centres, areas, _ = _skin_faces(skin)
     hits = _obstacle_intersector(obstacles)
     total = float(areas.sum())
     out = np.empty(len(pts))
