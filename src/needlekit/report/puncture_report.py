@@ -5,6 +5,7 @@ needle estimates), the distribution of the final errors, and the comparison with
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -20,14 +21,23 @@ from needlekit.report.html_page import (
 
 __all__ = [
     "adaptation_figure",
-    "neck_figure",
     "error_histograms_figure",
+    "neck_figure",
     "puncture_figure",
     "puncture_sections",
+    "start_and_angle_figure",
     "write_puncture_report",
 ]
 
 _OCTANTS = ("+x +y", "-x +y", "-x -y", "+x -y")
+#: The report page's title.
+TITLE = "Robotic needle puncture: simulation study (Tang et al., Section III)"
+_PAPER_TRIALS = 100  # Tang et al., Section III-B: the simulation was run 100 times
+_REASON_WORDS = {
+    "inside_patient_cylinder": "start point inside the patient cylinder",
+    "wrist_too_close": "wrist too close to the shoulder",
+    "wrist_too_far": "wrist beyond the arm's reach",
+}
 
 
 def _series(log: dict, key: str) -> np.ndarray:
@@ -123,7 +133,8 @@ def puncture_figure(trials: list[dict], *, guide_radius_mm: float = 1.5, cone_de
 
 
 def adaptation_figure(trials: list[dict]):
-    """Fig. 5: errors of the estimated base and needle poses over whole example trials.
+    """Fig. 5 (A, B): errors of the estimated base and needle poses over whole example
+    trials.
 
     Parameters
     ----------
@@ -136,12 +147,12 @@ def adaptation_figure(trials: list[dict]):
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    panels = (
+    panels = (  # lettered as Tang et al.'s Fig. 5: (A) the base pose, (B) the needle tip's
         ("base_error_mm", "(A) base position error (mm)"),
-        ("base_rotation_error_deg", "(B) base rotation error (deg)"),
-        ("needle_error_mm", "(C) needle-tip position error (mm)"),
-        ("needle_rotation_error_deg", "(D) needle-tip rotation error (deg)"),
-        ("tip_estimate_error_mm", "(E) estimated minus real tip (mm)"),
+        ("base_rotation_error_deg", "(A) base rotation error (deg)"),
+        ("needle_error_mm", "(B) needle-tip position error (mm)"),
+        ("needle_rotation_error_deg", "(B) needle-tip rotation error (deg)"),
+        ("tip_estimate_error_mm", "estimated minus real tip (mm)"),
     )
     fig = make_subplots(
         rows=3, cols=2, subplot_titles=[p[1] for p in panels], vertical_spacing=0.09
@@ -171,6 +182,93 @@ def adaptation_figure(trials: list[dict]):
     fig.update_yaxes(type="log")
     fig.update_xaxes(title_text="time (s); dotted: the puncture begins")
     fig.update_layout(height=900, template="plotly_white", legend={"orientation": "h", "y": -0.06})
+    return fig
+
+
+def _to_start(t: dict, start_distance_mm: float) -> np.ndarray:
+    """The real tip's distance from the real start point; computed from the logged tip for
+    files written before ``to_start_mm`` was logged."""
+    log = t["log"]
+    if "to_start_mm" in log:
+        return _series(log, "to_start_mm")
+    start = np.asarray(t["target_mm"], float) + start_distance_mm * np.asarray(
+        t["guide_direction"], float
+    )
+    return np.linalg.norm(np.asarray(log["tip_mm"], float) - start, axis=1)
+
+
+def start_and_angle_figure(
+    trials: list[dict], *, start_distance_mm: float = 300.0, cone_deg: float = 0.5
+):
+    """Fig. 5 (C, D): the real tip's distance from the real start point and the real
+    needle's angle to the real guide line over whole example trials, with the cone's bound
+    from the puncture's first step on.
+
+    Parameters
+    ----------
+    trials : list of dict
+        Trial outcomes; those with a ``log`` that reached the puncture are drawn.
+    start_distance_mm : float
+        The start point's distance out along the guide line.
+    cone_deg : float
+        The cone's half-angle, drawn (dotted, in each trial's colour) from the time the
+        trial's puncture began to its end.
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    fig = make_subplots(
+        rows=2,
+        cols=1,
+        shared_xaxes=True,
+        vertical_spacing=0.08,
+        subplot_titles=(
+            "(C) real tip to the real start point (mm)",
+            "(D) real needle to the real guide line (deg); dotted: the cone's bound",
+        ),
+    )
+    for k, t in enumerate(_examples(trials)):
+        log, colour, name = t["log"], _PALETTE[k % len(_PALETTE)], _label(t)
+        ts = np.asarray(log["t_s"], float)
+        start = t["phase_times_s"]["puncture"]
+        for row, y in ((1, _to_start(t, start_distance_mm)), (2, _series(log, "angle_deg"))):
+            fig.add_trace(
+                go.Scatter(
+                    x=ts,
+                    y=y,
+                    name=name,
+                    legendgroup=name,
+                    showlegend=row == 1,
+                    line={"color": colour, "width": 1.6},
+                ),
+                row,
+                1,
+            )
+            fig.add_vline(
+                x=start, line={"color": colour, "dash": "dot", "width": 1}, row=row, col=1
+            )
+        fig.add_trace(
+            go.Scatter(
+                x=[start, ts[-1]],
+                y=[cone_deg, cone_deg],
+                mode="lines",
+                showlegend=False,
+                legendgroup=name,
+                hoverinfo="skip",
+                line={"color": colour, "dash": "dot", "width": 2},
+            ),
+            2,
+            1,
+        )
+    fig.update_yaxes(type="log")
+    fig.update_xaxes(
+        title_text="time (s); dotted vertical lines: the puncture begins", row=2, col=1
+    )
+    fig.update_layout(height=720, template="plotly_white", legend={"orientation": "h", "y": -0.1})
     return fig
 
 
@@ -306,6 +404,140 @@ def _comparison_rows(summary: dict) -> list[dict]:
     return rows
 
 
+def _min_sample_sd(lo: float, hi: float, n: int) -> float:
+    """The smallest sample SD (ddof 1) of ``n`` values with minimum ``lo`` and maximum
+    ``hi``: two at the ends and the others at the midpoint."""
+    return (hi - lo) / 2.0 * math.sqrt(2.0 / (n - 1))
+
+
+def _angle_sd_note(paper: dict) -> str:
+    a = paper["angle_error_deg"]
+    least = _min_sample_sd(a["min"], a["max"], _PAPER_TRIALS)
+    return (
+        f"Tang et al.'s figures are shown as printed, but their angle SD ({a['sd']} deg) "
+        f"cannot go with their range ({a['min']}-{a['max']} deg): {_PAPER_TRIALS} values "
+        f"spanning {a['max'] - a['min']:.2f} deg have a sample SD of at least {least:.4f} deg "
+        f"(two at the ends, the others at the midpoint), so the SD or the range is misprinted."
+    )
+
+
+def _reasons(by_reason: dict) -> str:
+    return ", ".join(f"{n} {r}" for r, n in by_reason.items()) or "none"
+
+
+def _redraw_sections(summary: dict) -> list:
+    """The guide-line filter: its rule, what it did in this run (and, without redraws, the
+    trials that kept a refused line), and its refusal rate on its own."""
+    from needlekit.control.controller import ControllerSettings
+
+    g, f = summary.get("guide_redraws"), summary.get("redraw_filter")
+    if g is None or f is None:  # written before the filter was reported
+        return []
+    sc = summary["scenario"]
+    rule = (
+        f"Not in the paper: the study draws a trial's guide line again while its start point "
+        f"{sc['start_distance_mm']:g} mm out lies inside the patient cylinder (radius "
+        f"{ControllerSettings().patient_radius_mm:g} mm about the patient axis through the "
+        f"target), or puts the arm's wrist closer than {sc['min_wrist_reach_mm']:g} mm to its "
+        f"shoulder or farther than {sc['max_wrist_reach_mm']:g} mm (checked in that order; a "
+        f"refused line counts under the first that holds)."
+    )
+    r, first = g["refused_draws"], g["first_line_refused"]
+    counts = ", ".join(f"{r[k]} {w}" for k, w in _REASON_WORDS.items())
+    if g["enabled"]:
+        run = (
+            f" In this run {g['trials_redrawn']} of {g['trials']} trials needed redraws: "
+            f"{g['draws']} lines drawn, {r['total']} refused ({counts})."
+        )
+    else:
+        kept, ok = g["kept_refused_line"], g["acceptable_first_line"]
+        first_counts = ", ".join(f"{first[k]} {w}" for k, w in _REASON_WORDS.items())
+        run = (
+            f" This run did not redraw (--no-redraw): {kept['count']} of {g['trials']} trials "
+            f"kept a first line the filter refuses ({first_counts}), and "
+            f"{kept['aborted']['count']} of them aborted ({_reasons(kept['aborted']['by_reason'])}"
+            f"); of the {ok['count']} trials with an acceptable line, {ok['aborted']['count']} "
+            f"aborted ({_reasons(ok['aborted']['by_reason'])})."
+        )
+    a = f["all"]
+    alone = (
+        f" The filter on its own ({f['draws_per_octant']} random lines per octant, targets in "
+        f"the target cube, seed {f['seed']}, no simulation) refuses {a['refusal_rate']:.1%} "
+        f"of lines ({a['inside_patient_cylinder'] / a['draws']:.1%} inside the cylinder, "
+        f"{a['wrist_too_close'] / a['draws']:.1%} wrist too close, "
+        f"{a['wrist_too_far'] / a['draws']:.1%} wrist too far): without redraws that share "
+        f"of trials keeps a refused line, and with them a trial takes "
+        f"{a['expected_draws_per_trial']:.1f} draws on average."
+    )
+    octants = [
+        {
+            "octant": o["octant"],
+            "refused_%": 100.0 * o["refusal_rate"],
+            "inside_cylinder_%": 100.0 * o["inside_patient_cylinder"] / o["draws"],
+            "wrist_too_close_%": 100.0 * o["wrist_too_close"] / o["draws"],
+            "wrist_too_far_%": 100.0 * o["wrist_too_far"] / o["draws"],
+            "draws_per_trial": o["expected_draws_per_trial"],
+        }
+        for o in f["octants"]
+    ]
+    octant_caption = "Octants in trial order (trial i takes octant i mod 4)."
+    exact = f.get("inside_patient_cylinder_exact_share")
+    if exact is not None:
+        octant_caption += (
+            f" Exactly {exact:.1%} of lines in every octant put the start point inside the "
+            f"patient cylinder (the share depends on the line's direction alone)."
+        )
+    outcomes = [
+        {
+            "first line": "acceptable" if v == "acceptable" else f"refused: {_REASON_WORDS[v]}",
+            "trials": o["count"],
+            "completed": o["completed"],
+            "aborted": o["aborted"]["count"],
+            "abort reasons": _reasons(o["aborted"]["by_reason"]),
+        }
+        for v, o in g["by_first_line"].items()
+        if o["count"]
+    ]
+    return [
+        TextSection(rule + run + alone, heading="Guide-line redraws"),
+        TableSection(
+            "The guide-line filter on its own, per octant",
+            octants,
+            octant_caption,
+        ),
+        TableSection(
+            "Outcomes by the verdict on each trial's first guide line",
+            outcomes,
+            (
+                "The refused first lines were redrawn: those trials ran with an acceptable one."
+                if g["enabled"]
+                else "Without redraws each trial ran with its first line."
+            ),
+        ),
+    ]
+
+
+def _start_and_angle_caption(trials: list[dict], summary: dict) -> str:
+    starts = "; ".join(
+        f"trial {t['trial']} at {t['phase_times_s']['puncture']:.1f} s" for t in _examples(trials)
+    )
+    d = summary["scenario"]["start_distance_mm"]
+    return (
+        f"The same example trials as Fig. 5 (A, B), from the start: the arm stands still while "
+        f"the estimate adapts, turns the needle onto the guide line, brings the tip to the start "
+        f"point {d:g} mm out, waits there until the estimate agrees with the needle sensor, and "
+        f"punctures (dotted vertical lines; (C) then climbs to {d:g} mm). The 0.5 deg bound "
+        f"applies from the puncture's first step: needlekit's controller adds the cone VFI in "
+        f"the puncture step only (Phase.PUNCTURE of control.procedure, step_vfis in "
+        f"control.controller), as Tang et al. constrain the needle in their step 3. Their "
+        f"Fig. 5 applies it from 15 s; here each trial reaches the puncture at its own time "
+        f"({starts}). The controller steers its estimate of the tip and needle towards the "
+        f"guide line it measured (one noisy bronchoscope sample), while these curves are the "
+        f"real tip and needle against the real line: (C) settles at the estimation and "
+        f"measurement errors rather than at zero, and (D) may pass the bound by them."
+    )
+
+
 def puncture_sections(summary: dict, trials: list[dict]) -> list:
     """The report's sections (figures, tables, text).
 
@@ -349,8 +581,17 @@ def puncture_sections(summary: dict, trials: list[dict]) -> list:
     ]
     sections = [
         TextSection(text),
-        TableSection("Final errors beside Tang et al. (Section III-B)", _comparison_rows(summary)),
-        FigureSection("Final errors", error_histograms_figure(trials, summary["paper"])),
+        TableSection(
+            "Final errors beside Tang et al. (Section III-B)",
+            _comparison_rows(summary),
+            _angle_sd_note(summary["paper"]),
+        ),
+        FigureSection(
+            "Final errors",
+            error_histograms_figure(trials, summary["paper"]),
+            "The angle's shaded band is the paper's mean +- SD as printed (see the note on "
+            "its SD under the table above).",
+        ),
         FigureSection(
             "The puncture (like Fig. 4)",
             puncture_figure(trials),
@@ -359,24 +600,34 @@ def puncture_sections(summary: dict, trials: list[dict]) -> list:
             "curves are the real robot's.",
         ),
         FigureSection(
-            "The adaptation (like Fig. 5)",
+            "The adaptation (like Fig. 5 A and B)",
             adaptation_figure(trials),
             "Errors of the estimated base (transmitter to base) and needle tip (flange to tip) "
             "against the truth, over whole trials.",
         ),
-        TableSection("Constraint violations beyond the measurement noise", viol),
     ]
+    if _examples(trials):
+        sections.append(
+            FigureSection(
+                "The start point and the needle angle (like Fig. 5 C and D)",
+                start_and_angle_figure(
+                    trials, start_distance_mm=summary["scenario"]["start_distance_mm"]
+                ),
+                _start_and_angle_caption(trials, summary),
+            )
+        )
     if any("tip_mm" in t.get("log", {}) for t in trials):
-        sections.insert(
-            5,
+        sections.append(
             FigureSection(
                 "The punctures in the neck phantom",
                 neck_figure(trials),
                 "The real tip paths of the example trials, each carried rigidly onto the "
                 "phantom's guide line (between two tracheal rings below the thyroid isthmus, "
                 "to the middle of the trachea).",
-            ),
+            )
         )
+    sections.append(TableSection("Constraint violations beyond the measurement noise", viol))
+    sections += _redraw_sections(summary)
     if summary["aborted"]["count"]:
         sections.append(TableSection("Aborted trials", summary["aborted"]["trials"]))
     return sections
@@ -395,8 +646,4 @@ def write_puncture_report(path: str | os.PathLike, summary: dict, trials: list[d
     -------
     Path
     """
-    return write_report_html(
-        path,
-        title="Robotic needle puncture: simulation study (Tang et al., Section III)",
-        sections=puncture_sections(summary, trials),
-    )
+    return write_report_html(path, title=TITLE, sections=puncture_sections(summary, trials))

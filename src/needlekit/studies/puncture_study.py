@@ -9,7 +9,8 @@ order the trials finish in):
   horizontal plane (trial ``i`` takes octant ``i mod 4``), redrawn while the start point
   300 mm out would lie inside the patient cylinder (``R_p``) or put the arm's wrist
   outside its comfortable reach (``min_wrist_reach_mm`` to ``max_wrist_reach_mm`` from the
-  shoulder); the draws are counted;
+  shoulder); the draws and the filter's reasons for refusing each are counted
+  (:mod:`needlekit.studies.guide_filter`);
 - the controller's initial estimate of the base and needle uniformly within the
   uncertainty box around the nominal values (+-200 mm and +-10 deg on the base, +-10 mm
   and +-5 deg on the needle). As in the paper, the real arm has the nominal values ("an
@@ -20,8 +21,10 @@ order the trials finish in):
 
 :func:`run_puncture_study` runs the trials on any :class:`concurrent.futures.Executor`
 (:func:`needlekit.batch.open_executor`), writes ``puncture.json`` (summary statistics,
-constraint violations, aborted trials, every trial's outcome and the logs of the example
-trials) and a report page, both atomically.
+constraint violations, aborted trials, the guide-line redraws and the outcomes by the
+verdict on each trial's first line (``guide_redraws``), the filter's refusal rate measured
+on its own (``redraw_filter``), every trial's outcome and the logs of the example trials)
+and a report page, both atomically.
 """
 
 from __future__ import annotations
@@ -56,7 +59,6 @@ PAPER_RESULTS = {
 }
 
 _Q_READY = (0.0, -math.pi / 4, 0.0, -3 * math.pi / 4, 0.0, math.pi / 2, math.pi / 4)
-_SHOULDER_MM = 333.0  # the Panda's shoulder above its base
 
 
 @dataclass(frozen=True)
@@ -147,7 +149,13 @@ class TrialOptions:
     clamp_vfi_rows: bool = True
 
 
-def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: int):
+def sample_trial(
+    scenario: PunctureScenario,
+    rng: np.random.Generator,
+    index: int,
+    *,
+    verdicts: list | None = None,
+):
     """Draw one trial of the study.
 
     Parameters
@@ -156,6 +164,11 @@ def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: in
     rng : numpy.random.Generator
     index : int
         The trial's number (picks the octant).
+    verdicts : list, optional
+        Receives the filter's verdict on every guide line drawn, in order
+        (:data:`~needlekit.studies.guide_filter.ACCEPTABLE` or the reason it refuses the
+        line, :data:`~needlekit.studies.guide_filter.REFUSAL_REASONS`); without redraws,
+        the verdict on the one line kept, whatever it is.
 
     Returns
     -------
@@ -168,38 +181,26 @@ def sample_trial(scenario: PunctureScenario, rng: np.random.Generator, index: in
     InvalidInputError
         No acceptable guide line within ``max_draws``.
     """
-    from needlekit.control.controller import ControllerSettings
-    from needlekit.control.panda import FLANGE_MM as _FLANGE_MM
     from needlekit.control.panda import PandaModel
-    from needlekit.control.parameters import pose_from_parameters
     from needlekit.control.procedure import TrialSetup
+    from needlekit.studies.guide_filter import ACCEPTABLE, OCTANT_SIGNS, GuideFilter
 
     nominal, spread = scenario.nominal_parameters, scenario.spread
     initial = nominal + rng.uniform(-1.0, 1.0, 12) * spread
     true_a = nominal
     half = scenario.target_cube_mm / 2.0
     target = np.asarray(scenario.target_center_mm, float) + rng.uniform(-half, half, 3)
-    sx, sy = ((1, 1), (-1, 1), (-1, -1), (1, -1))[index % 4]
-    cs = ControllerSettings()
-    axis = cs.patient_axis / np.linalg.norm(cs.patient_axis)
-    base = pose_from_parameters(true_a[:6])
-    shoulder = base[:3, 3] + base[:3, 2] * _SHOULDER_MM
-    back = _FLANGE_MM + true_a[8]  # wrist to tip along the needle
+    sx, sy = OCTANT_SIGNS[index % 4]
+    guide_filter = GuideFilter.from_scenario(scenario)
     for draw in range(1, scenario.max_draws + 1):
         c = rng.uniform(0.0, 1.0, 3) * np.array([sx, sy, 1.0])
         if np.linalg.norm(c) < 1e-6:
             continue
         lg = c / np.linalg.norm(c)
-        start = target + scenario.start_distance_mm * lg
-        rel = start - target
-        off_axis = np.linalg.norm(rel - axis * (rel @ axis))
-        wrist = start + back * lg
-        if not scenario.redraw_guides or (
-            off_axis >= cs.patient_radius_mm
-            and scenario.min_wrist_reach_mm
-            <= np.linalg.norm(wrist - shoulder)
-            <= scenario.max_wrist_reach_mm
-        ):
+        verdict = guide_filter.verdict(target, lg)
+        if verdicts is not None:
+            verdicts.append(verdict)
+        if not scenario.redraw_guides or verdict == ACCEPTABLE:
             q0 = np.asarray(scenario.q0, float)
             return TrialSetup(PandaModel(), true_a, initial, q0, target, lg), draw
     raise InvalidInputError(
@@ -275,9 +276,13 @@ def run_puncture_trial(
     dict
     """
     from needlekit.control.procedure import run_trial
+    from needlekit.studies.guide_filter import ACCEPTABLE, REFUSAL_REASONS
 
     draw_seed, sensor_seed = seed_sequence.spawn(2)
-    setup, draws = sample_trial(scenario, np.random.default_rng(draw_seed), index)
+    verdicts: list[str] = []
+    setup, draws = sample_trial(
+        scenario, np.random.default_rng(draw_seed), index, verdicts=verdicts
+    )
     adaptation, procedure, spec = trial_settings(scenario, options, setup.nominal_parameters)
     r = run_trial(
         setup,
@@ -308,6 +313,13 @@ def run_puncture_trial(
         "phase_times_s": r.phase_times_s,
         "counts": r.counts,
         "guide_draws": draws,
+        # the filter's refusals (redrawn lines) by reason, and its verdict on the first line
+        # (kept whatever it is when the study does not redraw)
+        "guide_refused": {
+            reason: sum(v == reason for v in verdicts[:-1] if scenario.redraw_guides)
+            for reason in REFUSAL_REASONS
+        },
+        "first_guide_verdict": verdicts[0] if verdicts else ACCEPTABLE,
         "events": [[float(t), what] for t, what in r.events],
         "target_mm": setup.target_mm.tolist(),
         "guide_direction": setup.guide_direction.tolist(),
@@ -315,7 +327,16 @@ def run_puncture_trial(
     }
     if keep_log:
         out["log"] = {k: _jsonable(v) for k, v in r.log.items()}
+        out["log"]["to_start_mm"] = _to_start_series(r.log, setup, scenario.start_distance_mm)
     return out
+
+
+def _to_start_series(log: dict, setup, start_distance_mm: float) -> list:
+    """The real tip's distance from the real start point (``d`` out along the real guide
+    line), at the log's samples, to 1 micron (Fig. 5C)."""
+    tips = np.asarray(log["tip_mm"], dtype=float).reshape(-1, 3)
+    start = setup.target_mm + start_distance_mm * setup.guide_direction
+    return np.round(np.linalg.norm(tips - start, axis=1), 3).tolist()
 
 
 def _run_job(job: tuple) -> dict:
@@ -454,6 +475,7 @@ def run_puncture_study(
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.em import EMSensorSpec
     from needlekit.io.files import staged_outputs, write_text
+    from needlekit.studies.guide_filter import redraw_filter_rates, redraw_summary
 
     if not isinstance(trials, int) or trials < 1:
         raise InvalidInputError("trials", f"expected a whole number >= 1, got {trials!r}")
@@ -463,6 +485,8 @@ def run_puncture_study(
     if out_dir.exists() and not out_dir.is_dir():
         raise InvalidInputError("out", f"{out_dir} exists and is not a folder")
     seeds = np.random.SeedSequence(seed).spawn(trials)
+    # the guide-line filter on its own (no simulation: a few ms)
+    filter_rates = redraw_filter_rates(scenario, seed=seed)
     ex = executor or SerialExecutor()
     t0 = time.perf_counter()
     jobs = [(scenario, options, i, seeds[i], i < example_trials) for i in range(trials)]
@@ -508,6 +532,8 @@ def run_puncture_study(
                 if not r.get("reached")
             ],
         },
+        "guide_redraws": redraw_summary(done, scenario.redraw_guides),
+        "redraw_filter": filter_rates,
         "paper": PAPER_RESULTS,
         "scenario": asdict(scenario),
         "options": asdict(options),
