@@ -74,7 +74,8 @@ def reports(tmp_path_factory):
     run(
         "sweep",
         ["sweep", toy, "--out", str(out / "sweep.json"), "--report", str(out / "sweep.html"),
-         "--directions", "64", "--max-iterations", "20", "--planner", "rcs_star", "rrt"],
+         "--directions", "64", "--max-iterations", "20", "--planner", "rcs_star", "rrt",
+         "--plan", str(out / "best.json")],
         out / "sweep.html",
     )  # fmt: skip
     multi = out / "two.yaml"
@@ -121,6 +122,27 @@ def reports(tmp_path_factory):
         ["approach", str(case), "--out", str(out / "a.json"), "--report", str(out / "a.html")],
         out / "a.html",
     )
+    run(
+        "cfrw",
+        ["cfrw", str(multi), "--target", "2", "--resolution-deg", "8", "--layers", "50", "60",
+         "--out", str(out / "cfrw.json")],
+        out / "cfrw.json",
+    )  # fmt: skip
+    # the pages `needlekit report` draws from each result file, and one of several
+    results = {
+        "plan": out / "best.json",
+        "goals": out / "goals.json",
+        "sweep": out / "sweep.json",
+        "cfrw": out / "cfrw.json",
+        "multi": out / "multi.json",
+        "puncture": out / "puncture" / "puncture.json",
+    }
+    for kind, path in results.items():
+        page = out / f"report-{kind}.html"
+        run(f"report-{kind}", ["report", str(path), "--out", str(page)], page)
+    files = [str(results[k]) for k in ("plan", "sweep", "multi")]
+    parts = out / "report-parts.html"
+    run("report-parts", ["report", *files, "--out", str(parts)], parts)
     from needlekit.anatomy.phantoms import make_phantom
     from needlekit.report.scene3d import scene_figure, write_scenes_html
 
@@ -153,7 +175,9 @@ def _not_blank(png: bytes) -> bool:
 
 
 @pytest.mark.parametrize(
-    "kind", ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes"]
+    "kind",
+    ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes"]
+    + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts")],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
     browser, reports, kind, tmp_path

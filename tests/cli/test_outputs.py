@@ -13,7 +13,12 @@ import pytest
 
 import needlekit.cli
 from needlekit.cli import main
-from needlekit.cli._parser import DEMO_FILES, PUNCTURE_FILES
+from needlekit.cli._parser import (
+    DEMO_FILES,
+    PUNCTURE_FILES,
+    REPRODUCE_FILES,
+    REPRODUCE_PAPERS,
+)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TOY = str(EXAMPLES / "toy.yaml")
@@ -90,9 +95,14 @@ FILE_OUTPUTS = [
     (["markups", TOY], "--out"),  # any existing file passes the input check
     (["study", "livers"], "--out"),
     (["bench", "approach"], "--out"),
+    (["report", TOY], "--out"),  # the page is checked before any RESULT is read
 ]
 #: Every output folder flag, and the files the command writes in it.
-FOLDER_OUTPUTS = [(["puncture"], "--out", PUNCTURE_FILES), (["demo"], "--out", DEMO_FILES)]
+FOLDER_OUTPUTS = [
+    (["puncture"], "--out", PUNCTURE_FILES),
+    (["demo"], "--out", DEMO_FILES),
+    (["reproduce", "lecture"], "--out", REPRODUCE_FILES),
+]
 
 #: Output flags the two tests above leave out, and why.
 NOT_LISTED = {
@@ -116,8 +126,8 @@ def test_every_output_flag_is_tested():
                 for name, sub in a.choices.items():
                     yield from walk(sub, (*path, name))
 
-    def command(argv):
-        return tuple(a for a in argv if not a.endswith(".yaml"))
+    def command(argv):  # the command's words: no scenario files, no paper names
+        return tuple(a for a in argv if not a.endswith(".yaml") and a not in REPRODUCE_PAPERS)
 
     listed = {(*command(a), f) for a, f in FILE_OUTPUTS}
     listed |= {(*command(a), f) for a, f, _ in FOLDER_OUTPUTS}
@@ -146,7 +156,9 @@ def test_bad_output_file_is_one_error_line_before_any_work(capsys, places, no_wo
     assert _tree(places) == before  # nothing written, created or left behind by the checks
 
 
-@pytest.mark.parametrize(("argv", "flag", "contents"), FOLDER_OUTPUTS, ids=["puncture", "demo"])
+@pytest.mark.parametrize(
+    ("argv", "flag", "contents"), FOLDER_OUTPUTS, ids=[" ".join(a) for a, _, _ in FOLDER_OUTPUTS]
+)
 def test_bad_output_folder_is_one_error_line_before_any_work(capsys, places, no_work, argv, flag, contents):  # fmt: skip
     # a file inside the folder that cannot be replaced
     inner = places / "dir" / contents[0]

@@ -1,5 +1,5 @@
 """The paper's three-needle case (Liu et al. 2016, Figs 10-18) on the liver phantom with
-superquadric vessels: examples/liu2016_three_needles.yaml."""
+superquadric vessels: src/needlekit/data/liu2016_three_needles.yaml."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ from needlekit.planning.interface import Termination, get_planner
 from needlekit.planning.straight.cfrw import cfrw_map
 from needlekit.planning.straight.verify import verify_multi
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "liu2016_three_needles.yaml"
+EXAMPLE = (
+    Path(__file__).resolve().parents[2] / "src" / "needlekit" / "data" / "liu2016_three_needles.yaml"
+)
 GAMMA = 1.5
 VESSELS = ("vessel_a", "vessel_b", "vessel_c")
 

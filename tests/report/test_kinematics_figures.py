@@ -171,21 +171,37 @@ def test_output_is_deterministic(written, tmp_path):
 
 def test_failure_mid_write_leaves_no_partial_file(tmp_path, monkeypatch):
     calls = {"n": 0}
-    real_savefig = Figure.savefig
+    real_write_bytes = Path.write_bytes
 
-    def failing_savefig(self, fname, *args, **kwargs):
+    def failing_write_bytes(self, data):
         calls["n"] += 1
         if calls["n"] == 2:
-            Path(fname).write_bytes(b"\x89PNG partial")  # a half-written file...
+            real_write_bytes(self, data[:20])  # a half-written file...
             raise OSError("disk full")  # ...then the failure
-        return real_savefig(self, fname, *args, **kwargs)
+        return real_write_bytes(self, data)
 
-    monkeypatch.setattr(Figure, "savefig", failing_savefig)
+    monkeypatch.setattr(Path, "write_bytes", failing_write_bytes)
     with pytest.raises(OSError, match="disk full"):
         write_kinematics_figures(tmp_path)
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == [FIGURE_NAMES[0]]  # the first figure whole; no .tmp, no second, no json
     assert (tmp_path / FIGURE_NAMES[0]).read_bytes()[:8] == PNG_MAGIC
+
+
+def test_a_figure_that_fails_to_draw_writes_nothing(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real_savefig = Figure.savefig
+
+    def failing_savefig(self, fname, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("renderer crashed")
+        return real_savefig(self, fname, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", failing_savefig)
+    with pytest.raises(RuntimeError, match="renderer crashed"):
+        write_kinematics_figures(tmp_path)
+    assert list(tmp_path.iterdir()) == []  # every figure is drawn before any is written
 
 
 def test_failure_keeps_the_previous_file(tmp_path, monkeypatch):

@@ -20,6 +20,10 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S
 
 #: What ``needlekit puncture`` writes in its --out folder.
 PUNCTURE_FILES = ("puncture.json", "puncture.html")
+#: The papers ``needlekit reproduce`` re-runs (keys of :data:`needlekit.reproduce.PAPERS`).
+REPRODUCE_PAPERS = ("liu2016", "tang", "lecture")
+#: What ``needlekit reproduce`` writes in its --out folder (besides a folder per paper).
+REPRODUCE_FILES = tuple(f"{k}.{e}" for k in REPRODUCE_PAPERS for e in ("html", "json"))
 #: What ``needlekit demo`` writes in its --out folder.
 DEMO_FILES = (
     "lung/scenario.yaml",
@@ -419,6 +423,27 @@ def _build_parser() -> argparse.ArgumentParser:
     pu.add_argument("--no-report", action="store_true", help="skip the HTML report")
     _executor_options(pu)
 
+    rp = sub.add_parser(
+        "report",
+        help="draw result files (plan, sweep, cfrw, multi, puncture) on one self-contained page",
+        description="Read result files written by plan, plan --goals, sweep, cfrw, multi and "
+        "puncture, load the scenarios they name, check their plans again and write one HTML "
+        "page (opens offline) with a part per result: 3D scenes, tables, figures. Exit 1 "
+        "when an independent check fails (the page is written).",
+    )
+    rp.add_argument("results", type=Path, nargs="+", metavar="RESULT", help="result files (JSON)")
+    add_output(rp, "--out", required=True, help="HTML page to write")
+    rp.add_argument(
+        "--scenario",
+        type=Path,
+        action="append",
+        metavar="FILE",
+        help="the scenario, where the one a result names has moved: once for every result "
+        "that reads one, or repeated, once per such result in order",
+    )
+    rp.add_argument("--title", help="page title (default: from the results)")
+    _cache_options(rp)
+
     demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
     add_output(
         demo,
@@ -428,6 +453,35 @@ def _build_parser() -> argparse.ArgumentParser:
         default="out/demo",
         help="output folder (default out/demo)",
     )
+
+    rq = sub.add_parser(
+        "reproduce",
+        help="re-run a source paper's experiments; one page beside the paper's numbers",
+        description="Re-run the experiments of one or more source papers (liu2016: Liu et al. 2016; tang: Tang et al.; lecture: the needle path "
+        "planning lecture) and write, per paper, PAPER.html (needlekit's figures and numbers "
+        "beside the paper's, the setup side by side, the deviations listed, the duration), "
+        "PAPER.json and the results in PAPER/. --quick runs a reduced version in under 2 "
+        "minutes per paper on 2 cores. Exit 1 when a planned path fails its independent check.",
+    )
+    rq.add_argument(
+        "papers",
+        nargs="+",
+        choices=[*REPRODUCE_PAPERS, "all"],
+        metavar="PAPER",
+        help=f"one or more of {', '.join(REPRODUCE_PAPERS)}, or all",
+    )
+    add_output(
+        rq,
+        "--out",
+        folder=True,
+        contents=REPRODUCE_FILES,
+        default="out/reproduce",
+        help="output folder (default out/reproduce)",
+    )
+    rq.add_argument(
+        "--quick", action="store_true", help="the reduced version (under 2 minutes per paper)"
+    )
+    _executor_options(rq)
 
     study = sub.add_parser("study", help="studies over many real cases, one table each")
     study_sub = study.add_subparsers(dest="study_command", metavar="STUDY", parser_class=_Parser)

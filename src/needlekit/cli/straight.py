@@ -31,6 +31,9 @@ def _cmd_cfrw(args: argparse.Namespace) -> int:
     res = args.resolution_deg or options.get("resolution_deg", 1.0)
     m = cfrw_map(problem, resolution_deg=res)
     record = m.to_dict()
+    record["scenario"] = str(args.scenario)
+    record["target"] = args.target
+    record["resolution_deg"] = res
     record["layers"] = {
         f"{h:g}": [np.round(p, 4).tolist() for p in m.layer(h)] for h in args.layers
     }
@@ -79,6 +82,7 @@ def _cmd_multi(args: argparse.Namespace) -> int:
     record = plan.to_dict()
     record["planner"] = args.planner
     record["scenario"] = str(args.scenario)
+    record["resolution_deg"] = options.get("resolution_deg", 1.0)  # to redraw the maps
     record["coverage"] = None if coverage is None else coverage.to_dict()
     if coverage is not None and not coverage.ok:
         record["status"] = "infeasible"

@@ -26,6 +26,7 @@ __all__ = [
     "read_json_object",
     "output_path_problem",
     "staged_outputs",
+    "write_bytes",
     "write_json",
     "write_text",
 ]
@@ -304,6 +305,21 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     Path
     """
     return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write bytes atomically.
+
+    Parameters
+    ----------
+    path : path-like
+    data : bytes
+
+    Returns
+    -------
+    Path
+    """
+    return atomic_write(path, lambda p: p.write_bytes(data))
 
 
 def write_json(path: str | os.PathLike, data: Any) -> Path:

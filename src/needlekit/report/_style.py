@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from cycler import cycler
 from matplotlib.figure import Figure
-
-from needlekit.io.files import atomic_write
 
 #: Resolution of the PNG files (dots per inch); the figures are 11 to 14 inches wide.
 DEFAULT_DPI = 150
@@ -123,10 +120,6 @@ def _frame_arrows(ax, poses: np.ndarray, length: float) -> None:
     """Tip frames (x, y, z columns of R in red, green, blue) in a 3D axes; poses (n, 4, 4)."""
     for k in range(3):
         _arrows_3d(ax, poses[:, :3, 3], poses[:, :3, k], length, _AXIS_COLOURS[k])
-
-
-def _save(fig: Figure, path: Path, dpi: int) -> Path:
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi))
 
 
 def _deg(value: float, fmt: str, *, sign: bool = False) -> str:

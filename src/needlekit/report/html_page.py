@@ -6,6 +6,7 @@ formats table numbers by their column's unit suffix, and writes the page atomica
 
 from __future__ import annotations
 
+import base64
 import html
 import math
 import os
@@ -18,7 +19,15 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
 
-__all__ = ["FigureSection", "TableSection", "TextSection", "write_report_html"]
+__all__ = [
+    "FigureSection",
+    "ImageSection",
+    "ListSection",
+    "PartSection",
+    "TableSection",
+    "TextSection",
+    "write_report_html",
+]
 
 _MINUS, _DASH = "\N{MINUS SIGN}", "\N{EN DASH}"
 
@@ -42,11 +51,39 @@ class TableSection:
 
 
 @dataclass(frozen=True)
+class ImageSection:
+    """A PNG image (its bytes, inlined in the page) under a heading, with a caption."""
+
+    heading: str
+    png: bytes
+    caption: str | None = None
+
+
+@dataclass(frozen=True)
+class ListSection:
+    """A bulleted list of plain-text items under an optional heading."""
+
+    items: Sequence[str]
+    heading: str | None = None
+    caption: str | None = None
+
+
+@dataclass(frozen=True)
 class TextSection:
     """A paragraph of plain text, with an optional heading."""
 
     text: str
     heading: str | None = None
+
+
+@dataclass(frozen=True)
+class PartSection:
+    """The start of a part of the page (e.g. one result of several), with an optional
+    paragraph: the sections after it, up to the next part, are its own (their headings one
+    level down), and a page with parts opens with a list of links to them."""
+
+    heading: str
+    text: str | None = None
 
 
 _CSS = """
@@ -55,6 +92,8 @@ margin:0;background:#f4f5f7;color:#222;line-height:1.5}
 main{max-width:1280px;margin:0 auto;padding:1.5rem 2.5rem 3rem;background:#fff;min-height:100vh}
 h1{font-weight:600;font-size:1.7rem;margin:.3rem 0 1rem;border-bottom:2px solid #e5e5e5;
 padding-bottom:.4rem}h2{font-weight:600;font-size:1.2rem;margin:2rem 0 .6rem}
+h2.part{font-size:1.45rem;margin-top:3rem;padding-top:.8rem;border-top:2px solid #e5e5e5}
+h3{font-weight:600;font-size:1.1rem;margin:1.6rem 0 .5rem}nav li{margin:.15rem 0}
 p{max-width:60rem}p.caption{color:#555;font-size:.9rem;margin-top:.3rem}
 table{border-collapse:collapse;font-size:.92rem;font-variant-numeric:tabular-nums}
 th,td{padding:.35rem .8rem;border-bottom:1px solid #e3e3e3;text-align:left;white-space:nowrap}
@@ -118,8 +157,20 @@ def _check_sections(sections) -> list:
             or not all(isinstance(r, Mapping) for r in s.rows)
         ):
             raise InvalidInputError(f"sections[{i}].rows", "expected a sequence of dicts")
-        if not isinstance(s, (FigureSection, TableSection, TextSection)):
-            kinds = "a FigureSection, TableSection, TextSection or str"
+        if isinstance(s, ListSection) and (
+            isinstance(s.items, (str, bytes)) or not all(isinstance(t, str) for t in s.items)
+        ):
+            raise InvalidInputError(f"sections[{i}].items", "expected a sequence of str")
+        if isinstance(s, ImageSection) and not (
+            isinstance(s.png, bytes) and s.png.startswith(b"\x89PNG\r\n\x1a\n")
+        ):
+            raise InvalidInputError(f"sections[{i}].png", "expected the bytes of a PNG image")
+        known = (FigureSection, ImageSection, ListSection, TableSection, TextSection, PartSection)
+        if not isinstance(s, known):
+            kinds = (
+                "a FigureSection, ImageSection, ListSection, TableSection, TextSection, "
+                "PartSection or str"
+            )
             raise InvalidInputError(f"sections[{i}]", f"expected {kinds}, got {type(s).__name__}")
         for name in ("heading", "text", "caption"):
             value = getattr(s, name, None)
@@ -154,8 +205,10 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
         Destination (``.html``); its directory is created if missing.
     title : str
         Page title and top heading (plain text, escaped).
-    sections : sequence of FigureSection, TableSection, TextSection or str
-        In page order; a plain string is a paragraph. Headings, text and table cells are
+    sections : sequence of FigureSection, ImageSection, ListSection, TableSection, TextSection,
+        PartSection or str
+        In page order; a plain string is a paragraph; a :class:`PartSection` starts a part
+        (the page then opens with links to its parts). Headings, text and table cells are
         plain text (escaped). Table numbers are formatted: 3 decimals in ``*_mm``, ``*_s``,
         ``*_deg`` and ``*direction`` columns, 4 significant digits elsewhere, missing
         values (None, NaN, inf) as an en dash.
@@ -178,13 +231,34 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
             f.write(f"<title>{esc(title)}</title><style>{_CSS}</style>")
             f.write(f"{CANVAS_READBACK_HINT}</head>\n")
             f.write(f"<body><main><h1>{esc(title)}</h1>\n")
-            with_js = True
+            parts = [s.heading for s in items if isinstance(s, PartSection)]
+            if parts:
+                links = "".join(
+                    f"<li><a href='#part-{i}'>{esc(h)}</a></li>" for i, h in enumerate(parts, 1)
+                )
+                f.write(f"<nav><ol>{links}</ol></nav>\n")
+            with_js, level, part = True, "h2", 0
             for s in items:
-                f.write(f"<section><h2>{esc(s.heading)}</h2>" if s.heading else "<section>")
+                if isinstance(s, PartSection):
+                    part, level = part + 1, "h3"
+                    f.write(f"<section id='part-{part}'><h2 class='part'>{esc(s.heading)}</h2>")
+                    f.write(f"<p>{esc(s.text)}</p></section>\n" if s.text else "</section>\n")
+                    continue
+                head = f"<{level}>{esc(s.heading)}</{level}>" if s.heading else ""
+                f.write(f"<section>{head}")
                 if isinstance(s, TextSection):
                     f.write(f"<p>{esc(s.text)}</p>")
                 elif isinstance(s, TableSection):
                     f.write(_table_html(s.rows))
+                elif isinstance(s, ImageSection):
+                    data = base64.b64encode(s.png).decode("ascii")
+                    alt = esc(s.heading, quote=True)
+                    f.write(
+                        f"<div class='figure'><img alt='{alt}' style='max-width:100%' "
+                        f"src='data:image/png;base64,{data}'></div>"
+                    )
+                elif isinstance(s, ListSection):
+                    f.write("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in s.items) + "</ul>")
                 else:
                     config = {"displaylogo": False, "responsive": True}
                     div = s.figure.to_html(full_html=False, include_plotlyjs=with_js, config=config)

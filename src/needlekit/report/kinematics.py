@@ -34,8 +34,8 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import write_json
-from needlekit.report._style import DEFAULT_DPI, _save, _style
+from needlekit.io.files import write_bytes, write_json
+from needlekit.report._style import DEFAULT_DPI, _style
 from needlekit.report.forward_figures import (
     _bevel_data,
     _bevel_json,
@@ -47,7 +47,7 @@ from needlekit.report.forward_figures import (
 from needlekit.report.inverse_figure import _inverse_data, _inverse_json, _plot_inverse
 from needlekit.report.reachability_figure import _plot_reach, _reach_data, _reach_json
 
-__all__ = ["FIGURE_NAMES", "write_kinematics_figures"]
+__all__ = ["FIGURE_NAMES", "kinematics_figures", "write_kinematics_figures"]
 
 #: File names of the figures, in the order :func:`write_kinematics_figures` returns them.
 FIGURE_NAMES: tuple[str, ...] = (
@@ -99,17 +99,44 @@ def write_kinematics_figures(out_dir: str | os.PathLike, *, dpi: int = DEFAULT_D
     >>> summary["inverse"]["end_point_error_mm"] < 1e-9
     True
     """
-    if isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 30 <= dpi <= 600:
-        raise InvalidInputError("dpi", f"expected an integer in [30, 600], got {dpi!r}")
+    pngs, summary = kinematics_figures(dpi=dpi)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    paths = [write_bytes(out / name, pngs[name]) for name in FIGURE_NAMES]
+    write_json(out / "demo.json", summary)
+    return paths
+
+
+def kinematics_figures(*, dpi: int = DEFAULT_DPI) -> tuple[dict[str, bytes], dict[str, Any]]:
+    """Draw the kinematics figures in memory.
+
+    Parameters
+    ----------
+    dpi : int, default 150
+
+    Returns
+    -------
+    pngs : dict of str to bytes
+        Each figure's PNG, by its name in :data:`FIGURE_NAMES`.
+    summary : dict
+        What :func:`write_kinematics_figures` writes as ``demo.json``.
+
+    Raises
+    ------
+    InvalidInputError
+        ``dpi`` is not an integer in [30, 600].
+    """
+    import io
+
+    if isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 30 <= dpi <= 600:
+        raise InvalidInputError("dpi", f"expected an integer in [30, 600], got {dpi!r}")
     builders = (
         (_planar_data, _plot_planar, _planar_json, "forward_planar"),
         (_bevel_data, _plot_bevel, _bevel_json, "forward_3d"),
         (_inverse_data, _plot_inverse, _inverse_json, "inverse"),
         (_reach_data, _plot_reach, _reach_json, "reachability"),
     )
-    paths: list[Path] = []
+    pngs: dict[str, bytes] = {}
     summary: dict[str, Any] = {
         "needlekit_version": __version__,
         "figures": list(FIGURE_NAMES),
@@ -118,8 +145,8 @@ def write_kinematics_figures(out_dir: str | os.PathLike, *, dpi: int = DEFAULT_D
     with matplotlib.rc_context(_style()):
         for name, (data_fn, plot_fn, json_fn, key) in zip(FIGURE_NAMES, builders, strict=True):
             data = data_fn()
-            fig = plot_fn(data)
-            paths.append(_save(fig, out / name, int(dpi)))
+            buf = io.BytesIO()
+            plot_fn(data).savefig(buf, format="png", dpi=int(dpi))
+            pngs[name] = buf.getvalue()
             summary[key] = json_fn(data)
-    write_json(out / "demo.json", summary)
-    return paths
+    return pngs, summary

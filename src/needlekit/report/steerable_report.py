@@ -1,9 +1,16 @@
-"""Plans to several targets drawn on one page (the lecture's multi-target RRT figure).
+"""Steerable-needle plans drawn on a page: one plan, or plans to several targets.
 
-:func:`write_goals_report` writes one self-contained HTML page (``needlekit plan --goals
-... --report``): a table of the targets (status, cost, iterations, tree nodes) and the
-scene with every plan from the common start pose to its target, as the lecture draws its
-multi-target RRT results.
+- :func:`plans_figure`: the scene with plans from their start poses to their targets
+  (:func:`goals_figure`: the lecture's multi-target RRT figure);
+- :func:`plan_rows`, :func:`check_rows`, :func:`check_text`: a plan's motions and its
+  independent check (:func:`needlekit.planning.steerable.verify.verify_plan`) as rows and
+  words;
+- :func:`plan_sections`: one plan with its check and scene (``needlekit report``); the
+  sweep report's best plan uses the same rows and words;
+- :func:`goals_sections`, :func:`write_goals_report`: one self-contained HTML page of plans
+  to several targets (``needlekit plan --goals ... --report``, ``needlekit report``): a
+  table of the targets (status, cost, iterations, tree nodes) and the scene with every
+  plan from the common start pose to its target.
 """
 
 from __future__ import annotations
@@ -13,7 +20,57 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["goals_figure", "write_goals_report"]
+__all__ = [
+    "check_rows",
+    "check_text",
+    "goals_figure",
+    "goals_sections",
+    "plan_rows",
+    "plan_sections",
+    "plans_figure",
+    "write_goals_report",
+]
+
+
+def plans_figure(problem, results, names, *, title: str = "", max_cells: int = 96):
+    """The scene with every plan's tip path, its start pose and its target, zoomed onto
+    them.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        The scene (its start pose is drawn when a result has none).
+    results : sequence of PlanResult
+        A result without a plan is drawn as its start pose and target only.
+    names : sequence of str
+        Legend entry of each result's path.
+    title : str
+    max_cells : int
+        Resolution limit of the surfaces (samples per axis).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+    """
+    from needlekit.report.scene3d import scene_figure, zoom_onto
+
+    poses = [r.start_pose if r.start_pose is not None else problem.start_pose for r in results]
+    starts = np.array([p for p in poses if p is not None], dtype=float).reshape(-1, 4, 4)
+    starts = np.unique(starts, axis=0)
+    drawn = [(r, n) for r, n in zip(results, names, strict=True) if r.plan is not None]
+    paths = [r.plan.points_mm(0.5) for r, _ in drawn]
+    goals = np.array([r.goal_mm for r in results], dtype=float).reshape(-1, 3)
+    fig = scene_figure(
+        problem.scene,
+        start_poses=starts if len(starts) else None,
+        targets_mm=goals,
+        paths_mm=paths,
+        path_names=[n for _, n in drawn],
+        max_cells=max_cells,
+        title=title,
+    )
+    zoom_onto(fig, np.vstack([*paths, goals, starts[:, :3, 3].reshape(-1, 3)]))
+    return fig
 
 
 def goals_figure(problem, results, *, title: str = "", max_cells: int = 96):
@@ -33,22 +90,186 @@ def goals_figure(problem, results, *, title: str = "", max_cells: int = 96):
     -------
     plotly.graph_objects.Figure
     """
-    from needlekit.report.scene3d import scene_figure, zoom_onto
+    names = [f"target {i}: {r.cost_mm:.2f} mm ({r.status.value})" for i, r in enumerate(results, 1)]
+    return plans_figure(problem, results, names, title=title, max_cells=max_cells)
 
-    drawn = [(i, r) for i, r in enumerate(results, start=1) if r.plan is not None]
-    paths = [r.plan.points_mm(0.5) for _, r in drawn]
-    goals = np.array([r.goal_mm for r in results], dtype=float)
-    fig = scene_figure(
-        problem.scene,
-        start_poses=np.asarray(problem.start_pose)[None],
-        targets_mm=goals,
-        paths_mm=paths,
-        path_names=[f"target {i}: {r.cost_mm:.2f} mm ({r.status.value})" for i, r in drawn],
-        max_cells=max_cells,
-        title=title,
+
+def plan_rows(plan) -> list[dict]:
+    """A plan's motions, one row each: spin, curvature and length.
+
+    Parameters
+    ----------
+    plan : SteerablePlan
+
+    Returns
+    -------
+    list of dict
+        ``step`` (1-based), ``rotation_deg`` (spin about the tip's z before the arc),
+        ``curvature (1/mm)`` and ``length_mm`` (keys the page turns into headers; a
+        ``*_per_mm`` key would read as a length in mm).
+    """
+    return [
+        {
+            "step": i + 1,
+            "rotation_deg": float(np.degrees(spin)),
+            "curvature (1/mm)": float(kappa),
+            "length_mm": float(length),
+        }
+        for i, (spin, kappa, length) in enumerate(plan.primitives)
+    ]
+
+
+def check_text(check) -> str:
+    """The verdict of an independent check in words: ``passed`` or ``FAILED: <rules>``.
+
+    Parameters
+    ----------
+    check : Verification
+
+    Returns
+    -------
+    str
+    """
+    return "passed" if check.ok else "FAILED: " + "; ".join(check.violations)
+
+
+def check_rows(check) -> list[dict]:
+    """The measurements of :func:`~needlekit.planning.steerable.verify.verify_plan`, one
+    row each, with the verdict first.
+
+    Parameters
+    ----------
+    check : Verification
+
+    Returns
+    -------
+    list of dict
+        ``quantity`` and ``value`` (text).
+    """
+    m = check.metrics
+
+    def mm(key: str) -> str:
+        return f"{m[key]:.3f} mm"
+
+    angle = m.get("puncture_angle_deg")
+    rows = [
+        ("verdict", check_text(check)),
+        ("cost (recomputed from the motions)", f"{m['cost']:.4f}"),
+        ("length", mm("length_mm")),
+        ("end to goal", mm("goal_distance_mm")),
+        ("largest curvature", f"{m['max_curvature_per_mm']:.5f} /mm"),
+        ("largest heading change", f"{m['max_heading_change_deg']:.2f} deg"),
+        ("puncture angle", "-" if angle is None else f"{angle:.2f} deg"),
+        ("smallest sampled clearance", mm("min_clearance_mm")),
+        ("certified clearance (whole path)", mm("certified_clearance_mm")),
+        ("collision model", str(m["collision_model"])),
+    ]
+    return [{"quantity": q, "value": v} for q, v in rows]
+
+
+def plan_sections(problem, result, check, *, max_cells: int = 96) -> list:
+    """One plan on a page: summary, independent check, motions and the 3D scene.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        The problem the plan was checked against (scene, limits, goal).
+    result : PlanResult
+    check : Verification or None
+        Its independent check (None: the result holds no plan).
+    max_cells : int
+        Resolution limit of the surfaces (samples per axis).
+
+    Returns
+    -------
+    list of FigureSection, TableSection and TextSection
+        For :func:`~needlekit.report.html_page.write_report_html`.
+    """
+    from needlekit.report.html_page import FigureSection, TableSection, TextSection
+
+    goal = ", ".join(f"{c:.2f}" for c in result.goal_mm)
+    text = f"{result.planner}: {result.status.value}"
+    if result.plan is None:
+        reason = result.stats.get("reason")
+        text += f", no plan to the goal ({goal}) RAS mm" + (f": {reason}." if reason else ".")
+        return [TextSection(text, "Summary")]
+    cert = ", certified optimal at the finest resolution" if result.stats.get("certified") else ""
+    text += (
+        f"{cert}; cost {result.cost_mm:.3f}, {len(result.plan.primitives)} motions, "
+        f"{1000 * result.time_s:.1f} ms of search; goal ({goal}) RAS mm, tolerance "
+        f"{problem.goal_tolerance_mm:g} mm; r_min {problem.r_min_mm:g} mm, needle diameter "
+        f"{problem.needle_diameter_mm:g} mm. Independent check: {check_text(check)}."
     )
-    zoom_onto(fig, np.vstack([*paths, goals, np.asarray(problem.start_pose)[None, :3, 3]]))
-    return fig
+    label = f"{result.planner}: {result.cost_mm:.2f}"
+    fig = plans_figure(problem, [result], [label], max_cells=max_cells)
+    return [
+        TextSection(text, "Summary"),
+        TableSection(
+            "Independent check",
+            check_rows(check),
+            "Re-derived from the motions alone against the scenario: curvature, length, goal, "
+            "heading, puncture angle, cost, and the clearance certified for the whole path.",
+        ),
+        TableSection(
+            "Motions",
+            plan_rows(result.plan),
+            "Each motion: spin the tip about its axis, then insert along an arc of that "
+            "curvature (0: straight).",
+        ),
+        FigureSection(
+            "Path in the anatomy",
+            fig,
+            "The tip path from the start pose (cone) to the goal (diamond), RAS mm.",
+        ),
+    ]
+
+
+def goals_sections(problem, results, *, planner: str, mode: str, checks=None) -> list:
+    """The sections of plans to several targets: a table of the targets and the scene.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    results : sequence of PlanResult
+    planner : str
+    mode : {"per-target", "one-tree"}
+    checks : sequence of Verification or None, optional
+        Each target's independent check (None where it has no plan): a column of the
+        table when given.
+
+    Returns
+    -------
+    list of FigureSection and TableSection
+    """
+    from needlekit.report.html_page import FigureSection, TableSection
+
+    rows = []
+    for i, r in enumerate(results, start=1):
+        row = {
+            "target": i,
+            "goal (RAS mm)": ", ".join(f"{c:.2f}" for c in r.goal_mm),
+            "status": r.status.value,
+            "cost (mm)": "-" if not r.status.has_plan else f"{r.cost_mm:.3f}",
+            "iterations": r.stats.get("iterations", "-"),
+            "tree nodes": r.stats.get("nodes", "-"),
+        }
+        if checks is not None:
+            c = checks[i - 1]
+            row["independent check"] = "-" if c is None else check_text(c)
+        rows.append(row)
+    how = (
+        "a new search from the start node for each target (the lecture's procedure)"
+        if mode == "per-target"
+        else "one RRT tree grown for every target"
+    )
+    return [
+        TableSection("Targets", rows, f"{planner}, {how}."),
+        FigureSection(
+            "Plans",
+            goals_figure(problem, results),
+            "Every plan's tip path from the start pose (cone) to its target (diamond).",
+        ),
+    ]
 
 
 def write_goals_report(
@@ -68,31 +289,7 @@ def write_goals_report(
     -------
     Path
     """
-    from needlekit.report.html_page import FigureSection, TableSection, write_report_html
+    from needlekit.report.html_page import write_report_html
 
-    rows = []
-    for i, r in enumerate(results, start=1):
-        rows.append(
-            {
-                "target": i,
-                "goal (RAS mm)": ", ".join(f"{c:.2f}" for c in r.goal_mm),
-                "status": r.status.value,
-                "cost (mm)": "-" if not r.status.has_plan else f"{r.cost_mm:.3f}",
-                "iterations": r.stats.get("iterations", "-"),
-                "tree nodes": r.stats.get("nodes", "-"),
-            }
-        )
-    how = (
-        "a new search from the start node for each target (the lecture's procedure)"
-        if mode == "per-target"
-        else "one RRT tree grown for every target"
-    )
-    sections = [
-        TableSection("Targets", rows, f"{planner}, {how}."),
-        FigureSection(
-            "Plans",
-            goals_figure(problem, results),
-            "Every plan's tip path from the start pose (cone) to its target (cross).",
-        ),
-    ]
+    sections = goals_sections(problem, results, planner=planner, mode=mode)
     return write_report_html(path, title=f"Plans to {len(results)} targets", sections=sections)

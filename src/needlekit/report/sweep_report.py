@@ -42,7 +42,9 @@ __all__ = [
     "direction_sphere_figure",
     "direction_table",
     "goal_connection_rule",
+    "best_plan_sections",
     "sweep_sections",
+    "sweep_study_sections",
     "sweep_table",
     "valid_paths_figure",
     "write_report_html",
@@ -576,13 +578,91 @@ def sweep_sections(
     ]
     if scene is not None:
         first = next(iter(sweeps))
-        out.append(
-            FigureSection(
-                f"Every valid path of {_label(first)} (Fig. 7)",
-                valid_paths_figure(scene, sweeps[first]),
-                "One path per solved effective direction, dark (cheapest) to light "
-                "(costliest); the best in red.",
+        solved = [r for r in sweeps[first].results if r is not None and r.status.value == "solved"]
+        if all(r.plan is not None for r in solved):
+            out.append(
+                FigureSection(
+                    f"Every valid path of {_label(first)} (Fig. 7)",
+                    valid_paths_figure(scene, sweeps[first]),
+                    "One path per solved effective direction, dark (cheapest) to light "
+                    "(costliest); the best in red.",
+                )
             )
-        )
+        else:  # a sweep read back from sweep.json, which keeps the best plans only
+            out.append(
+                TextSection(
+                    f"The sweep's record keeps each planner's best plan only, not the "
+                    f"{len(solved)} paths of {_label(first)}'s solved directions that Fig. 7 "
+                    "draws; `needlekit sweep --report` draws them as it plans.",
+                    heading=f"Every valid path of {_label(first)} (Fig. 7)",
+                )
+            )
         out.append(FigureSection("Best path per planner", best_paths_figure(scene, sweeps)))
     return out
+
+
+def best_plan_sections(planner: str, best, check) -> list:
+    """The best plan of a sweep: its cost and independent check in words, and its motions.
+
+    Parameters
+    ----------
+    planner : str
+        The planner whose best plan it is.
+    best : PlanResult
+        With a plan.
+    check : Verification
+        Its independent check (:func:`~needlekit.planning.steerable.verify.verify_plan`).
+
+    Returns
+    -------
+    list of TableSection and TextSection
+    """
+    from needlekit.report.steerable_report import check_text, plan_rows
+
+    m = check.metrics
+    cert = " and certified optimal at the finest resolution" if best.stats.get("certified") else ""
+    angle = m.get("puncture_angle_deg")
+    text = (
+        f"Best {planner} plan: cost {best.cost_mm:.3f}, length {m['length_mm']:.3f} mm, "
+        f"{len(best.plan.primitives)} motions{cert}. Independent check: {check_text(check)} "
+        f"(goal distance {m['goal_distance_mm']:.3f} mm, min clearance "
+        f"{m['min_clearance_mm']:.3f} mm, heading change {m['max_heading_change_deg']:.1f} deg, "
+        f"puncture angle {'-' if angle is None else f'{angle:.1f}'} deg)."
+    )
+    return [
+        TextSection(text, heading="Best plan"),
+        TableSection("Best plan: motions", plan_rows(best.plan)),
+    ]
+
+
+def sweep_study_sections(
+    sweeps: Mapping[str, SweepResult], problem, *, options=None, best=None, check=None
+) -> list:
+    """The page of a sweep study (``needlekit sweep --report``, ``needlekit report``): the
+    sections of :func:`sweep_sections` in the problem's scene, then the first planner's best
+    plan (:func:`best_plan_sections`).
+
+    Parameters
+    ----------
+    sweeps : mapping of str to SweepResult
+    problem : SteerableProblem
+        Its scene and the entry surface's normal at the start.
+    options : mapping of str to mapping, optional
+        Each planner's options.
+    best : PlanResult, optional
+        The first planner's best plan (None: none).
+    check : Verification, optional
+        Its independent check; needed with ``best``.
+
+    Returns
+    -------
+    list of FigureSection, TableSection and TextSection
+    """
+    sections = sweep_sections(
+        sweeps, normal=problem.puncture_normal, scene=problem.scene, options=options
+    )
+    if best is not None and best.plan is not None:
+        if check is None:
+            raise InvalidInputError("check", "the best plan's independent check is needed")
+        sections += best_plan_sections(next(iter(_check_sweeps(sweeps))), best, check)
+    return sections

@@ -50,20 +50,6 @@ class SweepStudy:
     files: dict = field(default_factory=dict)
 
 
-def _plan_rows(plan) -> list[dict]:
-    rows = []
-    for i, (spin, kappa, length) in enumerate(plan.primitives):
-        rows.append(
-            {
-                "step": i + 1,
-                "rotation_deg": float(np.degrees(spin)),
-                "curvature_per_mm": float(kappa),
-                "length_mm": float(length),
-            }
-        )
-    return rows
-
-
 def run_sweep_study(
     source,
     sweep_path: str | os.PathLike,
@@ -176,7 +162,6 @@ def run_sweep_study(
                 report_path,
                 title or f"Effective puncture region: {sc.name}",
                 sweeps,
-                planners[0],
                 best,
                 check,
                 problem,
@@ -185,27 +170,8 @@ def run_sweep_study(
     return SweepStudy(sweeps, best, check, files)
 
 
-def _write_report(path, title: str, sweeps: dict, first: str, best, check, problem, options):
-    from needlekit.report.html_page import TableSection, TextSection
-    from needlekit.report.sweep_report import sweep_sections, write_report_html
+def _write_report(path, title: str, sweeps: dict, best, check, problem, options):
+    from needlekit.report.sweep_report import sweep_study_sections, write_report_html
 
-    normal = problem.puncture_normal
-    sections = sweep_sections(sweeps, normal=normal, scene=problem.scene, options=options)
-    if best is not None:
-        m = check.metrics
-        cert = (
-            " and certified optimal at the finest resolution" if best.stats.get("certified") else ""
-        )
-        sections.append(
-            TextSection(
-                f"Best {first} plan: cost {best.cost_mm:.3f}, length {m['length_mm']:.3f} mm, "
-                f"{len(best.plan.primitives)} motions{cert}. Independent check: "
-                + ("passed" if check.ok else "FAILED: " + "; ".join(check.violations))
-                + f" (goal distance {m['goal_distance_mm']:.3f} mm, min clearance "
-                f"{m['min_clearance_mm']:.3f} mm, heading change {m['max_heading_change_deg']:.1f} deg, "
-                f"puncture angle {m['puncture_angle_deg'] or float('nan'):.1f} deg).",
-                heading="Best plan",
-            )
-        )
-        sections.append(TableSection("Best plan: motions", _plan_rows(best.plan)))
+    sections = sweep_study_sections(sweeps, problem, options=options, best=best, check=check)
     return write_report_html(path, title=title, sections=sections)
