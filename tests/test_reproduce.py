@@ -23,7 +23,7 @@ PAGE_PARTS = (
 
 
 def test_the_command_and_the_library_list_the_same_papers():
-    assert tuple(PAPERS) == REPRODUCE_PAPERS == ("liu2016", "tang", "lecture")
+    assert tuple(PAPERS) == REPRODUCE_PAPERS == ("feng2023", "liu2016", "tang", "lecture")
 
 
 def test_bad_arguments_fail_at_once_with_one_line(tmp_path, capsys):
@@ -145,3 +145,24 @@ def test_tang_quick_rows(tmp_path, monkeypatch):
     assert (tmp_path / "tang" / "defaults" / "puncture.html").is_file()
     d = rows["defaults"]["summary"]["position_error_mm"]
     assert d["n"] == 2 and math.isfinite(d["mean"]) and np.isfinite(d["sd"])
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_feng2023_quick(tmp_path):
+    assert main(["reproduce", "feng2023", "--quick", "--out", str(tmp_path)]) == 0
+    html, doc = _page(tmp_path, "feng2023")
+    rows = {r["quantity"]: r for r in doc["comparisons"]}
+    assert rows["goal 1: order of the mean costs"]["paper"] == (
+        "RCS* 61.146 < RRT 62.666 < RCS 62.796"
+    )
+    for g in ("goal 1", "goal 2"):
+        assert rows[f"{g}: RCS* has the lowest mean cost"]["agrees"] == "yes"
+        assert rows[f"{g}: paths bend around obstacles"]["agrees"] == "yes"
+    study = doc["record"]["study"]
+    assert doc["record"]["checks_ok"] is True
+    assert study["settings"]["directions"] == 136 and study["settings"]["max_iterations"] == 300
+    assert "not published" in html and "Table 4 beside Feng" in html
+    for name in ("goal1/sweep.json", "goal2/sweep.json", "feng_lungs.json"):
+        assert (tmp_path / "feng2023" / name).is_file()
+    assert not (tmp_path / "feng2023" / "report.html").exists()  # the paper's page is the page

@@ -15,6 +15,7 @@ import needlekit.cli
 from needlekit.cli import main
 from needlekit.cli._parser import (
     DEMO_FILES,
+    FENG_LUNGS_FILES,
     PUNCTURE_FILES,
     REPRODUCE_FILES,
     REPRODUCE_PAPERS,
@@ -101,6 +102,7 @@ FILE_OUTPUTS = [
 FOLDER_OUTPUTS = [
     (["puncture"], "--out", PUNCTURE_FILES),
     (["demo"], "--out", DEMO_FILES),
+    (["study", "feng-lungs"], "--out", FENG_LUNGS_FILES),
     (["reproduce", "lecture"], "--out", REPRODUCE_FILES),
 ]
 

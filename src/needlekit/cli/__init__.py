@@ -52,6 +52,7 @@ _HANDLERS = {
     "demo": "needlekit.cli.demo:_cmd_demo",
     "reproduce": "needlekit.cli.reproduce:_cmd_reproduce",
     "study livers": "needlekit.cli.study:_cmd_study_livers",
+    "study feng-lungs": "needlekit.cli.study:_cmd_study_feng_lungs",
     "bench kinematics": "needlekit.cli.bench:_cmd_bench",
     "bench fields": "needlekit.cli.bench:_cmd_bench",
     "bench control": "needlekit.cli.bench:_cmd_bench",

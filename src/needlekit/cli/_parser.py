@@ -21,9 +21,21 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S
 #: What ``needlekit puncture`` writes in its --out folder.
 PUNCTURE_FILES = ("puncture.json", "puncture.html")
 #: The papers ``needlekit reproduce`` re-runs (keys of :data:`needlekit.reproduce.PAPERS`).
-REPRODUCE_PAPERS = ("liu2016", "tang", "lecture")
+REPRODUCE_PAPERS = ("feng2023", "liu2016", "tang", "lecture")
 #: What ``needlekit reproduce`` writes in its --out folder (besides a folder per paper).
 REPRODUCE_FILES = tuple(f"{k}.{e}" for k in REPRODUCE_PAPERS for e in ("html", "json"))
+#: What ``needlekit study feng-lungs`` writes in its --out folder (as
+#: ``needlekit.studies.feng_lungs.FENG_LUNGS_FILES``; a test keeps them equal).
+FENG_LUNGS_FILES = (
+    "goal1/scenario.yaml",
+    "goal1/sweep.json",
+    "goal1/plan.json",
+    "goal2/scenario.yaml",
+    "goal2/sweep.json",
+    "goal2/plan.json",
+    "feng_lungs.json",
+    "report.html",
+)
 #: What ``needlekit demo`` writes in its --out folder.
 DEMO_FILES = (
     "lung/scenario.yaml",
@@ -457,7 +469,8 @@ def _build_parser() -> argparse.ArgumentParser:
     rq = sub.add_parser(
         "reproduce",
         help="re-run a source paper's experiments; one page beside the paper's numbers",
-        description="Re-run the experiments of one or more source papers (liu2016: Liu et al. 2016; tang: Tang et al.; lecture: the needle path "
+        description="Re-run the experiments of one or more source papers (feng2023: Feng et "
+        "al. 2023; liu2016: Liu et al. 2016; tang: Tang et al.; lecture: the needle path "
         "planning lecture) and write, per paper, PAPER.html (needlekit's figures and numbers "
         "beside the paper's, the setup side by side, the deviations listed, the duration), "
         "PAPER.json and the results in PAPER/. --quick runs a reduced version in under 2 "
@@ -511,6 +524,56 @@ def _build_parser() -> argparse.ArgumentParser:
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
     _cache_options(sl)
+
+    # -- study feng-lungs (issue 12, point 1) --
+    sf = study_sub.add_parser(
+        "feng-lungs",
+        help="Feng et al.'s effective-region protocol on a Med-RAD lung, two targets (issue 12)",
+        description="Feng et al.'s protocol on real anatomy: Med-RAD lung 5 from start 1's "
+        "point, their needle (2 mm, r_min 50 mm, l_max 100 mm, alpha 20 deg, tau 1 mm), 544 "
+        "start directions, RCS*, RCS and RRT 1 s each, to the given target and a second one "
+        "(Feng's goal offset). Writes per target the scenario, sweep.json and the best RCS* "
+        "plan, feng_lungs.json (Table 4 beside Feng's) and report.html. Exit 1 when a plan "
+        "fails its independent check or no planner reaches a target.",
+    )
+    add_output(
+        sf,
+        "--out",
+        folder=True,
+        contents=FENG_LUNGS_FILES,
+        required=True,
+        help="output folder",
+    )
+    sf.add_argument(
+        "--time-limit-s", type=_positive, help="budget per direction and planner (default 1)"
+    )
+    sf.add_argument(
+        "--directions", type=_positive_int, help="candidate start directions (default 544)"
+    )
+    sf.add_argument(
+        "--max-iterations", type=_positive_int, help="iteration budget per direction (default none)"
+    )
+    sf.add_argument("--seed", type=_seed, default=0, help="seed of RRT (default 0)")
+    sf.add_argument(
+        "--quick",
+        action="store_true",
+        help="136 directions, 300 iterations per direction (a minute or so; flags given win)",
+    )
+    sf.add_argument(
+        "--rrt-connection",
+        choices=["arc", "arc_line"],
+        default="arc",
+        help="RRT's goal connection: one arc to the target (default, the reference "
+        "implementation's rule behind Feng's tables) or arc then line",
+    )
+    add_input(
+        sf,
+        "--medrad",
+        folder=True,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
+    _cache_options(sf)
+    _executor_options(sf)
 
     bench = sub.add_parser(
         "bench", help="benchmarks that record machine, versions, inputs and figures"

@@ -14,6 +14,7 @@ experiments and writes, in ``DIR``:
 the page) in under two minutes on two cores. The papers:
 
 =========== ===================================================================
+``feng2023`` Feng et al. 2023, the effective puncture region of a flexible needle
 ``liu2016``  Liu et al. 2016, straight multi-needle planning with CFRWs
 ``tang``     Tang et al., adaptive constrained VFI control of a robotic puncture
 ``lecture``  the lecture on needle path planning and bevel-tip kinematics
@@ -33,6 +34,7 @@ __all__ = ["PAPERS", "Reproduction", "reproduce", "write_reproduction"]
 
 #: Paper key -> the module whose ``run(out_dir, *, quick, executor, progress)`` reproduces it.
 PAPERS = {
+    "feng2023": "needlekit.reproduce.feng2023",
     "liu2016": "needlekit.reproduce.liu2016",
     "tang": "needlekit.reproduce.tang",
     "lecture": "needlekit.reproduce.lecture",

@@ -1,0 +1,538 @@
+"""Feng et al.'s effective-puncture-region protocol on real anatomy: a Med-RAD lung.
+
+Issue 12, point 1. Feng et al. (2023) sweep 544 start directions at one start point, keep
+those at least alpha = 20 deg off the punctured surface, and run RRT, RCS and RCS* for 1 s
+from each, to two targets (their Tables 2-4, Figs. 7-9). They print their start and goals
+but not their lung obstacles, so the protocol cannot be rerun on their case. Here it runs
+on a public one:
+
+- the case: Med-RAD lung patient 5 (LIDC525), start pose 1 (its point only: the
+  direction is swept), a transbronchial start on the airway wall. Its given target is
+  48.9 mm away in a straight line, and the bronchial tree, vessels and fissures
+  (:mod:`needlekit.io.medrad`) block the direct turn-then-straight connection from almost
+  every effective direction that can reach the target at all, so the paths bend around
+  them;
+- the targets: goal 1 is Med-RAD's target (in the nodule); goal 2 is goal 1 moved by
+  Feng's own offset between their two goals, (-10, -10, +10) mm, taken in RAS here (their
+  frame is not stated). It lies in free lung tissue, 55.0 mm from the start (deeper than
+  goal 1, as Feng's goal 2 lies deeper than their goal 1). The nodule is too small
+  (5.7 mm across) to give a second target at another depth;
+- Feng's needle: diameter 2 mm, r_min 50 mm, l_max 100 mm, alpha 20 deg, tau 1 mm,
+  heading change at most 90 deg, 1 s per direction per planner, 544 directions;
+- the certified collision model (``field``): the obstacle field grown by the needle radius,
+  less its error bound, so that every reported path is clear of the anatomy. The
+  ``voxel_centres`` model reproduces the reference C++ planner's sampled test against
+  voxel centres, for matching that planner's verdicts; there are no such verdicts to
+  match here.
+
+:func:`run_feng_lungs` sweeps both targets with the three planners, re-checks every solved
+plan independently, asks of every effective direction whether the direct connection
+would have done, and writes (:data:`FENG_LUNGS_FILES`) one folder per target (the
+scenario, ``sweep.json`` with Tables 2-4 and ``plan.json`` with the best RCS* plan), a
+summary ``feng_lungs.json`` beside Feng's Table 4, and one HTML page.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+
+__all__ = [
+    "FENG_GOAL2_OFFSET_MM",
+    "FENG_LUNGS_FILES",
+    "FENG_PLANNERS",
+    "FENG_SCENARIO",
+    "FENG_TABLE4",
+    "QUICK",
+    "FengLungsStudy",
+    "direct_connection_fates",
+    "feng_lung_scenario",
+    "run_feng_lungs",
+]
+
+#: Feng's needle and limits (their Section 5; their "k_max = 50 mm^-1" read as r_min 50 mm),
+#: the heading limit of their Algorithm 1 (no turn beyond 90 deg) and the reference
+#: planner's 3 mm start exclusion (the needle leaves the airway through its wall).
+FENG_SCENARIO: dict = {
+    "version": 1,
+    "base": {"medrad": {"organ": "lung", "patient": 5}},
+    "needle": {
+        "diameter_mm": 2.0,
+        "r_min_mm": 50,
+        "max_length_mm": 100,
+        "max_heading_change_deg": 90,
+        "min_puncture_angle_deg": 20,
+        "start_exclusion_mm": 3,
+    },
+    "start": {"case_start": "start1"},
+    "goal": {"case_target": "target", "tolerance_mm": 1.0},
+    "collision_model": "field",
+    "planner": {"name": "rcs_star", "time_limit_s": 1.0, "seed": 0},
+}
+#: Feng's goal 2 less their goal 1 (mm): the offset that makes goal 2 here.
+FENG_GOAL2_OFFSET_MM: tuple[float, float, float] = (-10.0, -10.0, 10.0)
+#: The planners, RCS* first (it gives Fig. 7 and plan.json, as in Feng's Fig. 7).
+FENG_PLANNERS: tuple[str, ...] = ("rcs_star", "rcs", "rrt")
+#: RRT joins the goal by one arc, the reference implementation's rule behind Feng's tables.
+FENG_RRT_CONNECTION: str = "arc"
+#: Feng's protocol: candidate directions and budget per direction and planner (s).
+FENG_DIRECTIONS: int = 544
+FENG_TIME_LIMIT_S: float = 1.0
+#: ``--quick``: a quarter of the directions and an iteration budget (the same figures on
+#: every machine); the time limit only caps a loaded machine.
+QUICK: dict = {"directions": 136, "time_limit_s": 5.0, "max_iterations": 300}
+
+#: Feng's Table 4 as printed, with the solved count and best cost of Tables 2-3. Table 2's
+#: RCS mean is printed 62.7956 mm; its 11 rows average 62.6647 mm (below RRT's 62.6661).
+FENG_TABLE4: dict = {
+    "goal1": {
+        "rcs": {"n_solved": 11, "best_cost_mm": 61.0548, "mean_cost_mm": 62.79560,
+                "cost_before_lowest_mm": 438.4809},
+        "rcs_star": {"n_solved": 10, "best_cost_mm": 59.8760, "mean_cost_mm": 61.14570,
+                     "cost_before_lowest_mm": 365.1960},
+        "rrt": {"n_solved": 9, "best_cost_mm": 61.0429, "mean_cost_mm": 62.66610,
+                "cost_before_lowest_mm": 373.8506},
+    },
+    "goal2": {
+        "rcs": {"n_solved": 17, "best_cost_mm": 72.7510, "mean_cost_mm": 76.10370,
+                "cost_before_lowest_mm": 692.2541},
+        "rcs_star": {"n_solved": 12, "best_cost_mm": 71.5848, "mean_cost_mm": 74.07100,
+                     "cost_before_lowest_mm": 524.8486},
+        "rrt": {"n_solved": 16, "best_cost_mm": 72.7260, "mean_cost_mm": 75.52310,
+                "cost_before_lowest_mm": 607.8828},
+    },
+}  # fmt: skip
+#: Feng's start and goals (their Section 5, mm, their CT frame). The start's x is printed
+#: 64.8324 there and -64.8324 in their worked example of Fig. 8b; only the latter puts the
+#: goals 60.8 and 72.6 mm away, as their costs (59.9-65.0 and 71.6-81.9 mm) need.
+FENG_POINTS_MM: dict = {
+    "start": (-64.8324, 139.4900, -654.0964),
+    "goal1": (-105.8713, 158.2018, -613.2506),
+    "goal2": (-115.8713, 148.2018, -603.2506),
+}
+#: What :func:`run_feng_lungs` writes in its folder.
+FENG_LUNGS_FILES: tuple[str, ...] = (
+    "goal1/scenario.yaml",
+    "goal1/sweep.json",
+    "goal1/plan.json",
+    "goal2/scenario.yaml",
+    "goal2/sweep.json",
+    "goal2/plan.json",
+    "feng_lungs.json",
+    "report.html",
+)
+_GOALS = ("goal1", "goal2")
+_LABELS = {"rcs": "RCS", "rcs_star": "RCS*", "rrt": "RRT"}
+#: Feng's order of the mean costs, cheapest first (their Table 4 and text).
+FENG_ORDER: tuple[str, ...] = ("rcs_star", "rrt", "rcs")
+
+
+def _case_target_mm(medrad_dir=None) -> np.ndarray:
+    """Med-RAD's target of the case (RAS mm), read from its text file alone."""
+    from needlekit.io.medrad import _files, _starts_and_targets, medrad_root
+
+    patient = FENG_SCENARIO["base"]["medrad"]["patient"]
+    folder = medrad_root(medrad_dir) / "Lungs" / "TumorTargetEnvironments" / f"Patient{patient}"
+    if not folder.is_dir():
+        raise InvalidInputError("--medrad", f"no Med-RAD lung patient {patient} at {folder}")
+    _, targets = _starts_and_targets(_files(folder), folder)
+    return np.asarray(targets[FENG_SCENARIO["goal"]["case_target"]], dtype=float)
+
+
+def feng_lung_scenario(goal: int, *, medrad_dir=None) -> dict:
+    """The scenario document of one target (``examples/medrad_lung_feng_goal{1,2}.yaml``).
+
+    Parameters
+    ----------
+    goal : {1, 2}
+        1: Med-RAD's target; 2: it moved by :data:`FENG_GOAL2_OFFSET_MM`.
+    medrad_dir : path-like, optional
+        Med-RAD folder (default ``$NEEDLEKIT_MEDRAD`` or ``../shared/data/med-rad``).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    InvalidInputError
+        Another goal number, or no Med-RAD lung patient 5.
+    """
+    if goal not in (1, 2):
+        raise InvalidInputError("goal", f"expected 1 or 2, got {goal!r}")
+    doc = copy.deepcopy(FENG_SCENARIO)
+    if medrad_dir is not None:
+        doc["base"]["medrad"]["root"] = str(Path(medrad_dir).resolve())
+    doc["name"] = f"Med-RAD lung 5, start 1, Feng's goal {goal}"
+    if goal == 2:
+        point = _case_target_mm(medrad_dir) + np.asarray(FENG_GOAL2_OFFSET_MM)
+        tau = doc["goal"]["tolerance_mm"]
+        doc["goal"] = {"point_mm": [float(v) for v in point], "tolerance_mm": tau}
+    return doc
+
+
+def _direct_fate(problem, direction) -> str:
+    """What becomes of the direct turn-then-straight connection from one start direction."""
+    from needlekit.planning.steerable.goal import goal_connection
+    from needlekit.planning.steerable.plan import SteerablePlan
+    from needlekit.planning.steerable.sweep import pose_from_direction
+    from needlekit.planning.steerable.verify import verify_plan
+
+    pose = pose_from_direction(problem.start_point_mm, direction)
+    c = goal_connection(pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm)
+    if c is None:
+        return "unreachable"
+    if c.length_mm > problem.max_length_mm:
+        return "too long"
+    check = verify_plan(problem.with_start_pose(pose), SteerablePlan(pose, c.primitives))
+    if check.ok:
+        return "valid"
+    return ", ".join(dict.fromkeys(v.split(":")[0] for v in check.violations))
+
+
+def direct_connection_fates(problem, directions, effective) -> list[str | None]:
+    """Per start direction, whether the direct connection (turn at r_min, then straight,
+    ending tau short: the shortest path to the goal) passes the independent check.
+
+    Where it does, it is the best path from that direction; where it does not, a plan from
+    that direction has to bend around what blocks it.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        Start point, goal and limits.
+    directions : array_like, shape (n, 3)
+    effective : array_like of bool, shape (n,)
+
+    Returns
+    -------
+    list of str or None
+        None outside the effective region; else ``"valid"``, ``"unreachable"`` (goal behind
+        the tip or inside the r_min torus), ``"too long"`` (over l_max), or the kinds of
+        violation the check reports (``"collision"``, ``"heading"``, ...).
+    """
+    d = np.asarray(directions, dtype=float).reshape(-1, 3)
+    eff = np.asarray(effective, dtype=bool)
+    return [_direct_fate(problem, d[i]) if eff[i] else None for i in range(len(d))]
+
+
+@dataclass(frozen=True)
+class FengLungsStudy:
+    """What :func:`run_feng_lungs` did.
+
+    Attributes
+    ----------
+    record : dict
+        The summary written as ``feng_lungs.json``.
+    sweeps : dict
+        Per goal (``goal1``, ``goal2``), per planner, its SweepResult.
+    files : dict of str to Path
+    problems : dict
+        Per goal, its SteerableProblem.
+    options : dict
+        Per planner, its options.
+    """
+
+    record: dict
+    sweeps: dict
+    files: dict = field(default_factory=dict)
+    problems: dict = field(default_factory=dict, repr=False)
+    options: dict = field(default_factory=dict)
+
+
+def _settings(time_limit_s, directions, max_iterations, quick: bool) -> dict:
+    """Feng's protocol, or :data:`QUICK`, under the values given."""
+    base = {"directions": FENG_DIRECTIONS, "time_limit_s": FENG_TIME_LIMIT_S}
+    base |= QUICK if quick else {"max_iterations": None}
+    given = {"directions": directions, "time_limit_s": time_limit_s}
+    base |= {k: v for k, v in (given | {"max_iterations": max_iterations}).items() if v is not None}
+    if isinstance(base["directions"], bool) or int(base["directions"]) < 1:
+        raise InvalidInputError("--directions", f"expected a whole number >= 1, got {directions}")
+    if not float(base["time_limit_s"]) > 0:
+        raise InvalidInputError("--time-limit-s", f"expected a positive time, got {time_limit_s}")
+    return base
+
+
+def _checks(problem, sw) -> dict:
+    """Every solved plan of a sweep through the independent check (0.25 mm samples)."""
+    from needlekit.planning.result import PlanStatus
+    from needlekit.planning.steerable.verify import verify_plan
+
+    passed, failures, best = 0, [], None
+    for i, r in enumerate(sw.results):
+        if r is None or r.status is not PlanStatus.SOLVED:
+            continue
+        c = verify_plan(problem.with_start_pose(r.start_pose), r.plan, expected_cost_mm=r.cost_mm)
+        passed += c.ok
+        if not c.ok:
+            failures.append({"index": i, "violations": list(c.violations)})
+        if i == sw.stats["best_index"]:
+            best = {"ok": c.ok, "violations": list(c.violations), **c.metrics}
+    return {
+        "solved": int(sw.stats["n_solved"]),
+        "passed": passed,
+        "failures": failures,
+        "best": best,
+    }
+
+
+def _statuses(sw) -> dict:
+    """How many effective directions ended in each status (solved, approximate, ...)."""
+    found = [r.status.value for r in sw.results if r is not None]
+    return {k: found.count(k) for k in sorted(set(found))}
+
+
+def _mean_over(sweeps: dict, mask: np.ndarray) -> dict:
+    return {k: float(sw.costs_mm[mask].mean()) if mask.any() else None for k, sw in sweeps.items()}
+
+
+def _order(means: dict) -> list[str] | None:
+    if any(v is None for v in means.values()):
+        return None
+    return sorted(means, key=lambda k: means[k])
+
+
+def _goal_record(problem, sweeps: dict, fates: list, checks: dict) -> dict:
+    """Table 4 beside Feng's, the direct-connection counts and the checks of one goal."""
+    solved = {k: np.isfinite(sw.costs_mm) for k, sw in sweeps.items()}
+    common = np.logical_and.reduce(list(solved.values()))
+    eff_fates = [f for f in fates if f is not None]
+    means = {k: sw.stats["mean_cost_mm"] for k, sw in sweeps.items()}
+    ours = _order(means)
+    dist = float(np.linalg.norm(problem.goal_mm - problem.start_point_mm))
+    clear = float(problem.scene.obstacle_field(0.0).signed_distance(problem.goal_mm))
+    in_nodule = float(problem.scene["nodule"].field.signed_distance(problem.goal_mm)) <= 0.0
+    return {
+        "goal_mm": [float(v) for v in problem.goal_mm],
+        "straight_distance_mm": dist,
+        "goal_clearance_mm": clear,
+        "in_nodule": bool(in_nodule),
+        "table4": {
+            k: {
+                **{key: sw.stats.get(key) for key in ("n_effective", "n_solved", "best_index")},
+                **{key: sw.stats.get(key) for key in ("best_cost_mm", "best_direction")},
+                **{key: sw.stats.get(key) for key in ("mean_cost_mm", "cost_before_lowest_mm")},
+                "time_s": sw.stats.get("time_s"),
+                "statuses": _statuses(sw),
+                "solved_not_direct": int(
+                    sum(solved[k][i] and fates[i] != "valid" for i in range(len(fates)))
+                ),
+            }
+            for k, sw in sweeps.items()
+        },
+        "mean_over_common_mm": _mean_over(sweeps, common),
+        "n_common": int(common.sum()),
+        "order": ours,
+        "feng_order": list(FENG_ORDER),
+        "order_holds": ours == list(FENG_ORDER),
+        "direct": {
+            "n_effective": len(eff_fates),
+            **{fate: eff_fates.count(fate) for fate in sorted(set(eff_fates))},
+        },
+        "direct_fates": fates,
+        "checks": checks,
+    }
+
+
+def _write_scenario(path, doc: dict, goal: str) -> Path:
+    import yaml
+
+    from needlekit.io.files import write_text
+
+    how = (
+        "Med-RAD's target (in the nodule)"
+        if goal == "goal1"
+        else f"Med-RAD's target moved by Feng's goal offset {list(FENG_GOAL2_OFFSET_MM)} mm (RAS)"
+    )
+    head = (
+        f"# Feng et al.'s protocol on Med-RAD lung 5, start 1: {goal}, {how}.\n"
+        "# Written by `needlekit study feng-lungs`; sweep it with `needlekit sweep`.\n"
+    )
+    return write_text(path, head + yaml.safe_dump(doc, sort_keys=False))
+
+
+def run_feng_lungs(
+    out_dir: str | os.PathLike,
+    *,
+    time_limit_s: float | None = None,
+    directions: int | None = None,
+    max_iterations: int | None = None,
+    quick: bool = False,
+    seed: int = 0,
+    rrt_connection: str = FENG_RRT_CONNECTION,
+    executor=None,
+    progress: Callable[[str], Callable] | None = None,
+    medrad_dir=None,
+    cache_dir=None,
+    use_cache: bool = True,
+    report: bool = True,
+) -> FengLungsStudy:
+    """Run Feng's protocol on the Med-RAD lung case and write :data:`FENG_LUNGS_FILES`.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Output folder (written as one unit: all files or none).
+    time_limit_s : float, optional
+        Budget per direction and planner (default 1 s; :data:`QUICK` with ``quick``).
+    directions : int, optional
+        Candidate directions on the Fibonacci sphere (default 544; 136 with ``quick``).
+    max_iterations : int, optional
+        Iteration budget per direction (default none; 300 with ``quick``).
+    quick : bool
+        The :data:`QUICK` settings where no other is given.
+    seed : int
+        Seed of RRT.
+    rrt_connection : {"arc", "arc_line"}
+        RRT's goal connection (default: one arc, the rule behind Feng's tables).
+    executor : concurrent.futures.Executor, optional
+        Runs the directions (:func:`needlekit.batch.open_executor`); default this process.
+    progress : callable, optional
+        ``progress(label)`` returns a per-direction update (one per goal and planner).
+    medrad_dir, cache_dir : path-like, optional
+    use_cache : bool
+    report : bool
+        Also write ``report.html`` (``needlekit reproduce feng2023`` draws its own page).
+
+    Returns
+    -------
+    FengLungsStudy
+
+    Raises
+    ------
+    InvalidInputError
+        A bad setting, missing data, or a goal not in free space or out of reach (before
+        any sweep).
+    """
+    import yaml
+
+    from needlekit.benchmarks.record import machine_info
+    from needlekit.io.files import staged_outputs, write_json
+    from needlekit.io.plans import write_plan_json
+    from needlekit.io.problems import ScenarioSource
+    from needlekit.planning.interface import get_planner
+    from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
+
+    t0 = time.perf_counter()
+    load_before = os.getloadavg()
+    settings = _settings(time_limit_s, directions, max_iterations, quick)
+    options = {"rrt": {"connection": rrt_connection}}
+    for name in FENG_PLANNERS:  # unknown options fail before any anatomy is read
+        get_planner(name, options.get(name))
+    out = Path(out_dir)
+    docs = {g: feng_lung_scenario(i, medrad_dir=medrad_dir) for i, g in enumerate(_GOALS, 1)}
+    dirs = sphere_directions(int(settings["directions"]))
+    sweeps: dict = {}
+    record: dict = {"goals": {}}
+    with tempfile.TemporaryDirectory(prefix="needlekit-feng-") as tmp:
+        sources, problems = {}, {}
+        for g, doc in docs.items():  # workers read these while the sweeps run
+            path = Path(tmp) / f"{g}.yaml"
+            path.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+            sources[g] = ScenarioSource.of(path, cache_dir=cache_dir, use_cache=use_cache)
+            _, problems[g] = sources[g].cached()
+            _check_goal(problems[g], g)
+        for g in _GOALS:
+            sweeps[g] = {
+                name: sweep(
+                    problems[g],
+                    name,
+                    directions=dirs,
+                    time_limit_s=float(settings["time_limit_s"]),
+                    executor=executor,
+                    source=sources[g],
+                    seed=seed,
+                    max_iterations=settings["max_iterations"],
+                    progress=None if progress is None else progress(f"{g} {name}"),
+                    options=options.get(name),
+                )
+                for name in FENG_PLANNERS
+            }
+    for g in _GOALS:
+        first = sweeps[g][FENG_PLANNERS[0]]
+        fates = direct_connection_fates(problems[g], first.directions, first.effective)
+        checks = {k: _checks(problems[g], sw) for k, sw in sweeps[g].items()}
+        record["goals"][g] = _goal_record(problems[g], sweeps[g], fates, checks)
+    p = problems["goal1"]
+    record = {
+        "study": "feng-lungs",
+        "case": {
+            "medrad": "lung patient 5 (LIDC525), start1",
+            "start_point_mm": [float(v) for v in p.start_point_mm],
+            "puncture_normal": [float(v) for v in p.puncture_normal],
+            "puncture_normal_source": p.metadata.get("puncture_normal_source"),
+            "collision_model": p.collision_model.value,
+            "field_error_bound_mm": float(p.scene.obstacle_field(0.0).error_bound_mm),
+            "goal2_offset_mm": list(FENG_GOAL2_OFFSET_MM),
+        },
+        "settings": {
+            **settings,
+            "planners": list(FENG_PLANNERS),
+            "seed": seed,
+            "options": options,
+            "quick": bool(quick),
+            "needle": docs["goal1"]["needle"],
+            "tolerance_mm": docs["goal1"]["goal"]["tolerance_mm"],
+        },
+        "feng": {"table4": FENG_TABLE4, "points_mm": FENG_POINTS_MM, "order": list(FENG_ORDER)},
+        **record,
+        "machine": machine_info(),
+    }
+    files: dict = {}
+    with staged_outputs():
+        for g in _GOALS:
+            files[f"{g}/scenario.yaml"] = _write_scenario(out / g / "scenario.yaml", docs[g], g)
+            files[f"{g}/sweep.json"] = write_json(
+                out / g / "sweep.json",
+                {
+                    "scenario": "scenario.yaml",
+                    "time_limit_s": float(settings["time_limit_s"]),
+                    "max_iterations": settings["max_iterations"],
+                    "seed": seed,
+                    "options": options,
+                    **sweeps_to_dict(sweeps[g]),
+                },
+            )
+            best = sweeps[g][FENG_PLANNERS[0]].best
+            if best is not None:
+                check = record["goals"][g]["checks"][FENG_PLANNERS[0]]["best"]
+                files[f"{g}/plan.json"] = write_plan_json(
+                    out / g / "plan.json", best, scenario="scenario.yaml", check=check
+                )
+        record["wall_s"] = time.perf_counter() - t0
+        # the budgets are wall-clock: other work on the machine costs iterations
+        record["load_average"] = {"start": list(load_before), "end": list(os.getloadavg())}
+        files["feng_lungs.json"] = write_json(out / "feng_lungs.json", record)
+        if report:
+            from needlekit.report.feng_lungs_report import write_feng_lungs_report
+
+            files["report.html"] = write_feng_lungs_report(
+                out / "report.html", record, sweeps, problems, options
+            )
+    return FengLungsStudy(record, sweeps, files, problems, options)
+
+
+def _check_goal(problem, goal: str) -> None:
+    """A target must lie in free space and within l_max of the start (before any sweep)."""
+    field = problem.scene.obstacle_field(0.0)  # certified: less the field's error bound
+    clear = float(field.signed_distance(problem.goal_mm)) - field.error_bound_mm
+    margin = problem.clearance_margin_mm
+    if clear <= margin:
+        raise InvalidInputError(
+            goal, f"{np.round(problem.goal_mm, 3).tolist()} is {clear:.2f} mm from an obstacle; "
+            f"the needle needs {margin:g} mm",
+        )  # fmt: skip
+    dist = float(np.linalg.norm(problem.goal_mm - problem.start_point_mm))
+    if dist >= problem.max_length_mm:
+        raise InvalidInputError(
+            goal, f"{dist:.1f} mm from the start, beyond l_max = {problem.max_length_mm:g} mm"
+        )

@@ -1,0 +1,229 @@
+"""``needlekit study feng-lungs``: Feng et al.'s protocol on a Med-RAD lung (issue 12, point 1).
+
+Feng's own figures are checked against the rows of their Tables 2-3; the quick run (136
+directions, 300 iterations per direction: the same on every machine) against its own sweep
+files, the independent check, the direct connection and the anatomy's masks.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from needlekit.cli import main
+from needlekit.cli._parser import FENG_LUNGS_FILES as PARSER_FILES
+from needlekit.studies.feng_lungs import (
+    FENG_GOAL2_OFFSET_MM,
+    FENG_LUNGS_FILES,
+    FENG_POINTS_MM,
+    FENG_TABLE4,
+    feng_lung_scenario,
+)
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+#: Feng et al. (2023), Tables 2 (goal 1) and 3 (goal 2): each planner's costs in row order.
+FENG_ROWS = {
+    "goal1": {
+        "rcs": [64.6193, 62.9014, 62.5639, 65.0225, 61.1241, 61.1949, 61.0548, 62.4123,
+                61.5018, 64.5335, 62.3829],
+        "rcs_star": [63.1118, 61.3853, 60.6194, 60.0265, 60.1770, 59.8760, 60.6104, 60.2192,
+                     63.0487, 62.3829],
+        "rrt": [64.2937, 63.3354, 62.5386, 61.1850, 61.4550, 61.0429, 62.0652, 64.4184,
+                63.6609],
+    },
+    "goal2": {
+        "rcs": [80.7644, 74.9835, 80.4673, 76.5572, 73.0024, 77.1477, 81.8952, 74.6854,
+                72.7510, 75.4871, 72.9416, 73.1358, 76.6867, 73.6244, 74.9628, 78.7849,
+                75.8855],
+        "rcs_star": [79.3278, 73.4151, 74.4401, 71.8050, 81.9360, 72.3398, 71.5848, 71.9168,
+                     71.8018, 72.3705, 73.3859, 74.5285],
+        "rrt": [80.3665, 74.8899, 80.4152, 75.7056, 73.2365, 76.1870, 74.3561, 72.7260,
+                74.9402, 73.0592, 73.1431, 75.9681, 73.9458, 75.3445, 78.4385, 75.6471],
+    },
+}  # fmt: skip
+
+
+def test_the_parser_lists_the_files_the_study_writes():
+    assert PARSER_FILES == FENG_LUNGS_FILES
+
+
+@pytest.mark.parametrize("goal", ["goal1", "goal2"])
+@pytest.mark.parametrize("planner", ["rcs", "rcs_star", "rrt"])
+def test_fengs_table4_is_their_tables_2_and_3(goal, planner):
+    rows = np.array(FENG_ROWS[goal][planner])
+    printed = FENG_TABLE4[goal][planner]
+    lowest = int(np.argmin(rows))
+    assert printed["n_solved"] == len(rows)
+    assert printed["best_cost_mm"] == rows[lowest]
+    assert printed["cost_before_lowest_mm"] == pytest.approx(rows[: lowest + 1].sum(), abs=1e-4)
+    if (goal, planner) == ("goal1", "rcs"):  # printed 62.7956; the 11 rows give 62.6647
+        assert rows.mean() == pytest.approx(62.66467, abs=1e-5)
+        assert printed["mean_cost_mm"] == 62.79560
+    else:
+        assert printed["mean_cost_mm"] == pytest.approx(rows.mean(), abs=1e-4)
+
+
+def test_fengs_start_sign_puts_the_goals_within_their_costs():
+    start = np.array(FENG_POINTS_MM["start"])
+    for goal in ("goal1", "goal2"):
+        straight = np.linalg.norm(np.array(FENG_POINTS_MM[goal]) - start)
+        # a path is never shorter than the straight line less tau
+        assert straight - 1.0 <= min(FENG_ROWS[goal]["rcs_star"])
+        printed_sign = np.linalg.norm(np.array(FENG_POINTS_MM[goal]) - start * [-1, 1, 1])
+        assert printed_sign > 100.0  # beyond l_max: the printed +64.8324 cannot be right
+    offset = np.array(FENG_POINTS_MM["goal2"]) - np.array(FENG_POINTS_MM["goal1"])
+    assert offset.tolist() == pytest.approx(list(FENG_GOAL2_OFFSET_MM))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("goal", [1, 2])
+def test_the_examples_are_the_studys_scenarios(medrad_dir, goal):
+    example = yaml.safe_load((EXAMPLES / f"medrad_lung_feng_goal{goal}.yaml").read_text())
+    doc = feng_lung_scenario(goal)
+    for key in ("version", "name", "base", "needle", "start", "collision_model", "planner"):
+        assert example[key] == doc[key], key
+    if goal == 1:
+        assert example["goal"] == doc["goal"]
+    else:
+        assert example["goal"]["tolerance_mm"] == doc["goal"]["tolerance_mm"]
+        assert example["goal"]["point_mm"] == pytest.approx(doc["goal"]["point_mm"], abs=1e-9)
+
+
+@pytest.fixture(scope="module")
+def quick(medrad_dir, tmp_path_factory):
+    """The quick study, run once through the command line (in this process)."""
+    out = tmp_path_factory.mktemp("feng") / "out"
+    code = main(["study", "feng-lungs", "--out", str(out), "--quick", "--medrad", str(medrad_dir)])
+    assert code == 0
+    record = json.loads((out / "feng_lungs.json").read_text())
+    sweeps = {g: json.loads((out / g / "sweep.json").read_text()) for g in ("goal1", "goal2")}
+    return out, record, sweeps
+
+
+def _problem(out, goal):
+    from needlekit.io.problems import load_problem
+
+    return load_problem(out / goal / "scenario.yaml")[1]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_quick_run_writes_its_files_with_the_quick_settings(quick):
+    out, record, _ = quick
+    written = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    assert written == set(FENG_LUNGS_FILES)
+    s = record["settings"]
+    assert (s["directions"], s["max_iterations"], s["quick"]) == (136, 300, True)
+    assert s["needle"]["diameter_mm"] == 2.0 and s["needle"]["max_length_mm"] == 100
+    assert record["case"]["collision_model"] == "field"  # certified
+    # Fibonacci lattice: 46 of 136 directions lie in the 70 deg cap about the airway normal
+    # ((1 - sin 20 deg) / 2 of the sphere predicts 45)
+    for g in ("goal1", "goal2"):
+        assert all(t["n_effective"] == 46 for t in record["goals"][g]["table4"].values())
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+@pytest.mark.parametrize("goal", ["goal1", "goal2"])
+def test_quick_tables_are_the_sweep_files(quick, goal):
+    out, record, sweeps = quick
+    sw, rec = sweeps[goal], record["goals"][goal]
+    page = (out / "report.html").read_text(encoding="utf-8")
+    for name in ("rcs_star", "rcs", "rrt"):
+        # Feng's tables count solved plans only (approximate ones keep a cost in the rows)
+        solved = [r["status"][name] == "solved" for r in sw["directions"]]
+        rows = sw["directions"]
+        costs = [r["cost_mm"][name] if ok else np.inf for r, ok in zip(rows, solved, strict=True)]
+        costs = np.array(costs, dtype=float)  # a solved row without a cost fails here
+        t = rec["table4"][name]
+        assert t["n_solved"] == sum(solved) == sw["summary"][name]["n_solved"]
+        assert t["n_effective"] == sum(r["effective"] for r in sw["directions"])
+        if not any(solved):
+            assert t["best_cost_mm"] is None and t["mean_cost_mm"] is None
+            continue
+        best = int(np.argmin(costs))
+        assert t["best_index"] == best
+        assert t["best_cost_mm"] == costs[best] == sw["best_plans"][name]["cost_mm"]
+        assert t["mean_cost_mm"] == pytest.approx(costs[np.isfinite(costs)].mean(), rel=1e-12)
+        before = costs[: best + 1]
+        assert t["cost_before_lowest_mm"] == pytest.approx(before[np.isfinite(before)].sum())
+        # Table 4 on the page carries the same numbers (3 decimals, true minus sign)
+        assert f"{t['best_cost_mm']:.3f}" in page and f"{t['mean_cost_mm']:.3f}" in page
+    means = {k: v["mean_cost_mm"] for k, v in rec["table4"].items()}
+    if all(v is not None for v in means.values()):
+        assert rec["order"] == sorted(means, key=means.get)
+        assert rec["order_holds"] == (rec["order"] == ["rcs_star", "rrt", "rcs"])
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_every_solved_plan_passes_the_independent_check(quick, capsys):
+    out, record, _ = quick
+    for g in ("goal1", "goal2"):
+        for name, c in record["goals"][g]["checks"].items():
+            assert c["passed"] == c["solved"] and not c["failures"], (g, name)
+            if c["solved"]:
+                assert c["best"]["ok"] and c["best"]["certified_clearance_mm"] >= 0.0
+                assert c["best"]["puncture_angle_deg"] >= 20.0
+        # and by the command line, from the files alone
+        code = main(["verify", str(out / g / "scenario.yaml"), str(out / g / "plan.json")])
+        assert code == 0, capsys.readouterr()
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_best_path_bends_where_the_direct_connection_collides(quick):
+    """Obstacles matter: from RCS*'s best direction, the direct turn-then-straight
+    connection hits the anatomy, and the plan found instead passes."""
+    from needlekit.io.plans import plan_from_dict
+    from needlekit.planning.steerable.goal import goal_connection
+    from needlekit.planning.steerable.plan import SteerablePlan
+    from needlekit.planning.steerable.verify import verify_plan
+
+    out, record, sweeps = quick
+    problem = _problem(out, "goal1")
+    best = sweeps["goal1"]["best_plans"]["rcs_star"]
+    plan, _ = plan_from_dict(best, "sweep.json: best_plans.rcs_star")
+    start = plan.start_pose
+    assert verify_plan(problem.with_start_pose(start), plan, expected_cost_mm=best["cost_mm"]).ok
+    direct = goal_connection(start, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm)
+    assert direct is not None and direct.length_mm < best["cost_mm"] <= problem.max_length_mm
+    check = verify_plan(problem.with_start_pose(start), SteerablePlan(start, direct.primitives))
+    assert not check.ok
+    assert any(v.startswith("collision") for v in check.violations), check.violations
+    assert len(plan.primitives) > len(direct.primitives)
+    # and so from every direction RCS* solved in the quick run
+    rec = record["goals"]["goal1"]
+    assert rec["table4"]["rcs_star"]["solved_not_direct"] == rec["table4"]["rcs_star"]["n_solved"]
+    idx = sweeps["goal1"]["summary"]["rcs_star"]["best_index"]
+    assert "collision" in rec["direct_fates"][idx]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_second_target_is_free_tissue_within_reach_at_another_depth(quick, medrad_dir):
+    from needlekit.io.medrad import load_medrad
+
+    out, record, _ = quick
+    p1, p2 = _problem(out, "goal1"), _problem(out, "goal2")
+    assert np.allclose(p2.goal_mm - p1.goal_mm, FENG_GOAL2_OFFSET_MM)
+    assert np.allclose(p1.start_point_mm, p2.start_point_mm)
+    # free space by the certified field: clear of every obstacle by more than the needle
+    field = p2.scene.obstacle_field(0.0)
+    clearance = float(field.signed_distance(p2.goal_mm)) - field.error_bound_mm
+    assert clearance > p2.clearance_margin_mm
+    # and by the masks themselves: no obstacle voxel centre within the needle's reach
+    case = load_medrad("lung", 5, medrad_dir)
+    assert not case.voxel_obstacles(2.0).collides(p2.goal_mm[None]).any()
+    inside_lung = case.scene["pleuralBoundary"].field.signed_distance(p2.goal_mm)
+    assert float(inside_lung) < -5.0
+    d1 = np.linalg.norm(p1.goal_mm - p1.start_point_mm)
+    d2 = np.linalg.norm(p2.goal_mm - p2.start_point_mm)
+    assert d1 < d2 < p2.max_length_mm  # deeper than goal 1, as Feng's goal 2, within l_max
+    assert d2 - d1 > 5.0
+    g2 = record["goals"]["goal2"]
+    assert g2["straight_distance_mm"] == pytest.approx(d2)
+    assert not g2["in_nodule"] and record["goals"]["goal1"]["in_nodule"]
