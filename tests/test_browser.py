@@ -143,6 +143,11 @@ def reports(tmp_path_factory):
     files = [str(results[k]) for k in ("plan", "sweep", "multi")]
     parts = out / "report-parts.html"
     run("report-parts", ["report", *files, "--out", str(parts)], parts)
+    run(
+        "reproduce-lecture",
+        ["reproduce", "lecture", "--quick", "--out", str(out / "reproduce")],
+        out / "reproduce" / "lecture.html",
+    )
     from needlekit.anatomy.phantoms import make_phantom
     from needlekit.report.scene3d import scene_figure, write_scenes_html
 
@@ -176,7 +181,7 @@ def _not_blank(png: bytes) -> bool:
 
 @pytest.mark.parametrize(
     "kind",
-    ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes"]
+    ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes", "reproduce-lecture"]
     + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts")],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
