@@ -76,6 +76,36 @@ def _rrt_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _dynamic_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--dynamic",
+        action="store_true",
+        help="among the scenario's moving obstacles: advance --step-mm along each plan, then "
+        "plan again from the tip; also the plan made once at t = 0, executed open-loop",
+    )
+    p.add_argument(
+        "--insertion-speed-mm-s",
+        type=_positive,
+        help="with --dynamic: insertion speed (default: the scenario's dynamic block)",
+    )
+    p.add_argument(
+        "--step-mm",
+        type=_positive,
+        help="with --dynamic: advance between re-plans (default: the scenario's, else 5 mm)",
+    )
+    p.add_argument(
+        "--predict",
+        choices=["arrival", "swept", "snapshot"],
+        help="with --dynamic: plan against each moving obstacle wherever it may be when the "
+        "tip passes (default), swept over the next advance, or where it is now",
+    )
+    p.add_argument(
+        "--lookahead-s",
+        type=_non_negative,
+        help="with --predict swept: how long to sweep (default: the advance's time)",
+    )
+
+
 def _cache_options(p: argparse.ArgumentParser) -> None:
     from pathlib import Path
 
@@ -210,7 +240,11 @@ def _build_parser() -> argparse.ArgumentParser:
         help="with --goals: a new search from the start for each target, as the lecture "
         "does (default), or one RRT tree for all of them (rrt only)",
     )
-    add_output(planp, "--report", help="with --goals: a self-contained HTML view of the plans")
+    add_output(
+        planp,
+        "--report",
+        help="with --goals or --dynamic: a self-contained HTML view of the plans",
+    )
     planp.add_argument(
         "--time-limit-s", type=_positive, help="planning budget (default: the scenario's, else 1 s)"
     )
@@ -223,6 +257,7 @@ def _build_parser() -> argparse.ArgumentParser:
         help="iteration budget besides the time limit (reproducible runs; default: the scenario's)",
     )
     _rrt_option(planp)
+    _dynamic_options(planp)
 
     sw = sub.add_parser(
         "sweep",

@@ -56,6 +56,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from needlekit.planning.steerable.solve import solve
 
     settings = _settings(args, args.planner)
+    if args.dynamic:
+        return _plan_dynamic(args, settings)
+    _refuse_dynamic_flags(args)
     if args.goals is not None:
         return _plan_goals(args, settings)
     if args.report is not None:
@@ -80,6 +83,106 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if res.status is PlanStatus.APPROXIMATE:
         print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
     return EXIT_OK if res.status is PlanStatus.SOLVED else 1
+
+
+#: The flags that only go with ``plan --dynamic``.
+_DYNAMIC_FLAGS = {
+    "insertion_speed_mm_s": "--insertion-speed-mm-s",
+    "step_mm": "--step-mm",
+    "predict": "--predict",
+    "lookahead_s": "--lookahead-s",
+}
+
+
+def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
+    for dest, flag in _DYNAMIC_FLAGS.items():
+        if getattr(args, dest, None) is not None:
+            raise InvalidInputError(flag, "only goes with --dynamic")
+
+
+def _plan_dynamic(args: argparse.Namespace, settings) -> int:
+    """``needlekit plan --dynamic``: re-plan from the tip among the scenario's moving
+    obstacles, beside the plan made once at t = 0 and executed open-loop."""
+    from dataclasses import replace
+
+    from needlekit.io.files import staged_outputs, write_json
+    from needlekit.io.scenario import read_scenario_document
+    from needlekit.planning.steerable.dynamic import (
+        DEFAULT_STEP_MM,
+        PREDICTIONS,
+        check_settings,
+        replan_among_moving,
+    )
+    from needlekit.planning.steerable.moving import Motion, MovingObstacle
+
+    if args.goals is not None:
+        raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
+    doc = read_scenario_document(args.scenario)
+    block = doc.get("dynamic", {})
+    if not any("moving" in s for s in doc.get("structures", [])):
+        raise InvalidInputError(
+            "--dynamic", f"{args.scenario.name}: no structure has a moving block"
+        )
+    given = {d: getattr(args, d) for d in _DYNAMIC_FLAGS if getattr(args, d) is not None}
+    kw = {**{k: v for k, v in block.items() if k in _DYNAMIC_FLAGS}, **given}
+    if "insertion_speed_mm_s" not in kw:
+        raise InvalidInputError(
+            "--insertion-speed-mm-s",
+            f"{args.scenario.name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
+        )
+    kw.setdefault("step_mm", DEFAULT_STEP_MM)
+    kw.setdefault("predict", PREDICTIONS[0])
+    check_settings(**kw)
+    sc, problem = _source(args).load()
+    static = replace(problem, scene=sc.static_scene)
+    moving = [
+        MovingObstacle(name, sc.scene[name].field, Motion(**m), sc.scene[name].color)
+        for name, m in sc.moving.items()
+    ]
+    planner = settings.name
+    opts = dict(settings.options[planner])
+    res = replan_among_moving(
+        static, moving, **kw, planner=planner, time_limit_s=settings.time_limit_s,
+        max_iterations=settings.max_iterations, seed=opts.pop("seed", settings.seed),
+        options=opts,
+    )  # fmt: skip
+    record = {"scenario": str(args.scenario), **res.to_dict()}
+    with staged_outputs():
+        write_json(args.out, record)
+        if args.report is not None:
+            from needlekit.report.dynamic_report import write_dynamic_report
+
+            write_dynamic_report(args.report, static, res, title=sc.name or args.scenario.name)
+    for line in _dynamic_summary(res):
+        print(line)
+    print(f"-> {args.out}" + ("" if args.report is None else f", {args.report}"))
+    return EXIT_OK if res.reached else 1
+
+
+def _dynamic_summary(res) -> list[str]:
+    """Lines telling how the re-planning run and the plan made at t = 0 went."""
+    s, m = res.settings, res.check.metrics
+    clear = m.get("certified_moving_clearance_mm")
+    lines = [
+        f"{s['planner']}, re-planning every {s['step_mm']:g} mm at {s['insertion_speed_mm_s']:g} "
+        f"mm/s ({s['predict']} prediction): {res.status.value}, {res.reason}; path "
+        f"{res.executed.length_mm:.2f} mm, certified clearance to the moving obstacles "
+        + ("-" if clear is None else f"{clear:.3f} mm")
+    ]
+    lines += [f"  - {v}" for v in res.check.violations]
+    if res.static is not None:
+        plan, check = res.static
+        if check is None:
+            lines.append(f"plan made once at t = 0: {plan.status.value}, no plan to execute")
+        else:
+            verdict = "passes" if check.ok else "fails"
+            lines.append(
+                f"plan made once at t = 0, executed open-loop: {verdict} the check "
+                f"(certified clearance to the moving obstacles "
+                f"{check.metrics['certified_moving_clearance_mm']:.3f} mm)"
+            )
+            lines += [f"  - {v}" for v in check.violations]
+    return lines
 
 
 def _plan_goals(args: argparse.Namespace, settings) -> int:

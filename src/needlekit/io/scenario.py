@@ -146,6 +146,13 @@ class Scenario:
     straight : dict
         The ``straight`` block (straight multi-needle planning), its ``targets`` resolved to
         points (mm, RAS) and its ``deformation`` grid path made absolute.
+    moving : dict
+        Per moving obstacle's name, its ``moving`` block in RAS (``velocity_mm_s``,
+        ``amplitude_mm``, ``period_s``, ``phase_deg``; ``Motion`` arguments).
+    dynamic : dict
+        The ``dynamic`` block as given (``plan --dynamic``).
+    static_scene : Scene or None
+        With moving obstacles, the scene without them (the anatomy that stays put).
     """
 
     name: str
@@ -159,6 +166,9 @@ class Scenario:
     base: Any = None
     collision_model: str = "field"
     straight: dict = field(default_factory=dict)
+    moving: dict = field(default_factory=dict)
+    dynamic: dict = field(default_factory=dict)
+    static_scene: Scene | None = None
 
 
 # ----------------------------------------------------------------------------------------
@@ -577,6 +587,15 @@ def parse_scenario(
         raise ctx.error("structures", "the scenario has no structures (add some or a base)")
     scene_name = base.scene.name if base is not None else data.get("name", "")
     scene = Scene(structures, name=scene_name, obstacle_field=obstacle)
+    moving = _moving(data.get("structures", []), ctx)
+    static_scene = None
+    if moving:  # the anatomy that stays put: the scene without the moving obstacles
+        kept = [s for s in extra if s.name not in moving]
+        static_scene = Scene(
+            [s for s in structures if s.name not in moving],
+            name=scene_name,
+            obstacle_field=None if base is None else _combined(base_scene, kept),
+        )
     needle = NeedleSpec(**data.get("needle", {}))
     start = _start(data["start"], ctx, base) if "start" in data else None
     goal = _goal(data["goal"], ctx, base) if "goal" in data else None
@@ -593,7 +612,34 @@ def parse_scenario(
         base,
         data.get("collision_model", "field"),
         _straight(data.get("straight"), ctx, base, goal, structures),
+        moving,
+        dict(data.get("dynamic", {})),
+        static_scene,
     )
+
+
+def _moving(specs: list, ctx: _Ctx) -> dict:
+    """The structures' ``moving`` blocks, checked, in RAS (by name)."""
+    from needlekit.planning.steerable.moving import Motion
+
+    out = {}
+    for i, spec in enumerate(specs):
+        if "moving" not in spec:
+            continue
+        where = f"structures[{i}].moving"
+        if spec["role"] != "obstacle":
+            raise ctx.error(where, f"only obstacles move; this structure is a {spec['role']}")
+        m = spec["moving"]
+        kw = {k: ctx.point(m[k]) for k in ("velocity_mm_s", "amplitude_mm") if k in m}
+        kw.update({k: m[k] for k in ("period_s", "phase_deg") if k in m})
+        if "period_s" in m and "amplitude_mm" not in m:
+            raise ctx.error(f"{where}.period_s", "a period needs amplitude_mm")
+        try:
+            Motion(**kw)
+        except InvalidInputError as exc:
+            raise ctx.error(f"{where}.{exc.field}", exc.reason) from None
+        out[spec["name"]] = kw
+    return out
 
 
 def _cheap_extent_mm(scene: Scene) -> float | None:

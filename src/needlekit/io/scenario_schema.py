@@ -114,6 +114,24 @@ _MESH = _obj(
 #: Keys that name where a structure comes from (exactly one per structure).
 SOURCE_KINDS: tuple[str, ...] = ("mask", "mesh", *PRIMITIVE_KINDS)
 
+#: An obstacle that moves during the insertion (``needlekit plan --dynamic``).
+_MOVING = {
+    **_obj(
+        {
+            "velocity_mm_s": {**_VEC3, "description": "constant drift (mm/s)"},
+            "amplitude_mm": {**_VEC3, "description": "sinusoid (breathing) amplitude (mm)"},
+            "period_s": {**_POS, "description": "sinusoid period (s); needs amplitude_mm"},
+            "phase_deg": {**_NUM, "description": "sinusoid phase at t = 0 (deg, default 0)"},
+        },
+        [],
+        "the obstacle moves rigidly while the needle is inserted: offset(t) = velocity_mm_s t "
+        "+ amplitude_mm (sin(2 pi t / period_s + phase) - sin(phase)), with t = inserted "
+        "length / dynamic.insertion_speed_mm_s; the shape as written is where it is at t = 0 "
+        "(obstacles only)",
+    ),
+    "minProperties": 1,
+}
+
 _STRUCTURE = {
     "type": "object",
     "description": "a named structure with a role and exactly one source key: "
@@ -125,6 +143,7 @@ _STRUCTURE = {
         "mask": _MASK,
         "mesh": _MESH,
         **PRIMITIVE_KINDS,
+        "moving": _MOVING,
     },
     "required": ["name", "role"],
     "additionalProperties": False,
@@ -328,6 +347,24 @@ _STRAIGHT = _obj(
     "reversed direction, the CFRW grid step, the objective, a fixed order, the deformation",
 )
 
+#: Planning among moving obstacles: re-plan from the tip every step (``plan --dynamic``).
+_DYNAMIC = _obj(
+    {
+        "insertion_speed_mm_s": {**_POS, "description": "constant insertion speed (mm/s)"},
+        "step_mm": {**_POS, "description": "advance between re-plans (default 5)"},
+        "predict": {
+            "enum": ["arrival", "swept", "snapshot"],
+            "description": "what each cycle plans against: each moving obstacle wherever it "
+            "may be when the tip can pass a point (default), swept over the next advance, or "
+            "where it is now",
+        },
+        "lookahead_s": {**_NONNEG, "description": "with predict: swept, how long to sweep (s)"},
+    },
+    [],
+    "planning among the structures with a moving block: the needle advances step_mm along "
+    "each cycle's plan at insertion_speed_mm_s, then plans again from its tip",
+)
+
 #: The JSON Schema (draft 2020-12) of a scenario file.
 SCENARIO_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -348,6 +385,7 @@ SCENARIO_SCHEMA: dict[str, Any] = {
         "goal": _GOAL,
         "planner": _PLANNER,
         "straight": _STRAIGHT,
+        "dynamic": _DYNAMIC,
         "collision_model": {
             "enum": ["field", "voxel_centres"],
             "description": "how collisions are decided: the scene's distance field (certified: "

@@ -120,6 +120,12 @@ class SteerableProblem:
         Normal of the entry surface at the start, pointing into the tissue entered, given
         instead of the one the surface's distance gradient gives (e.g. where it is
         undefined).
+    start_inside : bool
+        The start lies inside the tissue, as when planning goes on from a needle already
+        partly inserted (:mod:`needlekit.planning.steerable.dynamic`): no surface is
+        punctured there, so there is no entry surface and no puncture angle
+        (``min_puncture_angle_deg`` must be 0, ``entry_surface`` and ``entry_normal``
+        unset). Default False: the start is a puncture.
     puncture_normal : ndarray, shape (3,) or None
         The normal the puncture angle is measured against, pointing into the tissue
         (computed by :meth:`tissue_normal` at the start point; None where undefined and
@@ -154,6 +160,7 @@ class SteerableProblem:
     collision_model: CollisionModel = CollisionModel.FIELD
     voxel_obstacles: VoxelObstacles | None = field(default=None, repr=False, compare=False)
     entry_normal: np.ndarray | None = None
+    start_inside: bool = False
     puncture_normal: np.ndarray | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -198,7 +205,9 @@ class SteerableProblem:
                 "max_heading_change_deg",
                 f"must lie in (0, 360], got {self.max_heading_change_deg!r}",
             )
-        if self.entry_surface is None:
+        if self.start_inside:
+            self._check_start_inside(alpha)
+        elif self.entry_surface is None:
             object.__setattr__(self, "entry_surface", self._default_entry_surface())
         elif self.entry_surface not in self.scene:
             raise InvalidInputError(
@@ -211,6 +220,23 @@ class SteerableProblem:
             raise InvalidInputError("cost", f"expected one of {kinds}, got {self.cost!r}") from None
         self._check_collision_model()
         self._resolve_puncture_normal()
+
+    def _check_start_inside(self, alpha: float) -> None:
+        """A start inside the tissue punctures nothing: no angle, surface or normal."""
+        if not isinstance(self.start_inside, bool):
+            raise InvalidInputError(
+                "start_inside", f"expected True or False, got {self.start_inside!r}"
+            )
+        for name, given in (
+            ("min_puncture_angle_deg", alpha > 0),
+            ("entry_surface", self.entry_surface is not None),
+            ("entry_normal", self.entry_normal is not None),
+        ):
+            if given:
+                raise InvalidInputError(
+                    name,
+                    "the start lies inside the tissue (start_inside): no surface is punctured there",
+                )
 
     def _check_collision_model(self) -> None:
         try:
@@ -246,6 +272,11 @@ class SteerableProblem:
 
     def _resolve_puncture_normal(self) -> None:
         alpha = self.min_puncture_angle_deg
+        if self.start_inside:
+            self.metadata.setdefault(
+                "puncture_normal_source", "none: the start is inside the tissue"
+            )
+            return
         if self.entry_normal is not None:
             n = np.asarray(self.entry_normal, dtype=float).reshape(-1)
             norm = float(np.linalg.norm(n)) if n.shape == (3,) else 0.0
@@ -289,6 +320,8 @@ class SteerableProblem:
         why : str
             Where the normal comes from, or why it is undefined.
         """
+        if self.start_inside:
+            return None, "the start lies inside the tissue: no surface is punctured there"
         if self.entry_normal is not None:
             return self.entry_normal, "entry_normal"
         if self.entry_surface is None:
