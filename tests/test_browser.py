@@ -143,6 +143,13 @@ def reports(tmp_path_factory):
     files = [str(results[k]) for k in ("plan", "sweep", "multi")]
     parts = out / "report-parts.html"
     run("report-parts", ["report", *files, "--out", str(parts)], parts)
+    moving = Path(__file__).resolve().parents[1] / "src" / "needlekit" / "data"
+    run(
+        "dynamic",
+        ["plan", str(moving / "lung_phantom_moving.yaml"), "--dynamic", "--out",
+         str(out / "dynamic.json"), "--report", str(out / "dynamic.html")],
+        out / "dynamic.html",
+    )  # fmt: skip
     run(
         "reproduce-lecture",
         ["reproduce", "lecture", "--quick", "--out", str(out / "reproduce")],
@@ -181,7 +188,17 @@ def _not_blank(png: bytes) -> bool:
 
 @pytest.mark.parametrize(
     "kind",
-    ["scene", "goals", "sweep", "multi", "puncture", "approach", "scenes", "reproduce-lecture"]
+    [
+        "scene",
+        "goals",
+        "sweep",
+        "multi",
+        "puncture",
+        "approach",
+        "scenes",
+        "dynamic",
+        "reproduce-lecture",
+    ]
     + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts")],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(

@@ -98,7 +98,12 @@ def test_lecture_quick(tmp_path, capsys):
     assert len({r["per target: nodes"] for r in multi}) > 1
     assert html.count("<img alt=") == 4  # the kinematics figures, inlined as PNG
     out = capsys.readouterr().out
-    assert "lecture: 5 of 6 comparisons agree with the paper (1 do not" in out
+    assert "lecture: 6 of 7 comparisons agree with the paper (1 do not" in out
+    dyn = doc["record"]["dynamic"]
+    assert dyn["status"] == "reached" and dyn["check"]["ok"] is True
+    assert dyn["static"]["check"]["ok"] is False  # the plan made at t = 0 meets the vessel
+    assert rows["dynamic environment: RRT re-planning among moving obstacles"]["agrees"] == "yes"
+    assert (tmp_path / "lecture" / "dynamic.json").is_file()
 
 
 @pytest.mark.slow

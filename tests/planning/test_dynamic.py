@@ -36,6 +36,7 @@ from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.verify import verify_plan
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+DATA = Path(__file__).resolve().parents[2] / "src" / "needlekit" / "data"
 
 
 def _body():
@@ -411,7 +412,7 @@ def test_the_schema_command_shows_the_moving_and_dynamic_blocks(capsys):
 
 def test_command_line_errors_are_one_line_before_any_anatomy(tmp_path, capsys):
     plain = EXAMPLES / "lung_phantom.yaml"
-    moving = EXAMPLES / "lung_phantom_moving.yaml"
+    moving = DATA / "lung_phantom_moving.yaml"
     out = str(tmp_path / "d.json")
     cases = [
         ([str(plain), "--step-mm", "3", "--out", out], "--step-mm: only goes with --dynamic"),
@@ -431,7 +432,7 @@ def test_command_line_errors_are_one_line_before_any_anatomy(tmp_path, capsys):
 @pytest.mark.slow
 def test_the_example_collides_when_planned_once_and_reaches_when_replanned(tmp_path, capsys):
     out, page = tmp_path / "dynamic.json", tmp_path / "dynamic.html"
-    argv = ["plan", str(EXAMPLES / "lung_phantom_moving.yaml"), "--dynamic", "--out", str(out),
+    argv = ["plan", str(DATA / "lung_phantom_moving.yaml"), "--dynamic", "--out", str(out),
             "--report", str(page)]  # fmt: skip
     assert main(argv) == 0
     text = capsys.readouterr().out

@@ -103,42 +103,14 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
 def _plan_dynamic(args: argparse.Namespace, settings) -> int:
     """``needlekit plan --dynamic``: re-plan from the tip among the scenario's moving
     obstacles, beside the plan made once at t = 0 and executed open-loop."""
-    from dataclasses import replace
-
     from needlekit.io.files import staged_outputs, write_json
-    from needlekit.io.scenario import read_scenario_document
-    from needlekit.planning.steerable.dynamic import (
-        DEFAULT_STEP_MM,
-        PREDICTIONS,
-        check_settings,
-        replan_among_moving,
-    )
-    from needlekit.planning.steerable.moving import Motion, MovingObstacle
+    from needlekit.io.problems import dynamic_settings, moving_case
+    from needlekit.planning.steerable.dynamic import replan_among_moving
 
     if args.goals is not None:
         raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
-    doc = read_scenario_document(args.scenario)
-    block = doc.get("dynamic", {})
-    if not any("moving" in s for s in doc.get("structures", [])):
-        raise InvalidInputError(
-            "--dynamic", f"{args.scenario.name}: no structure has a moving block"
-        )
-    given = {d: getattr(args, d) for d in _DYNAMIC_FLAGS if getattr(args, d) is not None}
-    kw = {**{k: v for k, v in block.items() if k in _DYNAMIC_FLAGS}, **given}
-    if "insertion_speed_mm_s" not in kw:
-        raise InvalidInputError(
-            "--insertion-speed-mm-s",
-            f"{args.scenario.name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
-        )
-    kw.setdefault("step_mm", DEFAULT_STEP_MM)
-    kw.setdefault("predict", PREDICTIONS[0])
-    check_settings(**kw)
-    sc, problem = _source(args).load()
-    static = replace(problem, scene=sc.static_scene)
-    moving = [
-        MovingObstacle(name, sc.scene[name].field, Motion(**m), sc.scene[name].color)
-        for name, m in sc.moving.items()
-    ]
+    kw = dynamic_settings(args.scenario, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
+    sc, static, moving = moving_case(_source(args))
     planner = settings.name
     opts = dict(settings.options[planner])
     res = replan_among_moving(

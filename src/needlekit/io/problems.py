@@ -525,3 +525,81 @@ def coverage_region(scenario, problem):
     if settings["clip_to_body"]:
         region = clip_region(region, problem.scene[problem.entry_surface].field)
     return region, settings
+
+
+#: The re-planning settings a scenario's ``dynamic`` block (or the flags) may give.
+DYNAMIC_SETTINGS = ("insertion_speed_mm_s", "step_mm", "predict", "lookahead_s")
+
+
+def dynamic_settings(scenario_path: str | os.PathLike, given: dict | None = None) -> dict:
+    """The re-planning settings of a scenario with moving obstacles, checked, before any
+    anatomy is read: its ``dynamic`` block under ``given`` (flags win).
+
+    Parameters
+    ----------
+    scenario_path : path-like
+    given : dict, optional
+        Settings named as :data:`DYNAMIC_SETTINGS` (None values are ignored).
+
+    Returns
+    -------
+    dict
+        ``insertion_speed_mm_s``, ``step_mm``, ``predict`` and, where given,
+        ``lookahead_s``: the keyword arguments of
+        :func:`needlekit.planning.steerable.dynamic.replan_among_moving`.
+
+    Raises
+    ------
+    InvalidInputError
+        No structure moves, no insertion speed anywhere, or a bad setting.
+    """
+    from needlekit.io.scenario import read_scenario_document
+    from needlekit.planning.steerable.dynamic import (
+        DEFAULT_STEP_MM,
+        PREDICTIONS,
+        check_settings,
+    )
+
+    name = Path(scenario_path).name
+    doc = read_scenario_document(scenario_path)
+    if not any("moving" in s for s in doc.get("structures", [])):
+        raise InvalidInputError("--dynamic", f"{name}: no structure has a moving block")
+    block = doc.get("dynamic", {})
+    kw = {k: v for k, v in block.items() if k in DYNAMIC_SETTINGS}
+    kw |= {k: v for k, v in (given or {}).items() if v is not None}
+    if "insertion_speed_mm_s" not in kw:
+        raise InvalidInputError(
+            "--insertion-speed-mm-s",
+            f"{name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
+        )
+    kw.setdefault("step_mm", DEFAULT_STEP_MM)
+    kw.setdefault("predict", PREDICTIONS[0])
+    check_settings(**kw)
+    return kw
+
+
+def moving_case(source: ScenarioSource):
+    """A scenario with moving obstacles, split for re-planning.
+
+    Parameters
+    ----------
+    source : ScenarioSource
+
+    Returns
+    -------
+    scenario : Scenario
+    static : SteerableProblem
+        The problem among the structures that do not move.
+    moving : list of MovingObstacle
+        The moving structures, each with its motion (its shape as written is where it is at
+        ``t = 0``).
+    """
+    from needlekit.planning.steerable.moving import Motion, MovingObstacle
+
+    sc, problem = source.load()
+    static = replace(problem, scene=sc.static_scene)
+    moving = [
+        MovingObstacle(name, sc.scene[name].field, Motion(**m), sc.scene[name].color)
+        for name, m in sc.moving.items()
+    ]
+    return sc, static, moving
