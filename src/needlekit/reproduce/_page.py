@@ -76,6 +76,33 @@ class Stages:
         elapsed = self._clock() - self._t0
         self._progress(f"{self._name} [{self._k}/{self._total}] {label} ({elapsed:.0f} s so far)")
 
+    def bar(self, desc: str, total: int | None = None, unit: str = "task"):
+        """A progress bar of the stage's tasks (total and time left; shown on a terminal).
+
+        Returns
+        -------
+        callable
+            ``update(result)``, one task done; ``update.set_total(n)`` sets the total
+            where it is known only later (a sweep's effective directions), and
+            ``update.close()`` ends the bar.
+        """
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=f"{self._name} {desc}", unit=unit, disable=None, leave=False)
+
+        class _Update:
+            def __call__(self, _result=None) -> None:
+                bar.update(1)
+
+            def set_total(self, n: int) -> None:
+                bar.total = n
+                bar.refresh()
+
+            def close(self) -> None:
+                bar.close()
+
+        return _Update()
+
 
 def _machine() -> dict:
     import numpy as np

@@ -140,9 +140,14 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
 
     stage = Stages(progress, 2 * len(FENG_PLANNERS), "feng2023")
 
+    bars: list = []
+
     def sweep_progress(label: str):
+        for b in bars:
+            b.close()
         stage(f"sweep {label}")
-        return lambda _result: None
+        bars.append(stage.bar(label, unit="dir"))
+        return bars[-1]
 
     study = run_feng_lungs(
         Path(out_dir) / "feng2023",
@@ -151,6 +156,8 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         progress=sweep_progress,
         report=False,
     )
+    for b in bars:
+        b.close()
     record = study.record
     s, n = record["settings"], record["settings"]["needle"]
     checks = [c for rec in record["goals"].values() for c in rec["checks"].values()]

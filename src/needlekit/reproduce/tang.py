@@ -219,6 +219,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             guide_samples=row.guide_samples,
             clamp_vfi_rows=row.clamp,
         )
+        update = stage.bar(row.key, trials, "trial")
         studies[row.key] = run_puncture_study(
             case / row.key,
             trials=trials,
@@ -226,8 +227,10 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             scenario=PunctureScenario(redraw_guides=row.redraw),
             options=options,
             executor=executor,
+            progress=update,
             report=row.key == "defaults",
         )
+        update.close()
     table = [_paper_row(PAPER_RESULTS)] + [
         _table_row(r.label, studies[r.key].summary) for r in rows
     ]
