@@ -150,6 +150,8 @@ def reports(tmp_path_factory):
          str(out / "dynamic.json"), "--report", str(out / "dynamic.html")],
         out / "dynamic.html",
     )  # fmt: skip
+    page = out / "report-dynamic.html"
+    run("report-dynamic", ["report", str(out / "dynamic.json"), "--out", str(page)], page)
     run(
         "reproduce-lecture",
         ["reproduce", "lecture", "--quick", "--out", str(out / "reproduce")],
@@ -199,7 +201,10 @@ def _not_blank(png: bytes) -> bool:
         "dynamic",
         "reproduce-lecture",
     ]
-    + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts")],
+    + [
+        f"report-{k}"
+        for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts", "dynamic")
+    ],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
     browser, reports, kind, tmp_path

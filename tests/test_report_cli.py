@@ -3,7 +3,8 @@ file, several in one page, and the errors before any work (issue 12, point 5).
 
 The results are made here by the commands themselves, with small budgets. The values the
 pages must show come from the result files, and the independent checks from ``needlekit
-verify`` (a separate path to the same rules).
+verify`` (a separate path to the same rules); a run among moving obstacles is measured
+against the tip's clearance to the moving vessel computed in closed form every 1 ms.
 """
 
 import html
@@ -14,6 +15,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from needlekit.cli import main
@@ -28,6 +30,24 @@ TWO = (
     .split('"""')[0]
     .replace("resolution_deg: 4", "resolution_deg: 8")
 )
+#: The fast drift of tests/planning/test_dynamic.py as a scenario: a vessel (capsule, axis
+#: along x at z = 25 mm, 3.4 mm to the +y side of the straight path at t = 0) drifting -y
+#: at 0.4 mm/s across a 50 mm insertion at 2 mm/s in a ball; RRT, 300 iterations, a re-plan
+#: every 10 mm. The plan made once at t = 0 (straight) meets the vessel.
+BALL = """\
+version: 1
+name: ball, drifting vessel
+structures:
+  - {name: body, role: allowed_region, sphere: {center_mm: [0, 0, 0], radius_mm: 200}}
+  - {name: vessel, role: obstacle,
+     capsule: {p0_mm: [-10, 3.4, 25], p1_mm: [10, 3.4, 25], radius_mm: 1.5},
+     moving: {velocity_mm_s: [0, -0.4, 0]}}
+needle: {diameter_mm: 1.0, max_length_mm: 100, start_exclusion_mm: 0}
+start: {point_mm: [0, 0, 0], direction: [0, 0, 1]}
+goal: {point_mm: [0, 0, 50]}
+planner: {name: rrt, time_limit_s: 60, seed: 0, max_iterations: 300}
+dynamic: {insertion_speed_mm_s: 2.0, step_mm: 10.0}
+"""
 
 
 def _run(argv, ok=(0,)):
@@ -49,6 +69,16 @@ def made(tmp_path_factory):
           "rrt", "--out", d / "sweep.json", "--plan", d / "best.json"])  # fmt: skip
     _run(["cfrw", two, "--target", "2", "--layers", "50", "60", "--out", d / "cfrw.json"])
     _run(["multi", two, "--out", d / "multi.json"])
+    return d
+
+
+@pytest.fixture(scope="module")
+def dynamic(tmp_path_factory):
+    """A run among moving obstacles (``plan --dynamic``) and the page the command drew."""
+    d = tmp_path_factory.mktemp("dynamic")
+    (d / "ball.yaml").write_text(BALL)
+    _run(["plan", d / "ball.yaml", "--dynamic", "--out", d / "dynamic.json", "--report",
+          d / "plan-dynamic.html"])  # fmt: skip
     return d
 
 
@@ -263,7 +293,7 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture)"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic)"),
         ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),
@@ -347,6 +377,190 @@ def test_a_result_from_another_scenario_is_refused(made, tmp_path, capsys):
         line
         == f"error: --scenario: {steerable} has no straight block; multi.json was made from another scenario"
     )
+
+
+# ---------------------------------------------------------------------------------------
+# a run among moving obstacles (plan --dynamic)
+
+
+def _tip_clearance_to_the_vessel(record: dict, dt_s: float = 1e-3) -> float:
+    """The oracle: the executed tip every ``dt_s`` seconds (the plain numpy arc
+    propagation), against the drifting capsule at that time in closed form (distance to its
+    axis segment, less its radius and the needle's)."""
+    from needlekit.geometry.arcs import propagate_arcs_reference
+
+    ex = record["executed"]
+    rows = np.array([[q["rotation_rad"], q["curvature_per_mm"], q["length_mm"]]
+                     for q in ex["primitives"]])  # fmt: skip
+    poses = [np.asarray(ex["start_pose"], float)]
+    for spin, kappa, length in rows:
+        poses.append(propagate_arcs_reference(poses[-1], spin, kappa, length))
+    ends = np.cumsum(rows[:, 2])
+    s = np.arange(0.0, ends[-1], 2.0 * dt_s)  # 2 mm/s
+    i = np.searchsorted(ends, s, side="right")
+    before = np.concatenate([[0.0], ends])[i]
+    tips = propagate_arcs_reference(np.array(poses)[i], rows[i, 0], rows[i, 1], s - before)
+    p, t = tips[:, :3, 3], s / 2.0
+    axis_y = 3.4 - 0.4 * t
+    dx = np.abs(p[:, 0]) - np.minimum(np.abs(p[:, 0]), 10.0)
+    d = np.sqrt(dx**2 + (p[:, 1] - axis_y) ** 2 + (p[:, 2] - 25.0) ** 2)
+    return float(d.min()) - 1.5 - 0.5
+
+
+def test_a_run_among_moving_obstacles_is_rebuilt_and_checked_again(dynamic, tmp_path, capsys):
+    doc = json.loads((dynamic / "dynamic.json").read_text())
+    assert doc["status"] == "reached" and doc["static"]["check"]["ok"] is False
+    out = tmp_path / "dynamic.html"
+    capsys.readouterr()
+    assert main(["report", str(dynamic / "dynamic.json"), "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"{dynamic / 'dynamic.json'}: dynamic: rrt re-planning every 10 mm (arrival): " in said
+    assert f"reached after {len(doc['cycles'])} cycles; executed path check passed; " in said
+    assert "plan made at t = 0 fails the check" in said
+    page, own = _page(out), _page(dynamic / "plan-dynamic.html")
+    assert "<title>Re-planning among moving obstacles: ball, drifting vessel</title>" in page
+    # the cycles as the file has them, and as the command's own page drew them
+    cycles = _rows(page, "Cycles")
+    assert cycles == _rows(own, "Cycles")
+    cells = [dict(zip(cycles[0], r, strict=True)) for r in cycles[1:]]
+    assert len(cells) == len(doc["cycles"])
+    for c, rec in zip(cells, doc["cycles"], strict=True):
+        assert c["cycle"] == str(rec["index"] + 1) and c["plan"] == rec["source"]
+        assert c["t (s)"] == _mm(rec["t_s"]) and c["inserted (mm)"] == _mm(rec["inserted_mm"])
+        assert c["advanced (mm)"] == _mm(rec["advanced_mm"])
+        assert c["status"] == rec["plan"]["status"]
+        assert c["cost (mm)"] == _mm(rec["plan"]["cost_mm"])
+        assert (
+            c["obstacle offset (mm)"]
+            == f"({', '.join(map(_mm, rec['obstacle_offsets_mm']['vessel']))})"
+        )
+        assert [c["window from (s)"], c["window to (s)"]] == [_mm(w) for w in rec["window_s"]]
+    verdicts = page.split(">Verdicts</h", 1)[1].split("</ul>", 1)[0]
+    assert verdicts == own.split(">Verdicts</h", 1)[1].split("</ul>", 1)[0]
+    m, sm = doc["check"]["metrics"], doc["static"]["check"]["metrics"]
+    assert f"reached; {doc['reason']}." in verdicts
+    assert (
+        f"Executed path: {doc['executed']['length_mm']:.2f} mm in {m['duration_s']:.2f} s"
+        in verdicts
+    )
+    # the checks run again give what the file records, and bound the oracle
+    again = _rows(page, "Independent checks run again")
+    assert again[1:] == [
+        ["executed path", "passed", "passed", _mm(m["certified_moving_clearance_mm"]),
+         _mm(m["certified_moving_clearance_mm"])],
+        ["plan made once at t = 0", "FAILED", "FAILED", _mm(sm["certified_moving_clearance_mm"]),
+         _mm(sm["certified_moving_clearance_mm"])],
+    ]  # fmt: skip
+    oracle = _tip_clearance_to_the_vessel(doc)
+    assert m["certified_moving_clearance_mm"] <= oracle <= m["moving_clearance_mm"] + 1e-6
+    assert oracle > 0 and "Violation: moving obstacle 'vessel'" in verdicts  # the static plan's
+    assert "Paths and obstacles" in page and "vessel at t = 0.0 s" in page
+
+
+def test_a_tampered_run_among_moving_obstacles_fails_the_check_run_again(dynamic, tmp_path, capsys):
+    doc = json.loads((dynamic / "dynamic.json").read_text())
+    # the executed path swapped for the plan made at t = 0: straight into the vessel's way,
+    # the file still claiming the check passed
+    bad = json.loads(json.dumps(doc))
+    bad["executed"]["primitives"] = doc["static"]["plan"]["primitives"]
+    bad["scenario"] = str(dynamic / "ball.yaml")
+    path = tmp_path / "dynamic.json"
+    path.write_text(json.dumps(bad))
+    out = tmp_path / "bad.html"
+    capsys.readouterr()
+    assert main(["report", str(path), "--out", str(out)]) == 1
+    said = capsys.readouterr().out
+    assert "executed path check FAILED" in said and "error: an independent check failed" in said
+    assert "the file records otherwise for the executed path" in said
+    page = _page(out)
+    assert _rows(page, "Independent checks run again")[1][:3] == [
+        "executed path",
+        "passed",
+        "FAILED",
+    ]
+    verdicts = page.split(">Verdicts</h", 1)[1].split("</ul>", 1)[0]
+    assert _tip_clearance_to_the_vessel(bad) < 0  # the oracle: the tip meets the vessel
+    lines = re.findall(
+        r"<li>Violation: (moving obstacle 'vessel': certified clearance [^<]*)</li>", verdicts
+    )
+    assert len(lines) == 2  # the executed path's and the plan made at t = 0's: the same path
+    assert lines[0] == lines[1] and "first contact at t = " in lines[0]
+    # a file claiming the plan made at t = 0 passes is caught too
+    bad = json.loads(json.dumps(doc))
+    bad["static"]["check"].update(ok=True, violations=[])
+    bad["scenario"] = str(dynamic / "ball.yaml")
+    path.write_text(json.dumps(bad))
+    assert main(["report", str(path), "--out", str(out)]) == 1
+    said = capsys.readouterr().out
+    assert "executed path check passed" in said
+    assert "the file records otherwise for the plan made once at t = 0" in said
+
+
+def test_a_run_without_the_plan_made_at_t0_is_drawn_without_it(dynamic, tmp_path, capsys):
+    doc = json.loads((dynamic / "dynamic.json").read_text())
+    path = tmp_path / "alone.json"
+    path.write_text(json.dumps({**doc, "static": None, "scenario": str(dynamic / "ball.yaml")}))
+    out = tmp_path / "alone.html"
+    capsys.readouterr()
+    assert main(["report", str(path), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith("executed path check passed")
+    page = _page(out)
+    assert [r[0] for r in _rows(page, "Independent checks run again")[1:]] == ["executed path"]
+    assert "Plan made once at t = 0" not in page and "plan made at t = 0" not in page
+
+
+@pytest.mark.parametrize(
+    ("edit", "expected"),
+    [
+        (lambda d: d.update(status="done"), "dynamic.json: status: expected one of reached, no_plan"),
+        (lambda d: d["settings"].update(step_mm=0), "dynamic.json: settings: step_mm: "),
+        (lambda d: d["settings"].update(predict="oracle"), "dynamic.json: settings: predict: expected one of arrival"),
+        (lambda d: d["settings"].pop("insertion_speed_mm_s"), "dynamic.json: settings: insertion_speed_mm_s: missing"),
+        (lambda d: d["moving"][0].update(amplitude_mm=[0, 1, 0]), "dynamic.json: moving[0]: period_s: a sinusoid"),
+        (lambda d: d["executed"]["primitives"][0].pop("length_mm"), "dynamic.json: executed: primitives[0]: length_mm: missing"),
+        (lambda d: d["executed"].update(start_pose=[[1, 0], [0, 1]]), "dynamic.json: executed: start_pose: expected a 4x4"),
+        (lambda d: d["cycles"][1].pop("t_s"), "dynamic.json: cycles[1]: t_s: missing"),
+        (lambda d: d["cycles"][1].update(window_s=[1.0]), "dynamic.json: cycles[1]: window_s: expected two finite times"),
+        (lambda d: d["cycles"][0]["plan"].update(status="done"), "dynamic.json: cycles[0]: plan: status: expected one of solved"),
+        (lambda d: d["cycles"][0]["tip_pose"][0].__setitem__(3, 5.0), "dynamic.json: cycles[0]: tip_pose: differs from executed.start_pose"),
+        (lambda d: d["cycles"][2]["plan"].update(goal_mm=[0, 0, 60]), "dynamic.json: cycles[2]: plan: goal_mm: differs from the goal of "),
+        (lambda d: d["check"].update(ok=False), "dynamic.json: check: ok: is false with 0 violations"),
+        (lambda d: d["static"].pop("plan"), "dynamic.json: static: plan: missing"),
+    ],
+)  # fmt: skip
+def test_a_bad_field_of_a_dynamic_run_is_named(dynamic, tmp_path, capsys, edit, expected):
+    doc = json.loads((dynamic / "dynamic.json").read_text())
+    edit(doc)
+    bad = tmp_path / "dynamic.json"
+    bad.write_text(json.dumps(doc))
+    line = _one_error_line(capsys, ["report", bad, "--out", tmp_path / "r.html"])
+    assert line.startswith(f"error: {expected}"), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dynamic.json"]
+
+
+def test_a_dynamic_run_from_another_scenario_is_refused(dynamic, tmp_path, capsys):
+    result = dynamic / "dynamic.json"
+    argv = ["report", result, "--scenario", TOY, "--out", tmp_path / "r.html"]
+    line = _one_error_line(capsys, argv)
+    assert line == (
+        f"error: --scenario: {TOY} has no moving structure; dynamic.json was made from another "
+        "scenario"
+    )
+    other = tmp_path / "faster.yaml"
+    other.write_text(BALL.replace("[0, -0.4, 0]", "[0, -0.8, 0]"))
+    argv = ["report", result, "--scenario", other, "--out", tmp_path / "r.html"]
+    line = _one_error_line(capsys, argv)
+    assert line == (
+        f"error: {result}: the moving obstacles 'vessel' move otherwise (or not at all) in the "
+        f"scenario {other}: it was made from another scenario (give that one with --scenario)"
+    )
+    other.write_text(BALL.replace("step_mm: 10.0}", "step_mm: 10.0, lookahead_s: 2}"))
+    line = _one_error_line(capsys, argv)
+    assert line.startswith(
+        f"error: --scenario: the run's settings do not go with the dynamic block of {other}: "
+        "lookahead_s: only goes with predict='swept'"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["faster.yaml"]
 
 
 # ---------------------------------------------------------------------------------------

@@ -472,8 +472,8 @@ def _build_parser() -> argparse.ArgumentParser:
 
     rp = sub.add_parser(
         "report",
-        help="draw result files (plan, sweep, cfrw, multi, puncture) on one self-contained page",
-        description="Read result files written by plan, plan --goals, sweep, cfrw, multi and "
+        help="draw result files (plan, sweep, cfrw, multi, puncture, dynamic) on one self-contained page",
+        description="Read result files written by plan, plan --goals, plan --dynamic, sweep, cfrw, multi and "
         "puncture, load the scenarios they name, check their plans again and write one HTML "
         "page (opens offline) with a part per result: 3D scenes, tables, figures. Exit 1 "
         "when an independent check fails (the page is written).",

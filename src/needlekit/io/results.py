@@ -1,7 +1,8 @@
 """Result files read back: which command wrote a JSON file, checked before any work.
 
 The commands write their results as JSON (``plan.json``, ``sweep.json``, ``cfrw.json``,
-``multi.json``, ``puncture.json``); ``needlekit report`` draws any of them again. Here:
+``multi.json``, ``puncture.json``, the ``dynamic.json`` of ``plan --dynamic``);
+``needlekit report`` draws any of them again. Here:
 
 - :func:`result_kind`: the kind of a result document, from the fields that only that kind
   has (:data:`KIND_FIELDS`);
@@ -12,7 +13,8 @@ The commands write their results as JSON (``plan.json``, ``sweep.json``, ``cfrw.
 
 A sweep file keeps each planner's best plan, not every direction's path; CFRW and
 multi-needle files keep no blocking reason per direction nor entry points (the report
-recomputes the maps from the scenario).
+recomputes the maps from the scenario); a run among moving obstacles keeps the motions,
+not the obstacles' shapes (the scenario gives them).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.files import read_json_object
 from needlekit.io.records import (
     coverage_from_dict,
+    dynamic_from_dict,
     entry_from_dict,
     field_of,
     goals_from_dict,
@@ -49,6 +52,7 @@ class ResultKind(enum.Enum):
     CFRW = "cfrw"
     MULTI = "multi"
     PUNCTURE = "puncture"
+    DYNAMIC = "dynamic"  # needlekit plan --dynamic
 
     @property
     def label(self) -> str:
@@ -68,6 +72,7 @@ _LABELS = {
     ResultKind.CFRW: "collision-free reachable workspace (needlekit cfrw)",
     ResultKind.MULTI: "straight multi-needle plan (needlekit multi)",
     ResultKind.PUNCTURE: "puncture simulation study (needlekit puncture)",
+    ResultKind.DYNAMIC: "re-planning among moving obstacles (needlekit plan --dynamic)",
 }
 
 #: The top-level fields that mark each kind, tried in this order (a sweep's best plans and
@@ -78,6 +83,7 @@ KIND_FIELDS: dict[ResultKind, tuple[str, ...]] = {
     ResultKind.GOALS: ("targets", "mode", "planner"),
     ResultKind.MULTI: ("needles", "order", "gamma_mm"),
     ResultKind.CFRW: ("feasible", "theta_deg", "phi_deg", "world_T_sigma"),
+    ResultKind.DYNAMIC: ("moving", "executed", "cycles", "settings"),
     ResultKind.PLAN: ("status", "primitives", "start_pose", "goal_mm"),
 }
 
@@ -262,8 +268,25 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
         multi_plan_from_dict(data, where)
         coverage_from_dict(data.get("coverage"), f"{where}: coverage")
         field_of(data, "resolution_deg", where, optional=True)
+    elif kind is ResultKind.DYNAMIC:
+        dynamic_from_dict(data, where)
     else:
         _check_puncture(data, where)
+
+
+def _check_dynamic_scenario(data: dict, p: Path, located: Path, doc: dict, where: str) -> None:
+    """The scenario of a run among moving obstacles has moving structures, and its
+    ``dynamic`` block goes with the run's settings (cheap: no anatomy is read)."""
+    from needlekit.io.problems import DYNAMIC_SETTINGS, dynamic_settings
+
+    if not any(isinstance(s, dict) and "moving" in s for s in doc.get("structures", [])):
+        msg = f"{located} has no moving structure; {p.name} was made from another scenario"
+        raise InvalidInputError(where, msg)
+    try:
+        dynamic_settings(located, {k: data["settings"].get(k) for k in DYNAMIC_SETTINGS})
+    except InvalidInputError as exc:
+        msg = f"the run's settings do not go with the dynamic block of {located}: {exc}"
+        raise InvalidInputError(where, msg) from None
 
 
 def read_result(
@@ -309,6 +332,9 @@ def _read(p: Path, data: dict, scenario, flag: str) -> ResultFile:
         if kind in (ResultKind.CFRW, ResultKind.MULTI) and not doc.get("straight"):
             msg = f"{located} has no straight block; {p.name} was made from another scenario"
             raise InvalidInputError(flag if scenario is not None else str(p), msg)
+        if kind is ResultKind.DYNAMIC:
+            where = flag if scenario is not None else str(p)
+            _check_dynamic_scenario(data, p, located, doc, where)
     return ResultFile(p, kind, data, located)
 
 
