@@ -221,3 +221,20 @@ def test_every_report_renders_its_3d_views_without_console_warnings(
     browser.save_screenshot(str(tmp_path / f"{kind}.png"))
     bad = [e for e in logs if SOFTWARE_GL_NOTE not in e["message"]]
     assert bad == [], json.dumps(bad, indent=1)
+
+
+@pytest.mark.realdata
+def test_the_feng_lungs_study_page_renders(browser, tmp_path):
+    """The page of `needlekit study feng-lungs` (Med-RAD lung 5): tables, parts per target,
+    Figs. 7-9 and the anatomy around the paths."""
+    out = tmp_path / "feng"
+    assert main(["study", "feng-lungs", "--quick", "--out", str(out)]) in (0, 1)
+    plots, logs = _render(browser, out / "report.html")
+    assert plots >= 4
+    canvases = browser.find_elements("css selector", ".gl-container canvas")
+    assert canvases, "no 3D view"
+    for i, c in enumerate(canvases):
+        browser.execute_script("arguments[0].scrollIntoView()", c)
+        assert _not_blank(c.screenshot_as_png), f"3D view {i} is blank"
+    bad = [e for e in logs if SOFTWARE_GL_NOTE not in e["message"]]
+    assert bad == [], json.dumps(bad, indent=1)
