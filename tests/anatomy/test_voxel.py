@@ -491,3 +491,28 @@ def test_medrad_nodule_sdf_within_bound_of_its_voxel_surface(medrad_dir):
     pts = points_in_box(rng, lo - 2, hi + 2, 600)
     exact = voxel_surface_distance(cropped, caff, pts)
     assert np.abs(sdf.signed_distance(pts) - exact).max() <= sdf.error_bound_mm
+
+
+def test_wrappers_ask_for_the_grids_lipschitz_bound_only_when_needed(lung_like_sphere):
+    """The bound takes a pass over every value of the grid (a 352 MB pass on a Med-RAD
+    lung, on every load): wrapping a grid must not compute it, asking must give the grid's."""
+    from needlekit.anatomy.fields import (
+        BoundedField,
+        ComplementField,
+        OffsetField,
+        TransformedField,
+    )
+
+    mask, affine, _ = lung_like_sphere
+    sdf = VoxelSDF.from_mask(mask, affine)
+    wrapped = [
+        ComplementField(sdf),
+        OffsetField(sdf, 1.0),
+        TransformedField(sdf, np.eye(4)),
+        BoundedField(sdf, sdf),
+        ComplementField(OffsetField(TransformedField(sdf, np.eye(4)), 0.5)),
+    ]
+    assert getattr(sdf, "_lipschitz", None) is None
+    bound = wrapped[-1].lipschitz_bound
+    assert bound is not None and bound >= 1.0 and sdf._lipschitz == bound
+    assert all(w.lipschitz_bound == bound for w in wrapped)

@@ -178,7 +178,10 @@ class OffsetField(DistanceField):
         self.base = base
         self.margin_mm = float(margin_mm)
         self.error_bound_mm = base.error_bound_mm
-        self.lipschitz_bound = base.lipschitz_bound
+
+    @property
+    def lipschitz_bound(self) -> float | None:  # the base's, asked for only when needed
+        return self.base.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return self.base._signed_distance(points) - self.margin_mm
@@ -221,7 +224,10 @@ class BoundedField(DistanceField):
         self.field = field
         self.bound = bound
         self.error_bound_mm = field.error_bound_mm
-        self.lipschitz_bound = field.lipschitz_bound
+
+    @property
+    def lipschitz_bound(self) -> float | None:  # the field's, asked for only when needed
+        return self.field.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return self.field._signed_distance(points)
@@ -317,7 +323,10 @@ class TransformedField(DistanceField):
         self._rot = g[0, :3, :3]
         self._trans = g[0, :3, 3]
         self.error_bound_mm = local.error_bound_mm
-        self.lipschitz_bound = local.lipschitz_bound
+
+    @property
+    def lipschitz_bound(self) -> float | None:  # the local field's, asked for when needed
+        return self.local.lipschitz_bound
 
     def _to_local(self, points: np.ndarray) -> np.ndarray:
         return (points - self._trans) @ self._rot
@@ -346,7 +355,10 @@ class ComplementField(DistanceField):
     def __init__(self, base: DistanceField) -> None:
         self.base = base
         self.error_bound_mm = base.error_bound_mm
-        self.lipschitz_bound = base.lipschitz_bound
+
+    @property
+    def lipschitz_bound(self) -> float | None:  # the base's, asked for only when needed:
+        return self.base.lipschitz_bound  # a voxel grid's takes a pass over all its values
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return -self.base._signed_distance(points)

@@ -252,7 +252,10 @@ class SweptField(DistanceField):
         self.offsets_mm = motion.offset_mm(self.times_s)
         self.gap_mm = travel / (n - 1)
         self.error_bound_mm = base.error_bound_mm + 0.5 * self.gap_mm
-        self.lipschitz_bound = base.lipschitz_bound
+
+    @property
+    def lipschitz_bound(self) -> float | None:  # the base's, asked for only when needed
+        return self.base.lipschitz_bound
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         out = np.full(len(points), np.inf)
@@ -319,13 +322,19 @@ class ArrivalField(DistanceField):
         growth = 1.0 / math.cos(half_turn) if half_turn < 0.5 * math.pi else math.inf
         self.schur = growth <= ARRIVAL_MAX_GROWTH
         excess = (growth if self.schur else 1.0) * motion.max_speed_mm_s / self.speed
-        base_l = base.lipschitz_bound
-        self.lipschitz_bound = None if base_l is None else base_l + excess
+        self._excess = excess
         self.error_bound_mm = (
             base.error_bound_mm + 0.5 * SWEEP_STEP_MM + excess * 0.5 * MOTION_SPACING_MM
         )
         t_end = self.t0_s + self.length_left_mm / self.speed
         self._travel = motion.offset_mm(np.linspace(self.t0_s, t_end, 65))
+
+    @property
+    def lipschitz_bound(self) -> float | None:
+        """The base's bound plus how fast the window's obstacle can close in per mm of tip
+        travel (asked for only when needed)."""
+        base_l = self.base.lipschitz_bound
+        return None if base_l is None else base_l + self._excess
 
     def window_s(self, points) -> tuple[np.ndarray, np.ndarray]:
         """Earliest and latest times the tip may pass points.
