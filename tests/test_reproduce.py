@@ -75,6 +75,7 @@ def _page(tmp_path, paper):
     for part in PAGE_PARTS:
         assert part in html, part
     assert "quick (reduced) run" in html and doc["quick"] is True
+    assert "load average at the end" in html and doc["machine"]["load_average"]
     assert doc["wall_s"] > 0 and doc["deviations"] and doc["setup"]
     for row in doc["comparisons"]:
         assert row["agrees"] in ("yes", "no", "partly", "-")

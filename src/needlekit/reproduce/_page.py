@@ -145,9 +145,12 @@ def write_reproduction(rep: Reproduction, out_dir: str | os.PathLike) -> dict:
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     machine = _machine()
     kind = "quick (reduced) run" if rep.quick else "full run"
+    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    machine["load_average"] = load
     run_line = (
         f"{kind}, {_duration(rep.wall_s)} on {machine['cpus']} CPUs ({machine['processor']}, "
-        f"Python {machine['python']}, needlekit {machine['needlekit']}), {when}."
+        f"Python {machine['python']}, needlekit {machine['needlekit']}), {when}; load "
+        f"average at the end {load} (1, 5, 15 min: other work on the machine slows the run)."
     )
     sections = [
         TextSection(f"{rep.citation}. {rep.summary}"),
