@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import platform
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -105,19 +104,15 @@ class Stages:
 
 
 def _machine() -> dict:
-    import numpy as np
-
+    """The benchmark records' machine description (:func:`~needlekit.benchmarks.record.machine_info`)
+    with needlekit's version and the load average at the end of the run."""
     from needlekit import __version__
+    from needlekit.benchmarks.record import machine_info
 
-    return {
-        "needlekit": __version__,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "machine": platform.machine(),
-        "processor": platform.processor() or platform.machine(),
-        "cpus": os.cpu_count(),
-        "system": platform.system(),
-    }
+    info = machine_info()
+    info["needlekit"] = __version__
+    info["load_average"] = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    return info
 
 
 def _duration(s: float) -> str:
@@ -145,12 +140,11 @@ def write_reproduction(rep: Reproduction, out_dir: str | os.PathLike) -> dict:
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     machine = _machine()
     kind = "quick (reduced) run" if rep.quick else "full run"
-    load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    machine["load_average"] = load
     run_line = (
-        f"{kind}, {_duration(rep.wall_s)} on {machine['cpus']} CPUs ({machine['processor']}, "
-        f"Python {machine['python']}, needlekit {machine['needlekit']}), {when}; load "
-        f"average at the end {load} (1, 5, 15 min: other work on the machine slows the run)."
+        f"{kind}, {_duration(rep.wall_s)} on {machine['cpu_count']} CPUs ({machine['cpu']}, "
+        f"Python {machine['python']}, needlekit {machine['needlekit']}), {when}; load average "
+        f"at the end {machine['load_average']} (1, 5, 15 min: other work on the machine "
+        "slows the run)."
     )
     sections = [
         TextSection(f"{rep.citation}. {rep.summary}"),

@@ -220,5 +220,5 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         sections=sections,
         commands=commands,
         record={"checks_ok": checks_ok, "study": record},
-        files={k: v for k, v in study.files.items()},
+        files=dict(study.files),
     )
