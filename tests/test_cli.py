@@ -452,3 +452,14 @@ def test_clearance_cost_from_the_scenario_plans_and_verifies(capsys, tmp_path):
     out.write_text(json.dumps(data))
     code, text, _ = run(capsys, "verify", str(scenario), str(out))
     assert code == 1 and "cost: the plan claims" in text
+
+
+def test_points_with_a_negative_first_coordinate_are_values_not_options():
+    from needlekit.cli._parser import _build_parser
+
+    args = _build_parser().parse_args(
+        ["plan", "x.yaml", "--goals", "-10,10,70", "1,2,3", "-1.5e1,0,2", "--out", "p.json"]
+    )
+    assert args.goals == [[-10.0, 10.0, 70.0], [1.0, 2.0, 3.0], [-15.0, 0.0, 2.0]]
+    args = _build_parser().parse_args(["kinematics", "inverse", "--target", "-5,0,40"])
+    assert args.target == [[-5.0, 0.0, 40.0]]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
@@ -13,8 +14,21 @@ EXIT_OK = 0
 EXIT_USAGE = 2
 
 
+#: A value that starts with a minus sign and is a number or a comma-separated list of them
+#: (``-10,10,70``): argparse's own test takes only a single number, so a point with a
+#: negative first coordinate was read as an unknown option.
+_NEGATIVE_VALUE = re.compile(
+    r"^-\d*\.?\d+(?:[eE][-+]?\d+)?(?:,\s*[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?)*$"
+)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (``error: ...``, exit 2)."""
+    """argparse with one-line errors (``error: ...``, exit 2), reading ``-10,10,70`` as a
+    value (no option of needlekit looks like a negative number)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_VALUE
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(EXIT_USAGE, f"error: {message}\n")
