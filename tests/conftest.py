@@ -23,7 +23,11 @@ _saved: dict = {}
 
 def pytest_configure(config):
     # Tests never read or write the user's prepared-anatomy cache: the whole session (and
-    # the commands it starts) uses a temporary one, removed at the end.
+    # the commands it starts) uses a temporary one, removed at the end. xdist workers
+    # inherit the controller's (set before they start), so a patient is prepared once per
+    # session, not once per worker: entries are written atomically (io.anatomy_cache).
+    if hasattr(config, "workerinput") and os.environ.get(_CACHE_ENV):
+        return
     _saved["env"] = os.environ.get(_CACHE_ENV)
     _saved["dir"] = tempfile.mkdtemp(prefix="needlekit-test-cache-")
     os.environ[_CACHE_ENV] = _saved["dir"]

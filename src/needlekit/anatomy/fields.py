@@ -151,6 +151,28 @@ class DistanceField(ABC):
         """
         return self._signed_distance(points)
 
+    def near(self, point_mm, radius_mm: float) -> DistanceField | None:
+        """A field equal to this one near a point, wherever the distance is at most
+        ``radius_mm``: for questions about one point (the surface a start lies on, its
+        normal) that should not build a large field whole.
+
+        Parameters
+        ----------
+        point_mm : array_like, shape (3,)
+        radius_mm : float
+
+        Returns
+        -------
+        DistanceField or None
+            Its value and gradient at points within a voxel diagonal of ``point_mm`` equal
+            this field's where ``|d| <= radius_mm``; where this field has ``|d| >
+            radius_mm`` at ``point_mm``, the value there keeps its sign and exceeds
+            ``radius_mm`` in magnitude. None when the
+            structure lies farther than ``radius_mm`` from the point. This default returns
+            the field itself; :class:`LazyField` answers from a local window when it can.
+        """
+        return self
+
     def inflated(self, margin_mm: float) -> DistanceField:
         """The field of this structure grown by ``margin_mm`` (e.g. needle radius plus a
         safety margin): ``d - margin_mm``.
@@ -379,18 +401,46 @@ class LazyField(DistanceField):
         Returns the real :class:`DistanceField`; called once, under a lock.
     description : str
         What will be built (for ``repr`` and error messages).
+    local : callable, optional
+        ``local(point, radius)``: a cheap field of the same structure that is exact near
+        ``point`` where ``|d| <= radius``, or None when the structure is farther (see
+        :meth:`DistanceField.near`). Lets one-point questions skip the build.
     """
 
-    def __init__(self, build: Callable[[], DistanceField], description: str = "") -> None:
+    def __init__(
+        self,
+        build: Callable[[], DistanceField],
+        description: str = "",
+        *,
+        local: Callable[[np.ndarray, float], DistanceField | None] | None = None,
+    ) -> None:
         self._build = build
         self._field: DistanceField | None = None
         self._lock = threading.Lock()
         self.description = description
+        self._local = local
+        self._near: dict[tuple, DistanceField | None] = {}
 
     @property
     def built(self) -> bool:
         """Whether the field has been built yet."""
         return self._field is not None
+
+    def near(self, point_mm, radius_mm: float) -> DistanceField | None:
+        """The built field when there is one; else, when the builder gave a ``local``
+        function, a field of a small window around the point (the last few are kept);
+        else the field, built now. See :meth:`DistanceField.near`.
+        """
+        if self._field is not None or self._local is None:
+            return self.get()
+        p = np.asarray(point_mm, dtype=np.float64).reshape(3)
+        key = (*p.tolist(), float(radius_mm))
+        with self._lock:
+            if key not in self._near:
+                if len(self._near) >= 8:
+                    self._near.pop(next(iter(self._near)))
+                self._near[key] = self._local(p, float(radius_mm))
+            return self._near[key]
 
     def get(self) -> DistanceField:
         """The built field (building it now if needed).

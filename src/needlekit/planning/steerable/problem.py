@@ -330,7 +330,13 @@ class SteerableProblem:
             )
         s = self.scene[self.entry_surface]
         p = np.asarray(point_mm, dtype=float).reshape(1, 3)
-        g = DistanceField._gradient(s.field, p)[0]  # central differences of the distance
+        # a field exact near the point (a window of a large voxel grid, not all of it)
+        # where the start lies within its exclusion of the surface; the whole field beyond
+        reach = self.start_exclusion_mm + 1.0  # the differences' points lie 1e-4 mm away
+        field = s.field.near(p[0], reach) or s.field
+        if abs(float(field.signed_distance(p[0]))) > reach - 0.5:
+            field = s.field
+        g = DistanceField._gradient(field, p)[0]  # central differences of the distance
         length = float(np.linalg.norm(g))
         if not (np.isfinite(length) and length >= MIN_NORMAL_GRADIENT):
             return None, (
@@ -352,9 +358,16 @@ class SteerableProblem:
         obstacles = self.scene.by_role(Role.OBSTACLE)
         if not obstacles:
             return None
-        d = self.scene.signed_distance(self.start_point_mm, [s.name for s in obstacles])
-        name, dist = min(((n, abs(float(v[0]))) for n, v in d.items()), key=lambda t: t[1])
-        return name if dist <= max(self.start_exclusion_mm, 1e-9) else None
+        within = max(self.start_exclusion_mm, 1e-9)
+        best: tuple[float, str] | None = None
+        for s in obstacles:  # one-point questions: fields near the start, not whole grids
+            field = s.field.near(self.start_point_mm, within)
+            if field is None:  # the structure lies farther than the exclusion
+                continue
+            dist = abs(float(field.signed_distance(self.start_point_mm)))
+            if best is None or dist < best[0]:
+                best = (dist, s.name)
+        return best[1] if best is not None and best[0] <= within else None
 
     @property
     def kappa_max_per_mm(self) -> float:
