@@ -516,3 +516,30 @@ def test_wrappers_ask_for_the_grids_lipschitz_bound_only_when_needed(lung_like_s
     bound = wrapped[-1].lipschitz_bound
     assert bound is not None and bound >= 1.0 and sdf._lipschitz == bound
     assert all(w.lipschitz_bound == bound for w in wrapped)
+
+
+def test_padding_changes_no_value_on_the_smaller_grid():
+    """The free space's field keeps no margin (io.medrad.FREE_SPACE_PADDING_MM): its values
+    are the padded field's, voxel for voxel, and points beyond its grid stay outside."""
+    rng = np.random.default_rng(3)
+    mask = np.zeros((40, 36, 30), bool)
+    idx = np.indices(mask.shape).reshape(3, -1).T
+    for _ in range(5):
+        c, r = rng.uniform(8, 24, 3), rng.uniform(3, 7)
+        mask.reshape(-1)[np.linalg.norm(idx - c, axis=1) <= r] = True
+    affine = np.diag([0.7, 0.8, 1.25, 1.0])
+    tight = VoxelSDF.from_mask(mask, affine, padding_mm=0.0)
+    wide = VoxelSDF.from_mask(mask, affine, padding_mm=10.0)
+    # the tight grid sits inside the wide one at a whole-voxel offset
+    off = np.round(np.linalg.solve(wide.affine[:3, :3], tight.affine[:3, 3] - wide.affine[:3, 3]))
+    o = off.astype(int)
+    assert (o > 0).all()
+    s = tight.values.shape
+    np.testing.assert_array_equal(tight.values, wide.values[o[0] : o[0] + s[0],
+                                  o[1] : o[1] + s[1], o[2] : o[2] + s[2]])  # fmt: skip
+    assert tight.error_bound_mm <= wide.error_bound_mm
+    lo, hi = wide.bounds()
+    pts = rng.uniform(lo - 12.0, hi + 12.0, size=(3000, 3))
+    d_tight, d_wide = tight.signed_distance(pts), wide.signed_distance(pts)
+    assert np.all(np.sign(d_tight) == np.sign(d_wide))
+    assert np.all(d_tight[d_wide > 0] <= d_wide[d_wide > 0] + wide.error_bound_mm)

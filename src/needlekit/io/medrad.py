@@ -366,6 +366,15 @@ def _on_one_grid(masks: dict[str, Mask], reference: str) -> dict[str, Mask]:
     return {name: _align(m, ref, name) for name, m in masks.items()}
 
 
+#: Margin (mm) of the free space's grid beyond its own voxels: none beyond the few unset
+#: layers :meth:`VoxelSDF.from_mask` always keeps. A wider grid would change no value on
+#: this one (every free voxel lies in both, and each one's nearest obstacle voxel lies in the
+#: first unset layer), only answer points farther outside the free space from the grid
+#: instead of from its extrapolation, which is positive there too: "in an obstacle" either
+#: way. The default 10 mm made the grid larger than the image (lung 1: 95 M voxels, 77 M now).
+FREE_SPACE_PADDING_MM: float = 0.0
+
+
 def _lazy_sdf(mask: Mask, name: str) -> LazyField:
     return LazyField(
         lambda: VoxelSDF.from_mask(mask),
@@ -409,7 +418,9 @@ def _prepare(paths: dict[str, Path], specs: list[_Spec], region: str, n_threads:
             free &= ~masks[name].data
     if not free.any():
         raise InvalidInputError(str(folder), "no free space: the obstacles fill the allowed region")
-    free_field = VoxelSDF.from_mask(free, masks[region].affine, n_threads=n_threads)
+    free_field = VoxelSDF.from_mask(
+        free, masks[region].affine, padding_mm=FREE_SPACE_PADDING_MM, n_threads=n_threads
+    )
     t_field = time.perf_counter() - t0
     fields = {name: _lazy_sdf(masks[name], what) for name, _, _, _, what in specs}
     return _Prepared(
@@ -438,6 +449,7 @@ def _cache_inputs(organ: str, paths: dict[str, Path], specs: list[_Spec], region
         ],
         "settings": {
             "mask_padding_mm": DEFAULT_MASK_PADDING_MM,
+            "free_space_padding_mm": FREE_SPACE_PADDING_MM,
             "mask_offset_max_fraction": MASK_OFFSET_MAX_FRACTION,
             "edt": getattr(edt, "__version__", "unknown"),
         },
