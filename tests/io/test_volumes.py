@@ -261,3 +261,40 @@ def test_medrad_lung_pleural_boundary(medrad_dir):
     assert mask.shape == (497, 331, 512)
     assert mask.axcodes() == ("R", "A", "S")
     assert np.allclose(mask.spacing_mm, [0.5508, 0.5508, 0.7], atol=1e-4)
+
+
+@pytest.mark.parametrize("dtype", ["int16", ">i2", "uint8", "int32", "int64"])
+@pytest.mark.parametrize("order", ["F", "C", "strided"])
+@pytest.mark.parametrize("values", [(0, 1), (0, -3), (7, 0), (0, 0), (5, 5), (1, 2), (0, 1, 2)])
+def test_one_pass_binarise_agrees_with_numpy(dtype, order, values):
+    """The reader's kernel (io._binarise) against numpy's passes: the same mask, C-ordered,
+    the same verdict on the two-value rule, the same count, whatever the layout."""
+    from needlekit.io._binarise import binarise
+
+    rng = np.random.default_rng(len(values) * 31 + sum(values))
+    shape = (37, 70, 41)  # tiles of 32 do not divide it
+    data = np.asarray(rng.choice(values, size=shape), dtype=dtype)
+    if order == "F":
+        data = np.asfortranarray(data)
+    elif order == "strided":
+        data = np.asfortranarray(np.repeat(data, 2, axis=1))[:, ::2]
+    mask, ok, count = binarise(data)
+    assert mask.flags.c_contiguous and mask.dtype == bool
+    distinct = set(np.unique(data).tolist())
+    binary = len(distinct) == 1 or (len(distinct) == 2 and 0 in distinct)
+    assert ok == binary
+    if binary:
+        np.testing.assert_array_equal(mask, data != 0)
+        assert count == int((data != 0).sum())
+    assert binarise(data.astype(np.float32)) is None  # floats stay with numpy
+
+
+def test_non_binary_file_is_refused_with_its_values(tmp_path):
+    data = np.zeros((5, 6, 7), np.int16)
+    data[1, 2, 3], data[2, 2, 2] = 1, 4
+    p = tmp_path / "three.nii.gz"
+    nib.save(nib.Nifti1Image(data, np.eye(4)), p)
+    with pytest.raises(
+        InvalidInputError, match=r"three.nii.gz.*more than 2 distinct values \(0, 1, 4\)"
+    ):
+        read_mask(p)

@@ -255,8 +255,15 @@ def read_mask(path: str | os.PathLike, *, allow_empty: bool = False) -> Mask:
     if data.ndim != 3:
         raise InvalidInputError(str(p), f"expected a 3-D volume, got shape {data.shape}")
     affine = _check_affine(affine, str(p))
-    mask = np.ascontiguousarray(_binary(data, str(p)))
-    if not allow_empty and not mask.any():
+    from needlekit.io._binarise import binarise  # numba: imported where masks are read
+
+    fast = binarise(data)
+    if fast is not None and fast[1]:
+        mask, _, count = fast
+    else:  # other types, or not binary: numpy composes the message
+        mask = np.ascontiguousarray(_binary(data, str(p)))
+        count = None
+    if not allow_empty and (count == 0 if count is not None else not mask.any()):
         raise InvalidInputError(str(p), "empty mask: no voxel is set (allow_empty=False)")
     mask.flags.writeable = False
     affine.flags.writeable = False
