@@ -186,8 +186,10 @@ class MedradCase:
         Target points (RAS mm) by name (``"target"``, ``"target1"``, ...).
     folder : Path
     timings_s : dict of str to float
-        ``load_s`` (reading masks) and ``obstacle_field_s`` (the free-space transform) when
-        they were built; through the cache also ``hash_s`` (hashing the mask files) and
+        When they were built: ``read_s`` (reading the masks), ``align_s`` (onto one
+        grid), ``free_space_s`` (the free-space mask), ``free_field_s`` (its transform),
+        and the sums ``load_s`` (read and align) and ``obstacle_field_s`` (free space and
+        field). Through the cache also ``hash_s`` (hashing the mask files) and
         ``cache_write_s`` (storing a new entry) or ``cache_load_s`` (opening an entry).
     free_space : Mask or None
         The free-space mask (allowed region and nodules, minus the obstacles) on the
@@ -405,10 +407,10 @@ def _prepare(paths: dict[str, Path], specs: list[_Spec], region: str, n_threads:
              folder: Path) -> _Prepared:  # fmt: skip
     """Read the masks onto one grid and build the free space's field (no cache)."""
     t0 = time.perf_counter()
-    masks = _on_one_grid(_read_all(paths), region)
-    t_load = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
+    read = _read_all(paths)
+    t1 = time.perf_counter()
+    masks = _on_one_grid(read, region)
+    t2 = time.perf_counter()
     free = masks[region].data.copy()
     for name, role, *_ in specs:  # targets are never obstacles (liver masks leave nodules out)
         if role is Role.TARGET:
@@ -418,16 +420,25 @@ def _prepare(paths: dict[str, Path], specs: list[_Spec], region: str, n_threads:
             free &= ~masks[name].data
     if not free.any():
         raise InvalidInputError(str(folder), "no free space: the obstacles fill the allowed region")
+    t3 = time.perf_counter()
     free_field = VoxelSDF.from_mask(
         free, masks[region].affine, padding_mm=FREE_SPACE_PADDING_MM, n_threads=n_threads
     )
-    t_field = time.perf_counter() - t0
+    t4 = time.perf_counter()
+    timings = {
+        "read_s": t1 - t0,
+        "align_s": t2 - t1,
+        "free_space_s": t3 - t2,
+        "free_field_s": t4 - t3,
+        "load_s": t2 - t0,  # reading and aligning
+        "obstacle_field_s": t4 - t2,  # the free space and its field
+    }
     fields = {name: _lazy_sdf(masks[name], what) for name, _, _, _, what in specs}
     return _Prepared(
         Mask(free, masks[region].affine, None),
         free_field,
         fields,
-        {"load_s": t_load, "obstacle_field_s": t_field},
+        timings,
         masks=masks,
     )
 
