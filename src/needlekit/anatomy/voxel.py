@@ -94,6 +94,14 @@ SAMPLE_CHUNK_POINTS: int = 1 << 20
 # the field
 
 
+def _index_box_to_world(affine: np.ndarray, lo, hi) -> np.ndarray:
+    """World box ``(2, 3)`` around an index box (corners mapped through the affine)."""
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])  # fmt: skip
+    world = corners @ affine[:3, :3].T + affine[:3, 3]
+    return np.stack([world.min(axis=0), world.max(axis=0)])
+
+
 class VoxelSDF(DistanceField):
     """Signed distance field sampled at the voxel centres of an orthogonal grid.
 
@@ -126,14 +134,18 @@ class VoxelSDF(DistanceField):
     0.866
     """
 
-    def __init__(self, values, affine, *, value_error_mm: float = 0.0) -> None:
+    def __init__(
+        self, values, affine, *, value_error_mm: float = 0.0, _box: np.ndarray | None = None
+    ) -> None:
         vals = np.asarray(values)
         if vals.ndim != 3 or min(vals.shape) < 2:
             raise InvalidInputError(
                 "values", f"expected a 3-D grid with >= 2 voxels per axis, got {vals.shape}"
             )
         vals = np.ascontiguousarray(vals, dtype=np.float32)
-        if not np.all(np.isfinite(vals)):
+        # ``_box`` (private: from_mask, whose distance transforms give finite values and
+        # know the structure's box) skips the finiteness pass and the box pass
+        if _box is None and not np.all(np.isfinite(vals)):
             raise InvalidInputError("values", "must be finite, got NaN or infinity")
         a, spacing, defect = _orthogonal_affine(affine, "affine")
         e = as_scalar(value_error_mm, "value_error_mm")
@@ -149,7 +161,7 @@ class VoxelSDF(DistanceField):
         #: Interpolation error of a 1-Lipschitz function on this grid: the half voxel
         #: diagonal (module notes).
         self.interpolation_error_mm = 0.5 * float(np.linalg.norm(spacing))
-        vmax = float(np.abs(vals).max())
+        vmax = max(float(vals.max()), -float(vals.min()))  # max |v| without a temporary
         extent = float(np.linalg.norm(spacing * (np.array(vals.shape) - 1)))
         #: Largest |stored value - true distance| at voxel centres (incl. float32 rounding).
         self.value_error_mm = e + vmax * FLOAT32_REL_ROUNDING
@@ -157,7 +169,7 @@ class VoxelSDF(DistanceField):
             self.value_error_mm + self.interpolation_error_mm + defect * (extent + vmax)
         )
         self._check_structure_inside()
-        self._box = self._structure_box()
+        self._box = self._structure_box() if _box is None else _box
 
     # -- construction ---------------------------------------------------------------------
 
@@ -190,10 +202,7 @@ class VoxelSDF(DistanceField):
         return self._index_box_to_world(box[0] - 0.5, box[1] + 0.5)
 
     def _index_box_to_world(self, lo, hi) -> np.ndarray:
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                            for z in (lo[2], hi[2])])  # fmt: skip
-        world = corners @ self.affine[:3, :3].T + self.affine[:3, 3]
-        return np.stack([world.min(axis=0), world.max(axis=0)])
+        return _index_box_to_world(self.affine, lo, hi)
 
     @classmethod
     def from_mask(
@@ -262,9 +271,8 @@ class VoxelSDF(DistanceField):
         inside = edt.edt(m, anisotropy=aniso, black_border=False, parallel=threads)
         np.subtract(np.float32(offset), inside, out=values, where=m)
         del inside
-        sdf = cls(values, a, value_error_mm=value_error)
-        sdf._box = sdf._index_box_to_world(box[0] - lo - 0.5, box[1] - lo + 0.5)
-        return sdf
+        return cls(values, a, value_error_mm=value_error,
+                   _box=_index_box_to_world(a, box[0] - lo - 0.5, box[1] - lo + 0.5))  # fmt: skip
 
     @classmethod
     def from_function(
