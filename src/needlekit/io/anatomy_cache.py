@@ -50,6 +50,7 @@ import os
 import shutil
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -98,6 +99,7 @@ STALE_TEMP_S: float = 3600.0
 
 #: Digest size (bytes) of every BLAKE2b hash here: 128 bits, collisions are not a concern.
 _DIGEST_BYTES = 16
+_WRITE_THREADS = 2
 _TEMP_PREFIX = ".tmp-"
 _TRASH_PREFIX = ".trash-"
 _MANIFEST = "manifest.json"
@@ -502,8 +504,13 @@ def write_entry(
     final = _entry_dir(root, label, key)
     tmp = Path(tempfile.mkdtemp(prefix=f"{_TEMP_PREFIX}{label}-", dir=root))
     try:
-        for name, (values, meta) in arrays.items():
-            _write_array(tmp, name, values, meta)
+        # two at a time, largest first: writing and hashing release the GIL, so two cores
+        # share the work (about 0.7 GB for a lung)
+        order = sorted(arrays, key=lambda n: -np.asarray(arrays[n][0]).nbytes)
+        with ThreadPoolExecutor(max_workers=_WRITE_THREADS) as pool:
+            jobs = [pool.submit(_write_array, tmp, n, *arrays[n]) for n in order]
+            for job in jobs:
+                job.result()
         manifest = _with_checksum(
             {
                 "format": CACHE_FORMAT_VERSION,
