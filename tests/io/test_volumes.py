@@ -298,3 +298,84 @@ def test_non_binary_file_is_refused_with_its_values(tmp_path):
         InvalidInputError, match=r"three.nii.gz.*more than 2 distinct values \(0, 1, 4\)"
     ):
         read_mask(p)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.float32, ">i2"])
+@pytest.mark.parametrize("nifti2", [False, True])
+def test_voxels_read_as_a_view_equal_nibabels(tmp_path, dtype, nifti2):
+    """Unscaled single-file NIfTI: the voxels are a view of the inflated bytes (no copy),
+    equal to nibabel's array and affine; scaled images go through nibabel."""
+    from needlekit.io.volumes import _direct_nifti
+
+    rng = np.random.default_rng(5)
+    data = rng.integers(0, 2, size=(7, 9, 11)).astype(dtype)
+    affine = _affine("oblique")
+    cls = nib.Nifti2Image if nifti2 else nib.Nifti1Image
+    img = cls(data, affine)
+    raw = img.to_bytes()
+    direct = _direct_nifti(raw, nifti2)
+    assert direct is not None
+    np.testing.assert_array_equal(direct.dataobj, np.asanyarray(img.dataobj))
+    np.testing.assert_array_equal(direct.affine, cls.from_bytes(raw).affine)
+    img.header.set_slope_inter(2.0, 0.0)
+    assert _direct_nifti(img.to_bytes(), nifti2) is None
+    assert _direct_nifti(raw[:200], nifti2) is None  # truncated: nibabel says why
+
+
+@pytest.mark.realdata
+def test_medrad_voxels_as_a_view_equal_nibabels(medrad_dir):
+    from isal import igzip
+
+    from needlekit.io.volumes import _direct_nifti
+
+    path = medrad_dir / "Lungs" / "TumorTargetEnvironments" / "Patient4" / "fissures.nii.gz"
+    raw = igzip.decompress(path.read_bytes())
+    direct = _direct_nifti(raw, False)
+    img = nib.load(path)
+    np.testing.assert_array_equal(direct.dataobj, np.asanyarray(img.dataobj))
+    np.testing.assert_array_equal(direct.affine, img.affine)
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.uint8, np.int32])
+@pytest.mark.parametrize("nifti2", [False, True])
+@pytest.mark.parametrize("extension", [False, True])
+def test_streamed_gz_mask_equals_the_whole_file_read(tmp_path, dtype, nifti2, extension):
+    """``.nii.gz`` masks are inflated slab by slab into the mask: the same mask, count and
+    affine as reading the file whole, with header extensions and either NIfTI version."""
+    from needlekit.io.volumes import _read_whole, _stream_mask_gz
+
+    m = _mask()
+    cls = nib.Nifti2Image if nifti2 else nib.Nifti1Image
+    img = cls(np.where(m, 3, 0).astype(dtype), _affine("oblique"))
+    if extension:
+        img.header.extensions.append(nib.nifti1.Nifti1Extension("comment", b"x" * 300))
+    path = tmp_path / "m.nii.gz"
+    nib.save(img, path)
+    streamed = _stream_mask_gz(path)
+    assert streamed is not None
+    whole = _read_whole(path, "nifti")
+    np.testing.assert_array_equal(streamed[0], whole[0])
+    assert streamed[0].flags.c_contiguous and streamed[1] == int(m.sum())
+    np.testing.assert_allclose(streamed[2], whole[2], rtol=0, atol=0)
+    np.testing.assert_array_equal(read_mask(path).data, m)
+
+
+@pytest.mark.parametrize("chunk_planes", [1, 3, 7, 1000])
+def test_binarise_stream_across_slab_boundaries(chunk_planes):
+    import io
+
+    from needlekit.io._binarise import binarise_stream
+
+    rng = np.random.default_rng(chunk_planes)
+    data = np.asfortranarray(rng.choice([0, 9], size=(13, 11, 17)).astype(np.int16))
+    stream = io.BytesIO(data.tobytes(order="F"))
+    got = binarise_stream(stream.readinto, np.dtype(np.int16), data.shape,
+                          chunk_bytes=chunk_planes * 13 * 11 * 2)  # fmt: skip
+    np.testing.assert_array_equal(got[0], data != 0)
+    assert got[1] and got[2] == int((data != 0).sum())
+    third = data.copy(order="F")
+    third[12, 10, 16] = 5  # a third value in the last slab
+    stream = io.BytesIO(third.tobytes(order="F"))
+    assert binarise_stream(stream.readinto, np.dtype(np.int16), data.shape, 13 * 11 * 2) is None
+    short = io.BytesIO(data.tobytes(order="F")[:-1])  # one byte missing
+    assert binarise_stream(short.readinto, np.dtype(np.int16), data.shape) is None

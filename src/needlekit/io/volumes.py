@@ -19,6 +19,7 @@ import io as _io
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import nibabel as nib
 import nrrd
@@ -154,8 +155,97 @@ def _load_nifti_gz(path: Path):
         raise InvalidInputError(str(path), f"cannot read as gzip-compressed NIfTI: {exc}") from exc
     size = int.from_bytes(data[:4], "little") if len(data) >= 4 else 0
     size_be = int.from_bytes(data[:4], "big") if len(data) >= 4 else 0
-    cls = nib.Nifti2Image if 540 in (size, size_be) else nib.Nifti1Image
+    nifti2 = 540 in (size, size_be)
+    direct = _direct_nifti(data, nifti2)
+    if direct is not None:
+        return direct
+    cls = nib.Nifti2Image if nifti2 else nib.Nifti1Image
     return cls.from_bytes(data)
+
+
+@dataclass(frozen=True)
+class _DirectImage:
+    """What :func:`_read_nifti` needs of an image: its header, voxels and affine."""
+
+    header: Any
+    dataobj: np.ndarray
+    affine: np.ndarray
+
+
+def _plain_header(head: bytes, nifti2: bool):
+    """``(header, dtype, shape, voxel offset)`` of a single-file image without intensity
+    scaling whose voxels need nothing of nibabel's array proxy; None otherwise."""
+    header_cls = nib.Nifti2Header if nifti2 else nib.Nifti1Header
+    try:
+        header = header_cls.from_fileobj(_io.BytesIO(head[: header_cls.template_dtype.itemsize]))
+        magic = header["magic"].tobytes()
+        slope, inter = header.get_slope_inter()
+        dtype = header.get_data_dtype()
+        shape = tuple(int(n) for n in header.get_data_shape())
+        offset = int(header["vox_offset"])
+    except Exception:  # nibabel's own reader gives the message
+        return None
+    if slope not in (None, 1.0) or inter not in (None, 0.0) or dtype.hasobject:
+        return None
+    if not magic.startswith((b"n+1", b"n+2")):
+        return None
+    return header, dtype, shape, offset
+
+
+def _direct_nifti(data: bytes, nifti2: bool) -> _DirectImage | None:
+    """The voxels as a view of the inflated bytes (no copy), when nothing needs nibabel's
+    array proxy (:func:`_plain_header`) and they fit the buffer. None otherwise (nibabel
+    reads it)."""
+    plain = _plain_header(data, nifti2)
+    if plain is None:
+        return None
+    header, dtype, shape, offset = plain
+    count = int(np.prod(shape, dtype=np.int64))
+    if offset + count * dtype.itemsize > len(data):
+        return None
+    voxels = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
+    return _DirectImage(header, voxels.reshape(shape, order="F"), header.get_best_affine())
+
+
+def _stream_mask_gz(path: Path) -> tuple[np.ndarray, int, np.ndarray] | None:
+    """A ``.nii.gz`` integer mask inflated slab by slab straight into its C-ordered bool
+    array (:func:`needlekit.io._binarise.binarise_stream`): neither the inflated bytes nor
+    a second copy of the image are ever held whole. Returns ``(mask, set count, affine)``,
+    or None for anything else or anything wrong (no orientation, a big-endian or scaled
+    image, more than two values, a damaged file): the whole-file reader then reads it or
+    says what is wrong."""
+    from needlekit.io._binarise import binarise_stream
+
+    try:
+        with igzip.open(path, "rb") as f:
+            first = f.read(4)
+            size = int.from_bytes(first, "little") if len(first) == 4 else 0
+            if size not in (348, 540):  # big-endian headers (byte-swapped sizes) too
+                return None
+            head = first + f.read(size - 4)
+            plain = _plain_header(head, size == 540)
+            if plain is None:
+                return None
+            header, dtype, shape, offset = plain
+            while len(shape) > 3 and shape[-1] == 1:
+                shape = shape[:-1]
+            if (
+                len(shape) != 3
+                or min(shape) < 1
+                or not np.issubdtype(dtype, np.integer)
+                or dtype.byteorder not in ("=", "|", "<" if np.little_endian else ">")
+                or offset < size
+                or (int(header["sform_code"]) == 0 and int(header["qform_code"]) == 0)
+            ):
+                return None
+            if offset > size:  # extensions: skipped
+                f.read(offset - size)
+            got = binarise_stream(f.readinto, dtype.newbyteorder("="), shape)
+    except (OSError, EOFError, ValueError):
+        return None
+    if got is None or not got[1]:
+        return None
+    return got[0], got[2], header.get_best_affine()
 
 
 def _read_nifti(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -211,6 +301,23 @@ def _read_nrrd(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return data, np.diag([*flips, 1.0]) @ affine
 
 
+def _read_whole(p: Path, kind: str) -> tuple[np.ndarray, int | None, np.ndarray]:
+    """Read a volume whole, then binarise it: ``(mask, set count or None, affine)``."""
+    data, affine = _read_nifti(p) if kind == "nifti" else _read_nrrd(p)
+    while data.ndim > 3 and data.shape[-1] == 1:
+        data = data[..., 0]
+    if data.ndim != 3:
+        raise InvalidInputError(str(p), f"expected a 3-D volume, got shape {data.shape}")
+    affine = _check_affine(affine, str(p))
+    from needlekit.io._binarise import binarise  # numba: imported where masks are read
+
+    fast = binarise(data)
+    if fast is not None and fast[1]:
+        return fast[0], fast[2], affine
+    # other types, or not binary: numpy composes the message
+    return np.ascontiguousarray(_binary(data, str(p))), None, affine
+
+
 def read_mask(path: str | os.PathLike, *, allow_empty: bool = False) -> Mask:
     """Read a binary mask and its voxel->RAS affine from NIfTI or NRRD.
 
@@ -249,20 +356,12 @@ def read_mask(path: str | os.PathLike, *, allow_empty: bool = False) -> Mask:
     kind = _kind(p)
     if not p.is_file():
         raise InvalidInputError(str(p), "file not found")
-    data, affine = _read_nifti(p) if kind == "nifti" else _read_nrrd(p)
-    while data.ndim > 3 and data.shape[-1] == 1:
-        data = data[..., 0]
-    if data.ndim != 3:
-        raise InvalidInputError(str(p), f"expected a 3-D volume, got shape {data.shape}")
-    affine = _check_affine(affine, str(p))
-    from needlekit.io._binarise import binarise  # numba: imported where masks are read
-
-    fast = binarise(data)
-    if fast is not None and fast[1]:
-        mask, _, count = fast
-    else:  # other types, or not binary: numpy composes the message
-        mask = np.ascontiguousarray(_binary(data, str(p)))
-        count = None
+    streamed = _stream_mask_gz(p) if kind == "nifti" and p.name.lower().endswith(".gz") else None
+    if streamed is not None:
+        mask, count, affine = streamed
+        affine = _check_affine(affine, str(p))
+    else:
+        mask, count, affine = _read_whole(p, kind)
     if not allow_empty and (count == 0 if count is not None else not mask.any()):
         raise InvalidInputError(str(p), "empty mask: no voxel is set (allow_empty=False)")
     mask.flags.writeable = False
