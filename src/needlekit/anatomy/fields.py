@@ -429,7 +429,17 @@ class LazyField(DistanceField):
     def near(self, point_mm, radius_mm: float) -> DistanceField | None:
         """The built field when there is one; else, when the builder gave a ``local``
         function, a field of a small window around the point (the last few are kept);
-        else the field, built now. See :meth:`DistanceField.near`.
+        else the field, built now.
+
+        Parameters
+        ----------
+        point_mm : array_like, shape (3,)
+        radius_mm : float
+
+        Returns
+        -------
+        DistanceField or None
+            As :meth:`DistanceField.near`.
         """
         if self._field is not None or self._local is None:
             return self.get()
