@@ -1,4 +1,4 @@
-"""Compile needlekit's planning kernels ahead of use: ``python -m needlekit._warmup``.
+"""Compile needlekit's planning and control kernels ahead of use: ``python -m needlekit._warmup``.
 
 numba compiles a kernel the first time it runs and keeps the machine code in its cache
 (``cache=True``), so every later process loads it in milliseconds. ``make install`` (and so
@@ -19,8 +19,9 @@ __all__ = ["warm_up_kernels"]
 
 def warm_up_kernels() -> float:
     """Plan once with every steerable planner on two tiny problems (the ``field`` model
-    over analytic shapes and a voxel grid, and the ``voxel_centres`` model), and two
-    straight needles.
+    over analytic shapes and a voxel grid, and the ``voxel_centres`` model), two straight
+    needles, and run the puncture controller's steps and adaptation
+    (:func:`_warm_up_control`).
 
     Returns
     -------
@@ -67,7 +68,63 @@ def warm_up_kernels() -> float:
         for planner in ("rcs_star", "rcs", "rrt"):
             solve(problem, planner, time_limit_s=60.0, max_iterations=20)
     _warm_up_straight(scene["vessel"].field)
+    _warm_up_control()
     return time.perf_counter() - t0
+
+
+def _warm_up_control() -> None:
+    """Every kernel of the 1 kHz control step and of the adaptation law, with the argument
+    types the puncture study passes: the three steps' QPs (and one with given VFIs), the
+    VFIs with their parameter rows, and a keyframe history that merges, keeps a current
+    sample and evicts."""
+    from needlekit.control.adaptation import (
+        AdaptationSettings,
+        MeasurementHistory,
+        adaptation_step,
+    )
+    from needlekit.control.controller import (
+        ControllerSettings,
+        GuideLine,
+        Step,
+        control_step,
+        step_vfis,
+    )
+    from needlekit.control.dq import dq_to_matrix
+    from needlekit.control.panda import PandaModel
+    from needlekit.control.parameters import model_from_parameters, parameter_jacobians
+
+    a = np.array([-650.0, 0.0, -450.0, 0.01, 0.0, 0.0, 0.0, 0.0, 100.0, 0.0, 0.01, 0.0])
+    est = model_from_parameters(PandaModel(), a)
+    cs = ControllerSettings()
+    q = np.array([0.0, -0.3, 0.0, -2.0, 0.0, 1.8, 0.8])
+    s = est.state(q)
+    guide = GuideLine(s.tip_mm - 50.0 * s.needle_axis, -s.needle_axis)
+    settings = AdaptationSettings(a - 1.0, a + 1.0)
+    history = MeasurementHistory(capacity=2)
+    measured = est.tip_pose(q)
+    # keyframes (the third evicts one), a merge, then a current sample
+    moves = ((Step.APPROACH, 0.0), (Step.PUNCTURE, 0.2), (None, 0.2), (Step.ALIGN, 0.0),
+             (Step.APPROACH, 0.01))  # fmt: skip
+    for step, dq in moves:
+        q = q + dq
+        s = est.state(q)
+        pj = parameter_jacobians(est, s, a)
+        tip = dq_to_matrix(s.tip_dq)
+        history.add(
+            np.linalg.inv(est.world_T_base) @ tip @ np.linalg.inv(est.flange_T_tip), measured
+        )
+        vfis, task_error = [], None
+        if step is not None:
+            vfis = step_vfis(s, step, guide, cs, pj, a)
+            out = control_step(est, q, step, guide, cs, desired_mm=s.tip_mm, state=s, vfi_share=0.5)
+            control_step(est, q, step, guide, cs, desired_mm=s.tip_mm, vfis=vfis)
+            task_error = out.task_error
+        adaptation_step(
+            a, tip, measured, pj, settings, step=step, task_error=task_error, controller=cs,
+            vfis=vfis, vfi_share=0.5, history=history,
+        )  # fmt: skip
+        adaptation_step(a, tip, measured, pj, settings)  # without a history
+    history.stacked(a, 100.0)
 
 
 def _warm_up_straight(vessel) -> None:
@@ -104,4 +161,4 @@ def _warm_up_straight(vessel) -> None:
 
 
 if __name__ == "__main__":  # pragma: no cover - run by make install
-    print(f"needlekit: planning kernels compiled in {warm_up_kernels():.1f} s")
+    print(f"needlekit: planning and control kernels compiled in {warm_up_kernels():.1f} s")

@@ -33,23 +33,27 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import numba as nb
 import numpy as np
 
+from needlekit.control import _adaptation_kernels as _kernels
+from needlekit.control._adaptation_kernels import (
+    _add_distances,
+    _closest_pair,
+    _drop_distances,
+    _flange_distance,
+    _normal_equations,
+    _rotation_log,  # noqa: F401 - the kernel's home before; tests import it from here
+    _stacked_errors,
+)
 from needlekit.control.controller import (
     ControllerSettings,
     Step,
     StepVFI,
     task_parameter_jacobian,
 )
-from needlekit.control.parameters import (
-    N_PARAMETERS,
-    ParameterJacobians,
-    pose_from_parameters,
-    xyz_euler_rate_matrix,
-)
-from needlekit.control.qp import QPStatus, solve_qp
-from needlekit.control.vfi import vfi_row
+from needlekit.control.parameters import N_PARAMETERS, ParameterJacobians
+from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
+from needlekit.control.vfi import Zone
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -139,13 +143,11 @@ def measurement_error(estimated_tip, measured_tip, orientation_scale_mm: float) 
     -------
     ndarray, shape (6,)
     """
-    dp = estimated_tip[:3, 3] - measured_tip[:3, 3]
-    dr = _rotation_log(np.ascontiguousarray(estimated_tip[:3, :3] @ measured_tip[:3, :3].T))
-    return np.concatenate([dp, orientation_scale_mm * dr])
-
-
-#: Weight of rotation against translation when keyframes are compared (mm per rad).
-_POSE_DISTANCE_MM_PER_RAD = 100.0
+    return _kernels.measurement_error(
+        np.ascontiguousarray(estimated_tip, dtype=float),
+        np.ascontiguousarray(measured_tip, dtype=float),
+        float(orientation_scale_mm),
+    )
 
 
 class MeasurementHistory:
@@ -196,7 +198,10 @@ class MeasurementHistory:
         self._sum = np.zeros((2, 4, 4))
         self._count: list[int] = []
         self._poses = np.empty((0, 2, 4, 4))  # per keyframe: mean flange, mean measured
+        self._stale = False  # the newest keyframe's mean is not yet projected from its sum
         self._current: np.ndarray | None = None  # the newest sample when not a keyframe's
+        # flange distances between keyframes (all but the newest), as _most_redundant's
+        self._dist = np.zeros((self.capacity + 1, self.capacity + 1))
 
     def __len__(self) -> int:
         return len(self._count)
@@ -217,38 +222,61 @@ class MeasurementHistory:
         -------
         None
         """
-        sample = np.stack([base_T_flange, measured_tip]).astype(float)
+        sample = np.empty((2, 4, 4))
+        sample[0], sample[1] = base_T_flange, measured_tip
         self._current = None
         if self._count:
-            dp = float(np.linalg.norm(base_T_flange[:3, 3] - self._anchor[:3, 3]))
-            cos = (np.trace(base_T_flange[:3, :3].T @ self._anchor[:3, :3]) - 1.0) / 2.0
-            angle = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+            dp, angle = _flange_distance(sample[0], self._anchor)
             if dp <= self._merge[0] and angle <= self._merge[1]:
                 self._sum += sample
                 self._count[-1] += 1
-                self._poses[-1] = _mean_poses(self._sum / self._count[-1])
+                self._stale = True  # projected onto SE(3) when next read
                 return
             if dp < self._spacing[0] and angle < self._spacing[1]:
                 self._current = sample
                 return
+        self._refresh()
         self._anchor, self._sum = sample[0], sample.copy()
         self._count.append(1)
         self._poses = np.concatenate([self._poses, sample[None]])
-        if len(self._count) > self.capacity:
-            k = self._most_redundant()
-            del self._count[k]
-            self._poses = np.delete(self._poses, k, axis=0)
+        k = len(self._count)
+        if k >= 3:  # the keyframe before this one joins the distance matrix
+            _add_distances(self._dist, self._poses, k - 2)
+        if k > self.capacity:
+            i = self._most_redundant()
+            del self._count[i]
+            self._poses = np.delete(self._poses, i, axis=0)
+            _drop_distances(self._dist, i, k - 1)
+
+    def _refresh(self) -> None:
+        """Project the newest keyframe's averaged samples onto SE(3) (after merges)."""
+        if self._stale:
+            self._poses[-1] = _mean_poses(self._sum / self._count[-1])
+            self._stale = False
 
     def _most_redundant(self) -> int:
         """The older of the two closest keyframes (the newest is never dropped)."""
-        flange = self._poses[:-1, 0]
-        p = flange[:, :3, 3]
-        d = np.linalg.norm(p[:, None, :] - p[None, :, :], axis=2)
-        cos = (np.einsum("iab,jab->ij", flange[:, :3, :3], flange[:, :3, :3]) - 1.0) / 2.0
-        d += _POSE_DISTANCE_MM_PER_RAD * np.arccos(np.clip(cos, -1.0, 1.0))
-        np.fill_diagonal(d, np.inf)
-        i, j = np.unravel_index(int(np.argmin(d)), d.shape)
-        return int(min(i, j))
+        return int(_closest_pair(self._dist, len(self._count) - 1))
+
+    def _entries(self) -> tuple[np.ndarray, np.ndarray]:
+        """The keyframes' mean poses, and the current sample as a (0 or 1, 2, 4, 4) array."""
+        self._refresh()
+        return self._poses, _NO_SAMPLE if self._current is None else self._current[None]
+
+    def normal_equations(self, a, orientation_scale_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """``J' J`` and ``J' e`` of :meth:`stacked` (summed without stacking).
+
+        Parameters
+        ----------
+        a : ndarray, shape (12,)
+        orientation_scale_mm : float
+
+        Returns
+        -------
+        jtj : ndarray, shape (12, 12)
+        jte : ndarray, shape (12,)
+        """
+        return _normal_equations(*self._entries(), _parameters(a), float(orientation_scale_mm))
 
     def stacked(self, a, orientation_scale_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Measurement errors and their parameter Jacobians of the keyframes and the
@@ -265,77 +293,10 @@ class MeasurementHistory:
             ``[p_est - p_meas; s log(R_est R_meas^T)]`` per entry.
         jacobian : ndarray, shape (6 k, 12)
         """
-        poses = self._poses
-        if self._current is not None:
-            poses = np.concatenate([poses, self._current[None]])
-        a = np.asarray(a, dtype=float)
-        rb = np.ascontiguousarray(pose_from_parameters(a[:6])[:3, :3])
-        rn = np.ascontiguousarray(pose_from_parameters(a[6:])[:3, :3])
-        wb, wn = xyz_euler_rate_matrix(a[3:6]), xyz_euler_rate_matrix(a[9:12])
-        return _stacked_errors(
-            np.ascontiguousarray(poses), a[:3].copy(), rb, wb, a[6:9].copy(), rn, wn,
-            float(orientation_scale_mm),
-        )  # fmt: skip
+        return _stacked_errors(*self._entries(), _parameters(a), float(orientation_scale_mm))
 
 
-@nb.njit(cache=True)
-def _rotation_log(r):
-    """Rotation vector of a rotation matrix (accurate near 0 and near pi)."""
-    c = min(1.0, max(-1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
-    v = 0.5 * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    s = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
-    theta = np.arctan2(s, c)
-    if theta < 1e-8:
-        return v
-    if c > -0.5:
-        return v * (theta / s)
-    # near pi: the axis from the symmetric part, its sign from the skew part
-    sym = 0.5 * (r + r.T)
-    best, k = -1.0, 0
-    for i in range(3):
-        d = (sym[i, i] - c) / (1.0 - c)
-        if d > best:
-            best, k = d, i
-    axis = (sym[k] - c * np.eye(3)[k]) / (1.0 - c)
-    axis /= np.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)
-    if axis[0] * v[0] + axis[1] * v[1] + axis[2] * v[2] < 0.0:
-        axis = -axis
-    return axis * theta
-
-
-@nb.njit(cache=True)
-def _stacked_errors(poses, tb, rb, wb, tn, rn, wn, s):
-    """Measurement errors and parameter Jacobians of keyframes (flange in the base frame,
-    measured tip in the world) at the parameters given as rotations and rate maps."""
-    k = poses.shape[0]
-    err = np.empty(6 * k)
-    jac = np.zeros((6 * k, 12))
-    for i in range(k):
-        f_r = np.ascontiguousarray(poses[i, 0, :3, :3])
-        f_p = np.ascontiguousarray(poses[i, 0, :3, 3])
-        y_rt = np.ascontiguousarray(poses[i, 1, :3, :3].T)
-        y_p = poses[i, 1, :3, 3]
-        rf = rb @ f_r  # flange rotation in the world
-        tip = tb + rb @ (f_p + f_r @ tn)
-        rel = tip - tb
-        o = 6 * i
-        err[o : o + 3] = tip - y_p
-        err[o + 3 : o + 6] = s * _rotation_log(rf @ rn @ y_rt)
-        for r in range(3):
-            jac[o + r, r] = 1.0
-            for c in range(3):
-                # d tip / d angles_b: (W_b e_c) x rel
-                w = wb[:, c]
-                cr = (w[1] * rel[2] - w[2] * rel[1], w[2] * rel[0] - w[0] * rel[2],
-                      w[0] * rel[1] - w[1] * rel[0])  # fmt: skip
-                jac[o + r, 3 + c] = cr[r]
-                jac[o + r, 6 + c] = rf[r, c]
-                jac[o + 3 + r, 3 + c] = s * wb[r, c]
-        rfwn = rf @ wn
-        for r in range(3):
-            for c in range(3):
-                jac[o + 3 + r, 9 + c] = s * rfwn[r, c]
-    return err, jac
+_NO_SAMPLE = np.empty((0, 2, 4, 4))
 
 
 def _mean_poses(poses: np.ndarray) -> np.ndarray:
@@ -347,6 +308,10 @@ def _mean_poses(poses: np.ndarray) -> np.ndarray:
     out[:, :3, 3] = poses[:, :3, 3]
     out[:, 3, 3] = 1.0
     return out
+
+
+def _parameters(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=float).reshape(N_PARAMETERS)
 
 
 def adaptation_step(
@@ -396,33 +361,39 @@ def adaptation_step(
     a = np.asarray(a, dtype=float)
     s = settings.orientation_scale_mm
     err = measurement_error(estimated_tip, measured_tip, s)
+    n = N_PARAMETERS
     if history is not None and len(history):
-        y_err, jac = history.stacked(a, s)
+        jtj, jte = history.normal_equations(a, s)
         scale = 1.0 / len(history)  # the mean over the keyframes
     else:
-        y_err, jac, scale = err, np.vstack([pj.tip, s * pj.angular]), 1.0
-    n = N_PARAMETERS
-    H = 2.0 * (scale * jac.T @ jac + settings.damping**2 * np.eye(n))
-    f = 2.0 * settings.eta * scale * jac.T @ y_err
-    rows, rhs = [], []
-    for v in vfis:
-        if v.jac_a is None:
-            continue
-        r, b = vfi_row(v.distance, v.jac_a, v.safe, v.zone, (1.0 - vfi_share) * v.gain)
-        rows.append(r)
-        # never pull the estimate in: only forbid pushing it out
-        rhs.append(max(b, 0.0) if settings.clamp_vfi_rows else b)
+        jac = np.vstack([pj.tip, s * pj.angular])
+        jtj, jte, scale = jac.T @ jac, jac.T @ err, 1.0
+    rows = [v for v in vfis if v.jac_a is not None]
+    vfi = np.array(
+        [(v.distance, v.safe, (1.0 - vfi_share) * v.gain, v.zone is Zone.OUTSIDE) for v in rows],
+        dtype=float,
+    ).reshape(-1, 4)
+    vjac = np.array([v.jac_a for v in rows], dtype=float).reshape(-1, n)
+    stab, stab_rhs = _NO_ROW, 0.0
     if step is not None and task_error is not None:
         jx = task_parameter_jacobian(step, pj, controller or ControllerSettings())
         e = np.asarray(task_error, dtype=float)
-        rows.append(e @ jx)
+        stab = (e @ jx).reshape(1, n)
         r2 = settings.stability_radius_mm**2
-        rhs.append(max(0.0, 0.5 * settings.eta * (r2 - float(e @ e))))
-    lower = settings.bound_gain * (settings.lower - a)
-    upper = settings.bound_gain * (settings.upper - a)
-    A = np.array(rows).reshape(-1, n)
-    sol = solve_qp(H, f, A, np.array(rhs), lower, upper, check=False)
+        stab_rhs = max(0.0, 0.5 * settings.eta * (r2 - float(e @ e)))
+    H, f, A, bu, bl, infeasible = _kernels.adaptation_qp(
+        jtj, jte, scale, settings.damping**2, 2.0 * settings.eta * scale, vfi, vjac,
+        settings.clamp_vfi_rows, stab, stab_rhs, settings.bound_gain, settings.lower,
+        settings.upper, a,
+    )  # fmt: skip
+    if infeasible:
+        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
+    else:
+        sol = _solve_prepared(H, f, A, bu, bl, np.zeros(len(bu), dtype=np.intc))
     if sol.status is not QPStatus.OPTIMAL:
         log.warning("adaptation QP %s (exit flag %d): a_dot = 0", sol.status.value, sol.exitflag)
         return AdaptationOutput(np.zeros(n), sol.status, err)
     return AdaptationOutput(sol.x, sol.status, err)
+
+
+_NO_ROW = np.zeros((0, N_PARAMETERS))

@@ -24,20 +24,18 @@ into the patient (``needlekit.conventions``: tip z = insertion direction).
 from __future__ import annotations
 
 import enum
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from needlekit.control import _tick
 from needlekit.control.panda import ArmState, PandaModel
-from needlekit.control.qp import QPStatus, solve_qp
+from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
 from needlekit.control.vfi import (
     Line,
     Plane,
     Zone,
-    joint_limit_bounds,
-    line_angle_distance,
-    point_line_sq_distance,
-    point_plane_distance,
     vfi_row,
 )
 from needlekit.errors import InvalidInputError
@@ -83,6 +81,7 @@ class GuideLine:
         object.__setattr__(self, "_line", line)
         object.__setattr__(self, "_plane", Plane(line.point_mm, line.direction))
         object.__setattr__(self, "_cylinders", {})
+        object.__setattr__(self, "_packed", {})
 
     @property
     def line(self) -> Line:
@@ -127,6 +126,15 @@ class GuideLine:
         ndarray, shape (3,)
         """
         return self.target_mm + float(distance_mm) * self.direction
+
+    def _kernel_data(self, settings: ControllerSettings) -> tuple:
+        """``(geo, par, robot_points)`` of :func:`needlekit.control._tick.pack_geometry`,
+        cached per settings object (settings are frozen)."""
+        hit = self._packed.get(id(settings))
+        if hit is None or hit[0] is not settings:
+            hit = (settings, *_tick.pack_geometry(self, settings))
+            self._packed[id(settings)] = hit
+        return hit[1:]
 
 
 @dataclass(frozen=True)
@@ -197,18 +205,6 @@ class ControlOutput:
     distances: dict
 
 
-def _task(state: ArmState, step: Step, guide: GuideLine, settings, p_d, v_d):
-    u = guide.insertion_direction
-    if step is Step.ALIGN:
-        return state.axis_jacobian, state.needle_axis - u, np.zeros(3)
-    if step is Step.APPROACH or settings.puncture_keeps_axis:
-        w = settings.axis_scale_mm
-        jac = np.vstack([state.tip_jacobian, w * state.axis_jacobian])
-        err = np.concatenate([state.tip_mm - p_d, w * (state.needle_axis - u)])
-        return jac, err, np.concatenate([v_d, np.zeros(3)])
-    return state.tip_jacobian, state.tip_mm - p_d, v_d
-
-
 @dataclass(frozen=True)
 class StepVFI:
     """One VFI of a step at the current state.
@@ -258,49 +254,31 @@ def step_vfis(
     list of StepVFI
     """
     cfg = settings
-    out = []
-    if step is Step.PUNCTURE:
-        d, j = point_line_sq_distance(state.tip_mm, state.tip_jacobian, guide.line)
-        ja = None if pj is None else point_line_sq_distance(state.tip_mm, pj.tip, guide.line)[1]
-        out.append(StepVFI("guide", d, cfg.guide_radius_mm**2, Zone.INSIDE, cfg.eta_guide, j, ja))
-        u = guide.insertion_direction
-        f, j = line_angle_distance(state.needle_axis, state.axis_jacobian, u)
-        ja = None if pj is None else line_angle_distance(state.needle_axis, pj.axis, u)[1]
-        safe = 2.0 - 2.0 * np.cos(cfg.cone_angle_rad)
-        out.append(StepVFI("cone", f, safe, Zone.INSIDE, cfg.eta_cone, j, ja))
-        d, j = point_plane_distance(state.tip_mm, state.tip_jacobian, guide.plane)
-        ja = None if pj is None else point_plane_distance(state.tip_mm, pj.tip, guide.plane)[1]
-        out.append(StepVFI("plane", d, 0.0, Zone.OUTSIDE, cfg.eta_plane, j, ja))
-        return out
-    cyl = guide.patient_line(cfg.patient_axis)
-    ks = np.asarray(cfg.robot_points, dtype=np.int64)
-    ds, js = state.points_line_sq_distances(ks, cyl.point_mm, cyl.direction)
-    safe = cfg.patient_radius_mm**2
-    jas = None if pj is None else _points_parameter_rows(state.origins[ks], cyl, pj, a)
-    for r in range(len(ks)):
-        ja = None if jas is None else jas[r]
-        out.append(StepVFI("patient", float(ds[r]), safe, Zone.OUTSIDE, cfg.eta_patient, js[r], ja))
-    return out
+    geo, par, ks = guide._kernel_data(cfg)
+    puncture = step is Step.PUNCTURE
+    with_a = pj is not None
+    z = _NO_PARAMETERS
+    d, jq, jp = _tick.vfi_data(
+        _tick.VFI_PUNCTURE if puncture else _tick.VFI_PATIENT, state.tip_mm, state.needle_axis,
+        state.tip_jacobian, state.axis_jacobian, state.axes, state.origins, ks, geo, with_a,
+        pj.tip if with_a else z, pj.axis if with_a else z, pj.base_rate if with_a else z,
+        np.asarray(a, dtype=float) if with_a else geo,
+    )  # fmt: skip
+    if puncture:
+        kinds = (
+            ("guide", par[3], Zone.INSIDE, cfg.eta_guide),
+            ("cone", 2.0 - 2.0 * np.cos(cfg.cone_angle_rad), Zone.INSIDE, cfg.eta_cone),
+            ("plane", 0.0, Zone.OUTSIDE, cfg.eta_plane),
+        )
+    else:
+        kinds = (("patient", cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient),) * len(ks)
+    return [
+        StepVFI(name, float(d[r]), safe, zone, gain, jq[r], jp[r] if with_a else None)
+        for r, (name, safe, zone, gain) in enumerate(kinds)
+    ]
 
 
-def _points_parameter_rows(points: np.ndarray, line: Line, pj, a) -> np.ndarray:
-    """Derivatives of the points' squared distances from ``line`` with respect to the
-    parameters (a link point moves with the base pose only: ``dp = dt_b + (W_b dangles_b)
-    x (p - t_b)``)."""
-    v = points - line.point_mm
-    perp = v - np.outer(v @ line.direction, line.direction)
-    rows = np.zeros((len(points), 12))
-    rows[:, :3] = 2.0 * perp
-    r = points - np.asarray(a)[:3]
-    r_x_perp = np.column_stack(
-        [
-            r[:, 1] * perp[:, 2] - r[:, 2] * perp[:, 1],
-            r[:, 2] * perp[:, 0] - r[:, 0] * perp[:, 2],
-            r[:, 0] * perp[:, 1] - r[:, 1] * perp[:, 0],
-        ]
-    )
-    rows[:, 3:6] = 2.0 * r_x_perp @ pj.base_rate
-    return rows
+_NO_PARAMETERS = np.zeros((1, 1))
 
 
 def control_step(
@@ -347,30 +325,68 @@ def control_step(
     InvalidInputError
         A step that needs a desired position without one.
     """
-    cfg = settings or ControllerSettings()
+    cfg = settings or _DEFAULT_SETTINGS
     s = model.state(q) if state is None else state
     if step is not Step.ALIGN and desired_mm is None:
         raise InvalidInputError("desired_mm", f"step {step.value} needs a desired tip position")
-    p_d = None if desired_mm is None else np.asarray(desired_mm, dtype=float)
-    v_d = np.zeros(3) if desired_velocity_mm_s is None else np.asarray(desired_velocity_mm_s)
-    jac, err, ff = _task(s, step, guide, cfg, p_d, v_d)
+    p_d = _ZERO3 if desired_mm is None else np.asarray(desired_mm, dtype=float)
+    v_d = _ZERO3 if desired_velocity_mm_s is None else np.asarray(desired_velocity_mm_s, float)
+    if step is Step.ALIGN:
+        task = _tick.TASK_AXIS
+    elif step is Step.APPROACH or cfg.puncture_keeps_axis:
+        task = _tick.TASK_TIP_AXIS
+    else:
+        task = _tick.TASK_TIP
+    geo, par, ks = guide._kernel_data(cfg)
     n = len(s.q)
-    H = 2.0 * (jac.T @ jac + cfg.damping**2 * np.eye(n))
-    f = 2.0 * jac.T @ (cfg.eta * err - ff)
-    vfis = step_vfis(s, step, guide, cfg) if vfis is None else vfis
-    rows = np.empty((len(vfis), n))
-    rhs = np.empty(len(vfis))
-    dist: dict = {}
-    for i, v in enumerate(vfis):
-        rows[i], rhs[i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
-        key = _DIST_KEYS[v.name]
-        dist[key] = min(dist.get(key, np.inf), v.distance)
-    lower, upper = joint_limit_bounds(
-        s.q, model.q_min, model.q_max, model.q_dot_max, cfg.eta_joints
-    )
-    sol = solve_qp(H, f, rows, rhs, lower, upper, check=False)
+    if vfis is None:
+        kind = _tick.VFI_PUNCTURE if step is Step.PUNCTURE else _tick.VFI_PATIENT
+        m = 3 if kind == _tick.VFI_PUNCTURE else len(ks)
+    else:
+        kind, m = _tick.VFI_NONE, len(vfis)
+    H, f, A, bu, bl, sense, dist = _buffers(n, m)
+    err, infeasible = _tick.control_qp(
+        task, kind, s.q, s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian, s.axes,
+        s.origins, ks, geo, par, p_d, v_d, model.q_min, model.q_max, model.q_dot_max,
+        float(vfi_share), H, f, A, bu, bl, dist,
+    )  # fmt: skip
+    if kind == _tick.VFI_PUNCTURE:
+        d0, d1, d2 = dist.tolist()
+        distances = {"guide_sq_mm2": d0, "cone_f": d1, "plane_mm": d2}
+    elif kind == _tick.VFI_PATIENT:
+        distances = {"patient_sq_mm2": float(dist[0])} if m else {}
+    else:
+        distances = {}
+        for i, v in enumerate(vfis):
+            A[i], bu[n + i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
+            key = _DIST_KEYS[v.name]
+            distances[key] = min(distances.get(key, np.inf), v.distance)
+    if infeasible:
+        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
+    else:
+        sol = _solve_prepared(H, f, A, bu, bl, sense)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
-    return ControlOutput(q_dot, sol.status, err, dist)
+    return ControlOutput(q_dot, sol.status, err, distances)
+
+
+_DEFAULT_SETTINGS = ControllerSettings()
+_ZERO3 = np.zeros(3)  # read only by the kernel (a read-only flag would compile it twice)
+_local = threading.local()
+
+
+def _buffers(n: int, m: int) -> tuple:
+    """The QP buffers of an ``n``-joint step with ``m`` VFI rows, kept per thread (a step
+    overwrites them; DAQP copies what it keeps)."""
+    cache = getattr(_local, "buffers", None)
+    if cache is None:
+        cache = _local.buffers = {}
+    buf = cache.get((n, m))
+    if buf is None:
+        buf = cache[(n, m)] = (
+            np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(n + m),
+            np.zeros(n + m), np.zeros(n + m, dtype=np.intc), np.zeros(3),
+        )  # fmt: skip
+    return buf
 
 
 _DIST_KEYS = {

@@ -164,14 +164,18 @@ def _points_line_sq_distances(axes, origins, ks, c, ell):
 
 @nb.njit(cache=True)
 def _arm_state(q, mdh, base, tool):
-    """Everything :meth:`PandaModel.state` returns, in one compiled call."""
+    """Everything :meth:`PandaModel.state` returns, in one compiled call (and whether ``q``
+    is finite)."""
+    finite = True
+    for i in range(q.shape[0]):
+        finite = finite and np.isfinite(q[i])
     x, jac, axes, origins = chain_kinematics(q, mdh, base, tool)
     tip = _dq_to_matrix(x)
     p = tip[:3, 3].copy()
     axis = tip[:3, 2].copy()
     jt = _cross_columns(axes, p.reshape(1, 3) - origins[: axes.shape[0]])
     ja = _cross_columns(axes, axis.reshape(1, 3))
-    return x, jac, axes, origins, p, axis, jt, ja
+    return x, jac, axes, origins, p, axis, jt, ja, finite
 
 
 @dataclass(frozen=True)
@@ -302,7 +306,7 @@ class PandaModel:
 
     def _q(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float).reshape(-1)
-        if q.shape != (7,) or not np.all(np.isfinite(q)):
+        if q.shape != (7,) or not np.isfinite(q).all():
             raise InvalidInputError("q", f"expected 7 finite joint angles, got {q.shape}")
         return q
 
@@ -317,11 +321,20 @@ class PandaModel:
         -------
         ArmState
         """
-        q = self._q(q)
-        x, jac, axes, origins, p, axis, jt, ja = _arm_state(
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (7,):
+            self._q(q)  # raises
+        x, jac, axes, origins, p, axis, jt, ja, finite = _arm_state(
             q, PANDA_MDH_MM, self._base_dq, self._tool_dq
         )
-        return ArmState(q, x, jac, p, axis, jt, ja, axes, origins)
+        if not finite:
+            self._q(q)  # raises
+        st = object.__new__(ArmState)  # the frozen dataclass's fields, without its __init__
+        st.__dict__.update(
+            q=q, tip_dq=x, pose_jacobian=jac, tip_mm=p, needle_axis=axis, tip_jacobian=jt,
+            axis_jacobian=ja, axes=axes, origins=origins,
+        )  # fmt: skip
+        return st
 
     def tip_pose(self, q) -> np.ndarray:
         """``world_T_tip`` at ``q``.
@@ -357,22 +370,24 @@ class PandaModel:
             self.q_dot_max,
         )
 
-    def _with_poses_unchecked(self, world_T_base, flange_T_tip) -> PandaModel:
+    def _with_poses_unchecked(
+        self, world_T_base, flange_T_tip, base_dq=None, tool_dq=None
+    ) -> PandaModel:
         """:meth:`with_parameters` without validating the poses (callers build proper rigid
-        transforms themselves; the adaptation rebuilds the model at every measurement)."""
+        transforms themselves; the adaptation rebuilds the model at every measurement).
+        ``base_dq`` and ``tool_dq`` (the tool including the flange), when the caller has
+        them already."""
         m = object.__new__(PandaModel)
-        flange = np.eye(4)
-        flange[2, 3] = FLANGE_MM
-        for name, value in (
-            ("world_T_base", world_T_base),
-            ("flange_T_tip", flange_T_tip),
-            ("q_min", self.q_min),
-            ("q_max", self.q_max),
-            ("q_dot_max", self.q_dot_max),
-            ("_base_dq", dq_from_matrix(world_T_base)),
-            ("_tool_dq", dq_from_matrix(flange @ flange_T_tip)),
-        ):
-            object.__setattr__(m, name, value)
+        if base_dq is None:
+            base_dq = dq_from_matrix(world_T_base)
+        if tool_dq is None:
+            flange = np.eye(4)
+            flange[2, 3] = FLANGE_MM
+            tool_dq = dq_from_matrix(flange @ flange_T_tip)
+        m.__dict__.update(
+            world_T_base=world_T_base, flange_T_tip=flange_T_tip, q_min=self.q_min,
+            q_max=self.q_max, q_dot_max=self.q_dot_max, _base_dq=base_dq, _tool_dq=tool_dq,
+        )  # fmt: skip
         return m
 
     def reference_robot(self):

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from needlekit.control.dq import dq_to_matrix
-from needlekit.control.panda import ArmState, PandaModel
+from needlekit.control.dq import _dq_from_matrix, _dq_to_matrix
+from needlekit.control.panda import FLANGE_MM, ArmState, PandaModel
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.euler import matrix_to_euler
 
@@ -141,10 +141,26 @@ def model_from_parameters(model: PandaModel, a) -> PandaModel:
     -------
     PandaModel
     """
-    a = np.asarray(a, dtype=float).reshape(-1)
-    if a.shape != (N_PARAMETERS,) or not np.all(np.isfinite(a)):
+    a = np.ascontiguousarray(a, dtype=float).reshape(-1)
+    if a.shape != (N_PARAMETERS,) or not np.isfinite(a).all():
         raise InvalidInputError("parameters", f"expected {N_PARAMETERS} finite numbers")
-    return model._with_poses_unchecked(pose_from_parameters(a[:6]), pose_from_parameters(a[6:]))
+    return model._with_poses_unchecked(*_model_transforms(a, FLANGE_MM))
+
+
+@nb.njit(cache=True)
+def _model_transforms(a, flange_mm):
+    """``world_T_base``, ``flange_T_tip`` and their dual quaternions as
+    :meth:`PandaModel._with_poses_unchecked` builds them (the tool's includes the flange)."""
+    base = np.eye(4)
+    base[:3, :3] = _xyz_matrix(a[3], a[4], a[5])
+    base[:3, 3] = a[:3]
+    tip = np.eye(4)
+    tip[:3, :3] = _xyz_matrix(a[9], a[10], a[11])
+    tip[:3, 3] = a[6:9]
+    tool = tip.copy()  # Trans(0, 0, flange) @ flange_T_tip: row 2 gains flange times row 3
+    for c in range(4):
+        tool[2, c] = tip[2, c] + flange_mm * tip[3, c]
+    return base, tip, _dq_from_matrix(base), _dq_from_matrix(tool)
 
 
 @dataclass(frozen=True)
@@ -202,17 +218,50 @@ def parameter_jacobians(model: PandaModel, state: ArmState, a) -> ParameterJacob
     -------
     ParameterJacobians
     """
-    a = np.asarray(a, dtype=float)
-    wb = xyz_euler_rate_matrix(a[3:6])
+    a = np.ascontiguousarray(a, dtype=float)
+    tip, ang, axis, wb = _parameter_jacobians(
+        state.tip_dq, state.tip_mm, state.needle_axis, model.flange_T_tip, a
+    )
+    return ParameterJacobians(tip, ang, axis, wb)
+
+
+@nb.njit(cache=True)
+def _neg_skew_times(v, m):
+    """``-[v]x m`` for a (3, k) ``m``."""
+    out = np.empty((3, m.shape[1]))
+    for c in range(m.shape[1]):
+        out[0, c] = -0.0 * m[0, c] + v[2] * m[1, c] + -v[1] * m[2, c]
+        out[1, c] = -v[2] * m[0, c] + -0.0 * m[1, c] + v[0] * m[2, c]
+        out[2, c] = v[1] * m[0, c] + -v[0] * m[1, c] + -0.0 * m[2, c]
+    return out
+
+
+@nb.njit(cache=True)
+def _parameter_jacobians(tip_dq, tip_mm, needle_axis, flange_T_tip, a):
+    wb = _xyz_rate(a[3], a[4])
     # world_T_flange = world_T_tip * tip_T_flange
-    r_tip = dq_to_matrix(state.tip_dq)[:3, :3]
-    r_flange = r_tip @ model.flange_T_tip[:3, :3].T
+    r_tip = _dq_to_matrix(tip_dq)
+    r_flange = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            r_flange[r, c] = (
+                r_tip[r, 0] * flange_T_tip[c, 0]
+                + r_tip[r, 1] * flange_T_tip[c, 1]
+                + r_tip[r, 2] * flange_T_tip[c, 2]
+            )
     tip = np.zeros((3, N_PARAMETERS))
     ang = np.zeros((3, N_PARAMETERS))
-    tip[:, :3] = np.eye(3)
-    tip[:, 3:6] = -_skew(state.tip_mm - a[:3]) @ wb  # (W_b e_c) x r = -[r]x W_b e_c
-    ang[:, 3:6] = wb
-    tip[:, 6:9] = r_flange  # t_n is expressed in the flange frame
-    ang[:, 9:12] = r_flange @ xyz_euler_rate_matrix(a[9:12])
-    axis = -_skew(state.needle_axis) @ ang
-    return ParameterJacobians(tip, ang, axis, wb)
+    rel = np.empty(3)
+    for r in range(3):
+        rel[r] = tip_mm[r] - a[r]
+    tip[:, 3:6] = _neg_skew_times(rel, wb)  # (W_b e_c) x r = -[r]x W_b e_c
+    wn = _xyz_rate(a[9], a[10])
+    for r in range(3):
+        tip[r, r] = 1.0
+        for c in range(3):
+            ang[r, 3 + c] = wb[r, c]
+            tip[r, 6 + c] = r_flange[r, c]  # t_n is expressed in the flange frame
+            ang[r, 9 + c] = (
+                r_flange[r, 0] * wn[0, c] + r_flange[r, 1] * wn[1, c] + r_flange[r, 2] * wn[2, c]
+            )
+    return tip, ang, _neg_skew_times(needle_axis, ang), wb

@@ -74,8 +74,6 @@ def solve_qp(H, f, A=None, b=None, lower=None, upper=None, *, check: bool = True
     >>> s.status.value, np.round(s.x, 6).tolist()
     ('optimal', [0.5, 0.5])
     """
-    import daqp
-
     H = np.ascontiguousarray(H, dtype=float)
     f = np.ascontiguousarray(f, dtype=float).reshape(-1)
     n = f.shape[0]
@@ -97,7 +95,24 @@ def solve_qp(H, f, A=None, b=None, lower=None, upper=None, *, check: bool = True
     bupper = np.concatenate([hi, b])
     blower = np.concatenate([lo, np.full(b.shape[0], -_INF)])
     sense = np.zeros(n + b.shape[0], dtype=np.int32)
-    x, _, exitflag, _ = daqp.solve(H, f, A, bupper, blower, sense)
+    return _solve_prepared(H, f, A, bupper, blower, sense)
+
+
+_daqp = None
+
+
+def _solve_prepared(H, f, A, bupper, blower, sense) -> QPSolution:
+    """DAQP on data already in its layout: C-contiguous float64 ``H`` (n, n), ``f`` (n,),
+    ``A`` (m, n); ``bupper``, ``blower`` (n + m,: the bounds on x, then the rows' right-hand
+    sides and ``-_INF``) and ``sense`` (n + m, ``np.intc``, zeros). DAQP copies what it
+    changes (its workspace has its own ``sense``), so the controller passes the same buffers
+    at every step; ``x`` is a new array."""
+    global _daqp
+    if _daqp is None:  # imported on first use (keeps ``needlekit --help`` light)
+        import daqp
+
+        _daqp = daqp
+    x, _, exitflag, _ = _daqp.solve(H, f, A, bupper, blower, sense)
     if exitflag >= 1:
         return QPSolution(np.asarray(x, dtype=float), QPStatus.OPTIMAL, int(exitflag))
     status = QPStatus.INFEASIBLE if exitflag == -1 else QPStatus.FAILED
