@@ -161,13 +161,14 @@ def test_control_benchmark_times_every_step(capsys, tmp_path):
     rec = json.loads(path.read_text())
     st = rec["step_us"]
     assert st["n"] > 10_000 and 0 < st["median"] <= st["p99"] <= st["max"]
-    assert rec["step_us_adapting"]["n"] + rec["step_us_not_adapting"]["n"] == st["n"]
-    assert rec["step_us_adapting"]["n"] == pytest.approx(st["n"] / 10, rel=0.05)  # 100 Hz
+    kinds = rec["step_us_by_kind"]  # inline adaptation (D = 0): two kinds of tick
+    assert kinds["control+adaptation"]["n"] + kinds["control"]["n"] == st["n"]
+    assert kinds["control+adaptation"]["n"] == pytest.approx(st["n"] / 10, rel=0.05)  # 100 Hz
     assert {"align", "approach", "wait", "puncture"} <= set(rec["step_us_by_phase"])
     kin = next(r for r in rec["results"] if r["name"] == "kinematics")
     assert kin["max_abs_diff"] < 1e-9
     assert rec["machine"]["versions"]["dqrobotics"] and rec["trial_status"] == ["completed"]
-    assert "control step (all)" in capsys.readouterr().out
+    assert "every tick (1 kHz loop)" in capsys.readouterr().out
 
 
 def test_without_redraws_every_trial_keeps_its_first_guide_line():

@@ -42,6 +42,9 @@ def machine_info() -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "python": sys.version.split()[0],
         "versions": versions,
+        # the 1, 5 and 15 min load averages when the record was made (timings on a shared
+        # machine depend on it)
+        "load_average": list(os.getloadavg()),
     }
 
 

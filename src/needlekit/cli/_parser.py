@@ -468,6 +468,16 @@ def _build_parser() -> argparse.ArgumentParser:
         "lies inside the patient cylinder or out of the arm's reach)",
     )
     pu.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    from needlekit.cli.puncture import adaptation_delay_ms  # light: no numpy
+
+    pu.add_argument(
+        "--adaptation-delay-ms",
+        type=adaptation_delay_ms,
+        default=0.0,
+        metavar="MS",
+        help="run the adaptation off the 1 kHz control step, its update applied MS ms after "
+        "its job starts (whole control periods; default 0: inline, in the sample's step)",
+    )
     _executor_options(pu)
 
     rp = sub.add_parser(
@@ -658,6 +668,16 @@ def _build_parser() -> argparse.ArgumentParser:
         "--trials", type=_positive_int, default=1, help="simulated punctures timed (default 1)"
     )
     bc.add_argument("--seed", type=_seed, default=0, help="study seed of the trials (default 0)")
+    from needlekit.cli.puncture import adaptation_delay_ms  # (as in puncture's section)
+
+    bc.add_argument(
+        "--adaptation-delay-ms",
+        type=adaptation_delay_ms,
+        default=0.0,
+        metavar="MS",
+        help="time the adaptation as a job off the tick, applied MS ms after it starts "
+        "(whole control periods; default 0: inline, in the sample's tick)",
+    )
     bs = bench_sub.add_parser(
         "steerable",
         help="curved-needle planners on the Med-RAD lungs (status, cost, time per case)",

@@ -34,7 +34,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     elif args.bench_command == "control":
         from needlekit.benchmarks.control import run_control_benchmark
 
-        record = run_control_benchmark(trials=args.trials, seed=args.seed)
+        record = run_control_benchmark(
+            trials=args.trials, seed=args.seed, adaptation_delay_ms=args.adaptation_delay_ms
+        )
     elif args.bench_command == "steerable":
         from tqdm import tqdm
 

@@ -3,15 +3,35 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from needlekit.cli._common import EXIT_OK, _fmt_table
 from needlekit.errors import InvalidInputError
+
+#: The puncture controller's period (ms): ``ProcedureSettings.dt_s`` (a test keeps them
+#: equal), here so that the parser checks ``--adaptation-delay-ms`` without loading numpy.
+CONTROL_PERIOD_MS = 1.0
+
+
+def adaptation_delay_ms(text: str) -> float:
+    """``--adaptation-delay-ms``: a whole number >= 0 of control periods, in ms."""
+    expected = f"expected a whole number >= 0 of control periods ({CONTROL_PERIOD_MS:g} ms)"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
+    periods = v / CONTROL_PERIOD_MS
+    if not (math.isfinite(v) and v >= 0 and abs(periods - round(periods)) <= 1e-9 * (1 + periods)):
+        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
+    return v
 
 
 def _cmd_puncture(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
+    from needlekit.control.procedure import ProcedureSettings
+    from needlekit.control.schedule import delay_steps_from_ms
     from needlekit.studies.puncture_study import (
         PunctureScenario,
         TrialOptions,
@@ -23,12 +43,16 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
             raise InvalidInputError(
                 name, f"expected a whole number >= 0, got {getattr(args, name)}"
             )
+    delay = delay_steps_from_ms(
+        args.adaptation_delay_ms, ProcedureSettings().dt_s, "--adaptation-delay-ms"
+    )
     options = TrialOptions(
         exact_sensors=args.exact_sensors,
         stability_radius_mm=args.stability_radius_mm,
         history_keyframes=args.history,
         guide_samples=args.guide_samples,
         clamp_vfi_rows=not args.no_vfi_clamp,
+        adaptation_delay_steps=delay,
     )
     scenario = PunctureScenario(redraw_guides=not args.no_redraw)
     with (
@@ -61,6 +85,10 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         f"{s['completed']} of {s['trials']} trials completed, {s['aborted']['count']} aborted; "
         f"{v['total']} constraint violations beyond the measurement noise"
     )
+    if delay:
+        print(
+            f"adaptation off the control step, applied {s['adaptation_delay_ms']:g} ms after it starts"
+        )
     r = s["reached_target"]
     print(
         f"target reached (within the target tolerance): {r['estimated']} by the robot's "

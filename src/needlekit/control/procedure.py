@@ -16,7 +16,9 @@ mean estimated-minus-measured position is within ``converged_mm`` and the mean r
 between them within ``converged_deg`` (averaging keeps the sensor noise out of the test).
 The guide line is the running mean of the bronchoscope sensor's samples (the target does
 not move). The needle sensor feeds the adaptation law at its own rate, each sample paired
-with the joint angles of the moment it was taken.
+with the joint angles of the moment it was taken: inline, in the tick of the sample, or off
+the tick, its update applied ``adaptation_delay_steps`` ticks after its job starts (as
+another process would run it; :mod:`needlekit.control.schedule`).
 
 When no needle sample has arrived for ``stop_after_s`` the robot stops (zero joint
 velocities) and resumes when samples return; after ``abort_after_s`` the trial aborts with
@@ -28,29 +30,19 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from time import perf_counter
 
 import numpy as np
 
-from needlekit.control.adaptation import (
-    AdaptationSettings,
-    MeasurementHistory,
-    adaptation_step,
-)
-from needlekit.control.controller import (
-    ControllerSettings,
-    GuideLine,
-    Step,
-    control_step,
-    step_vfis,
-)
-from needlekit.control.dq import dq_to_matrix
+from needlekit.control.adaptation import AdaptationSettings, MeasurementHistory
+from needlekit.control.controller import ControllerSettings, GuideLine, Step, control_step
 from needlekit.control.em import EMSensor, EMSensorSpec
-from needlekit.control.panda import PandaModel
-from needlekit.control.parameters import model_from_parameters, parameter_jacobians
+from needlekit.control.parameters import model_from_parameters
 from needlekit.control.qp import QPStatus
+from needlekit.control.schedule import AdaptationJob, AdaptationMailbox, AdaptationWorker
+from needlekit.control.trial import TrialResult, TrialSetup
+from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 
 __all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
@@ -132,6 +124,10 @@ class ProcedureSettings:
         (the default) is the paper's simulation, the guide line from one noisy
         measurement of the target; 100 is the 1 s at 100 Hz of its mannequin experiments;
         0 the running mean of every sample of the trial (the target does not move).
+    adaptation_delay_steps : int
+        ``D``: 0 runs the adaptation inline, in the tick of each needle sample; D > 0 runs
+        it off the tick (:mod:`needlekit.control.schedule`): the tick posts the job, and its
+        update is applied D control periods after the job starts.
     """
 
     dt_s: float = 0.001
@@ -152,98 +148,7 @@ class ProcedureSettings:
     vfi_share: float = 0.5
     guide_samples: int = 1
     history_keyframes: int = 40
-
-
-@dataclass(frozen=True)
-class TrialSetup:
-    """The truth and the prior of one trial.
-
-    Attributes
-    ----------
-    arm : PandaModel
-        The arm with its nominal base and needle (the controller's prior).
-    true_parameters, nominal_parameters : ndarray, shape (12,)
-        The real base and needle, and the initial estimate.
-    q0 : ndarray, shape (7,)
-    target_mm : ndarray, shape (3,)
-    guide_direction : ndarray, shape (3,)
-        ``l_g``, pointing out of the patient.
-    """
-
-    arm: PandaModel
-    true_parameters: np.ndarray
-    nominal_parameters: np.ndarray
-    q0: np.ndarray
-    target_mm: np.ndarray
-    guide_direction: np.ndarray
-
-
-@dataclass(frozen=True)
-class TrialResult:
-    """What happened in one trial (ground truth unless a name says "estimated").
-
-    Attributes
-    ----------
-    status : str
-        ``"completed"`` or ``"aborted"``.
-    reason : str
-    position_error_mm : float
-        Final distance from the real tip to the real target.
-    angle_error_deg : float
-        Final angle between the real needle and the real guide line.
-    max_guide_distance_mm, max_cone_angle_deg : float
-        Over the whole PUNCTURE, from its first step: the real tip's largest distance from
-        the real guide line and the real needle's largest angle to it (whether or not the
-        tip ever entered the guide cylinder).
-    start_guide_distance_mm, start_cone_angle_deg : float
-        The same at the first step of PUNCTURE (the start point is reached within the
-        approach tolerance, so the tip may start outside the cylinder; the VFIs then only
-        let it come closer).
-    max_guide_distance_inside_mm, max_cone_angle_inside_deg : float
-        The same once the real tip is inside the guide cylinder and the needle inside the
-        cone (the VFIs pull them in when the puncture starts outside); NaN if it never was.
-    min_plane_distance_mm : float
-        Over the whole PUNCTURE, the smallest signed distance of the tip from the target's
-        plane.
-    reached_estimated, reached : bool
-        The estimated tip ended within ``target_tolerance_mm`` of the measured target (what
-        the robot knows), and the real tip within it of the real target (what happened).
-    min_patient_distance_mm : float
-        Smallest distance of a robot point from the patient cylinder's axis before PUNCTURE.
-    phase_times_s : dict
-        When each phase began.
-    counts : dict
-        Control steps, needle samples, lost samples, infeasible QPs, adaptation warnings,
-        and the steps the robot stood still because the needle sensor was silent.
-    log : dict of ndarray
-        Every ``log_every`` steps: ``t_s``, ``phase``, ``to_target_mm``, ``to_line_mm``,
-        ``angle_deg`` (real), ``tip_estimate_error_mm`` (estimated vs real tip),
-        ``base_error_mm``, ``needle_error_mm`` (estimated vs real translations),
-        ``base_rotation_error_deg``, ``needle_rotation_error_deg``, ``desired_to_target_mm``,
-        the newest needle sample's ``measured_to_line_mm`` and ``measured_angle_deg``
-        (against the real guide line), and the real ``tip_mm`` (rows of 3).
-    events : list of (float, str)
-        When the robot stopped because the needle sensor fell silent, and when it resumed.
-    """
-
-    status: str
-    reason: str
-    position_error_mm: float
-    angle_error_deg: float
-    max_guide_distance_mm: float
-    max_cone_angle_deg: float
-    min_plane_distance_mm: float
-    min_patient_distance_mm: float
-    start_guide_distance_mm: float = math.nan
-    start_cone_angle_deg: float = math.nan
-    max_guide_distance_inside_mm: float = math.nan
-    max_cone_angle_inside_deg: float = math.nan
-    reached_estimated: bool = False
-    reached: bool = False
-    phase_times_s: dict = field(default_factory=dict)
-    counts: dict = field(default_factory=dict)
-    log: dict = field(default_factory=dict)
-    events: list = field(default_factory=list)
+    adaptation_delay_steps: int = 0
 
 
 _LOG_KEYS = (
@@ -266,6 +171,13 @@ def _angle_deg(u, v) -> float:
 def _rotation_deg(pose: np.ndarray, rotation: np.ndarray) -> float:
     cos = (np.trace(pose[:3, :3].T @ rotation) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _apply(update, converged: bool, counts: dict) -> tuple:
+    """The control loop takes an adaptation job's update: ``(a, est, converged)``."""
+    counts["adaptation_infeasible"] += update.status is not QPStatus.OPTIMAL
+    flag = converged if update.converged is None else update.converged
+    return update.parameters, update.model, flag
 
 
 def run_trial(
@@ -293,10 +205,13 @@ def run_trial(
     needle_sensor, scope_sensor : EMSensorSpec, optional
         The needle-tip and bronchoscope sensors (default: 100 Hz, 1 mm, 0.2 deg, 5 ms).
     timings : list, optional
-        Receives ``(phase, adapted, seconds)`` for every control step: the time the
+        Receives ``(phase, kind, seconds)`` for every control step: the time the
         controller took (guide-line update, adaptation on a new needle sample, convergence
         and loss checks, kinematics, VFIs and the QP), without the simulated robot, sensors
-        and logging.
+        and logging. ``kind`` is ``"control"``, ``"control+adaptation"`` (a needle sample's
+        tick with the adaptation inline, D = 0), or with D > 0 ``"control+apply"`` (the tick
+        that applies a job's update) and ``"adaptation_job"`` (the job itself, timed apart
+        from the ticks; its phase is the one it started in).
 
     Returns
     -------
@@ -304,6 +219,11 @@ def run_trial(
     """
     ps = procedure or ProcedureSettings()
     cs = controller or ControllerSettings()
+    delay = ps.adaptation_delay_steps
+    if not isinstance(delay, int | np.integer) or delay < 0:
+        raise InvalidInputError(
+            "adaptation_delay_steps", f"expected a whole number >= 0, got {delay!r}"
+        )
     truth = model_from_parameters(setup.arm, setup.true_parameters)
     needle = EMSensor(needle_sensor or EMSensorSpec(), rng)
     scope = EMSensor(scope_sensor or EMSensorSpec(), rng)
@@ -317,8 +237,13 @@ def run_trial(
     dt = ps.dt_s
     q_hist: dict[int, np.ndarray] = {}
     window = max(1, round(ps.convergence_window_s * needle.spec.rate_hz))
-    recent: deque = deque(maxlen=window)
     history = MeasurementHistory(ps.history_keyframes) if ps.history_keyframes else None
+    worker = AdaptationWorker(
+        setup.arm, adaptation, cs, vfi_share=ps.vfi_share, period_s=needle.period_s,
+        history=history, window=window, converged_mm=ps.converged_mm,
+        converged_deg=ps.converged_deg,
+    )  # fmt: skip
+    mailbox = AdaptationMailbox(int(delay)) if delay else None
     scope_sum, scope_n = np.zeros(6), 0
     guide = None
     phase, phase_start = Phase.ADAPT, 0.0
@@ -351,7 +276,10 @@ def run_trial(
         true_tip = truth.tip_pose(q)
         sample = needle.update(t, lambda tip=true_tip: tip)
         scope_sample = scope.update(t, lambda: scope_pose)
-        tick_phase, tick_start = phase, perf_counter()
+        tick_phase, tick_start, kind = phase, perf_counter(), "control"
+        if mailbox is not None and (update := mailbox.due(tick)) is not None:
+            a, est, converged = _apply(update, converged, counts)
+            kind = "control+apply"
         if scope_sample is not None and not (ps.guide_samples and scope_n >= ps.guide_samples):
             scope_sum += np.concatenate([scope_sample.pose[:3, 3], scope_sample.pose[:3, 2]])
             scope_n += 1
@@ -359,33 +287,15 @@ def run_trial(
         if sample is not None:
             counts["needle_samples"] += 1
             q_s = q_hist.get(round(sample.taken_s / dt), q)
-            s_s = est.state(q_s)
-            est_tip = dq_to_matrix(s_s.tip_dq)
-            pj = parameter_jacobians(est, s_s, a)
-            if history is not None:
-                history.add(
-                    np.linalg.inv(est.world_T_base) @ est_tip @ np.linalg.inv(est.flange_T_tip),
-                    sample.pose,
-                )
             step = step_of.get(phase)
-            vfis = [] if step is None or guide is None else step_vfis(s_s, step, guide, cs, pj, a)
-            out = adaptation_step(
-                a, est_tip, sample.pose, pj, adaptation, step=step,
-                task_error=last_task[1] if last_task[0] is step else None,
-                controller=cs, vfis=vfis, vfi_share=ps.vfi_share, history=history,
-            )  # fmt: skip
-            if out.status is not QPStatus.OPTIMAL:
-                counts["adaptation_infeasible"] += 1
-            a = a + needle.period_s * out.a_dot
-            est = model_from_parameters(setup.arm, a)
-            recent.append(out.error)  # rotation rows weighted by orientation_scale_mm
-            if len(recent) == window:  # changes only with a new sample
-                mean = np.mean(recent, axis=0)
-                converged = bool(
-                    np.linalg.norm(mean[:3]) <= ps.converged_mm
-                    and np.degrees(np.linalg.norm(mean[3:]) / adaptation.orientation_scale_mm)
-                    <= ps.converged_deg
-                )
+            job = AdaptationJob(
+                tick, sample.pose, q_s, step, guide, last_task[1] if last_task[0] is step else None
+            )
+            if mailbox is None:  # inline, in this tick
+                a, est, converged = _apply(worker.run(job, a, est), converged, counts)
+                kind = "control+adaptation"
+            else:  # off the tick: the worker takes it below, outside the timed span
+                mailbox.post(tick, job)
         # measurement loss
         age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
         if age > ps.abort_after_s:
@@ -440,7 +350,13 @@ def run_trial(
             phase, status, reason = Phase.ABORTED, "aborted", f"{phase.value} timed out"
             break
         if timings is not None:
-            timings.append((tick_phase.value, sample is not None, perf_counter() - tick_start))
+            timings.append((tick_phase.value, kind, perf_counter() - tick_start))
+        if mailbox is not None and (job := mailbox.start(tick)) is not None:
+            # as another thread or process would run it: not part of the tick
+            job_start = perf_counter()
+            mailbox.finish(worker.run(job, a, est))
+            if timings is not None:
+                timings.append((phase.value, "adaptation_job", perf_counter() - job_start))
         # ground truth
         tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
         rel = tip_true - true_guide.target_mm
@@ -490,6 +406,9 @@ def run_trial(
         counts["steps"] += 1
     final = truth.tip_pose(q)
     counts["needle_lost"] = needle.n_lost
+    if mailbox is not None:  # jobs run, and samples that a newer one replaced in the mailbox
+        counts["adaptation_jobs"] = mailbox.started
+        counts["adaptation_replaced"] = mailbox.replaced
     miss = float(np.linalg.norm(final[:3, 3] - true_guide.target_mm))
     reached_estimated = reached = False
     if status == "completed":

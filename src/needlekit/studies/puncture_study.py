@@ -140,6 +140,10 @@ class TrialOptions:
         experiments), or 0 (the running mean of every sample of the trial).
     clamp_vfi_rows : bool
         :attr:`needlekit.control.adaptation.AdaptationSettings.clamp_vfi_rows`.
+    adaptation_delay_steps : int
+        :attr:`needlekit.control.procedure.ProcedureSettings.adaptation_delay_steps` (0: the
+        adaptation inline in the sample's control step; D > 0: off the step, applied D
+        control periods later).
     """
 
     exact_sensors: bool = False
@@ -147,6 +151,7 @@ class TrialOptions:
     history_keyframes: int = 40
     guide_samples: int = 1
     clamp_vfi_rows: bool = True
+    adaptation_delay_steps: int = 0
 
 
 def sample_trial(
@@ -240,6 +245,7 @@ def trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
         start_distance_mm=scenario.start_distance_mm,
         history_keyframes=options.history_keyframes,
         guide_samples=options.guide_samples,
+        adaptation_delay_steps=options.adaptation_delay_steps,
     )
     spec = EMSensorSpec()
     if options.exact_sensors:
@@ -474,6 +480,7 @@ def run_puncture_study(
     from needlekit.batch import SerialExecutor, as_completed_indexed
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.em import EMSensorSpec
+    from needlekit.control.procedure import ProcedureSettings
     from needlekit.io.files import staged_outputs, write_text
     from needlekit.studies.guide_filter import redraw_filter_rates, redraw_summary
 
@@ -537,6 +544,8 @@ def run_puncture_study(
         "paper": PAPER_RESULTS,
         "scenario": asdict(scenario),
         "options": asdict(options),
+        # the adaptation off the control step (0: inline), as a time
+        "adaptation_delay_ms": options.adaptation_delay_steps * ProcedureSettings().dt_s * 1e3,
         "wall_s": wall,
     }
     doc = dict(summary)
