@@ -40,12 +40,18 @@ __all__ = [
     "SerialExecutor",
     "as_completed_indexed",
     "clear_worker_cache",
+    "executor_workers",
     "open_executor",
+    "worker_builds",
     "worker_cached",
+    "worker_name",
 ]
 
 #: Names accepted by :func:`open_executor`.
 EXECUTORS = ("serial", "process", "dask")
+#: How long to wait for a Dask scheduler to answer (s): an address that does not answer
+#: is an input error, said at once rather than after Dask's own 30 s.
+SCHEDULER_TIMEOUT_S: float = 5.0
 
 
 class SerialExecutor(Executor):
@@ -110,7 +116,8 @@ def open_executor(
     Raises
     ------
     InvalidInputError
-        Unknown kind, bad worker count, or Dask not installed.
+        Unknown kind, bad worker count, Dask not installed, or no scheduler answering at
+        ``address`` within :data:`SCHEDULER_TIMEOUT_S` (named ``--scheduler``).
     """
     workers = _check_workers(workers)
     if kind == "serial":
@@ -138,7 +145,7 @@ def open_executor(
             dask_log.setLevel(logging.WARNING)
         try:
             if address is not None:
-                with Client(address) as client:
+                with _connect(Client, address) as client:
                     yield client.get_executor()
             else:
                 with (
@@ -156,6 +163,37 @@ def open_executor(
             dask_log.setLevel(old_level)
     else:
         raise InvalidInputError("executor", f"expected one of {', '.join(EXECUTORS)}, got {kind!r}")
+
+
+def _connect(client_cls, address: str):
+    """A client of the scheduler at ``address``; one input error when it does not answer."""
+    try:
+        return client_cls(address, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, ValueError, TypeError) as exc:  # unreachable, refused, malformed
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InvalidInputError(
+            "--scheduler", f"no Dask scheduler answers at {address!r} ({why})"
+        ) from None
+
+
+def executor_workers(executor: Executor | None) -> int:
+    """How many tasks an executor runs at once (its worker processes or Dask threads).
+
+    Parameters
+    ----------
+    executor : concurrent.futures.Executor or None
+        None and in-process executors run one task at a time.
+
+    Returns
+    -------
+    int
+    """
+    if executor is None or getattr(executor, "in_process", False):
+        return 1
+    client = getattr(executor, "_client", None)  # Dask's ClientExecutor
+    if client is not None:
+        return max(1, sum(client.nthreads().values()))
+    return max(1, int(getattr(executor, "_max_workers", 1) or 1))
 
 
 def as_completed_indexed(
@@ -187,7 +225,15 @@ def as_completed_indexed(
 
 
 _CACHE: dict = {}
-_CACHE_LOCK = threading.Lock()
+#: Re-entrant: a value's build may itself use the cache (a scenario's problem and, inside
+#: it, the patient's prepared anatomy).
+_CACHE_LOCK = threading.RLock()
+#: What this process built through :func:`worker_cached`, in order: (kind, seconds).
+_BUILDS: list = []
+
+
+def _kind(key) -> str:
+    return key[0] if isinstance(key, tuple) and key and isinstance(key[0], str) else str(key)
 
 
 def worker_cached(key, build: Callable[[], Any]) -> Any:
@@ -207,12 +253,44 @@ def worker_cached(key, build: Callable[[], Any]) -> Any:
     -------
     object
     """
+    import time
+
     with _CACHE_LOCK:
         if key in _CACHE:
             return _CACHE[key]
+        t0 = time.perf_counter()
         value = build()
         _CACHE[key] = value
+        _BUILDS.append((_kind(key), time.perf_counter() - t0))
         return value
+
+
+def worker_builds() -> list[tuple[str, float]]:
+    """What :func:`worker_cached` built in this process, in order.
+
+    A build that uses the cache itself is listed after the builds it caused, each with its
+    own seconds (which include those of the inner builds).
+
+    Returns
+    -------
+    list of (str, float)
+        Per build, the kind (a key's first item when it is a string, e.g.
+        ``"ScenarioSource"``, ``"MedradCase"``) and the seconds it took.
+    """
+    with _CACHE_LOCK:
+        return list(_BUILDS)
+
+
+def worker_name() -> str:
+    """This process, as ``host:pid`` (unique over the machines of a cluster).
+
+    Returns
+    -------
+    str
+    """
+    import socket
+
+    return f"{socket.gethostname()}:{os.getpid()}"
 
 
 def clear_worker_cache() -> None:
@@ -224,3 +302,4 @@ def clear_worker_cache() -> None:
     """
     with _CACHE_LOCK:
         _CACHE.clear()
+        _BUILDS.clear()

@@ -52,18 +52,81 @@ DEMO_FILES = (
 )
 
 
+_EXECUTOR_FLAGS = {
+    "executor": "--executor",
+    "workers": "--workers",
+    "dask_workers": "--dask-workers",
+    "scheduler": "--scheduler",
+}
+
+
+def _executor_conflict(given: dict) -> str | None:
+    """Why the executor flags given contradict each other, or None."""
+    kind, sched, dask_n = given.get("executor"), given.get("scheduler"), given.get("dask_workers")
+    if sched is not None and dask_n is not None:
+        return "--scheduler uses a running Dask cluster, --dask-workers starts one: give one"
+    if sched is not None and given.get("workers") is not None:
+        return "--workers does not apply with --scheduler: the cluster has its own workers"
+    if dask_n is not None and given.get("workers") is not None:
+        return "give --dask-workers N or --workers N, not both"
+    for name in ("scheduler", "dask_workers"):
+        if given.get(name) is not None and kind not in (None, "dask"):
+            return f"{_EXECUTOR_FLAGS[name]} runs on Dask: it contradicts --executor {kind}"
+    if kind == "serial" and given.get("workers") is not None:
+        return "--workers starts worker processes: it contradicts --executor serial"
+    if sched is not None and (not sched.strip() or any(c.isspace() for c in sched)):
+        return f"--scheduler: expected an address such as tcp://HOST:PORT, got {sched!r}"
+    return None
+
+
+class _ExecutorChoice(argparse.Action):
+    """``--executor``, ``--workers``, ``--dask-workers`` and ``--scheduler`` read as one
+    choice, in any order: ``--scheduler`` and ``--dask-workers`` mean Dask, ``--workers``
+    alone a process pool; a contradiction is an error before any work."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = {**(getattr(namespace, "executor_flags", None) or {}), self.dest: values}
+        problem = _executor_conflict(given)
+        if problem:
+            parser.error(problem)
+        namespace.executor_flags = given
+        dask = given.get("scheduler") is not None or given.get("dask_workers") is not None
+        implied = "dask" if dask else "process" if given.get("workers") else "serial"
+        namespace.executor = given.get("executor") or implied
+        namespace.workers = given.get("workers") or given.get("dask_workers")
+        namespace.dask_workers = given.get("dask_workers")
+        namespace.scheduler = given.get("scheduler")
+
+
 def _executor_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--executor",
         choices=["serial", "process", "dask"],
         default="serial",
-        help="where tasks run: this process, a local process pool, or Dask (default serial)",
+        action=_ExecutorChoice,
+        help="where tasks run: this process, a local process pool, or Dask (default serial; "
+        "process with --workers alone; dask with --dask-workers or --scheduler)",
     )
-    p.add_argument("--workers", type=_positive_int, help="worker processes (default: one per CPU)")
+    p.add_argument(
+        "--workers",
+        type=_positive_int,
+        action=_ExecutorChoice,
+        help="worker processes of the pool or local Dask cluster (default: one per CPU); "
+        "alone, a process pool",
+    )
+    p.add_argument(
+        "--dask-workers",
+        type=_positive_int,
+        metavar="N",
+        action=_ExecutorChoice,
+        help="start a local Dask cluster of N worker processes (--executor dask --workers N)",
+    )
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
-        help="Dask scheduler to connect to (default: start a local cluster)",
+        action=_ExecutorChoice,
+        help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:PORT; "
+        "implies --executor dask); its workers need needlekit and the data at the same paths",
     )
 
 

@@ -65,6 +65,7 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
     from needlekit.batch import open_executor
     from needlekit.cli._common import sweep_progress
     from needlekit.studies.feng_lungs import run_feng_lungs
+    from needlekit.studies.feng_timing import timing_verdict
 
     with (
         open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
@@ -114,7 +115,10 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
         print(f"{goal}: mean costs {order}; Feng's rcs_star < rrt < rcs {verdict}")
     for path in study.files.values():
         print(f"-> {path}")
-    print(f"wall time {record['wall_s']:.0f} s")
+    t = record["timing"]
+    print(timing_verdict(t))
+    prep = ", ".join(f"{w} {s:.1f} s" for w, s in t["prep_s_by_worker"].items())
+    print(f"patient prepared: here {t['main_prep_s']:.1f} s; per worker {prep}")
     failed = [
         f"{goal} {name}: {len(c['failures'])} plans"
         for goal, rec in record["goals"].items()

@@ -10,7 +10,7 @@ process pool or Dask cluster turns it into the problem once
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -67,10 +67,17 @@ def load_problem(
     InvalidInputError
         Missing start or goal, or a bad override.
     """
-    from needlekit.io.scenario import GoalSpec, StartSpec, load_scenario
+    from needlekit.io.scenario import load_scenario
 
     path = Path(scenario_path)
     sc = load_scenario(path, cache_dir=cache_dir, use_cache=use_cache)
+    return _with_overrides(sc, path.name, start_pose, goal_mm, r_min_mm, needle_diameter_mm)
+
+
+def _with_overrides(sc, name: str, start_pose, goal_mm, r_min_mm, needle_diameter_mm):
+    """:func:`load_problem`'s overrides applied to a loaded scenario."""
+    from needlekit.io.scenario import GoalSpec, StartSpec
+
     overrides: dict = {}
     if start_pose is not None:
         pose = np.asarray(start_pose, dtype=float)
@@ -85,11 +92,9 @@ def load_problem(
     if needle_diameter_mm is not None:
         overrides["needle_diameter_mm"] = needle_diameter_mm
     if sc.start is None and start_pose is None:
-        raise InvalidInputError(
-            "start", f"{path.name}: the scenario gives no start; pass a start pose"
-        )
+        raise InvalidInputError("start", f"{name}: the scenario gives no start; pass a start pose")
     if sc.goal is None and goal_mm is None:
-        raise InvalidInputError("goal", f"{path.name}: the scenario gives no goal; pass a goal")
+        raise InvalidInputError("goal", f"{name}: the scenario gives no goal; pass a goal")
     if sc.start is None or sc.goal is None:  # fill what the scenario lacks
         start = sc.start or StartSpec(
             overrides["start_pose"][:3, 3], overrides["start_pose"], "start_pose override"
@@ -190,6 +195,10 @@ class ScenarioSource:
     cache_dir : str or None
         Root of the prepared-anatomy cache (None: the user cache folder).
     use_cache : bool
+    document : str or None
+        The scenario itself as canonical JSON (:meth:`of_document`); None: read the file.
+    document_sha256 : str or None
+        Its digest, which identifies the source in place of the text.
     """
 
     scenario_path: str
@@ -199,6 +208,8 @@ class ScenarioSource:
     needle_diameter_mm: float | None = None
     cache_dir: str | None = None
     use_cache: bool = True
+    document: str | None = field(default=None, compare=False, repr=False)
+    document_sha256: str | None = None
 
     @classmethod
     def of(
@@ -237,27 +248,84 @@ class ScenarioSource:
             bool(use_cache),
         )
 
+    @classmethod
+    def of_document(
+        cls,
+        document: dict,
+        base_dir: str | os.PathLike = ".",
+        *,
+        name: str = "scenario.yaml",
+        cache_dir: str | os.PathLike | None = None,
+        use_cache: bool = True,
+        **overrides,
+    ) -> ScenarioSource:
+        """A source that carries the scenario document itself: workers on other machines,
+        which cannot read a file written here, build the problem from it.
+
+        The document travels as canonical JSON (sorted keys) and the source is identified
+        by its SHA-256, so equal documents share a worker's cached problem. Files the
+        document names (a Med-RAD ``root``, point files) must exist at the same paths on
+        the workers; relative ones are read against ``base_dir``.
+
+        Parameters
+        ----------
+        document : dict
+            The scenario (``docs/scenarios.md``), checked when a worker builds it.
+        base_dir : str or path
+            Folder that relative paths in the document are resolved against.
+        name : str
+            Name of the document in error messages.
+        cache_dir : str or path, optional
+        use_cache : bool
+        **overrides
+            ``start_pose``, ``goal_mm``, ``r_min_mm``, ``needle_diameter_mm`` (as :meth:`of`).
+
+        Returns
+        -------
+        ScenarioSource
+
+        Raises
+        ------
+        InvalidInputError
+            A document JSON cannot hold (not a mapping, a non-finite number, an object).
+
+        Examples
+        --------
+        >>> doc = {"version": 1, "structures": []}
+        >>> a = ScenarioSource.of_document(doc, "/tmp")
+        >>> a == ScenarioSource.of_document(dict(reversed(doc.items())), "/tmp")
+        True
+        """
+        import hashlib
+        import json
+
+        if not isinstance(document, dict):
+            raise InvalidInputError(
+                "document", f"expected a mapping, got {type(document).__name__}"
+            )
+        try:
+            text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError("document", f"not a JSON document ({exc})") from None
+        path = Path(base_dir).expanduser().resolve() / name
+        src = cls.of(path, cache_dir=cache_dir, use_cache=use_cache, **overrides)
+        return replace(
+            src, document=text, document_sha256=hashlib.sha256(text.encode()).hexdigest()
+        )
+
     def load(self):
         """Build the problem (no caching; see :meth:`cached`).
 
         Returns
         -------
         tuple
-            ``(scenario, problem, obstacles)`` as from :func:`load_problem`.
+            ``(scenario, problem)`` as from :func:`load_problem`.
         """
-        pose = None if self.start_pose is None else np.reshape(self.start_pose, (4, 4))
-        return load_problem(
-            self.scenario_path,
-            start_pose=pose,
-            goal_mm=self.goal_mm,
-            r_min_mm=self.r_min_mm,
-            needle_diameter_mm=self.needle_diameter_mm,
-            cache_dir=self.cache_dir,
-            use_cache=self.use_cache,
-        )
+        return self._load(share_base=False)
 
     def cached(self):
-        """Build the problem once per process (batch workers reuse it across tasks).
+        """Build the problem once per process (batch workers reuse it across tasks), and a
+        Med-RAD base once per process for every source of that patient.
 
         Returns
         -------
@@ -266,7 +334,30 @@ class ScenarioSource:
         """
         from needlekit.batch import worker_cached
 
-        return worker_cached(("ScenarioSource", self), self.load)
+        return worker_cached(("ScenarioSource", self), lambda: self._load(share_base=True))
+
+    def _load(self, share_base: bool):
+        import json
+
+        from needlekit.io.scenario import parse_scenario, read_scenario_document
+
+        path = Path(self.scenario_path)
+        inline = self.document is not None
+        data = json.loads(self.document) if inline else read_scenario_document(path)
+        sc = parse_scenario(
+            data,
+            base_dir=path.parent,
+            source=path.name,
+            cache_dir=self.cache_dir,
+            use_cache=self.use_cache,
+            share_base=share_base,
+        )
+        if not inline:
+            sc = replace(sc, path=path)
+        pose = None if self.start_pose is None else np.reshape(self.start_pose, (4, 4))
+        return _with_overrides(
+            sc, path.name, pose, self.goal_mm, self.r_min_mm, self.needle_diameter_mm
+        )
 
 
 @dataclass(frozen=True)

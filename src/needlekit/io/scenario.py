@@ -335,7 +335,7 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
     )
 
 
-def _base(spec: dict, ctx: _Ctx, cache: dict | None = None):
+def _base(spec: dict, ctx: _Ctx, cache: dict | None = None, share: bool = False):
     if "phantom" in spec:
         from needlekit.anatomy.phantoms import make_phantom
 
@@ -350,7 +350,36 @@ def _base(spec: dict, ctx: _Ctx, cache: dict | None = None):
         if "root" in m and not Path(m["root"]).is_absolute()
         else m.get("root")
     )
-    return load_medrad(m["organ"], m["patient"], root, **(cache or {}))
+    cache = dict(cache or {})
+    key = _medrad_key(m["organ"], m["patient"], root, cache) if share else None
+    if key is None:
+        return load_medrad(m["organ"], m["patient"], root, **cache)
+    from needlekit.batch import worker_cached
+
+    return worker_cached(key, lambda: load_medrad(m["organ"], m["patient"], root, **cache))
+
+
+def _medrad_key(organ, patient, root, cache: dict) -> tuple | None:
+    """What identifies a loaded Med-RAD case in this process: organ, patient, the data's
+    folder and the files of the patient (names, sizes, times), the cache settings; None
+    when the folder is not there (loading then says why)."""
+    from needlekit.io.medrad import medrad_root
+
+    try:
+        where = medrad_root(root)
+    except InvalidInputError:
+        return None
+    files = []
+    for folder in where.glob(f"**/Patient{patient}"):
+        for f in folder.iterdir():
+            st = f.stat()
+            files.append((str(f), st.st_size, st.st_mtime_ns))
+    cache_dir = cache.get("cache_dir")
+    cache_dir = None if cache_dir is None else str(Path(cache_dir).expanduser().resolve())
+    return (
+        "MedradCase", str(organ).lower(), int(patient), str(where), tuple(sorted(files)),
+        cache_dir, bool(cache.get("use_cache", True)),
+    )  # fmt: skip
 
 
 def _dropped(scene: Scene, spec: dict, ctx: _Ctx) -> Scene:
@@ -541,6 +570,7 @@ def parse_scenario(
     source: str = "scenario",
     cache_dir: str | os.PathLike | None = None,
     use_cache: bool = True,
+    share_base: bool = False,
 ) -> Scenario:
     """Validate and build a scenario from already-parsed YAML/JSON data.
 
@@ -556,6 +586,10 @@ def parse_scenario(
         Root of the prepared-anatomy cache of a Med-RAD base (default: the user cache).
     use_cache : bool
         Use that cache (see :func:`needlekit.io.medrad.load_medrad`).
+    share_base : bool
+        Load a Med-RAD base once per process (:func:`needlekit.batch.worker_cached`) and
+        share it, with the fields built on it, between the scenarios of that patient (a
+        batch worker running several targets of one patient prepares it once).
 
     Returns
     -------
@@ -569,7 +603,7 @@ def parse_scenario(
     _validate(data, source)
     ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
     cache = {"cache_dir": cache_dir, "use_cache": use_cache}
-    base = _base(data["base"], ctx, cache) if "base" in data else None
+    base = _base(data["base"], ctx, cache, share_base) if "base" in data else None
     names: set[str] = set()
     extra = [_structure(i, s, ctx, names) for i, s in enumerate(data.get("structures", []))]
     if base is not None:

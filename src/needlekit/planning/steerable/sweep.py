@@ -204,46 +204,6 @@ class SweepResult:
         return {"planner": self.planner, "summary": dict(self.stats), "directions": rows}
 
 
-def _plan_one(task):
-    """One direction of a sweep (module level, so process and Dask workers can run it)."""
-    from needlekit.planning.steerable.solve import solve
-
-    problem, source, direction, planner, time_limit_s, seed, max_iterations, opts = task
-    if source is not None:  # built once per worker, reused for its other directions
-        _, problem = source.cached()
-    p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
-    return solve(
-        p,
-        planner,
-        time_limit_s=time_limit_s,
-        seed=seed,
-        max_iterations=max_iterations,
-        options=opts,
-    )
-
-
-#: Largest pickled problem a remote task may carry (bytes); larger scenes need a source.
-MAX_TASK_BYTES: int = 8 * 2**20
-
-
-def _check_task_size(problem) -> None:
-    import pickle
-
-    try:
-        size = len(pickle.dumps(problem, protocol=pickle.HIGHEST_PROTOCOL))
-    except Exception as exc:
-        raise InvalidInputError(
-            "source",
-            f"the problem cannot be sent to workers ({exc}); pass source=ScenarioSource.of(...)",
-        ) from exc
-    if size > MAX_TASK_BYTES:
-        raise InvalidInputError(
-            "source",
-            f"the problem pickles to {size / 2**20:.0f} MB per task; pass "
-            "source=ScenarioSource.of(...) so that each worker builds it once",
-        )
-
-
 def sweep(
     problem: SteerableProblem,
     planner: str = "rcs_star",
@@ -293,42 +253,21 @@ def sweep(
     Returns
     -------
     SweepResult
+        Several sweeps at once, without waiting between them:
+        :func:`~needlekit.planning.steerable.sweep_batch.sweep_many`.
     """
-    import time
+    from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
 
-    t0 = time.perf_counter()
-    dirs = (
-        sphere_directions()
-        if directions is None
-        else np.asarray(directions, dtype=float).reshape(-1, 3)
-    )
-    dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    if normal is None:
-        normal = problem.puncture_normal
-    if normal is not None and np.all(np.isfinite(normal)):
-        eff = effective_directions(dirs, normal, problem.min_puncture_angle_deg)
-    else:
-        eff = np.ones(len(dirs), dtype=bool)
-    # executors that run tasks elsewhere get the recipe, or a scene small enough to ship
-    remote = executor is not None and not getattr(executor, "in_process", False)
-    if remote and source is None:
-        _check_task_size(problem)
-    recipe = remote and source is not None
-    carry = (None, source) if recipe else (problem, None)
-    tasks = [(*carry, d, planner, time_limit_s, seed, max_iterations, options) for d in dirs[eff]]
-    done: list = [None] * len(tasks)
-    if progress is not None and hasattr(progress, "set_total"):
-        progress.set_total(len(tasks))  # a bar can show how far along it is, and the time left
-    finished = enumerate((map if executor is None else executor.map)(_plan_one, tasks))
-    for k, res in finished:
-        done[k] = res
-        if progress is not None:
-            progress(res)
-    results: list = [None] * len(dirs)
-    for i, res in zip(np.flatnonzero(eff), done, strict=True):
-        results[i] = res
-    stats = sweep_stats(dirs, eff, results, time.perf_counter() - t0)
-    return SweepResult(dirs, eff, results, planner, stats)
+    job = SweepJob(problem, planner, source, options, normal)
+    return sweep_many(
+        [job],
+        directions=directions,
+        time_limit_s=time_limit_s,
+        executor=executor,
+        seed=seed,
+        max_iterations=max_iterations,
+        progress=progress,
+    ).sweeps[0]
 
 
 def solved_costs(results) -> np.ndarray:
