@@ -8,8 +8,8 @@ import pytest
 from needlekit.anatomy.fields import DistanceField, LazyField
 from needlekit.anatomy.scene import Role
 from needlekit.anatomy.voxel import VoxelSDF
-from needlekit.constants import MIN_NORMAL_GRADIENT
 from needlekit.anatomy.voxel_local import local_mask_sdf, window_around
+from needlekit.constants import MIN_NORMAL_GRADIENT
 from needlekit.errors import InvalidInputError
 
 
