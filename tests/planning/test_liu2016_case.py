@@ -15,7 +15,11 @@ from needlekit.planning.straight.cfrw import cfrw_map
 from needlekit.planning.straight.verify import verify_multi
 
 EXAMPLE = (
-    Path(__file__).resolve().parents[2] / "src" / "needlekit" / "data" / "liu2016_three_needles.yaml"
+    Path(__file__).resolve().parents[2]
+    / "src"
+    / "needlekit"
+    / "data"
+    / "liu2016_three_needles.yaml"
 )
 GAMMA = 1.5
 VESSELS = ("vessel_a", "vessel_b", "vessel_c")
