@@ -9,15 +9,18 @@ from needlekit.errors import InvalidInputError
 
 
 def _cmd_markups(args: argparse.Namespace) -> int:
-    from needlekit.io.markups import DEFAULT_CURVE_SPACING_MM, write_plan_curve
-    from needlekit.io.plans import read_plan_json
+    from needlekit.io.files import read_json_object
 
     out = args.out
     if not out.name.lower().endswith(".json"):
         # Slicer picks its reader by the extension: anything else would not open as markups.
         raise InvalidInputError("--out", f"{out}: expected a name ending in .mrk.json")
+    data = read_json_object(args.plan, "plan")  # a malformed file is answered before numba
+    from needlekit.io.markups import DEFAULT_CURVE_SPACING_MM, write_plan_curve
+    from needlekit.io.plans import plan_from_dict
+
     spacing = DEFAULT_CURVE_SPACING_MM if args.spacing_mm is None else args.spacing_mm
-    plan, _, data = read_plan_json(args.plan)
+    plan, _ = plan_from_dict(data, args.plan.name)
     if plan is None:
         status = data.get("status", "unknown")
         raise InvalidInputError(

@@ -31,40 +31,74 @@ def _source(args: argparse.Namespace):
     )
 
 
-def _settings(args: argparse.Namespace, names=None):
+def _document(args: argparse.Namespace) -> dict:
+    """The scenario's document, read and checked against the schema (no anatomy, no numba)."""
+    from needlekit.io.scenario_schema import read_scenario_document
+
+    return read_scenario_document(args.scenario)
+
+
+def _flag_options(args: argparse.Namespace) -> dict:
+    """Per planner name, the settings the flags give."""
+    return {} if args.rrt_connection is None else {"rrt": {"connection": args.rrt_connection}}
+
+
+def _check_planners(args: argparse.Namespace, doc: dict, names=None) -> tuple[str, ...]:
+    """The planners asked for (the first the main one), refused by name, family or option
+    name before any planner module is imported; :func:`_settings` checks the values."""
+    from needlekit.planning.interface import check_planner_options
+
+    block = doc.get("planner") or {}
+    if names is None:
+        names = [block.get("name") or "rcs_star"]
+    elif isinstance(names, str):
+        names = [names]
+    names = tuple(dict.fromkeys(names))
+    flags = _flag_options(args)
+    for name in names:
+        opts = dict(block.get("options") or {}) if name == block.get("name") else {}
+        opts.update(flags.get(name) or {})
+        check_planner_options(name, opts, family="steerable")
+    return names
+
+
+def _settings(args: argparse.Namespace, doc: dict, names=None):
     """The scenario's planner block under the flags, checked before the anatomy is read."""
     from needlekit.io.problems import planner_settings
-    from needlekit.io.scenario import read_scenario_document
 
-    block = read_scenario_document(args.scenario).get("planner")
-    options = {}
-    if args.rrt_connection is not None:
-        options["rrt"] = {"connection": args.rrt_connection}
     return planner_settings(
-        block,
+        doc.get("planner"),
         names=names,
         time_limit_s=args.time_limit_s,
         seed=args.seed,
         max_iterations=args.max_iterations,
-        options=options,
+        options=_flag_options(args),
     )
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
+    doc = _document(args)
+    planner = _check_planners(args, doc, args.planner)[0]
+    if args.dynamic:
+        _check_dynamic(args, doc)
+    else:
+        _refuse_dynamic_flags(args)
+        if args.goals is not None:
+            _check_goals(args, planner)
+        elif args.report is not None:
+            raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
+    # every check on the input done: now the planners (numba)
+    settings = _settings(args, doc, args.planner)
+    if args.dynamic:
+        return _plan_dynamic(args, settings)
+    if args.goals is not None:
+        return _plan_goals(args, settings)
+
     from needlekit.io.plans import write_plan_json
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
-    settings = _settings(args, args.planner)
-    if args.dynamic:
-        return _plan_dynamic(args, settings)
-    _refuse_dynamic_flags(args)
-    if args.goals is not None:
-        return _plan_goals(args, settings)
-    if args.report is not None:
-        raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
     _, problem = _source(args).load()
-    planner = settings.name
     res = solve(
         problem,
         planner,
@@ -100,6 +134,22 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
             raise InvalidInputError(flag, "only goes with --dynamic")
 
 
+def _check_dynamic(args: argparse.Namespace, doc: dict) -> None:
+    """What ``plan --dynamic`` needs from the flags and the document, checked before any
+    planner module is imported (:func:`needlekit.io.problems.dynamic_settings` checks the
+    values, with the same messages)."""
+    if args.goals is not None:
+        raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
+    name = args.scenario.name
+    if not any("moving" in s for s in doc.get("structures", [])):
+        raise InvalidInputError("--dynamic", f"{name}: no structure has a moving block")
+    if args.insertion_speed_mm_s is None and "insertion_speed_mm_s" not in doc.get("dynamic", {}):
+        raise InvalidInputError(
+            "--insertion-speed-mm-s",
+            f"{name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
+        )
+
+
 def _plan_dynamic(args: argparse.Namespace, settings) -> int:
     """``needlekit plan --dynamic``: re-plan from the tip among the scenario's moving
     obstacles, beside the plan made once at t = 0 and executed open-loop."""
@@ -107,8 +157,6 @@ def _plan_dynamic(args: argparse.Namespace, settings) -> int:
     from needlekit.io.problems import dynamic_settings, moving_case
     from needlekit.planning.steerable.dynamic import replan_among_moving
 
-    if args.goals is not None:
-        raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
     kw = dynamic_settings(args.scenario, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
     sc, static, moving = moving_case(_source(args))
     planner = settings.name
@@ -157,6 +205,14 @@ def _dynamic_summary(res) -> list[str]:
     return lines
 
 
+def _check_goals(args: argparse.Namespace, planner: str) -> None:
+    """``plan --goals``: the flags that go with it."""
+    if args.goal is not None:
+        raise InvalidInputError("--goals", "give the targets with --goals or --goal, not both")
+    if args.multi == "one-tree" and planner != "rrt":
+        raise InvalidInputError("--multi", f"one-tree grows an RRT tree; --planner is {planner}")
+
+
 def _plan_goals(args: argparse.Namespace, settings) -> int:
     """``needlekit plan --goals``: a plan to each target, per target or from one tree."""
     import numpy as np
@@ -166,10 +222,6 @@ def _plan_goals(args: argparse.Namespace, settings) -> int:
     from needlekit.planning.steerable.solve import solve
 
     planner = settings.name
-    if args.goal is not None:
-        raise InvalidInputError("--goals", "give the targets with --goals or --goal, not both")
-    if args.multi == "one-tree" and planner != "rrt":
-        raise InvalidInputError("--multi", f"one-tree grows an RRT tree; --planner is {planner}")
     goals = np.asarray(args.goals, dtype=float)
     _, problem = _source(args).load()
     if args.multi == "one-tree":
@@ -213,11 +265,14 @@ def _plan_goals(args: argparse.Namespace, settings) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    doc = _document(args)
+    _check_planners(args, doc, args.planner)
+    # every check on the input done: now the planners (numba)
     from needlekit.batch import open_executor
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
     from needlekit.studies.sweep_study import run_sweep_study
 
-    settings = _settings(args, args.planner)
+    settings = _settings(args, doc, args.planner)
     source = _source(args)
     source.cached()  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
@@ -264,8 +319,6 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 def _cmd_verify(args: argparse.Namespace) -> int:
     from needlekit.io.files import read_json_object
-    from needlekit.io.plans import read_plan_json
-    from needlekit.planning.steerable.verify import verify_plan
 
     # a malformed file fails here, before the anatomy loads; a multi-needle record
     # (multi.json) is checked by the straight planner's rules
@@ -274,6 +327,10 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         from needlekit.cli.straight import verify_multi_file
 
         return verify_multi_file(args, doc)
+    _document(args)  # a bad scenario file too, before numba
+    from needlekit.io.plans import read_plan_json
+    from needlekit.planning.steerable.verify import verify_plan
+
     plan, _, data = read_plan_json(args.plan)
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")

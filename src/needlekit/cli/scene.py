@@ -25,9 +25,12 @@ def _fmt_extent(extent: np.ndarray) -> str:
 
 
 def _cmd_scene(args: argparse.Namespace) -> int:
+    from needlekit.io.scenario_schema import read_scenario_document
+
+    doc = read_scenario_document(args.scenario)  # a bad file is answered before numba
     from needlekit.io.scenario import load_scenario
 
-    sc = load_scenario(args.scenario)
+    sc = load_scenario(args.scenario, document=doc)
     if args.scene_command == "info":
         from needlekit.anatomy.summary import summarize_scene
 

@@ -5,25 +5,38 @@ from __future__ import annotations
 import argparse
 
 from needlekit.cli._common import EXIT_OK
+from needlekit.errors import InvalidInputError
 
 
-def _multi_problem(args: argparse.Namespace):
+def _document(args: argparse.Namespace) -> dict:
+    """The scenario's document, checked against the schema and for a straight block before
+    any heavy module (numba) is imported."""
+    from needlekit.io.scenario_schema import read_scenario_document
+
+    doc = read_scenario_document(args.scenario)
+    if not doc.get("straight"):
+        raise InvalidInputError("straight", "the scenario has no straight block")
+    return doc
+
+
+def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
+    doc = _document(args) if doc is None else doc
     from needlekit.io.problems import multi_problem_from_scenario
     from needlekit.io.scenario import load_scenario
 
-    sc = load_scenario(args.scenario)
+    sc = load_scenario(args.scenario, document=doc)
     return sc, *multi_problem_from_scenario(sc)
 
 
 def _cmd_cfrw(args: argparse.Namespace) -> int:
+    doc = _document(args)
     import numpy as np
 
-    from needlekit.errors import InvalidInputError
     from needlekit.io.files import write_json
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.entry import Objective, best_on_map, pareto_front
 
-    _, multi, options = _multi_problem(args)
+    _, multi, options = _multi_problem(args, doc)
     k = len(multi.targets_mm)
     if not 1 <= args.target <= k:
         raise InvalidInputError("--target", f"expected 1 to {k}, got {args.target}")
@@ -63,10 +76,13 @@ def _cmd_cfrw(args: argparse.Namespace) -> int:
 
 
 def _cmd_multi(args: argparse.Namespace) -> int:
-    from needlekit.io.files import staged_outputs, write_json
-    from needlekit.planning.interface import Termination, get_planner
+    from needlekit.planning.interface import Termination, check_planner_options, get_planner
 
-    sc, multi, options = _multi_problem(args)
+    doc = _document(args)
+    check_planner_options(args.planner)  # its name, before numba; its options below
+    from needlekit.io.files import staged_outputs, write_json
+
+    sc, multi, options = _multi_problem(args, doc)
     if args.resolution_deg is not None:
         options["resolution_deg"] = args.resolution_deg
     if args.objective is not None:
@@ -180,9 +196,10 @@ def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
     """
     import json
 
+    doc = _document(args)
     from needlekit.planning.straight.verify import verify_multi
 
-    _, multi, _ = _multi_problem(args)
+    _, multi, _ = _multi_problem(args, doc)
     check = verify_multi(multi.problem, data)
     if args.json:
         print(
@@ -212,14 +229,14 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     """``needlekit approach``: PAA's approach analysis, and needlekit's, on a scenario."""
     import time
 
+    doc = _document(args)
     import numpy as np
 
     from needlekit.anatomy.scene import Role
-    from needlekit.errors import InvalidInputError
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.straight.approach import approach_analysis, structure_mesh
 
-    _, multi, _ = _multi_problem(args)
+    _, multi, _ = _multi_problem(args, doc)
     k = len(multi.targets_mm)
     if not 1 <= args.target <= k:
         raise InvalidInputError("--target", f"expected 1 to {k}, got {args.target}")

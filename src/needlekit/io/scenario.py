@@ -21,9 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import numpy as np
-import yaml
 
 from needlekit._validation import as_poses
 from needlekit.anatomy.fields import (
@@ -43,7 +41,11 @@ from needlekit.constants import (
     DEFAULT_START_EXCLUSION_MM,
 )
 from needlekit.errors import InvalidInputError
-from needlekit.io.scenario_schema import SCENARIO_SCHEMA, SOURCE_KINDS
+from needlekit.io.scenario_schema import (
+    SOURCE_KINDS,
+    read_scenario_document,
+    validate_scenario_document,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -59,8 +61,6 @@ __all__ = [
 
 #: RAS <- LPS (and back): a rotation by pi about z.
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
-
-_VALIDATOR = jsonschema.Draft202012Validator(SCENARIO_SCHEMA)
 
 
 @dataclass(frozen=True)
@@ -169,63 +169,6 @@ class Scenario:
     moving: dict = field(default_factory=dict)
     dynamic: dict = field(default_factory=dict)
     static_scene: Scene | None = None
-
-
-# ----------------------------------------------------------------------------------------
-# validation
-
-
-def _where(path) -> str:
-    out = ""
-    for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out or "(top level)"
-
-
-def _schema_message(err: jsonschema.ValidationError) -> tuple[str, str]:
-    where = _where(err.absolute_path)
-    v = err.validator
-    if v == "additionalProperties":
-        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
-        allowed = ", ".join(err.schema.get("properties", {}))
-        return where, f"unknown field {', '.join(map(repr, extra))} (allowed: {allowed})"
-    if v == "required":
-        return where, err.message.replace("is a required property", "is missing")
-    if v == "enum":
-        return (
-            where,
-            f"expected one of {', '.join(map(str, err.validator_value))}, got {err.instance!r}",
-        )
-    if v == "const":
-        return where, f"expected {err.validator_value!r}, got {err.instance!r}"
-    if v == "type":
-        want = err.validator_value
-        want = " or ".join(want) if isinstance(want, list) else want
-        return where, f"expected {want}, got {type(err.instance).__name__} {err.instance!r:.60}"
-    if v in ("minItems", "maxItems"):
-        return (
-            where,
-            f"expected {err.schema.get('minItems')} to {err.schema.get('maxItems')} items, got {len(err.instance)}",
-        )
-    bounds = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
-    if v in bounds:
-        return where, f"expected a number {bounds[v]} {err.validator_value:g}, got {err.instance!r}"
-    if v in ("minProperties", "maxProperties"):
-        keys = ", ".join(err.schema.get("properties", {}))
-        n = err.schema.get("maxProperties")
-        return where, f"expected {'exactly one' if n == 1 else 'at least one'} of {keys}"
-    return where, err.message
-
-
-def _validate(data: Any, source: str) -> None:
-    errors = sorted(
-        _VALIDATOR.iter_errors(data),
-        key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))),
-    )
-    if errors:
-        best = jsonschema.exceptions.best_match(errors)
-        where, msg = _schema_message(best)
-        raise InvalidInputError(f"{source}: {where}", msg)
 
 
 # ----------------------------------------------------------------------------------------
@@ -600,7 +543,7 @@ def parse_scenario(
     InvalidInputError
         ``"<source>: <field>: <what was expected>"``.
     """
-    _validate(data, source)
+    validate_scenario_document(data, source)
     ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
     cache = {"cache_dir": cache_dir, "use_cache": use_cache}
     base = _base(data["base"], ctx, cache, share_base) if "base" in data else None
@@ -725,47 +668,12 @@ def _combined(base_scene: Scene, extra: list[Structure]) -> DistanceField | None
     return union(base_field, *parts)
 
 
-def read_scenario_document(path: str | os.PathLike) -> dict:
-    """Read and validate a scenario file's document, without building its anatomy (cheap:
-    callers check settings such as the planner block before any long computation).
-
-    Parameters
-    ----------
-    path : path-like
-
-    Returns
-    -------
-    dict
-        The document, valid against the schema.
-
-    Raises
-    ------
-    InvalidInputError
-        Missing or unreadable file, bad YAML, or a field not as the schema says.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InvalidInputError(str(p), "scenario file not found")
-    try:
-        text = p.read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidInputError(str(p), f"cannot read the file ({exc})") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise InvalidInputError(str(p), f"invalid YAML{at}: {problem}") from None
-    if not isinstance(data, dict):
-        raise InvalidInputError(
-            str(p), f"expected a mapping at the top level, got {type(data).__name__}"
-        )
-    _validate(data, p.name)
-    return data
-
-
 def load_scenario(
-    path: str | os.PathLike, *, cache_dir: str | os.PathLike | None = None, use_cache: bool = True
+    path: str | os.PathLike,
+    *,
+    cache_dir: str | os.PathLike | None = None,
+    use_cache: bool = True,
+    document: dict | None = None,
 ) -> Scenario:
     """Read a scenario file (YAML or JSON).
 
@@ -776,6 +684,10 @@ def load_scenario(
         Root of the prepared-anatomy cache of a Med-RAD base (default: the user cache).
     use_cache : bool
         Use that cache (see :func:`needlekit.io.medrad.load_medrad`).
+    document : dict, optional
+        The file's document as :func:`read_scenario_document` returned it (read and
+        checked already, e.g. by the command line before importing the anatomy); default:
+        read the file.
 
     Returns
     -------
@@ -788,7 +700,7 @@ def load_scenario(
         message names the file and the field.
     """
     p = Path(path)
-    data = read_scenario_document(p)
+    data = read_scenario_document(p) if document is None else document
     sc = parse_scenario(
         data, base_dir=p.parent, source=p.name, cache_dir=cache_dir, use_cache=use_cache
     )

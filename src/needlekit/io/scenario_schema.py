@@ -1,12 +1,21 @@
-"""The JSON Schema of needlekit scenario files (``needlekit schema`` prints it).
+"""The JSON Schema of needlekit scenario files (``needlekit schema`` prints it), and the
+reading and validation of a scenario document against it.
 
-Written once here; :mod:`needlekit.io.scenario` validates every file against it before
-building anything, and adds the checks a schema cannot express (exactly one source per
-structure, unique names, files that exist, a 4x4 rigid pose).
+Written once here; every file is validated against it before anything is built
+(:func:`read_scenario_document`, :func:`validate_scenario_document`), and
+:mod:`needlekit.io.scenario` adds the checks a schema cannot express (exactly one source
+per structure, unique names, files that exist, a 4x4 rigid pose).
+
+This module is light on purpose: it imports neither numpy nor the anatomy (numba), and
+``jsonschema`` and ``yaml`` only when a document is read, so that the command line answers
+a bad scenario file at once.
 """
 
 from __future__ import annotations
 
+import os
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 from needlekit.constants import (
@@ -16,8 +25,16 @@ from needlekit.constants import (
     DEFAULT_R_MIN_MM,
     DEFAULT_START_EXCLUSION_MM,
 )
+from needlekit.errors import InvalidInputError
 
-__all__ = ["SCENARIO_SCHEMA", "SCENARIO_VERSION", "SOURCE_KINDS", "PRIMITIVE_KINDS"]
+__all__ = [
+    "PRIMITIVE_KINDS",
+    "SCENARIO_SCHEMA",
+    "SCENARIO_VERSION",
+    "SOURCE_KINDS",
+    "read_scenario_document",
+    "validate_scenario_document",
+]
 
 SCENARIO_VERSION = 1
 
@@ -396,3 +413,129 @@ SCENARIO_SCHEMA: dict[str, Any] = {
     "required": ["version"],
     "additionalProperties": False,
 }
+
+
+# ----------------------------------------------------------------------------------------
+# validation
+
+
+@cache
+def _validator():
+    import jsonschema
+
+    return jsonschema.Draft202012Validator(SCENARIO_SCHEMA)
+
+
+def _where(path) -> str:
+    out = ""
+    for part in path:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def _schema_message(err) -> tuple[str, str]:
+    """Where a ``jsonschema.ValidationError`` is, and what was expected, in one line."""
+    where = _where(err.absolute_path)
+    v = err.validator
+    if v == "additionalProperties":
+        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+        allowed = ", ".join(err.schema.get("properties", {}))
+        return where, f"unknown field {', '.join(map(repr, extra))} (allowed: {allowed})"
+    if v == "required":
+        return where, err.message.replace("is a required property", "is missing")
+    if v == "enum":
+        return (
+            where,
+            f"expected one of {', '.join(map(str, err.validator_value))}, got {err.instance!r}",
+        )
+    if v == "const":
+        return where, f"expected {err.validator_value!r}, got {err.instance!r}"
+    if v == "type":
+        want = err.validator_value
+        want = " or ".join(want) if isinstance(want, list) else want
+        return where, f"expected {want}, got {type(err.instance).__name__} {err.instance!r:.60}"
+    if v in ("minItems", "maxItems"):
+        return (
+            where,
+            f"expected {err.schema.get('minItems')} to {err.schema.get('maxItems')} items, got {len(err.instance)}",
+        )
+    bounds = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
+    if v in bounds:
+        return where, f"expected a number {bounds[v]} {err.validator_value:g}, got {err.instance!r}"
+    if v in ("minProperties", "maxProperties"):
+        keys = ", ".join(err.schema.get("properties", {}))
+        n = err.schema.get("maxProperties")
+        return where, f"expected {'exactly one' if n == 1 else 'at least one'} of {keys}"
+    return where, err.message
+
+
+def validate_scenario_document(data: Any, source: str) -> None:
+    """Check a parsed scenario document against :data:`SCENARIO_SCHEMA`.
+
+    Parameters
+    ----------
+    data : object
+        The parsed YAML or JSON document.
+    source : str
+        Names the document in the message (usually the file name).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        ``"<source>: <field>: <what was expected>"`` for the most relevant error.
+    """
+    import jsonschema
+
+    errors = sorted(
+        _validator().iter_errors(data),
+        key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))),
+    )
+    if errors:
+        best = jsonschema.exceptions.best_match(errors)
+        where, msg = _schema_message(best)
+        raise InvalidInputError(f"{source}: {where}", msg)
+
+
+def read_scenario_document(path: str | os.PathLike) -> dict:
+    """Read and validate a scenario file's document, without building its anatomy (cheap:
+    callers check settings such as the planner block before any long computation).
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    dict
+        The document, valid against the schema.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing or unreadable file, bad YAML, or a field not as the schema says.
+    """
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(str(p), "scenario file not found")
+    try:
+        text = p.read_text(encoding="utf-8")
+        data = yaml.safe_load(text)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(str(p), f"cannot read the file ({exc})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise InvalidInputError(str(p), f"invalid YAML{at}: {problem}") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(
+            str(p), f"expected a mapping at the top level, got {type(data).__name__}"
+        )
+    validate_scenario_document(data, p.name)
+    return data

@@ -14,6 +14,11 @@ Modelled on OMPL's separation of ``Planner``, ``PlannerTerminationCondition`` an
   group :data:`ENTRY_POINT_GROUP`, so ``needlekit plan --planner NAME`` runs a planner
   written outside needlekit without any edit to needlekit.
 
+needlekit's own planners (:data:`BUILTIN_PLANNERS`) are listed with their family and
+option names, and their modules (numba) imported only when one is built or its class asked
+for: :func:`planner_names` and :func:`check_planner_options` answer a wrong name or option
+at once.
+
 Example: a planner written outside needlekit
 
 >>> from dataclasses import dataclass
@@ -38,6 +43,7 @@ Example: a planner written outside needlekit
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import logging
 import math
 import threading
@@ -49,12 +55,16 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S, PLANNER_FINISH_RESERVE_S
 from needlekit.errors import InvalidInputError
 
 __all__ = [
+    "BUILTIN_PLANNERS",
     "ENTRY_POINT_GROUP",
+    "BuiltinPlanner",
     "Planner",
     "SearchRun",
     "Termination",
+    "check_planner_options",
     "get_planner",
     "options_from_mapping",
+    "planner_class",
     "planner_names",
     "register_planner",
     "unregister_planner",
@@ -309,12 +319,7 @@ def options_from_mapping(options_type: type, mapping: Mapping | Any | None, plan
             "planner.options", f"{planner}: expected a mapping, got {type(mapping).__name__}"
         )
     fields = {f.name: f for f in dataclasses.fields(options_type)}
-    unknown = sorted(set(mapping) - set(fields))
-    if unknown:
-        known = ", ".join(sorted(fields)) or "no options"
-        raise InvalidInputError(
-            "planner.options", f"{planner} takes {known}; unknown: {', '.join(map(str, unknown))}"
-        )
+    _refuse_unknown_options(planner, fields, mapping)
     values = {}
     for key, value in mapping.items():
         default = fields[key].default
@@ -329,9 +334,88 @@ def options_from_mapping(options_type: type, mapping: Mapping | Any | None, plan
         raise InvalidInputError("planner.options", f"{planner}: {exc}") from None
 
 
+def _refuse_unknown_options(planner: str, names, mapping: Mapping) -> None:
+    unknown = sorted(set(mapping) - set(names), key=str)
+    if unknown:
+        known = ", ".join(sorted(names)) or "no options"
+        raise InvalidInputError(
+            "planner.options", f"{planner} takes {known}; unknown: {', '.join(map(str, unknown))}"
+        )
+
+
 # -- registry -----------------------------------------------------------------------------
 
-_REGISTRY: dict[str, Callable[..., Planner]] = {}
+
+@dataclasses.dataclass(frozen=True)
+class BuiltinPlanner:
+    """One of needlekit's own planners as the registry holds it until it is needed.
+
+    Its module (which loads numba) is imported only when the planner is built or its class
+    asked for; its name, family and option names are known before.
+
+    Attributes
+    ----------
+    name : str
+        The registry name.
+    family : str
+        ``"steerable"`` or ``"straight"``.
+    option_names : tuple of str
+        The fields of its ``options_type``.
+    factory : str
+        ``"module:Class"``.
+    """
+
+    name: str
+    family: str
+    option_names: tuple[str, ...]
+    factory: str
+
+    def load(self) -> Callable[..., Planner]:
+        """The planner class (imports its module).
+
+        Returns
+        -------
+        type
+        """
+        module, cls = self.factory.split(":")
+        return getattr(importlib.import_module(module), cls)
+
+    def names(self, factory: object) -> bool:
+        """Whether ``factory`` is the class this entry stands for (without importing it).
+
+        Parameters
+        ----------
+        factory : object
+
+        Returns
+        -------
+        bool
+        """
+        where = f"{getattr(factory, '__module__', '')}:{getattr(factory, '__qualname__', '')}"
+        return where == self.factory
+
+
+#: needlekit's own planners, in registry order; a test keeps each entry equal to its class.
+BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
+    BuiltinPlanner(
+        "rcs_star", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSStarPlanner"
+    ),
+    BuiltinPlanner(
+        "rcs", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSPlanner"
+    ),
+    BuiltinPlanner(
+        "rrt", "steerable", ("connection", "seed"), "needlekit.planning.steerable.rrt:RRTPlanner"
+    ),
+    BuiltinPlanner(
+        "liu_cfrw",
+        "straight",
+        ("resolution_deg", "objective", "order"),
+        "needlekit.planning.straight.planner:LiuPlanner",
+    ),
+)
+
+#: Name -> planner factory, or the :class:`BuiltinPlanner` standing for it until needed.
+_REGISTRY: dict[str, Callable[..., Planner] | BuiltinPlanner] = {}
 _BUILTINS_LOADED = False
 _ENTRY_POINTS_LOADED = False
 _LOCK = threading.Lock()
@@ -371,7 +455,9 @@ def register_planner(name: str, factory: Callable[..., Planner], *, replace: boo
         )
     _load_builtins()
     with _LOCK:
-        if name in _REGISTRY and not replace and _REGISTRY[name] is not factory:
+        held = _REGISTRY.get(name)
+        same = held is factory or (isinstance(held, BuiltinPlanner) and held.names(factory))
+        if held is not None and not replace and not same:
             raise InvalidInputError("name", f"a planner named {name!r} is already registered")
         _REGISTRY[name] = factory
 
@@ -396,12 +482,9 @@ def _load_builtins() -> None:
     if _BUILTINS_LOADED:
         return
     _BUILTINS_LOADED = True
-    from needlekit.planning.steerable.rcs import RCSPlanner, RCSStarPlanner
-    from needlekit.planning.steerable.rrt import RRTPlanner
-    from needlekit.planning.straight.planner import LiuPlanner
-
-    for cls in (RCSStarPlanner, RCSPlanner, RRTPlanner, LiuPlanner):
-        _REGISTRY.setdefault(cls.name, cls)
+    with _LOCK:
+        for entry in BUILTIN_PLANNERS:  # their modules are imported when first needed
+            _REGISTRY.setdefault(entry.name, entry)
 
 
 def _load_entry_points() -> None:
@@ -421,7 +504,8 @@ def _load_entry_points() -> None:
             log.warning("planner entry point %r (%s) not loaded: %s", ep.name, ep.value, exc)
 
 
-def _lookup(name: str) -> Callable[..., Planner]:
+def _entry(name: str) -> Callable[..., Planner] | BuiltinPlanner:
+    """The registry's entry for ``name`` (a built-in planner's module not imported)."""
     _load_builtins()
     if name not in _REGISTRY:
         _load_entry_points()
@@ -431,6 +515,17 @@ def _lookup(name: str) -> Callable[..., Planner]:
         raise InvalidInputError(
             "planner", f"unknown planner {name!r}; available: {', '.join(planner_names())}"
         ) from None
+
+
+def _lookup(name: str) -> Callable[..., Planner]:
+    entry = _entry(name)
+    if not isinstance(entry, BuiltinPlanner):
+        return entry
+    factory = entry.load()
+    with _LOCK:
+        if _REGISTRY.get(name) is entry:
+            _REGISTRY[name] = factory
+    return factory
 
 
 def planner_names(family: str | None = None) -> list[str]:
@@ -450,8 +545,56 @@ def planner_names(family: str | None = None) -> list[str]:
     return [n for n, f in _REGISTRY.items() if family is None or f.family == family]
 
 
+def check_planner_options(
+    name: str, options: Mapping | None = None, *, family: str | None = None
+) -> None:
+    """Check a planner's name, family and option names, without importing a built-in
+    planner's module (the values are checked when the planner is built: :func:`get_planner`).
+
+    Parameters
+    ----------
+    name : str
+    options : mapping, optional
+        Its settings (only their names are checked here).
+    family : str, optional
+        The family it must belong to (``"steerable"`` or ``"straight"``).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown planner, another family, or an unknown option; the same messages as
+        :func:`get_planner` and :func:`needlekit.io.problems.planner_settings`.
+    """
+    entry = _entry(name)
+    if family is not None and entry.family != family:
+        raise InvalidInputError(
+            "planner",
+            f"{name!r} plans {entry.family} needles; {family} planners: "
+            f"{', '.join(planner_names(family))}",
+        )
+    if isinstance(entry, BuiltinPlanner):
+        fields = entry.option_names
+    else:
+        fields = tuple(f.name for f in dataclasses.fields(entry.options_type))
+    if isinstance(options, Mapping):
+        _refuse_unknown_options(name, fields, options)
+
+
 def planner_class(name: str) -> Callable[..., Planner]:
     """The registered factory of a planner (its ``options_type`` and ``family``).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    callable
+        The planner's class (its module imported now if it was not yet).
 
     Raises
     ------
