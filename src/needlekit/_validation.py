@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 
 from needlekit.constants import ROTATION_ORTHONORMAL_TOL
@@ -87,32 +86,27 @@ def as_rotations(value: Any, name: str) -> tuple[np.ndarray, bool]:
     return rot, single
 
 
-@numba.njit(cache=True)
-def _rotation_errors(rot):  # pragma: no cover - compiled
-    """Per matrix: max |R^T R - I| and |det R - 1| (numba; numpy's einsum is 10x slower)."""
-    n = rot.shape[0]
-    ortho = np.empty(n)
-    det = np.empty(n)
-    for k in range(n):
-        worst = 0.0
-        for i in range(3):
-            for j in range(3):
-                acc = (
-                    rot[k, 0, i] * rot[k, 0, j]
-                    + rot[k, 1, i] * rot[k, 1, j]
-                    + rot[k, 2, i] * rot[k, 2, j]
-                )
-                if i == j:
-                    acc -= 1.0
-                worst = max(worst, abs(acc))
-        ortho[k] = worst
-        d = (
-            rot[k, 0, 0] * (rot[k, 1, 1] * rot[k, 2, 2] - rot[k, 1, 2] * rot[k, 2, 1])
-            - rot[k, 0, 1] * (rot[k, 1, 0] * rot[k, 2, 2] - rot[k, 1, 2] * rot[k, 2, 0])
-            + rot[k, 0, 2] * (rot[k, 1, 0] * rot[k, 2, 1] - rot[k, 1, 1] * rot[k, 2, 0])
-        )
-        det[k] = abs(d - 1.0)
-    return ortho, det
+#: Batches at least this large are checked by the numba kernel (numpy's einsum is about 10x
+#: slower on large batches); smaller ones by numpy, so that reading a pose file or checking
+#: a few poses does not load numba.
+_KERNEL_MIN_BATCH = 64
+
+
+def _rotation_errors(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per matrix: max |R^T R - I| and |det R - 1| (the same sums as the kernel)."""
+    if rot.shape[0] >= _KERNEL_MIN_BATCH:
+        from needlekit._validation_kernels import rotation_errors
+
+        return rotation_errors(rot)
+    gram = np.einsum("kai,kaj->kij", rot, rot) - np.eye(3)
+    ortho = np.abs(gram).max(axis=(1, 2)) if len(rot) else np.zeros(0)
+    r = rot
+    d = (
+        r[:, 0, 0] * (r[:, 1, 1] * r[:, 2, 2] - r[:, 1, 2] * r[:, 2, 1])
+        - r[:, 0, 1] * (r[:, 1, 0] * r[:, 2, 2] - r[:, 1, 2] * r[:, 2, 0])
+        + r[:, 0, 2] * (r[:, 1, 0] * r[:, 2, 1] - r[:, 1, 1] * r[:, 2, 0])
+    )
+    return ortho, np.abs(d - 1.0)
 
 
 def _check_rotation(rot: np.ndarray, name: str) -> None:

@@ -31,9 +31,9 @@ def _cmd_forward(args: argparse.Namespace) -> int:
         raise NeedlekitError("--segment: durations must be >= 0")
     if args.dt_s is not None:
         _check_sample_count(segments[:, 2].tolist(), args.dt_s)
+    g0 = _start_pose(args.start_pose)  # a bad pose file is said before the kernels load
     from needlekit.needle.bevel3d import propagate_bevel, simulate_bevel
 
-    g0 = _start_pose(args.start_pose)
     if args.dt_s is None:
         ends = propagate_bevel(g0, segments, args.kappa_per_mm)
         times = np.concatenate([[0.0], np.cumsum(segments[:, 2])])

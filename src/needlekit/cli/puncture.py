@@ -27,6 +27,11 @@ def adaptation_delay_ms(text: str) -> float:
 
 
 def _cmd_puncture(args: argparse.Namespace) -> int:
+    for name in ("history", "guide_samples"):  # before the heavy imports
+        if getattr(args, name) < 0:
+            raise InvalidInputError(
+                name, f"expected a whole number >= 0, got {getattr(args, name)}"
+            )
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
@@ -38,11 +43,6 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         run_puncture_study,
     )
 
-    for name in ("history", "guide_samples"):
-        if getattr(args, name) < 0:
-            raise InvalidInputError(
-                name, f"expected a whole number >= 0, got {getattr(args, name)}"
-            )
     delay = delay_steps_from_ms(
         args.adaptation_delay_ms, ProcedureSettings().dt_s, "--adaptation-delay-ms"
     )

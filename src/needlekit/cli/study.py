@@ -8,6 +8,10 @@ from needlekit.cli._common import EXIT_OK, _fmt_table
 
 
 def _cmd_study_livers(args: argparse.Namespace) -> int:
+    from needlekit.io.medrad_paths import chosen_patients
+
+    # a wrong folder or patient is said before the heavy imports (liver_cases says it again)
+    chosen_patients("liver", args.medrad, args.livers, patients_flag="--livers")
     from tqdm import tqdm
 
     from needlekit.planning.straight.coverage import fraction_text
@@ -62,6 +66,9 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
 
 
 def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
+    from needlekit.studies.feng_lungs import feng_patient_folder
+
+    feng_patient_folder(args.medrad)  # a wrong folder is said before the heavy imports
     from needlekit.batch import open_executor
     from needlekit.cli._common import sweep_progress
     from needlekit.studies.feng_lungs import run_feng_lungs

@@ -46,6 +46,14 @@ from needlekit.anatomy.voxel import DEFAULT_MASK_PADDING_MM, MASK_OFFSET_MAX_FRA
 from needlekit.anatomy.voxel_local import local_mask_sdf
 from needlekit.errors import InvalidInputError
 from needlekit.io import anatomy_cache
+from needlekit.io.medrad_paths import (  # noqa: F401 - re-exported
+    _ORGANS,
+    MEDRAD_ENV,
+    _organ,
+    _repo_candidates,
+    list_patients,
+    medrad_root,
+)
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import Mask, read_mask
 
@@ -57,11 +65,6 @@ __all__ = [
     "load_medrad",
     "medrad_root",
 ]
-
-#: Environment variable naming the Med-RAD folder.
-MEDRAD_ENV = "NEEDLEKIT_MEDRAD"
-
-_ORGANS = {"lung": Path("Lungs") / "TumorTargetEnvironments", "liver": Path("Liver")}
 
 # (file stem, lower case) -> (structure name, role, display colour)
 _LUNG = {
@@ -79,77 +82,6 @@ _LIVER = {
 _TARGET_COLOUR = "#2a9d8f"
 
 log = logging.getLogger(__name__)
-
-
-def _repo_candidates() -> list[Path]:
-    here = Path(__file__).resolve()
-    # src/needlekit/io/medrad.py -> repository root is parents[3]
-    roots = [Path.cwd(), here.parents[3]] if len(here.parents) > 3 else [Path.cwd()]
-    return [r.parent / "shared" / "data" / "med-rad" for r in roots]
-
-
-def medrad_root(root: str | os.PathLike | None = None) -> Path:
-    """The Med-RAD folder: ``root``, else ``$NEEDLEKIT_MEDRAD``, else ``../shared/data/med-rad``.
-
-    Parameters
-    ----------
-    root : path-like, optional
-
-    Returns
-    -------
-    Path
-
-    Raises
-    ------
-    InvalidInputError
-        No such folder (the message says where it looked).
-    """
-    if root is not None:
-        p = Path(root)
-        if not p.is_dir():
-            raise InvalidInputError("root", f"Med-RAD folder {p} does not exist")
-        return p
-    env = os.environ.get(MEDRAD_ENV)
-    if env:
-        p = Path(env)
-        if not p.is_dir():
-            raise InvalidInputError(MEDRAD_ENV, f"Med-RAD folder {p} does not exist")
-        return p
-    for p in _repo_candidates():
-        if p.is_dir():
-            return p
-    looked = ", ".join(str(p) for p in _repo_candidates())
-    raise InvalidInputError(
-        "med-rad", f"data not found (looked in {looked}); set {MEDRAD_ENV} or pass root"
-    )
-
-
-def _organ(organ: str) -> str:
-    key = str(organ).lower().rstrip("s")
-    if key not in _ORGANS:
-        raise InvalidInputError("organ", f"expected 'lung' or 'liver', got {organ!r}")
-    return key
-
-
-def list_patients(organ: str, root: str | os.PathLike | None = None) -> list[int]:
-    """Patient numbers available for an organ.
-
-    Parameters
-    ----------
-    organ : {"lung", "liver"}
-    root : path-like, optional
-
-    Returns
-    -------
-    list of int
-    """
-    folder = medrad_root(root) / _ORGANS[_organ(organ)]
-    found = []
-    for p in folder.glob("Patient*") if folder.is_dir() else []:
-        m = re.fullmatch(r"Patient(\d+)", p.name)
-        if m and p.is_dir():
-            found.append(int(m.group(1)))
-    return sorted(found)
 
 
 @dataclass(frozen=True)

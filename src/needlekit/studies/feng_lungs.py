@@ -57,6 +57,7 @@ __all__ = [
     "FengLungsStudy",
     "direct_connection_fates",
     "feng_lung_scenario",
+    "feng_patient_folder",
     "run_feng_lungs",
 ]
 
@@ -137,14 +138,32 @@ _LABELS = {"rcs": "RCS", "rcs_star": "RCS*", "rrt": "RRT"}
 FENG_ORDER: tuple[str, ...] = ("rcs_star", "rrt", "rcs")
 
 
+def feng_patient_folder(medrad_dir=None) -> Path:
+    """The Med-RAD folder of Feng's case (lung 5), which must exist (light: no anatomy).
+
+    Parameters
+    ----------
+    medrad_dir : path-like, optional
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InvalidInputError
+        Named ``--medrad``: no Med-RAD folder, or no lung 5 in it.
+    """
+    from needlekit.io.medrad_paths import patient_folder
+
+    return patient_folder("lung", FENG_SCENARIO["base"]["medrad"]["patient"], medrad_dir)
+
+
 def _case_target_mm(medrad_dir=None) -> np.ndarray:
     """Med-RAD's target of the case (RAS mm), read from its text file alone."""
-    from needlekit.io.medrad import _files, _starts_and_targets, medrad_root
+    from needlekit.io.medrad import _files, _starts_and_targets
 
-    patient = FENG_SCENARIO["base"]["medrad"]["patient"]
-    folder = medrad_root(medrad_dir) / "Lungs" / "TumorTargetEnvironments" / f"Patient{patient}"
-    if not folder.is_dir():
-        raise InvalidInputError("--medrad", f"no Med-RAD lung patient {patient} at {folder}")
+    folder = feng_patient_folder(medrad_dir)
     _, targets = _starts_and_targets(_files(folder), folder)
     return np.asarray(targets[FENG_SCENARIO["goal"]["case_target"]], dtype=float)
 

@@ -82,16 +82,10 @@ def liver_cases(medrad_dir=None, livers: Sequence[int] | None = None) -> list[di
     InvalidInputError
         No Med-RAD liver folder, or a patient that is not there.
     """
-    from needlekit.io.medrad import _files, _starts_and_targets, list_patients, medrad_root
+    from needlekit.io.medrad import _files, _starts_and_targets
+    from needlekit.io.medrad_paths import chosen_patients
 
-    root = medrad_root(medrad_dir)
-    found = list_patients("liver", root)
-    if not found:
-        raise InvalidInputError("--medrad", f"no Med-RAD liver patients under {root}")
-    chosen = list(found if livers is None else livers)
-    missing = sorted(set(chosen) - set(found))
-    if missing:
-        raise InvalidInputError("--livers", f"no patient {missing} under {root} (there: {found})")
+    root, chosen = chosen_patients("liver", medrad_dir, livers, patients_flag="--livers")
     out = []
     for p in chosen:
         folder = root / "Liver" / f"Patient{p}"
