@@ -25,6 +25,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 #: reports its own readback stalls (plotly.js reads pixels back to pick what is under the
 #: mouse); a real GPU does not, and no line of the page caused it.
 SOFTWARE_GL_NOTE = "GL Driver Message (OpenGL, Performance"
+#: Pages of 2D figures only (no 3D view to screenshot).
+FLAT_KINDS = ("report-scale",)
 
 
 def _driver():
@@ -152,6 +154,13 @@ def reports(tmp_path_factory):
     )  # fmt: skip
     page = out / "report-dynamic.html"
     run("report-dynamic", ["report", str(out / "dynamic.json"), "--out", str(page)], page)
+    # a small `needlekit bench scale` record (made-up numbers, every series)
+    from needlekit.io.files import write_json
+
+    scale = _scale_record()
+    write_json(out / "scale.json", scale)
+    page = out / "report-scale.html"
+    run("report-scale", ["report", str(out / "scale.json"), "--out", str(page)], page)
     run(
         "reproduce-lecture",
         ["reproduce", "lecture", "--quick", "--out", str(out / "reproduce")],
@@ -163,6 +172,44 @@ def reports(tmp_path_factory):
     ph = make_phantom("lung", 0)
     pages["scenes"] = write_scenes_html([("lung", scene_figure(ph.scene))], out / "scenes.html")
     return pages
+
+
+def _scale_record() -> dict:
+    """A `bench scale` record with every series, small and made up (the real one takes
+    minutes; tests/test_bench_scale.py checks how it is made)."""
+    from needlekit.benchmarks.scale import summary_lines
+    from needlekit.benchmarks.scale_math import linear_fit, loglog_fit
+
+    load = {"start": [0.5, 0.6, 0.7], "end": [0.6, 0.6, 0.7]}
+    rows = [
+        {"patient": 1, "start": f"start{i}", "planner": "rcs_star", "status": "solved",
+         "straight_distance_mm": 40.0 + 5 * i, "path_length_mm": 41.0 + 5 * i,
+         "planner_wall_s": 0.01 * i**2, "obstacle_density": 0.1 * i, "iterations": 5}
+        for i in range(1, 5)
+    ]  # fmt: skip
+    x, y = [r["straight_distance_mm"] for r in rows], [r["planner_wall_s"] for r in rows]
+    d = [r["obstacle_density"] for r in rows]
+    points = [
+        {"executor": kind, "workers": w, "oversubscribed": w > 2, "directions": n,
+         "wall_s": n * 0.05 / w + w, "planner_s_sum": n * 0.05, "prep_s": 0.5,
+         "efficiency": 0.9, "equal_to_serial": True, "load_average": load}
+        for kind, w in (("serial", 1), ("process", 2), ("dask", 4)) for n in (34, 68)
+    ]  # fmt: skip
+    record = {
+        "benchmark": "scale", "inputs": {}, "wall_s": 1.0, "load_average": load,
+        "machine": {"time_utc": "2026-12-03", "cpu_count": 2, "load_average": [0.6] * 3},
+        "preparation": None,
+        "planning": {"rows": rows, "capsule_radius_mm": 10.0, "r_min_mm": 50.0,
+                     "load_average": load, "fits": {"rcs_star": {
+                         "time_vs_distance": loglog_fit(x, y), "time_vs_density": loglog_fit(d, y),
+                         "time_vs_path_length": None}}},
+        "sweep": {"points": points, "max_iterations": 100, "time_limit_s": 30.0,
+                  "cpu_count": 2, "fits": {}},
+        "study": {"target_trials": 100, "fits": {"1": linear_fit([1, 2], [3.0, 6.0], at=100)},
+                  "points": [{"workers": 1, "trials": n, "wall_s": 3.0 * n, "load_average": load}
+                             for n in (1, 2)]},
+    }  # fmt: skip
+    return record | {"results": summary_lines(record)}
 
 
 def _render(browser, path: Path) -> tuple[int, list[dict]]:
@@ -203,7 +250,17 @@ def _not_blank(png: bytes) -> bool:
     ]
     + [
         f"report-{k}"
-        for k in ("plan", "goals", "sweep", "cfrw", "multi", "puncture", "parts", "dynamic")
+        for k in (
+            "plan",
+            "goals",
+            "sweep",
+            "cfrw",
+            "multi",
+            "puncture",
+            "parts",
+            "dynamic",
+            "scale",
+        )
     ],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
@@ -212,7 +269,9 @@ def test_every_report_renders_its_3d_views_without_console_warnings(
     plots, logs = _render(browser, Path(reports[kind]))
     assert plots >= 1
     canvases = browser.find_elements("css selector", ".gl-container canvas")
-    assert canvases, f"{kind}: no 3D view"
+    assert canvases or kind in FLAT_KINDS, f"{kind}: no 3D view"
+    if kind in FLAT_KINDS:
+        assert plots >= 3, f"{kind}: {plots} figures"
     for i, c in enumerate(canvases):
         browser.execute_script("arguments[0].scrollIntoView()", c)
         png = c.screenshot_as_png

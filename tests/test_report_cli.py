@@ -293,7 +293,7 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic)"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale)"),
         ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),

@@ -96,6 +96,7 @@ FILE_OUTPUTS = [
     (["markups", TOY], "--out"),  # any existing file passes the input check
     (["study", "livers"], "--out"),
     (["bench", "approach"], "--out"),
+    (["bench", "scale"], "--out"),
     (["report", TOY], "--out"),  # the page is checked before any RESULT is read
 ]
 #: Every output folder flag, and the files the command writes in it.

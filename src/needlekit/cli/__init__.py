@@ -59,6 +59,7 @@ _HANDLERS = {
     "bench steerable": "needlekit.cli.bench:_cmd_bench",
     "bench straight": "needlekit.cli.bench:_cmd_bench",
     "bench approach": "needlekit.cli.bench:_cmd_bench",
+    "bench scale": "needlekit.cli.bench:_cmd_bench",
 }
 
 

@@ -823,4 +823,68 @@ def _build_parser() -> argparse.ArgumentParser:
         folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
+    bsc = bench_sub.add_parser(
+        "scale",
+        help="how cost grows: planning vs path length and obstacle density, sweeps vs "
+        "directions and workers, the control study vs trials",
+        description="Preparation of one Med-RAD lung (cold, warm); RCS* on every start of "
+        "each lung against the straight distance and the obstacle density around it; Feng's "
+        "goal 1 on lung 5 swept at several sizes here, on process pools and on local Dask "
+        "clusters; the puncture study at several sizes. About 15 min on 2 cores (--quick: "
+        "about 1 min; flags given win). `needlekit report` draws the record.",
+    )
+    add_output(bsc, "--out", help="write the record as JSON here")
+    bsc.add_argument(
+        "--quick",
+        action="store_true",
+        help="lung 1, 34 and 68 directions, 1 and 2 trials in this process",
+    )
+    bsc.add_argument(
+        "--patients", type=_seed, nargs="+", help="Med-RAD lungs (default 1-5; 0 for none)"
+    )
+    bsc.add_argument(
+        "--planners",
+        nargs="+",
+        metavar="NAME",
+        help="registered planners of the planning series (default rcs_star)",
+    )
+    bsc.add_argument(
+        "--directions",
+        type=_seed,
+        nargs="+",
+        help="sweep sizes (default 34 68 136 272 544; 0 for no sweep)",
+    )
+    bsc.add_argument(
+        "--workers",
+        type=_positive_int,
+        nargs="+",
+        help="worker processes of the sweeps and the study (default 1 2; 1: this process)",
+    )
+    bsc.add_argument(
+        "--dask-workers",
+        type=_seed,
+        nargs="+",
+        metavar="N",
+        help="local Dask clusters of the sweeps (default 4, more than the cores on a "
+        "2-core machine; 0 for none)",
+    )
+    bsc.add_argument(
+        "--trials", type=_seed, nargs="+", help="study sizes (default 1 2 5 10; 0 for none)"
+    )
+    bsc.add_argument(
+        "--max-iterations",
+        type=_positive_int,
+        help="iteration budget per planner run (default 1000)",
+    )
+    bsc.add_argument(
+        "--time-limit-s",
+        type=_positive,
+        help="time cap per planner run, only reached on a loaded machine (default 30)",
+    )
+    add_input(
+        bsc,
+        "--medrad",
+        folder=True,
+        help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
+    )
     return parser

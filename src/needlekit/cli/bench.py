@@ -1,4 +1,4 @@
-"""``needlekit bench kinematics|fields|steerable|control|straight|approach``."""
+"""``needlekit bench kinematics|fields|steerable|control|straight|approach|scale``."""
 
 from __future__ import annotations
 
@@ -85,6 +85,26 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from needlekit.benchmarks.approach import run_approach_benchmark
 
         record = run_approach_benchmark(repeat=args.repeat, medrad_dir=args.medrad)
+    elif args.bench_command == "scale":
+        import sys
+
+        from needlekit.benchmarks.scale import run_scale_benchmark, scale_settings
+
+        settings = scale_settings(  # every flag checked before any work
+            quick=args.quick,
+            patients=args.patients,
+            planners=args.planners,
+            directions=args.directions,
+            workers=args.workers,
+            dask_workers=args.dask_workers,
+            trials=args.trials,
+            max_iterations=args.max_iterations,
+            time_limit_s=args.time_limit_s,
+            medrad_dir=args.medrad,
+        )
+        record = run_scale_benchmark(
+            settings, progress=lambda msg: print(f"bench scale: {msg}", file=sys.stderr)
+        )
     else:
         raise NeedlekitError(f"bench: unknown suite {args.bench_command!r}")
     if args.out is not None:

@@ -1,7 +1,8 @@
 """Result files read back: which command wrote a JSON file, checked before any work.
 
 The commands write their results as JSON (``plan.json``, ``sweep.json``, ``cfrw.json``,
-``multi.json``, ``puncture.json``, the ``dynamic.json`` of ``plan --dynamic``);
+``multi.json``, ``puncture.json``, the ``dynamic.json`` of ``plan --dynamic``, the
+``scale.json`` of ``bench scale``);
 ``needlekit report`` draws any of them again. Here:
 
 - :func:`result_kind`: the kind of a result document, from the fields that only that kind
@@ -53,6 +54,7 @@ class ResultKind(enum.Enum):
     MULTI = "multi"
     PUNCTURE = "puncture"
     DYNAMIC = "dynamic"  # needlekit plan --dynamic
+    SCALE = "scale"  # needlekit bench scale
 
     @property
     def label(self) -> str:
@@ -62,7 +64,7 @@ class ResultKind(enum.Enum):
     @property
     def needs_scenario(self) -> bool:
         """Whether drawing it needs the scenario it was made from."""
-        return self is not ResultKind.PUNCTURE
+        return self not in (ResultKind.PUNCTURE, ResultKind.SCALE)
 
 
 _LABELS = {
@@ -73,6 +75,7 @@ _LABELS = {
     ResultKind.MULTI: "straight multi-needle plan (needlekit multi)",
     ResultKind.PUNCTURE: "puncture simulation study (needlekit puncture)",
     ResultKind.DYNAMIC: "re-planning among moving obstacles (needlekit plan --dynamic)",
+    ResultKind.SCALE: "scaling curves (needlekit bench scale)",
 }
 
 #: The top-level fields that mark each kind, tried in this order (a sweep's best plans and
@@ -85,6 +88,7 @@ KIND_FIELDS: dict[ResultKind, tuple[str, ...]] = {
     ResultKind.CFRW: ("feasible", "theta_deg", "phi_deg", "world_T_sigma"),
     ResultKind.DYNAMIC: ("moving", "executed", "cycles", "settings"),
     ResultKind.PLAN: ("status", "primitives", "start_pose", "goal_mm"),
+    ResultKind.SCALE: ("benchmark", "planning", "sweep", "study", "machine"),
 }
 
 #: Other needlekit records, named in the error when one is given.
@@ -214,6 +218,33 @@ def _check_puncture(data: dict, where: str) -> None:
             field_of(t, "guide_direction", at, "point")
 
 
+#: Per series of a scale record: its list, and the numbers every entry of it holds.
+_SCALE_SERIES = {
+    "planning": ("rows", ("straight_distance_mm", "planner_wall_s")),
+    "sweep": ("points", ("directions", "workers", "wall_s", "planner_s_sum", "prep_s")),
+    "study": ("points", ("trials", "workers", "wall_s")),
+}
+
+
+def _check_scale(data: dict, where: str) -> None:
+    """A ``needlekit bench scale`` record: its machine, and each series run (a series may be
+    null: not run) with the numbers its figure draws."""
+    if data.get("benchmark") != "scale":
+        raise InvalidInputError(
+            f"{where}: benchmark", f"expected 'scale', got {data.get('benchmark')!r}"
+        )
+    machine = field_of(data, "machine", where, "dict")
+    field_of(machine, "load_average", f"{where}: machine", "list")
+    for series, (key, numbers) in _SCALE_SERIES.items():
+        block = field_of(data, series, where, "dict", optional=True)
+        if block is None:
+            continue
+        field_of(block, "fits", f"{where}: {series}", "dict")
+        for i, entry in enumerate(field_of(block, key, f"{where}: {series}", "list")):
+            for name in numbers:
+                field_of(entry, name, f"{where}: {series}.{key}[{i}]")
+
+
 # ---------------------------------------------------------------------------------------
 # files
 
@@ -270,6 +301,8 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
         field_of(data, "resolution_deg", where, optional=True)
     elif kind is ResultKind.DYNAMIC:
         dynamic_from_dict(data, where)
+    elif kind is ResultKind.SCALE:
+        _check_scale(data, where)
     else:
         _check_puncture(data, where)
 

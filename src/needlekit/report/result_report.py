@@ -23,7 +23,9 @@ builders its own command uses, from the objects rebuilt from the file:
   moving obstacles from the scenario (their motions compared with the file's), and the
   independent check (:func:`~needlekit.planning.steerable.moving.certify_execution`) of
   the executed path and of the plan made at ``t = 0`` run again, beside the verdicts the
-  file records.
+  file records;
+- scaling curves (``needlekit bench scale``): :func:`~.scale_figures.scale_sections`, the
+  record's series as measured (nothing to check again).
 
 :func:`write_result_report` loads each scenario once, however many results name it.
 """
@@ -559,6 +561,28 @@ def _dynamic_part(rf: ResultFile, load) -> ReportPart:
     )
 
 
+def _scale_part(rf: ResultFile, load) -> ReportPart:
+    from needlekit.report.scale_figures import scale_sections
+
+    d = rf.data
+    try:
+        sections = scale_sections(d)
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            str(rf.path),
+            f"lacks a field the scale report draws ({type(exc).__name__}: {exc}); run "
+            "`needlekit bench scale` again",
+        ) from None
+    ran = [k for k in ("planning", "sweep", "study") if d.get(k)]
+    return ReportPart(
+        rf,
+        "Scaling curves (needlekit bench scale)",
+        sections,
+        f"scaling curves: {', '.join(ran) or 'no series'}; measured {d['machine'].get('time_utc')} "
+        f"at load {(d.get('load_average') or {}).get('start')}",
+    )
+
+
 _BUILDERS = {
     ResultKind.PLAN: _plan_part,
     ResultKind.GOALS: _goals_part,
@@ -567,6 +591,7 @@ _BUILDERS = {
     ResultKind.MULTI: _multi_part,
     ResultKind.PUNCTURE: _puncture_part,
     ResultKind.DYNAMIC: _dynamic_part,
+    ResultKind.SCALE: _scale_part,
 }
 
 
