@@ -197,3 +197,47 @@ def test_medrad_start_surfaces_and_normals_from_windows_equal_the_whole_fields(m
             np.testing.assert_allclose(problem.puncture_normal, g / np.linalg.norm(g), atol=1e-9)
     assert not any(s.field.built for s in obstacles)  # windows answered every question
     assert undefined == UNDEFINED_NORMALS[patient]
+
+
+def test_a_box_window_equals_the_full_field_near_surfaces_inside_the_box():
+    """near_box: what a figure of a region draws, without the whole field: the full
+    field's values wherever |d| <= radius inside the box, the right side elsewhere."""
+    mask = _blobs(6)
+    full = VoxelSDF.from_mask(mask, AFFINE)
+    lo, hi = full.bounds()
+    centre = 0.5 * (lo + hi)
+    half = 0.3 * (hi - lo)
+    local = local_mask_sdf(mask, AFFINE, centre, 2.0, half)
+    assert local is not None and np.prod(local.shape) < np.prod(full.shape)
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(centre - half, centre + half, size=(20000, 3))
+    d_full, d_local = full.signed_distance(pts), local.signed_distance(pts)
+    near = np.abs(d_full) <= 2.0
+    assert near.sum() > 500
+    np.testing.assert_allclose(d_local[near], d_full[near], rtol=0, atol=1e-6)
+    assert np.all(np.sign(d_local[~near]) == np.sign(d_full[~near]))
+    lazy = LazyField(lambda: full, "blobs",
+                     local=lambda p, r, h=None: local_mask_sdf(mask, AFFINE, p, r, h))  # fmt: skip
+    box = np.stack([centre - half, centre + half])
+    assert lazy.near_box(box, 2.0) is not None and not lazy.built
+    far = box + 1000.0
+    assert lazy.near_box(far, 2.0) is None
+
+
+def test_a_preview_draws_the_whole_structure_without_building_it():
+    from needlekit.anatomy.summary import surface_mesh
+    from needlekit.anatomy.voxel_local import preview_mask_sdf
+
+    mask = np.zeros((120, 100, 90), bool)
+    mask[20:100, 30:70, 10:80] = True  # a box with a thin plate
+    mask[60, 5:95, 5:85] = True
+    full = VoxelSDF.from_mask(mask, AFFINE)
+    lazy = LazyField(lambda: full, "box",
+                     preview=lambda cells: preview_mask_sdf(mask, AFFINE, cells))  # fmt: skip
+    verts, faces = surface_mesh(lazy, max_cells=40)
+    assert not lazy.built and len(faces) > 0
+    assert max(lazy.preview(40).shape) <= 40
+    # every drawn vertex lies within a coarse voxel diagonal of the structure's surface
+    coarse_diag = float(np.linalg.norm(np.linalg.norm(lazy.preview(40).affine[:3, :3], axis=0)))
+    assert np.abs(full.signed_distance(verts)).max() <= coarse_diag + full.error_bound_mm
+    assert lazy.preview(40) is lazy.preview(40)  # kept

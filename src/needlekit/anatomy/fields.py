@@ -173,6 +173,25 @@ class DistanceField(ABC):
         """
         return self
 
+    def near_box(self, box_mm, radius_mm: float) -> DistanceField | None:
+        """:meth:`near` over a box: a field equal to this one at the points of ``box_mm``
+        where the distance is at most ``radius_mm`` (e.g. the surfaces a figure draws
+        around a path, without building a whole CT's field).
+
+        Parameters
+        ----------
+        box_mm : array_like, shape (2, 3)
+            ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
+        radius_mm : float
+
+        Returns
+        -------
+        DistanceField or None
+            None when the structure lies farther than ``radius_mm`` from the box. This
+            default returns the field itself.
+        """
+        return self
+
     def inflated(self, margin_mm: float) -> DistanceField:
         """The field of this structure grown by ``margin_mm`` (e.g. needle radius plus a
         safety margin): ``d - margin_mm``.
@@ -402,9 +421,14 @@ class LazyField(DistanceField):
     description : str
         What will be built (for ``repr`` and error messages).
     local : callable, optional
-        ``local(point, radius)``: a cheap field of the same structure that is exact near
-        ``point`` where ``|d| <= radius``, or None when the structure is farther (see
-        :meth:`DistanceField.near`). Lets one-point questions skip the build.
+        ``local(point, radius[, half_size])``: a cheap field of the same structure that is
+        exact near ``point`` (or over the box ``point +- half_size``) where
+        ``|d| <= radius``, or None when the structure is farther (see
+        :meth:`DistanceField.near` and :meth:`DistanceField.near_box`). Lets one-point
+        questions, and figures of a small region, skip the build.
+    preview : callable, optional
+        ``preview(max_cells)``: a coarse field of the same structure, at most about
+        ``max_cells`` samples along an axis, for drawing it whole (:meth:`preview`).
     """
 
     def __init__(
@@ -412,7 +436,8 @@ class LazyField(DistanceField):
         build: Callable[[], DistanceField],
         description: str = "",
         *,
-        local: Callable[[np.ndarray, float], DistanceField | None] | None = None,
+        local: Callable[..., DistanceField | None] | None = None,
+        preview: Callable[[int], DistanceField] | None = None,
     ) -> None:
         self._build = build
         self._field: DistanceField | None = None
@@ -420,6 +445,8 @@ class LazyField(DistanceField):
         self.description = description
         self._local = local
         self._near: dict[tuple, DistanceField | None] = {}
+        self._preview = preview
+        self._previews: dict[int, DistanceField] = {}
 
     @property
     def built(self) -> bool:
@@ -444,12 +471,58 @@ class LazyField(DistanceField):
         if self._field is not None or self._local is None:
             return self.get()
         p = np.asarray(point_mm, dtype=np.float64).reshape(3)
-        key = (*p.tolist(), float(radius_mm))
+        return self._local_field(p, float(radius_mm), None)
+
+    def preview(self, max_cells: int) -> DistanceField:
+        """A field to draw the whole structure with at most about ``max_cells`` samples per
+        axis: the builder's ``preview`` (kept), whether or not the field is built, so that
+        a figure does not depend on what ran before it; else the field itself.
+
+        Parameters
+        ----------
+        max_cells : int
+
+        Returns
+        -------
+        DistanceField
+            Display only: a coarse field's error bound is its own, not this field's.
+        """
+        if self._preview is None:
+            return self.get()
+        with self._lock:
+            if max_cells not in self._previews:
+                self._previews[max_cells] = self._preview(int(max_cells))
+            return self._previews[max_cells]
+
+    def near_box(self, box_mm, radius_mm: float) -> DistanceField | None:
+        """The built field when there is one; else, when the builder gave a ``local``
+        function, a field of the window around the box; else the field, built now.
+
+        Parameters
+        ----------
+        box_mm : array_like, shape (2, 3)
+        radius_mm : float
+
+        Returns
+        -------
+        DistanceField or None
+            As :meth:`DistanceField.near_box`.
+        """
+        if self._field is not None or self._local is None:
+            return self.get()
+        b = np.asarray(box_mm, dtype=np.float64).reshape(2, 3)
+        return self._local_field(0.5 * (b[0] + b[1]), float(radius_mm), 0.5 * (b[1] - b[0]))
+
+    def _local_field(self, centre, radius: float, half) -> DistanceField | None:
+        key = (*centre.tolist(), radius, *(() if half is None else half.tolist()))
         with self._lock:
             if key not in self._near:
                 if len(self._near) >= 8:
                     self._near.pop(next(iter(self._near)))
-                self._near[key] = self._local(p, float(radius_mm))
+                self._near[key] = (
+                    self._local(centre, radius) if half is None
+                    else self._local(centre, radius, half)
+                )  # fmt: skip
             return self._near[key]
 
     def get(self) -> DistanceField:

@@ -208,7 +208,8 @@ def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None):
     """
     from skimage.measure import marching_cubes
 
-    field = _unwrap(field)
+    # a CT structure not built whole is drawn from its coarse preview (fields.LazyField)
+    field = field.preview(max_cells) if isinstance(field, LazyField) else field
     vox = _voxel_of(field)
     if vox is not None:
         step = max(1, int(np.ceil(max(vox.shape) / max_cells)))

@@ -33,12 +33,12 @@ from needlekit.anatomy.grids import _orthogonal_affine
 from needlekit.anatomy.voxel import VoxelSDF
 from needlekit.errors import InvalidInputError
 
-__all__ = ["local_mask_sdf", "window_around"]
+__all__ = ["local_mask_sdf", "preview_mask_sdf", "window_around"]
 
 
-def window_around(affine, point_mm, radius_mm: float) -> tuple[np.ndarray, np.ndarray]:
+def window_around(affine, point_mm, radius_mm: float, half_size_mm=None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Index box (inclusive) reaching ``radius_mm + 5`` voxel diagonals and 2 voxels beyond
-    a point in every direction.
+    a point, or beyond the world box ``point_mm +- half_size_mm``, in every direction.
 
     Parameters
     ----------
@@ -46,6 +46,8 @@ def window_around(affine, point_mm, radius_mm: float) -> tuple[np.ndarray, np.nd
         Voxel->RAS affine (orthogonal axes).
     point_mm : array_like, shape (3,)
     radius_mm : float
+    half_size_mm : array_like, shape (3,), optional
+        Half the sides of a world box centred on the point (default: the point alone).
 
     Returns
     -------
@@ -58,15 +60,21 @@ def window_around(affine, point_mm, radius_mm: float) -> tuple[np.ndarray, np.nd
     r = as_scalar(radius_mm, "radius_mm")
     if not r >= 0:
         raise InvalidInputError("radius_mm", f"must be >= 0, got {r}")
+    h = np.zeros(3) if half_size_mm is None else np.asarray(half_size_mm, dtype=float)
+    if h.shape != (3,) or not np.all(np.isfinite(h) & (h >= 0)):
+        raise InvalidInputError("half_size_mm", f"expected 3 finite numbers >= 0, got {h}")
     diag = float(np.linalg.norm(spacing))
-    idx = np.linalg.solve(a[:3, :3], p[0] - a[:3, 3])
+    corners = p[0] + h * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    idx = np.linalg.solve(a[:3, :3], (corners - a[:3, 3]).T).T
     half = np.ceil((r + 5.0 * diag) / spacing).astype(np.int64) + 2
-    return np.floor(idx).astype(np.int64) - half, np.ceil(idx).astype(np.int64) + half
+    lo = np.floor(idx.min(axis=0)).astype(np.int64) - half
+    return lo, np.ceil(idx.max(axis=0)).astype(np.int64) + half
 
 
-def local_mask_sdf(mask, affine, point_mm, radius_mm: float) -> VoxelSDF | None:
+def local_mask_sdf(mask, affine, point_mm, radius_mm: float, half_size_mm=None) -> VoxelSDF | None:  # fmt: skip
     """Signed distance to a mask's surface that equals :meth:`VoxelSDF.from_mask`'s field
-    near ``point_mm`` wherever that field has ``|d| <= radius_mm``.
+    near ``point_mm`` (or over the box ``point_mm +- half_size_mm``) wherever that field has
+    ``|d| <= radius_mm``.
 
     Parameters
     ----------
@@ -76,21 +84,25 @@ def local_mask_sdf(mask, affine, point_mm, radius_mm: float) -> VoxelSDF | None:
         Voxel->RAS affine of ``mask`` (orthogonal axes).
     point_mm : array_like, shape (3,)
     radius_mm : float
+    half_size_mm : array_like, shape (3,), optional
+        Half the sides of a world box around the point where the field is wanted (e.g. a
+        figure's view); default the point alone.
 
     Returns
     -------
     VoxelSDF or None
         None when no voxel of the window is set: the structure lies farther than
-        ``radius_mm`` from the point. Otherwise a field whose value and gradient at points
-        within one voxel diagonal of ``point_mm`` are the full field's where
-        ``|d| <= radius_mm``. Where the full field has ``|d| > radius_mm`` at the point,
+        ``radius_mm`` from the point (the box). Otherwise a field whose value and gradient
+        at points within one voxel diagonal of ``point_mm`` (of the box) are the full
+        field's where ``|d| <= radius_mm`` (the window reaches as far beyond every point of
+        the box as beyond a single point). Where the full field has ``|d| > radius_mm`` at the point,
         the local value there keeps its sign and exceeds ``radius_mm`` in magnitude
         (module notes).
     """
     m = np.asarray(mask)
     if m.ndim != 3:
         raise InvalidInputError("mask", f"expected a 3-D mask, got shape {m.shape}")
-    lo, hi = window_around(affine, point_mm, radius_mm)
+    lo, hi = window_around(affine, point_mm, radius_mm, half_size_mm)
     src_lo = np.maximum(lo, 0)
     src_hi = np.minimum(hi, np.array(m.shape) - 1)
     if np.any(src_hi < src_lo):
@@ -106,3 +118,37 @@ def local_mask_sdf(mask, affine, point_mm, radius_mm: float) -> VoxelSDF | None:
     a = np.asarray(affine, dtype=np.float64).copy()
     a[:3, 3] = a[:3, :3] @ lo + a[:3, 3]
     return VoxelSDF.from_mask(part, a, crop=False, padding_mm=0.0, n_threads=1)
+
+
+def preview_mask_sdf(mask, affine, max_cells: int) -> VoxelSDF:
+    """A coarse field of a mask to draw it whole: the mask cut to its set voxels, pooled
+    (a coarse voxel is set when any of its fine voxels is) so that no axis has more than
+    about ``max_cells`` voxels, and transformed.
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (i, j, k)
+    affine : array_like, shape (4, 4)
+    max_cells : int
+
+    Returns
+    -------
+    VoxelSDF
+        Display only: thin structures stay visible (pooling keeps them), at most a coarse
+        voxel thicker than they are; transforming the coarse grid takes a few hundredths of
+        the whole mask's time.
+    """
+    from needlekit.anatomy.grids import _bbox, downsample_mask
+
+    m = np.asarray(mask)
+    box = _bbox(m)
+    if box is None:
+        raise InvalidInputError("mask", "no voxel is set: the structure is empty")
+    part = np.asarray(m[box[0][0] : box[1][0] + 1, box[0][1] : box[1][1] + 1,
+                        box[0][2] : box[1][2] + 1], dtype=bool)  # fmt: skip
+    a = np.asarray(affine, dtype=np.float64).copy()
+    a[:3, 3] = a[:3, :3] @ box[0] + a[:3, 3]
+    # the few unset layers from_mask adds must stay within max_cells too
+    factor = max(1, int(np.ceil(max(part.shape) / max(int(max_cells) - 8, 2))))
+    coarse, coarse_affine = downsample_mask(part, a, factor)
+    return VoxelSDF.from_mask(coarse, coarse_affine, padding_mm=0.0, n_threads=1)

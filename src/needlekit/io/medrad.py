@@ -43,7 +43,7 @@ import numpy as np
 from needlekit.anatomy.fields import ComplementField, LazyField
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.anatomy.voxel import DEFAULT_MASK_PADDING_MM, MASK_OFFSET_MAX_FRACTION, VoxelSDF
-from needlekit.anatomy.voxel_local import local_mask_sdf
+from needlekit.anatomy.voxel_local import local_mask_sdf, preview_mask_sdf
 from needlekit.errors import InvalidInputError
 from needlekit.io import anatomy_cache
 from needlekit.io.medrad_paths import (  # noqa: F401 - re-exported
@@ -313,7 +313,8 @@ def _lazy_sdf(mask: Mask, name: str) -> LazyField:
     return LazyField(
         lambda: VoxelSDF.from_mask(mask),
         f"signed distance to {name}",
-        local=lambda p, r: local_mask_sdf(mask.data, mask.affine, p, r),
+        local=lambda p, r, h=None: local_mask_sdf(mask.data, mask.affine, p, r, h),
+        preview=lambda cells: preview_mask_sdf(mask.data, mask.affine, cells),
     )
 
 
@@ -442,19 +443,30 @@ def _cached_sdf(entry: anatomy_cache.CacheEntry, name: str) -> VoxelSDF:
     return sdf if stored is None else _restored_sdf(stored)
 
 
-def _local_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, point, radius: float):
-    """A structure's field near one point, from a window of its stored (cropped) mask."""
+def _local_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, point, radius: float,
+                      half=None):  # fmt: skip
+    """A structure's field near one point (or box), from a window of its stored (cropped)
+    mask."""
     stored = entry[f"mask_{name}"]
     affine = np.array(stored.meta["affine"], dtype=np.float64)
     affine[:3, 3] = affine[:3, :3] @ np.asarray(stored.meta["offset"], float) + affine[:3, 3]
-    return local_mask_sdf(stored.values, affine, point, radius)
+    return local_mask_sdf(stored.values, affine, point, radius, half)
+
+
+def _preview_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, max_cells: int):
+    """A structure's coarse field for drawing it, from its stored (cropped) mask."""
+    stored = entry[f"mask_{name}"]
+    affine = np.array(stored.meta["affine"], dtype=np.float64)
+    affine[:3, 3] = affine[:3, :3] @ np.asarray(stored.meta["offset"], float) + affine[:3, 3]
+    return preview_mask_sdf(stored.values, affine, max_cells)
 
 
 def _lazy_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, what: str) -> LazyField:
     return LazyField(
         lambda: _cached_sdf(entry, name),
         f"signed distance to {what}",
-        local=lambda p, r: _local_cached_sdf(entry, name, p, r),
+        local=lambda p, r, h=None: _local_cached_sdf(entry, name, p, r, h),
+        preview=lambda cells: _preview_cached_sdf(entry, name, cells),
     )
 
 

@@ -38,6 +38,9 @@ _GOAL_NAMES = {"goal1": "goal 1", "goal2": "goal 2"}
 #: Anatomy drawn around the paths, start and target (mm beyond them on every side): the
 #: figures zoom onto the paths with a 15-20 mm margin (report.scene3d, report.sweep_report).
 VIEW_MARGIN_MM: float = 20.0
+#: How far from a surface the drawn fields must be exact (mm): more than a cell of the
+#: meshing grid, whose marching cubes read values only around the zero level.
+VIEW_SURFACE_REACH_MM: float = 3.0
 
 
 class _Window(DistanceField):
@@ -63,7 +66,13 @@ def _view_scene(problem, sweeps: dict) -> Scene:
     pts = np.vstack(pts)
     box = np.stack([pts.min(axis=0) - VIEW_MARGIN_MM, pts.max(axis=0) + VIEW_MARGIN_MM])
     scene = problem.scene
-    cut = [replace(s, field=_Window(s.field, box)) for s in scene.structures]
+    cut = []
+    for s in scene.structures:
+        # a window of a CT structure's mask around the box, not its whole field: exact where
+        # a surface crosses the box, the right side everywhere else (anatomy.voxel_local)
+        field = s.field.near_box(box, VIEW_SURFACE_REACH_MM)
+        if field is not None:  # None: the structure lies farther than that from the box
+            cut.append(replace(s, field=_Window(field, box)))
     return Scene(cut, name=scene.name)
 
 
