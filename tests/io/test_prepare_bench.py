@@ -19,7 +19,8 @@ def test_a_warm_lung_is_prepared_stage_by_stage_in_a_fresh_process(medrad_dir, m
                                    "first_plan"]  # fmt: skip
     spent = sum(v["s"] for v in rec["stages"].values())
     assert 0 < spent <= rec["total_s"] + 1e-6 and rec["total_s"] <= rec["process_wall_s"]
-    assert rec["ready_s"] == pytest.approx(rec["total_s"] - rec["stages"]["first_plan"]["s"])
+    # ready: from the imports through the problem, before the first plan's call
+    assert 0 < rec["ready_s"] <= rec["total_s"] - rec["stages"]["first_plan"]["s"] + 1e-9
     assert rec["peak_rss_mb"] >= max(v["rss_peak_mb"] or 0 for v in rec["stages"].values())
     assert rec["entry_surface"] == "bronchialTree"
     assert rec["first_plan_status"] in {"solved", "timeout", "infeasible"}

@@ -165,6 +165,11 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     tiny = SteerablePlan(start, prims)
     verify_plan(problem, tiny, spacing_mm=validator.spacing_mm)
     verify_approximate(problem, tiny, spacing_mm=validator.spacing_mm)
+    # long plans check their poses' rotations in the numba kernel (a tiny plan's few poses
+    # go through numpy): load it here too
+    from needlekit._validation_kernels import rotation_errors
+
+    rotation_errors(np.ascontiguousarray(start[None, :3, :3]))
 
 
 class SteerableSearch:
