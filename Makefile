@@ -48,10 +48,10 @@ browser:
 	else echo "no chromium and no root apt-get: the browser test will be skipped"; fi
 
 test: $(STAMP) browser
-	$(BIN)/python -m pytest -n $(JOBS) -q
+	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -n $(JOBS) -q -m "not slow"
+	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/python -m pip install --quiet ruff
