@@ -213,6 +213,11 @@ def _without_timings(value):
 @pytest.mark.slow
 def test_serial_process_and_dask_runs_agree(medrad_dir, tmp_path):
     pytest.importorskip("distributed")
+    import logging
+
+    from distributed import LocalCluster
+
+    from needlekit.cli import main
     from needlekit.studies.feng_lungs import run_feng_lungs
 
     kw = {"directions": 24, "max_iterations": 100, "time_limit_s": 60.0, "report": False}
@@ -222,12 +227,20 @@ def test_serial_process_and_dask_runs_agree(medrad_dir, tmp_path):
             executor = None if kind == "serial" else ex
             study = run_feng_lungs(tmp_path / kind, executor=executor, medrad_dir=medrad_dir, **kw)
         runs[kind] = study.record
+    # an existing cluster, reached by its address as `--scheduler tcp://HOST:PORT` does
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.WARNING) as cluster:  # fmt: skip
+        argv = ["study", "feng-lungs", "--out", str(tmp_path / "scheduler"), "--directions",
+                "24", "--max-iterations", "100", "--time-limit-s", "60", "--medrad",
+                str(medrad_dir), "--scheduler", cluster.scheduler_address]  # fmt: skip
+        assert main(argv) == 0
+    runs["scheduler"] = json.loads((tmp_path / "scheduler" / "feng_lungs.json").read_text())
     sweeps = {
         kind: {g: json.loads((tmp_path / kind / g / "sweep.json").read_text()) for g in runs[kind]["goals"]}
         for kind in runs
     }  # fmt: skip
     assert sum(t["n_solved"] for t in runs["serial"]["goals"]["goal1"]["table4"].values()) > 0
-    for kind in ("process", "dask"):
+    for kind in ("process", "dask", "scheduler"):
         assert _without_timings(sweeps[kind]) == _without_timings(sweeps["serial"]), kind
         assert _without_timings(runs[kind]["goals"]) == _without_timings(runs["serial"]["goals"])
         t = runs[kind]["timing"]
