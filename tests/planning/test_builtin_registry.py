@@ -7,7 +7,7 @@ import dataclasses
 
 import pytest
 
-import needlekit.planning.interface as interface
+import needlekit.planning.registry as registry
 from needlekit.errors import InvalidInputError
 from needlekit.io.problems import planner_settings
 from needlekit.planning.interface import (
@@ -61,14 +61,14 @@ def test_a_planner_the_light_check_passes_is_built():
 
 
 def test_the_registry_imports_a_builtin_only_when_it_is_needed(monkeypatch):
-    monkeypatch.setattr(interface, "_REGISTRY", {})
-    monkeypatch.setattr(interface, "_BUILTINS_LOADED", False)
+    monkeypatch.setattr(registry, "_REGISTRY", {})
+    monkeypatch.setattr(registry, "_BUILTINS_LOADED", False)
     assert planner_names("steerable") == ["rcs_star", "rcs", "rrt"]
-    assert all(isinstance(v, BuiltinPlanner) for v in interface._REGISTRY.values())
+    assert all(isinstance(v, BuiltinPlanner) for v in registry._REGISTRY.values())
     cls = BUILTIN_PLANNERS[2].load()
     register_planner("rrt", cls)  # the class an entry stands for is the same planner
-    assert interface._REGISTRY["rrt"] is cls
+    assert registry._REGISTRY["rrt"] is cls
     with pytest.raises(InvalidInputError, match="already registered"):
         register_planner("rcs", cls)
     assert planner_class("rcs") is BUILTIN_PLANNERS[1].load()
-    assert interface._REGISTRY["rcs"] is BUILTIN_PLANNERS[1].load()  # resolved once
+    assert registry._REGISTRY["rcs"] is BUILTIN_PLANNERS[1].load()  # resolved once

@@ -1,0 +1,327 @@
+"""The planner registry: names -> planner factories, needlekit's own listed without importing
+them, others found under an entry-point group (split from :mod:`needlekit.planning.interface`,
+which re-exports every name here).
+
+needlekit's planners are :data:`BUILTIN_PLANNERS` entries (name, family, option names,
+``module:Class``): a name or an option is checked, and the command line refuses a wrong one,
+without importing numba; a planner's module is imported when it is built or its class asked
+for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import logging
+import threading
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Any
+
+from needlekit.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    from needlekit.planning.interface import Planner
+
+__all__ = [
+    "BUILTIN_PLANNERS",
+    "ENTRY_POINT_GROUP",
+    "BuiltinPlanner",
+    "check_planner_options",
+    "get_planner",
+    "planner_class",
+    "planner_names",
+    "register_planner",
+    "unregister_planner",
+]
+
+log = logging.getLogger(__name__)
+
+#: Entry-point group under which other packages declare planners: ``name = module:Factory``.
+ENTRY_POINT_GROUP = "needlekit.planners"
+
+
+def _interface():
+    # the options helpers live beside the Planner protocol (which imports this module)
+    from needlekit.planning import interface
+
+    return interface
+
+
+@dataclasses.dataclass(frozen=True)
+class BuiltinPlanner:
+    """One of needlekit's own planners as the registry holds it until it is needed.
+
+    Its module (which loads numba) is imported only when the planner is built or its class
+    asked for; its name, family and option names are known before.
+
+    Attributes
+    ----------
+    name : str
+        The registry name.
+    family : str
+        ``"steerable"`` or ``"straight"``.
+    option_names : tuple of str
+        The fields of its ``options_type``.
+    factory : str
+        ``"module:Class"``.
+    """
+
+    name: str
+    family: str
+    option_names: tuple[str, ...]
+    factory: str
+
+    def load(self) -> Callable[..., Planner]:
+        """The planner class (imports its module).
+
+        Returns
+        -------
+        type
+        """
+        module, cls = self.factory.split(":")
+        return getattr(importlib.import_module(module), cls)
+
+    def names(self, factory: object) -> bool:
+        """Whether ``factory`` is the class this entry stands for (without importing it).
+
+        Parameters
+        ----------
+        factory : object
+
+        Returns
+        -------
+        bool
+        """
+        where = f"{getattr(factory, '__module__', '')}:{getattr(factory, '__qualname__', '')}"
+        return where == self.factory
+
+
+#: needlekit's own planners, in registry order; a test keeps each entry equal to its class.
+BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
+    BuiltinPlanner(
+        "rcs_star", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSStarPlanner"
+    ),
+    BuiltinPlanner(
+        "rcs", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSPlanner"
+    ),
+    BuiltinPlanner(
+        "rrt", "steerable", ("connection", "seed"), "needlekit.planning.steerable.rrt:RRTPlanner"
+    ),
+    BuiltinPlanner(
+        "liu_cfrw",
+        "straight",
+        ("resolution_deg", "objective", "order"),
+        "needlekit.planning.straight.planner:LiuPlanner",
+    ),
+)
+
+#: Name -> planner factory, or the :class:`BuiltinPlanner` standing for it until needed.
+_REGISTRY: dict[str, Callable[..., Planner] | BuiltinPlanner] = {}
+_BUILTINS_LOADED = False
+_ENTRY_POINTS_LOADED = False
+_LOCK = threading.Lock()
+
+
+def register_planner(name: str, factory: Callable[..., Planner], *, replace: bool = False) -> None:
+    """Make a planner available by name (to :func:`get_planner`, the CLI, sweeps, studies).
+
+    Parameters
+    ----------
+    name : str
+    factory : callable
+        ``factory(options) -> Planner`` (a planner class); it must have ``options_type``
+        (a dataclass) and ``family`` attributes.
+    replace : bool
+        Allow replacing a planner of the same name.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        The name is taken (without ``replace``) or the factory lacks ``options_type``.
+    """
+    if not isinstance(name, str) or not name.strip():
+        raise InvalidInputError("name", f"a planner needs a non-empty name, got {name!r}")
+    opts = getattr(factory, "options_type", None)
+    if opts is None or not dataclasses.is_dataclass(opts):
+        raise InvalidInputError(
+            "factory", f"planner {name!r}: options_type must be a dataclass type"
+        )
+    if getattr(factory, "family", None) not in ("steerable", "straight"):
+        raise InvalidInputError(
+            "factory", f"planner {name!r}: family must be 'steerable' or 'straight'"
+        )
+    _load_builtins()
+    with _LOCK:
+        held = _REGISTRY.get(name)
+        same = held is factory or (isinstance(held, BuiltinPlanner) and held.names(factory))
+        if held is not None and not replace and not same:
+            raise InvalidInputError("name", f"a planner named {name!r} is already registered")
+        _REGISTRY[name] = factory
+
+
+def unregister_planner(name: str) -> None:
+    """Remove a planner from the registry (no error when absent).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    None
+    """
+    with _LOCK:
+        _REGISTRY.pop(name, None)
+
+
+def _load_builtins() -> None:
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    _BUILTINS_LOADED = True
+    with _LOCK:
+        for entry in BUILTIN_PLANNERS:  # their modules are imported when first needed
+            _REGISTRY.setdefault(entry.name, entry)
+
+
+def _load_entry_points() -> None:
+    global _ENTRY_POINTS_LOADED
+    if _ENTRY_POINTS_LOADED:
+        return
+    _ENTRY_POINTS_LOADED = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name in _REGISTRY:
+            continue
+        try:
+            factory = ep.load()
+            register_planner(ep.name, factory)
+        except Exception as exc:  # a broken plug-in must not break needlekit: say which
+            log.warning("planner entry point %r (%s) not loaded: %s", ep.name, ep.value, exc)
+
+
+def _entry(name: str) -> Callable[..., Planner] | BuiltinPlanner:
+    """The registry's entry for ``name`` (a built-in planner's module not imported)."""
+    _load_builtins()
+    if name not in _REGISTRY:
+        _load_entry_points()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise InvalidInputError(
+            "planner", f"unknown planner {name!r}; available: {', '.join(planner_names())}"
+        ) from None
+
+
+def _lookup(name: str) -> Callable[..., Planner]:
+    entry = _entry(name)
+    if not isinstance(entry, BuiltinPlanner):
+        return entry
+    factory = entry.load()
+    with _LOCK:
+        if _REGISTRY.get(name) is entry:
+            _REGISTRY[name] = factory
+    return factory
+
+
+def planner_names(family: str | None = None) -> list[str]:
+    """Registered planner names (needlekit's, then others, in registration order).
+
+    Parameters
+    ----------
+    family : str, optional
+        Only this family's (``"steerable"`` or ``"straight"``).
+
+    Returns
+    -------
+    list of str
+    """
+    _load_builtins()
+    _load_entry_points()
+    return [n for n, f in _REGISTRY.items() if family is None or f.family == family]
+
+
+def check_planner_options(
+    name: str, options: Mapping | None = None, *, family: str | None = None
+) -> None:
+    """Check a planner's name, family and option names, without importing a built-in
+    planner's module (the values are checked when the planner is built: :func:`get_planner`).
+
+    Parameters
+    ----------
+    name : str
+    options : mapping, optional
+        Its settings (only their names are checked here).
+    family : str, optional
+        The family it must belong to (``"steerable"`` or ``"straight"``).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown planner, another family, or an unknown option; the same messages as
+        :func:`get_planner` and :func:`needlekit.io.problems.planner_settings`.
+    """
+    entry = _entry(name)
+    if family is not None and entry.family != family:
+        raise InvalidInputError(
+            "planner",
+            f"{name!r} plans {entry.family} needles; {family} planners: "
+            f"{', '.join(planner_names(family))}",
+        )
+    if isinstance(entry, BuiltinPlanner):
+        fields = entry.option_names
+    else:
+        fields = tuple(f.name for f in dataclasses.fields(entry.options_type))
+    if isinstance(options, Mapping):
+        _interface()._refuse_unknown_options(name, fields, options)
+
+
+def planner_class(name: str) -> Callable[..., Planner]:
+    """The registered factory of a planner (its ``options_type`` and ``family``).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    callable
+        The planner's class (its module imported now if it was not yet).
+
+    Raises
+    ------
+    InvalidInputError
+        No planner of that name.
+    """
+    return _lookup(name)
+
+
+def get_planner(name: str, options: Mapping | Any | None = None) -> Planner:
+    """A planner by name, with its options checked.
+
+    Parameters
+    ----------
+    name : str
+    options : mapping or the planner's options dataclass, optional
+        Unknown keys are an error.
+
+    Returns
+    -------
+    Planner
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown planner or option.
+    """
+    factory = _lookup(name)
+    return factory(_interface().options_from_mapping(factory.options_type, options, name))
