@@ -23,8 +23,6 @@ from needlekit.benchmarks.record import best_time, machine_info
 
 __all__ = ["run_fields_benchmark"]
 
-_LUNG_MASK = Path("Lungs") / "TumorTargetEnvironments" / "Patient1" / "pleuralBoundary.nii.gz"
-
 
 def _query_rows(grid_size: int, n_queries: int, repeat: int, seed: int) -> list[dict]:
     from needlekit.anatomy.voxel import (

@@ -137,17 +137,12 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
 def _check_dynamic(args: argparse.Namespace, doc: dict) -> None:
     """What ``plan --dynamic`` needs from the flags and the document, checked before any
     planner module is imported (:func:`needlekit.io.problems.dynamic_settings` checks the
-    values, with the same messages)."""
+    values)."""
     if args.goals is not None:
         raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
-    name = args.scenario.name
-    if not any("moving" in s for s in doc.get("structures", [])):
-        raise InvalidInputError("--dynamic", f"{name}: no structure has a moving block")
-    if args.insertion_speed_mm_s is None and "insertion_speed_mm_s" not in doc.get("dynamic", {}):
-        raise InvalidInputError(
-            "--insertion-speed-mm-s",
-            f"{name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
-        )
+    from needlekit.io.problems import dynamic_block  # light: no planner module
+
+    dynamic_block(doc, args.scenario.name, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
 
 
 def _plan_dynamic(args: argparse.Namespace, settings) -> int:

@@ -339,21 +339,19 @@ class ScenarioSource:
     def _load(self, share_base: bool):
         import json
 
-        from needlekit.io.scenario import parse_scenario, read_scenario_document
+        from needlekit.io.scenario import load_scenario
 
         path = Path(self.scenario_path)
         inline = self.document is not None
-        data = json.loads(self.document) if inline else read_scenario_document(path)
-        sc = parse_scenario(
-            data,
-            base_dir=path.parent,
-            source=path.name,
+        sc = load_scenario(
+            path,
             cache_dir=self.cache_dir,
             use_cache=self.use_cache,
+            document=json.loads(self.document) if inline else None,
             share_base=share_base,
         )
-        if not inline:
-            sc = replace(sc, path=path)
+        if inline:  # no file stands behind it
+            sc = replace(sc, path=None)
         pose = None if self.start_pose is None else np.reshape(self.start_pose, (4, 4))
         return _with_overrides(
             sc, path.name, pose, self.goal_mm, self.r_min_mm, self.needle_diameter_mm
@@ -439,7 +437,7 @@ def planner_settings(
     import dataclasses
 
     from needlekit.constants import DEFAULT_TIME_LIMIT_S
-    from needlekit.planning.interface import get_planner, planner_class, planner_names
+    from needlekit.planning.interface import check_planner_options, get_planner, planner_class
 
     block = dict(block or {})
     if names is None:
@@ -455,13 +453,8 @@ def planner_settings(
     for name in names:
         opts = dict(block.get("options") or {}) if name == block.get("name") else {}
         opts.update((options or {}).get(name) or {})
+        check_planner_options(name, None, family=family)  # the name and its family
         factory = planner_class(name)
-        if factory.family != family:
-            raise InvalidInputError(
-                "planner",
-                f"{name!r} plans {factory.family} needles; {family} planners: "
-                f"{', '.join(planner_names(family))}",
-            )
         fields = {f.name for f in dataclasses.fields(factory.options_type)}
         if "seed" in fields:  # the flag wins over the block's options, which win over its seed
             opts["seed"] = seed if seed_given else opts.get("seed", seed)
@@ -622,6 +615,44 @@ def coverage_region(scenario, problem):
 DYNAMIC_SETTINGS = ("insertion_speed_mm_s", "step_mm", "predict", "lookahead_s")
 
 
+def dynamic_block(doc: dict, name: str, given: dict | None = None) -> dict:
+    """What a scenario document gives for re-planning among moving obstacles, under
+    ``given`` (flags win), checked for what needs no planner module: a structure that
+    moves, and an insertion speed somewhere (the command line calls it before importing
+    them; :func:`dynamic_settings` then checks the values).
+
+    Parameters
+    ----------
+    doc : dict
+        The scenario document (as :func:`needlekit.io.scenario_schema.read_scenario_document`
+        returns it).
+    name : str
+        The document's name in messages.
+    given : dict, optional
+        Settings named as :data:`DYNAMIC_SETTINGS` (None values are ignored).
+
+    Returns
+    -------
+    dict
+        The settings given, by name.
+
+    Raises
+    ------
+    InvalidInputError
+        No structure moves, or no insertion speed anywhere.
+    """
+    if not any("moving" in s for s in doc.get("structures", [])):
+        raise InvalidInputError("--dynamic", f"{name}: no structure has a moving block")
+    kw = {k: v for k, v in doc.get("dynamic", {}).items() if k in DYNAMIC_SETTINGS}
+    kw |= {k: v for k, v in (given or {}).items() if v is not None}
+    if "insertion_speed_mm_s" not in kw:
+        raise InvalidInputError(
+            "--insertion-speed-mm-s",
+            f"{name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
+        )
+    return kw
+
+
 def dynamic_settings(scenario_path: str | os.PathLike, given: dict | None = None) -> dict:
     """The re-planning settings of a scenario with moving obstacles, checked, before any
     anatomy is read: its ``dynamic`` block under ``given`` (flags win).
@@ -644,25 +675,15 @@ def dynamic_settings(scenario_path: str | os.PathLike, given: dict | None = None
     InvalidInputError
         No structure moves, no insertion speed anywhere, or a bad setting.
     """
-    from needlekit.io.scenario import read_scenario_document
+    from needlekit.io.scenario_schema import read_scenario_document
+
+    kw = dynamic_block(read_scenario_document(scenario_path), Path(scenario_path).name, given)
     from needlekit.planning.steerable.dynamic import (
         DEFAULT_STEP_MM,
         PREDICTIONS,
         check_settings,
     )
 
-    name = Path(scenario_path).name
-    doc = read_scenario_document(scenario_path)
-    if not any("moving" in s for s in doc.get("structures", [])):
-        raise InvalidInputError("--dynamic", f"{name}: no structure has a moving block")
-    block = doc.get("dynamic", {})
-    kw = {k: v for k, v in block.items() if k in DYNAMIC_SETTINGS}
-    kw |= {k: v for k, v in (given or {}).items() if v is not None}
-    if "insertion_speed_mm_s" not in kw:
-        raise InvalidInputError(
-            "--insertion-speed-mm-s",
-            f"{name} has no dynamic.insertion_speed_mm_s; give the insertion speed",
-        )
     kw.setdefault("step_mm", DEFAULT_STEP_MM)
     kw.setdefault("predict", PREDICTIONS[0])
     check_settings(**kw)

@@ -303,24 +303,22 @@ def _base(spec: dict, ctx: _Ctx, cache: dict | None = None, share: bool = False)
 
 
 def _medrad_key(organ, patient, root, cache: dict) -> tuple | None:
-    """What identifies a loaded Med-RAD case in this process: organ, patient, the data's
-    folder and the files of the patient (names, sizes, times), the cache settings; None
-    when the folder is not there (loading then says why)."""
-    from needlekit.io.medrad import medrad_root
+    """What identifies a loaded Med-RAD case in this process: organ, patient, the patient's
+    folder and its files (names, sizes, times), the cache settings; None when the folder is
+    not there (loading then says why)."""
+    from needlekit.io.medrad_paths import patient_folder
 
     try:
-        where = medrad_root(root)
+        folder = patient_folder(organ, patient, root)
     except InvalidInputError:
         return None
-    files = []
-    for folder in where.glob(f"**/Patient{patient}"):
-        for f in folder.iterdir():
-            st = f.stat()
-            files.append((str(f), st.st_size, st.st_mtime_ns))
+    files = tuple(
+        (str(f), st.st_size, st.st_mtime_ns) for f in sorted(folder.iterdir()) for st in (f.stat(),)
+    )
     cache_dir = cache.get("cache_dir")
     cache_dir = None if cache_dir is None else str(Path(cache_dir).expanduser().resolve())
     return (
-        "MedradCase", str(organ).lower(), int(patient), str(where), tuple(sorted(files)),
+        "MedradCase", str(organ).lower(), int(patient), str(folder), files,
         cache_dir, bool(cache.get("use_cache", True)),
     )  # fmt: skip
 
@@ -674,6 +672,7 @@ def load_scenario(
     cache_dir: str | os.PathLike | None = None,
     use_cache: bool = True,
     document: dict | None = None,
+    share_base: bool = False,
 ) -> Scenario:
     """Read a scenario file (YAML or JSON).
 
@@ -688,6 +687,9 @@ def load_scenario(
         The file's document as :func:`read_scenario_document` returned it (read and
         checked already, e.g. by the command line before importing the anatomy); default:
         read the file.
+    share_base : bool
+        Load a Med-RAD base once per process for every scenario of that patient
+        (:func:`parse_scenario`; batch workers).
 
     Returns
     -------
@@ -702,7 +704,12 @@ def load_scenario(
     p = Path(path)
     data = read_scenario_document(p) if document is None else document
     sc = parse_scenario(
-        data, base_dir=p.parent, source=p.name, cache_dir=cache_dir, use_cache=use_cache
+        data,
+        base_dir=p.parent,
+        source=p.name,
+        cache_dir=cache_dir,
+        use_cache=use_cache,
+        share_base=share_base,
     )
     from dataclasses import replace
 

@@ -49,6 +49,57 @@ log = logging.getLogger(__name__)
 CONVEX_HEADING_DEG: float = 90.0
 
 
+def geometric_refusal(
+    problem: SteerableProblem, start_pose: np.ndarray, goal_mm: np.ndarray
+) -> tuple[PlanStatus, str] | None:
+    """The pre-check's verdicts that need geometry alone (no anatomy): the goal beyond the
+    maximum length, outside the heading cone, outside the start's reachable set, or its
+    shortest curvature-bounded path not shorter than the maximum length.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        Its limits (the start pose may differ).
+    start_pose : ndarray, shape (4, 4)
+    goal_mm : ndarray, shape (3,)
+
+    Returns
+    -------
+    (PlanStatus, str) or None
+        ``INFEASIBLE`` and the reason, or None when geometry allows a path.
+    """
+    start = np.asarray(start_pose, dtype=float)
+    p0, d0 = start[:3, 3], start[:3, 2]
+    tau = problem.goal_tolerance_mm
+    gap = goal_mm - p0
+    dist = float(np.linalg.norm(gap))
+    if dist > problem.max_length_mm:
+        return PlanStatus.INFEASIBLE, "goal farther than the maximum length"
+    heading = problem.max_heading_change_deg
+    if heading <= CONVEX_HEADING_DEG and dist > tau:
+        off = math.degrees(math.acos(float(np.clip(gap @ d0 / dist, -1.0, 1.0))))
+        slack = math.degrees(math.asin(tau / dist))
+        if off - slack > heading + 1e-9:
+            return (
+                PlanStatus.INFEASIBLE,
+                f"goal {off:.1f} deg off the start direction: beyond the heading limit "
+                f"of {heading:g} deg (every path stays inside that cone)",
+            )
+    conn = goal_connection(start, goal_mm, problem.r_min_mm, tau)
+    if conn is None:
+        return (
+            PlanStatus.INFEASIBLE,
+            "goal outside the start's reachable set (behind the tip or inside the r_min torus)",
+        )
+    if conn.length_mm >= problem.max_length_mm:
+        return (
+            PlanStatus.INFEASIBLE,
+            f"the shortest curvature-bounded path to the goal is {conn.length_mm:.2f} mm, "
+            f"not under the maximum length {problem.max_length_mm:g} mm",
+        )
+    return None
+
+
 def precheck(
     problem: SteerableProblem, goal_mm: np.ndarray, validator: MotionValidator
 ) -> tuple[PlanStatus, str] | None:
@@ -81,32 +132,9 @@ def precheck(
                 f"the start direction makes {angle:.2f} deg with the {problem.entry_surface or 'entry'} "
                 f"surface, below the minimum puncture angle {problem.min_puncture_angle_deg:g} deg",
             )
-    gap = goal_mm - p0
-    dist = float(np.linalg.norm(gap))
-    if dist > problem.max_length_mm:
-        return PlanStatus.INFEASIBLE, "goal farther than the maximum length"
-    heading = problem.max_heading_change_deg
-    if heading <= CONVEX_HEADING_DEG and dist > tau:
-        off = math.degrees(math.acos(float(np.clip(gap @ d0 / dist, -1.0, 1.0))))
-        slack = math.degrees(math.asin(tau / dist))
-        if off - slack > heading + 1e-9:
-            return (
-                PlanStatus.INFEASIBLE,
-                f"goal {off:.1f} deg off the start direction: beyond the heading limit "
-                f"of {heading:g} deg (every path stays inside that cone)",
-            )
-    conn = goal_connection(start, goal_mm, problem.r_min_mm, tau)
-    if conn is None:
-        return (
-            PlanStatus.INFEASIBLE,
-            "goal outside the start's reachable set (behind the tip or inside the r_min torus)",
-        )
-    if conn.length_mm >= problem.max_length_mm:
-        return (
-            PlanStatus.INFEASIBLE,
-            f"the shortest curvature-bounded path to the goal is {conn.length_mm:.2f} mm, "
-            f"not under the maximum length {problem.max_length_mm:g} mm",
-        )
+    refusal = geometric_refusal(problem, start, goal_mm)
+    if refusal is not None:
+        return refusal
     if validator.obstacles is not None:
         connected, _ = goal_connected(
             validator.obstacles,

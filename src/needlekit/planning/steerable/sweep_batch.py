@@ -110,8 +110,10 @@ def refused_before_search(problem: SteerableProblem, directions) -> np.ndarray:
     beyond l_max, outside the heading cone or the reachable set, or its shortest
     curvature-bounded path not shorter than l_max), before any search.
 
-    Used to order a sweep's tasks (searched directions first); a wrong guess would only
-    cost balance between workers, never change a result.
+    The planners' own geometric pre-check
+    (:func:`needlekit.planning.steerable.search.geometric_refusal`), per direction; used to
+    order a sweep's tasks (searched directions first), so it could only cost balance
+    between workers, never change a result.
 
     Parameters
     ----------
@@ -124,22 +126,14 @@ def refused_before_search(problem: SteerableProblem, directions) -> np.ndarray:
     -------
     ndarray of bool, shape (n,)
     """
-    from needlekit.planning.steerable.goal import goal_connection
+    from needlekit.planning.steerable.search import geometric_refusal
 
     dirs = np.asarray(directions, dtype=float).reshape(-1, 3)
     p0, goal = np.asarray(problem.start_point_mm, dtype=float), problem.goal_mm
-    tau, lmax = problem.goal_tolerance_mm, problem.max_length_mm
-    gap = goal - p0
-    dist = float(np.linalg.norm(gap))
-    refused = np.full(len(dirs), dist > lmax)
-    heading = problem.max_heading_change_deg
-    if heading <= 90.0 and dist > tau:  # the heading cone (search.CONVEX_HEADING_DEG)
-        off = np.degrees(np.arccos(np.clip(dirs @ gap / dist, -1.0, 1.0)))
-        refused |= off - np.degrees(np.arcsin(tau / dist)) > heading + 1e-9
-    for i in np.flatnonzero(~refused):
-        c = goal_connection(pose_from_direction(p0, dirs[i]), goal, problem.r_min_mm, tau)
-        refused[i] = c is None or c.length_mm >= lmax
-    return refused
+    return np.array(
+        [geometric_refusal(problem, pose_from_direction(p0, d), goal) is not None for d in dirs],
+        dtype=bool,
+    )
 
 
 @dataclass(frozen=True)
