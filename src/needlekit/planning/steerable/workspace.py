@@ -32,12 +32,28 @@ from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_c
 __all__ = ["goal_connected"]
 
 
+@numba.njit(cache=True, inline="always")
+def _slot(keys, key):  # pragma: no cover - compiled
+    """Open addressing: the slot holding ``key``, or the empty slot where it goes."""
+    mask = keys.shape[0] - 1
+    h = (key * -7046029254386353131) & mask  # Fibonacci hashing (0x9E3779B97F4A7C15)
+    while keys[h] != -1 and keys[h] != key:
+        h = (h + 1) & mask
+    return h
+
+
 @numba.njit(cache=True)
-def _fill(
-    occ, affine, inv, start, goal, excl_r, free_r, reach, budget, visited, lo
-):  # pragma: no cover
+def _grow(keys):  # pragma: no cover - compiled
+    bigger = np.full(2 * keys.shape[0], -1, dtype=np.int64)
+    for key in keys:
+        if key != -1:
+            bigger[_slot(bigger, key)] = key
+    return bigger
+
+
+@numba.njit(cache=True)
+def _fill(occ, affine, inv, start, goal, excl_r, free_r, reach, budget):  # pragma: no cover
     ni, nj, nk = occ.shape
-    bi, bj, bk = visited.shape
     r0, r1, r2 = box_half_widths(affine, free_r)
     fr2, ex2, reach2 = free_r * free_r, excl_r * excl_r, reach * reach
 
@@ -67,7 +83,9 @@ def _fill(
 
     # greedy best-first: voxels wait in buckets by their distance to the goal (in steps of
     # the smallest spacing), the nearest bucket first; when the goal is reachable the fill
-    # heads straight for it, and when it is not, it exhausts the region all the same
+    # heads straight for it, and when it is not, it exhausts the region all the same.
+    # Memory grows with the voxels reached (a hash set of visited voxels and a list of
+    # queued ones), not with the region's box.
     step = min(
         math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2),
         math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2),
@@ -75,54 +93,68 @@ def _fill(
     )
     n_buckets = int(math.ceil(budget / step)) + 2
     first = np.full(n_buckets, -1, dtype=np.int64)
-    nxt = np.empty(bi * bj * bk, dtype=np.int64)
+    keys = np.full(4096, -1, dtype=np.int64)  # visited voxels (linear index), a hash set
+    n_keys = 0
+    queued = np.empty(1024, dtype=np.int64)  # queued voxels' linear index ...
+    nxt = np.empty(1024, dtype=np.int64)  # ... and the next entry of their bucket
     u = inv[0, 0] * start[0] + inv[0, 1] * start[1] + inv[0, 2] * start[2] + inv[0, 3]
     v = inv[1, 0] * start[0] + inv[1, 1] * start[1] + inv[1, 2] * start[2] + inv[1, 3]
     w = inv[2, 0] * start[0] + inv[2, 1] * start[1] + inv[2, 2] * start[2] + inv[2, 3]
     si, sj, sk = int(round(u)), int(round(v)), int(round(w))
-    visited[si - lo[0], sj - lo[1], sk - lo[2]] = 1
-    q0 = ((si - lo[0]) * bj + (sj - lo[1])) * bk + (sk - lo[2])
+    q0 = (si * nj + sj) * nk + sk
+    keys[_slot(keys, q0)] = q0
+    n_keys = 1
     x, y, z = centre(si, sj, sk)
     b0 = min(
         int(math.sqrt((x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2) / step),
         n_buckets - 1,
     )
-    first[b0] = q0
-    nxt[q0] = -1
+    queued[0] = q0
+    nxt[0] = -1
+    first[b0] = 0
+    n_queued = 1
     low = b0
     seen = 1
     while low < n_buckets:
         if first[low] < 0:
             low += 1
             continue
-        q = first[low]
-        first[low] = nxt[q]
-        qi = q // (bj * bk)
-        qj = (q // bk) % bj
-        qk = q % bk
-        gi, gj, gk = qi + lo[0], qj + lo[1], qk + lo[2]
+        e = first[low]
+        first[low] = nxt[e]
+        q = queued[e]
+        gi = q // (nj * nk)
+        gj = (q // nk) % nj
+        gk = q % nk
         x, y, z = centre(gi, gj, gk)
         if (x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2 <= reach2:
             return True, seen
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 for dk in range(-1, 2):
-                    ai, aj, ak = qi + di, qj + dj, qk + dk
-                    if ai < 0 or aj < 0 or ak < 0 or ai >= bi or aj >= bj or ak >= bk:
+                    ci, cj, ck = gi + di, gj + dj, gk + dk
+                    if ci < 0 or cj < 0 or ck < 0 or ci >= ni or cj >= nj or ck >= nk:
                         continue
-                    if visited[ai, aj, ak]:
+                    a = (ci * nj + cj) * nk + ck
+                    h = _slot(keys, a)
+                    if keys[h] == a:
                         continue
-                    visited[ai, aj, ak] = 1
-                    ci, cj, ck = ai + lo[0], aj + lo[1], ak + lo[2]
+                    keys[h] = a
+                    n_keys += 1
+                    if 2 * n_keys > keys.shape[0]:
+                        keys = _grow(keys)
                     cx, cy, cz = centre(ci, cj, ck)
                     if not inside(cx, cy, cz) or not free(ci, cj, ck):
                         continue
                     seen += 1
-                    a = (ai * bj + aj) * bk + ak
+                    if n_queued == queued.shape[0]:
+                        queued = np.concatenate((queued, np.empty_like(queued)))
+                        nxt = np.concatenate((nxt, np.empty_like(nxt)))
                     dg = math.sqrt((cx - goal[0]) ** 2 + (cy - goal[1]) ** 2 + (cz - goal[2]) ** 2)
                     b = min(int(dg / step), n_buckets - 1)
-                    nxt[a] = first[b]
-                    first[b] = a
+                    queued[n_queued] = a
+                    nxt[n_queued] = first[b]
+                    first[b] = n_queued
+                    n_queued += 1
                     if b < low:
                         low = b
     return False, seen
@@ -163,19 +195,9 @@ def goal_connected(
     goal = np.ascontiguousarray(goal_mm, dtype=np.float64).reshape(3)
     h = obstacles.voxel_radius_mm
     budget = max_length_mm + goal_tolerance_mm + 2.0 * h
-    # the box of voxels around the ellipsoid |p - s| + |p - g| <= budget
-    centre, half = 0.5 * (start + goal), 0.5 * budget
-    corners = centre + half * np.array(
-        [[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float
-    )
-    ijk = corners @ obstacles.inv_affine[:3, :3].T + obstacles.inv_affine[:3, 3]
-    shape = np.array(obstacles.occupancy.shape)
-    lo = np.clip(np.floor(ijk.min(axis=0)).astype(np.int64), 0, shape - 1)
-    hi = np.clip(np.ceil(ijk.max(axis=0)).astype(np.int64), 0, shape - 1)
     s_ijk = np.rint(obstacles.inv_affine[:3, :3] @ start + obstacles.inv_affine[:3, 3])
-    if np.any(s_ijk < lo) or np.any(s_ijk > hi):
+    if np.any(s_ijk < 0) or np.any(s_ijk > np.array(obstacles.occupancy.shape) - 1):
         return None, 0
-    visited = np.zeros(tuple((hi - lo + 1).tolist()), dtype=np.uint8)
     free_r = obstacles.min_distance_mm - h
     connected, n = _fill(
         obstacles.occupancy,
@@ -187,7 +209,5 @@ def goal_connected(
         float(free_r),
         float(goal_tolerance_mm + h),
         float(budget),
-        visited,
-        lo,
     )
     return bool(connected), int(n)
