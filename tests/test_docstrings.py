@@ -63,7 +63,7 @@ MODULES = [
     "needlekit.planning.straight.verify",
     "needlekit.planning.straight.ablation",
     "needlekit.planning.steerable.search",
-    "needlekit.planning.steerable.workspace",
+    "needlekit.anatomy.voxel_connectivity",
     "needlekit.planning.interface",
     "needlekit.planning.registry",
     "needlekit.anatomy.voxel_local",

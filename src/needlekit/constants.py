@@ -65,6 +65,10 @@ DEFAULT_MAX_HEADING_CHANGE_DEG: float = 90.0
 #: Obstacles this close to the start (mm) are ignored: a transbronchial needle leaves the
 #: airway through its wall (the reference planner's whitelist radius).
 DEFAULT_START_EXCLUSION_MM: float = 3.0
+
+#: Spacing of the collision samples along the planners' motions (mm), as in the reference
+#: steerable-needle planner (its 0.5 mm sample points).
+MOTION_SPACING_MM: float = 0.5
 #: Goal tolerance tau (mm), Feng et al.'s and the reference planner's.
 DEFAULT_GOAL_TOLERANCE_MM: float = 1.0
 #: Planning budget per run (s): Feng et al.'s 1 s per start direction.

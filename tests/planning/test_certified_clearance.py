@@ -88,7 +88,7 @@ def test_verify_refuses_the_touching_plan_and_reports_a_certified_bound(scenario
 def test_the_planners_validity_check_refuses_the_straight_motion(scenario):
     _, problem = load_problem(scenario)
     validator = MotionValidator(problem)
-    assert validator.threshold_mm == pytest.approx(
+    assert validator.checker.threshold_mm == pytest.approx(
         problem.scene.obstacle_field(0.5).error_bound_mm + 0.25
     )
     assert not validator.motion_valid(problem.start_pose, 0.0, 0.0, 39.0)

@@ -231,7 +231,7 @@ def test_a_tunnel_to_the_goal_keeps_it_reachable(planner):
 
 
 def test_the_connectivity_proof_holds_only_where_samples_are_finer_than_voxels():
-    from needlekit.planning.steerable.workspace import goal_connected
+    from needlekit.anatomy.voxel_connectivity import goal_connected
 
     p = _shell_problem(hole=False)
     kw = {"max_length_mm": 150.0, "goal_tolerance_mm": 1.0, "exclusion_mm": 3.0}

@@ -30,6 +30,7 @@ from needlekit.errors import InvalidInputError
 
 __all__ = [
     "VoxelObstacles",
+    "any_collides_unchecked",
     "box_half_widths",
     "nearest_obstacle_distance_reference",
     "voxel_centre",
@@ -96,6 +97,35 @@ def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # p
             if hit:
                 break
         out[n] = hit
+
+
+@numba.njit(cache=True)
+def any_collides_unchecked(
+    occ, inv, affine, min_dist, excl_point, excl_r, points
+):  # pragma: no cover
+    """Whether any of the points collides (:meth:`VoxelObstacles.collides` ``.any()``,
+    stopping at the first hit, without checks): the search loops' call.
+
+    Parameters
+    ----------
+    occ, inv, affine, min_dist
+        A :class:`VoxelObstacles`' ``occupancy``, ``inv_affine``, ``affine`` and
+        ``min_distance_mm``.
+    excl_point : ndarray, shape (3,)
+    excl_r : float
+        Obstacle centres closer than this to ``excl_point`` are ignored.
+    points : ndarray, shape (n, 3), float64, C-contiguous
+
+    Returns
+    -------
+    bool
+    """
+    out = np.empty(1, dtype=np.bool_)
+    for n in range(points.shape[0]):
+        _collides(occ, inv, affine, min_dist, excl_point, excl_r, points[n : n + 1], out)
+        if out[0]:
+            return True
+    return False
 
 
 class VoxelObstacles:

@@ -176,7 +176,7 @@ def run_steerable_benchmark(
                     )
                     rows.append(
                         _row(res, patient=patient, start=start, r_min_mm=float(r))
-                        | {"collision_model": problem.collision_model.value}
+                        | {"collision_model": problem.collision_model}
                         | {"reference_cost_mm": ref}
                     )
                     if progress is not None:
@@ -190,7 +190,7 @@ def run_steerable_benchmark(
             res = run(problem, planner)
             rows.append(
                 _row(res, scenario=str(path))
-                | {"collision_model": problem.collision_model.value}
+                | {"collision_model": problem.collision_model}
                 | {"reference_cost_mm": "n/a"}
             )
             if progress is not None:

@@ -26,7 +26,10 @@ from needlekit._validation import as_poses, unbatch
 from needlekit.errors import InvalidInputError
 
 __all__ = [
+    "arc_end_unchecked",
+    "arc_points_unchecked",
     "arc_transform",
+    "min_tangent_dot_unchecked",
     "propagate_arcs",
     "propagate_arcs_reference",
     "sample_arcs",
@@ -363,3 +366,103 @@ def sample_arcs(world_T_tip, spin_rad, kappa_per_mm, length_mm, n_samples: int):
     out = np.empty((spin.shape[0], m, 3))
     _sample_kernel(poses, spin, kappa, length, out)
     return unbatch(out, single)
+
+
+# ----------------------------------------------------------------------------------------
+# unchecked entry points for search loops (spatialmath's ``check=False``): the caller
+# passes a checked C-contiguous float64 (4, 4) pose and finite numbers; nothing is
+# validated or broadcast. Each gives bit for bit what its checked twin gives.
+
+
+@numba.njit(cache=True)
+def arc_end_unchecked(pose, spin, kappa, length):  # pragma: no cover - compiled
+    """The pose after one arc from ``pose`` (:func:`propagate_arcs` without its checks).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4), float64, C-contiguous
+    spin, kappa, length : float
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+    """
+    local = np.empty((3, 4))
+    _local_arc(spin, kappa, length, local)
+    out = np.empty((4, 4))
+    for i in range(3):
+        for j in range(4):
+            acc = 0.0
+            for m in range(3):
+                acc += pose[i, m] * local[m, j]
+            if j == 3:
+                acc += pose[i, 3]
+            out[i, j] = acc
+    out[3, 0] = 0.0
+    out[3, 1] = 0.0
+    out[3, 2] = 0.0
+    out[3, 3] = 1.0
+    return out
+
+
+@numba.njit(cache=True)
+def arc_points_unchecked(pose, spin, kappa, length, n_samples):  # pragma: no cover
+    """``sample_arcs(pose, spin, kappa, length, n_samples)`` without its checks.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4), float64, C-contiguous
+    spin, kappa, length : float
+    n_samples : int
+        At least 2.
+
+    Returns
+    -------
+    ndarray, shape (n_samples, 3)
+    """
+    out = np.empty((1, n_samples, 3))
+    _sample_kernel(
+        pose.reshape(1, 4, 4),
+        np.full(1, spin),
+        np.full(1, kappa),
+        np.full(1, length),
+        out,
+    )
+    return out[0]
+
+
+@numba.njit(cache=True)
+def min_tangent_dot_unchecked(pose, spin, kappa, length, n_samples, direction):  # pragma: no cover
+    """The smallest ``tangent . direction`` over the samples of an arc, its start left
+    out (the heading check of the planners: samples ``1..n_samples-1`` of
+    ``linspace(0, length, n_samples)``).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4), float64, C-contiguous
+    spin, kappa, length : float
+    n_samples : int
+        At least 2.
+    direction : ndarray, shape (3,)
+        A unit vector (the start direction).
+
+    Returns
+    -------
+    float
+    """
+    cs, ss = math.cos(spin), math.sin(spin)
+    # the tangent Rz(spin) Rx(phi) e_z = (ss sp, -cs sp, cp) in the pose's frame
+    best = math.inf
+    step = length / (n_samples - 1)
+    for q in range(1, n_samples):
+        s = length if q == n_samples - 1 else q * step
+        phi = kappa * s
+        sp, cp = math.sin(phi), math.cos(phi)
+        a, b, c = ss * sp, -cs * sp, cp
+        d = 0.0
+        for i in range(3):
+            t = pose[i, 0] * a + pose[i, 1] * b + pose[i, 2] * c
+            d += t * direction[i]
+        if d < best:
+            best = d
+    return best

@@ -14,15 +14,23 @@ horn torus, :func:`needlekit.needle.reachability.shortest_arc_line`, less the to
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from needlekit._validation import as_points, as_poses, as_positive
+from needlekit.constants import ON_AXIS_TOL_MM
 from needlekit.errors import InvalidInputError
 from needlekit.needle.reachability import shortest_arc_line
 
-__all__ = ["GoalConnection", "goal_connection", "single_arc_connection"]
+__all__ = [
+    "GoalConnection",
+    "connection_length_unchecked",
+    "goal_connection",
+    "single_arc_connection",
+]
 
 
 @dataclass(frozen=True)
@@ -103,6 +111,48 @@ def goal_connection(
         return None
     turn = float(np.arctan2(axial, r - radial))  # goal's angle seen from the centre
     return GoalConnection(np.array([[spin, kappa, r * turn]]), r * turn, depth)
+
+
+@numba.njit(cache=True)
+def connection_length_unchecked(pose, goal, r, tau):  # pragma: no cover - compiled
+    """``goal_connection(pose, goal, r, tau).length_mm`` (``inf`` for None), without its
+    checks: the cost-to-go of resolution-optimal search, once per node.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4), float64
+    goal : ndarray, shape (3,), float64
+    r, tau : float
+        r_min (> 0) and the tolerance (>= 0).
+
+    Returns
+    -------
+    float
+    """
+    l0 = l1 = l2 = 0.0
+    for i in range(3):
+        d = goal[i] - pose[i, 3]
+        l0 += d * pose[i, 0]
+        l1 += d * pose[i, 1]
+        l2 += d * pose[i, 2]
+    axial = l2
+    radial = math.hypot(l0, l1)
+    du = radial - r
+    dist = math.hypot(du, axial)
+    if dist >= r and not (radial <= ON_AXIS_TOL_MM and axial < 0.0):
+        tangent = math.sqrt(max(dist * dist - r * r, 0.0))
+        turn = (math.atan2(tangent, -r) - math.atan2(axial, du)) % (2.0 * math.pi)
+        if turn > 2.0 * math.pi - 1e-12:
+            turn = 0.0
+        arc = r * turn
+        if tangent > tau:
+            return arc + tangent - tau
+        return arc
+    if axial < 0.0:
+        return math.inf
+    if r - math.hypot(radial - r, axial) > tau:
+        return math.inf
+    return r * math.atan2(axial, r - radial)
 
 
 def single_arc_connection(

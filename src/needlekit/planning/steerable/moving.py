@@ -42,7 +42,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
 from needlekit.planning.result import Verification
 from needlekit.planning.steerable.plan import SteerablePlan
-from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
+from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
 __all__ = [
@@ -405,9 +405,11 @@ def check_moving(problem: SteerableProblem, moving) -> list[MovingObstacle]:
                 f"moving[{i}].name", f"{m.name!r} is already a structure of the scene"
             )
         names.add(m.name)
-    if problem.collision_model is not CollisionModel.FIELD:
+    if not getattr(problem.collision_checker(), "reads_scene", False):
         raise InvalidInputError(
-            "collision_model", "moving obstacles are distance fields: use the field collision model"
+            "collision_model",
+            "moving obstacles are distance fields added to the scene: use a collision model "
+            "that reads the scene's obstacle field (e.g. field)",
         )
     if problem.start_pose is None:
         raise InvalidInputError("start_pose", "planning among moving obstacles needs a start pose")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit._validation import as_points, as_poses, as_positive
+from needlekit.anatomy.collision import CollisionChecker, CollisionSetup, make_collision_checker
 from needlekit.anatomy.fields import DistanceField
 from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.anatomy.scene import Role, Scene
@@ -25,14 +26,17 @@ from needlekit.constants import (
     DEFAULT_R_MIN_MM,
     DEFAULT_START_EXCLUSION_MM,
     MIN_NORMAL_GRADIENT,
+    MOTION_SPACING_MM,
 )
 from needlekit.errors import InvalidInputError
 
 __all__ = ["CollisionModel", "CostKind", "SteerableProblem"]
 
 
-class CollisionModel(enum.Enum):
-    """How a problem decides collisions: one model per problem, chosen explicitly.
+class CollisionModel(enum.StrEnum):
+    """The built-in collision models' names (a problem's ``collision_model`` is the name of
+    any registered :class:`~needlekit.anatomy.collision.CollisionChecker`; these two are
+    built in). Members compare equal to their names.
 
     FIELD
         The scene's obstacle field: a point is clear when its distance to every obstacle,
@@ -111,8 +115,12 @@ class SteerableProblem:
         ``w`` of the clearance cost map (>= 0; extra cost per mm when touching an obstacle).
     cost_reach_mm : float
         ``R`` of the clearance cost map (> 0): beyond this clearance a mm costs 1.
-    collision_model : CollisionModel or str
-        ``"field"`` (default) or ``"voxel_centres"``.
+    collision_model : str
+        The name of a registered collision checker
+        (:mod:`needlekit.anatomy.collision`): ``"field"`` (default), ``"voxel_centres"`` or
+        one registered by a user.
+    collision_options : dict, optional
+        Settings handed to the collision checker's factory (its own).
     voxel_obstacles : VoxelObstacles, optional
         The obstacle voxels of the ``voxel_centres`` model (required by it, refused by
         ``field``), built for this needle's diameter and margin.
@@ -157,11 +165,13 @@ class SteerableProblem:
     cost_weight: float = 1.0
     cost_reach_mm: float = 5.0
     metadata: dict = field(default_factory=dict)
-    collision_model: CollisionModel = CollisionModel.FIELD
+    collision_model: str = "field"
     voxel_obstacles: VoxelObstacles | None = field(default=None, repr=False, compare=False)
+    collision_options: dict | None = field(default=None, compare=False)
     entry_normal: np.ndarray | None = None
     start_inside: bool = False
     puncture_normal: np.ndarray | None = field(init=False, default=None)
+    _checkers: dict = field(init=False, default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not isinstance(self.scene, Scene):
@@ -239,36 +249,50 @@ class SteerableProblem:
                 )
 
     def _check_collision_model(self) -> None:
-        try:
-            model = CollisionModel(self.collision_model)
-        except ValueError:
-            kinds = ", ".join(k.value for k in CollisionModel)
+        model = self.collision_model
+        if isinstance(model, CollisionModel):
+            model = model.value
+        if not isinstance(model, str):
             raise InvalidInputError(
-                "collision_model", f"expected one of {kinds}, got {self.collision_model!r}"
-            ) from None
-        object.__setattr__(self, "collision_model", model)
-        obs = self.voxel_obstacles
-        if model is CollisionModel.VOXEL_CENTRES:
-            if not isinstance(obs, VoxelObstacles):
-                raise InvalidInputError(
-                    "voxel_obstacles",
-                    "the voxel_centres collision model needs the obstacle voxels "
-                    "(e.g. a Med-RAD case's voxel_obstacles(...))",
-                )
-            wanted = 0.5 * self.needle_diameter_mm + obs.voxel_radius_mm + self.safety_margin_mm
-            if abs(obs.min_distance_mm - wanted) > 1e-9:
-                raise InvalidInputError(
-                    "voxel_obstacles",
-                    f"built for a threshold of {obs.min_distance_mm:.4f} mm, but this needle "
-                    f"(diameter {self.needle_diameter_mm:g} mm, margin "
-                    f"{self.safety_margin_mm:g} mm) needs {wanted:.4f} mm",
-                )
-        elif obs is not None:
-            raise InvalidInputError(
-                "voxel_obstacles",
-                "given with the field collision model, which would ignore them; "
-                "set collision_model='voxel_centres'",
+                "collision_model", f"expected a collision checker's name, got {model!r}"
             )
+        object.__setattr__(self, "collision_model", model)
+        if self.collision_options is not None and not isinstance(self.collision_options, dict):
+            raise InvalidInputError(
+                "collision_options",
+                f"expected a mapping, got {type(self.collision_options).__name__}",
+            )
+        object.__setattr__(self, "_checkers", {})
+        self.collision_checker()  # built once here: its factory checks what it needs
+
+    def collision_checker(self, spacing_mm: float = MOTION_SPACING_MM) -> CollisionChecker:
+        """The problem's collision checker for motion samples at most ``spacing_mm`` apart
+        (built once per spacing).
+
+        Parameters
+        ----------
+        spacing_mm : float
+
+        Returns
+        -------
+        CollisionChecker
+        """
+        key = float(spacing_mm)
+        checker = self._checkers.get(key)
+        if checker is None:
+            setup = CollisionSetup(
+                scene=self.scene,
+                needle_diameter_mm=self.needle_diameter_mm,
+                safety_margin_mm=self.safety_margin_mm,
+                start_point_mm=self.start_point_mm,
+                exclusion_mm=self.start_exclusion_mm,
+                spacing_mm=key,
+                voxel_obstacles=self.voxel_obstacles,
+                options=dict(self.collision_options or {}),
+            )
+            checker = make_collision_checker(self.collision_model, setup)
+            self._checkers[key] = checker
+        return checker
 
     def _resolve_puncture_normal(self) -> None:
         alpha = self.min_puncture_angle_deg

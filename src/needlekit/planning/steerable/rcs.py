@@ -47,13 +47,17 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.arcs import propagate_arcs
+from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
-from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
+from needlekit.planning.steerable.goal import (
+    connection_length_unchecked,
+    goal_connection,
+    single_arc_connection,
+)
 from needlekit.planning.steerable.plan import SteerablePlan
-from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.problem import CostKind, SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.search import SteerableSearch, precheck
 
@@ -156,35 +160,54 @@ def _tables(res: Resolution):
 
 
 class _DuplicateIndex:
-    """Spun start poses by position cell; finds another parent's pose within the tolerance."""
+    """Spun start poses by cell; finds another parent's pose within the tolerance.
+
+    A pose's cell quantises its position and its x axis (the axis a spin turns) in steps
+    of ``1000 * tol``. Two poses within ``tol`` in the SE(3) metric differ by at most
+    ``tol`` in every coordinate of both (``|R - Q|_F <= tol * sqrt(2) / 10``), so they lie
+    in the same cell or, only when one sits within ``tol`` of a cell face, in a
+    neighbouring one: just those cells are visited. Spins of one parent share a position
+    but not an x axis, so they do not crowd one cell.
+    """
 
     def __init__(self, tol: float = DUPLICATE_TOL) -> None:
         self.tol = tol
         self.cell = 1e3 * tol
         self.cells: dict[tuple, list] = {}
 
-    def _key(self, p) -> tuple:
-        return tuple(int(v) for v in np.floor(p / self.cell))
+    def _cells(self, pose) -> tuple[tuple, list]:
+        home = []
+        keys: list[tuple] = [()]
+        for v in (pose[0, 3], pose[1, 3], pose[2, 3], pose[0, 0], pose[1, 0], pose[2, 0]):
+            q = float(v) / self.cell
+            k = math.floor(q)
+            f = q - k
+            home.append(k)
+            near = [k]
+            if f * self.cell <= self.tol:
+                near.append(k - 1)
+            if (1.0 - f) * self.cell <= self.tol:
+                near.append(k + 1)
+            keys = [(*key, n) for key in keys for n in near]
+        return tuple(home), keys
 
     def check_and_add(self, pose: np.ndarray, parent: int, g_parent: float, optimal: bool) -> bool:
         """False when another parent holds this pose (no more expensively, for RCS*)."""
-        p, rot = pose[:3, 3], pose[:3, :3]
-        k = self._key(p)
+        p = pose[:3, 3]
+        home, keys = self._cells(pose)
         mine = False
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                for dz in (-1, 0, 1):
-                    for q, other, g_other in self.cells.get((k[0] + dx, k[1] + dy, k[2] + dz), ()):
-                        d = 10.0 * float(np.linalg.norm(rot - q[:3, :3])) / math.sqrt(2.0)
-                        d += float(np.linalg.norm(p - q[:3, 3]))
-                        if d > self.tol:
-                            continue
-                        if other == parent:
-                            mine = True
-                        elif not optimal or g_other < g_parent + PRUNE_EPS_MM:
-                            return False
+        for key in keys:
+            for q, other, g_other in self.cells.get(key, ()):
+                d = 10.0 * float(np.linalg.norm(pose[:3, :3] - q[:3, :3])) / math.sqrt(2.0)
+                d += float(np.linalg.norm(p - q[:3, 3]))
+                if d > self.tol:
+                    continue
+                if other == parent:
+                    mine = True
+                elif not optimal or g_other < g_parent + PRUNE_EPS_MM:
+                    return False
         if not mine:
-            self.cells.setdefault(k, []).append((pose, parent, g_parent))
+            self.cells.setdefault(home, []).append((pose, parent, g_parent))
         return True
 
 
@@ -215,8 +238,9 @@ class _Node:
 
 def _cost_to_go(pose, problem: SteerableProblem) -> float:
     # shortest turn-then-straight length: a lower bound of any cost (every mm costs >= 1)
-    c = goal_connection(pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm)
-    return math.inf if c is None else c.length_mm
+    return connection_length_unchecked(
+        pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm
+    )
 
 
 @dataclass(frozen=True)
@@ -356,6 +380,14 @@ def _search(
             del buckets[choice]
         return item[-1]
 
+    goal_c = np.ascontiguousarray(goal, dtype=np.float64)
+    r_min, tau = problem.r_min_mm, problem.goal_tolerance_mm
+    length_cost = problem.cost is CostKind.PATH_LENGTH
+    spin_list = [float(v) for v in spins]
+    length_list = [float(v) for v in lengths]
+    length_rank = [int(v) for v in length_level]
+    spin_rank = [int(v) for v in spin_level]
+
     def add_child(parent_idx: int, curved: bool, li: int, si: int) -> None:
         nonlocal n_duplicates
         parent = nodes[parent_idx]
@@ -363,22 +395,25 @@ def _search(
         if key in parent.explored:
             return
         parent.explored.add(key)
-        spin = spins[si] if curved else 0.0
+        spin = spin_list[si] if curved else 0.0
         if curved and not duplicates.check_and_add(
             parent.pose @ _spin_matrix(spin), parent_idx, parent.g, optimal
         ):
             n_duplicates += 1
             return
-        length = lengths[li]
+        length = length_list[li]
         k = kappa if curved else 0.0
-        pose = propagate_arcs(parent.pose, spin, k, length)
-        rank = parent.rank + int(length_level[li]) + (int(spin_level[si]) if curved else 0) + 1
+        pose = arc_end_unchecked(parent.pose, spin, k, length)
+        rank = parent.rank + length_rank[li] + (spin_rank[si] if curved else 0) + 1
+        g = parent.g + (
+            length if length_cost else motion_cost(problem, parent.pose, spin, k, length)
+        )
         nodes.append(
             _Node(
                 pose,
                 parent_idx,
-                parent.g + motion_cost(problem, parent.pose, spin, k, length),
-                _cost_to_go(pose, problem),
+                g,
+                connection_length_unchecked(pose, goal_c, r_min, tau),
                 parent.s + length,
                 rank,
                 curved,
@@ -453,8 +488,10 @@ def _search(
             continue
         if optimal and best < n.f + PRUNE_EPS_MM:
             continue
-        spin = spins[n.si] if n.curved else 0.0
-        if not validator.motion_valid(parent.pose, spin, kappa if n.curved else 0.0, lengths[n.li]):
+        spin = spin_list[n.si] if n.curved else 0.0
+        if not validator.motion_valid(
+            parent.pose, spin, kappa if n.curved else 0.0, length_list[n.li]
+        ):
             continue
         gap = float(np.linalg.norm(n.pose[:3, 3] - goal))
         if gap < closest[0]:

@@ -17,9 +17,9 @@ Pre-checks, in order (each answers at once, before any search):
    ``INFEASIBLE``;
 7. the shortest curvature-bounded path to the goal's tau-ball is not shorter than l_max:
    ``INFEASIBLE``;
-8. (``voxel_centres`` model) no chain of free voxels connects the start to the goal within
-   the region a path of length l_max can visit
-   (:func:`~needlekit.planning.steerable.workspace.goal_connected`; the reference's
+8. the collision checker proves that no chain of free space connects the start to the goal
+   within the region a path of length l_max can visit (``voxel_centres``:
+   :func:`~needlekit.anatomy.voxel_connectivity.goal_connected`; the reference's
    "reachable workspace is not connected"): ``INFEASIBLE``.
 """
 
@@ -39,7 +39,6 @@ from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
 from needlekit.planning.steerable.verify import verify_approximate, verify_plan
-from needlekit.planning.steerable.workspace import goal_connected
 
 __all__ = ["SteerableSearch", "precheck"]
 
@@ -135,22 +134,15 @@ def precheck(
     refusal = geometric_refusal(problem, start, goal_mm)
     if refusal is not None:
         return refusal
-    if validator.obstacles is not None:
-        connected, _ = goal_connected(
-            validator.obstacles,
-            p0,
-            goal_mm,
-            max_length_mm=problem.max_length_mm,
-            goal_tolerance_mm=tau,
-            exclusion_mm=problem.start_exclusion_mm,
-            spacing_mm=validator.spacing_mm,
+    connected = validator.checker.connected(
+        goal_mm, max_length_mm=problem.max_length_mm, goal_tolerance_mm=tau
+    )
+    if connected is False:
+        return (
+            PlanStatus.INFEASIBLE,
+            "reachable workspace is not connected to the goal: no chain of free voxels "
+            "leads there within the maximum length",
         )
-        if connected is False:
-            return (
-                PlanStatus.INFEASIBLE,
-                "reachable workspace is not connected to the goal: no chain of free voxels "
-                "leads there within the maximum length",
-            )
     return None
 
 
@@ -167,22 +159,16 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     from needlekit.geometry.arcs import propagate_arcs
     from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
     from needlekit.planning.steerable.cost import chain_cost
-    from needlekit.planning.steerable.goal import single_arc_connection
+    from needlekit.planning.steerable.goal import (
+        connection_length_unchecked,
+        single_arc_connection,
+    )
 
-    validator.warm_up()
+    validator.warm_up()  # the checker's kernels, the connectivity proof's included
     start, goal = problem.start_pose, problem.goal_mm
-    if validator.obstacles is not None:  # the connectivity proof's kernel, on a tiny region
-        goal_connected(
-            validator.obstacles,
-            start[:3, 3],
-            start[:3, 3],
-            max_length_mm=0.0,
-            goal_tolerance_mm=problem.goal_tolerance_mm,
-            exclusion_mm=problem.start_exclusion_mm,
-            spacing_mm=validator.spacing_mm,
-        )
     kappa, r, tau = problem.kappa_max_per_mm, problem.r_min_mm, problem.goal_tolerance_mm
     goal_connection(start, goal, r, tau)
+    connection_length_unchecked(np.ascontiguousarray(start), np.ascontiguousarray(goal), r, tau)
     single_arc_connection(start, goal, r, tau)
     propagate_arcs(start, 0.0, kappa, 1.0)
     propagate_arcs(start, np.zeros(2), np.full(2, kappa), np.ones(2))

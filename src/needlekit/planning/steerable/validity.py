@@ -2,28 +2,31 @@
 
 A motion is valid when every sample along it (every ``spacing_mm`` of arc length, end
 included) is collision-free, outside the start exclusion ball where obstacles are ignored,
-and the direction stays within the heading limit. Collisions follow the problem's collision
-model (:class:`~needlekit.planning.steerable.problem.CollisionModel`):
+and the direction stays within the heading limit. Collisions are the problem's collision
+checker's to decide (:mod:`needlekit.anatomy.collision`: the certified ``field`` model, the
+reference's exact ``voxel_centres`` test, or a user's own); this module never asks which.
 
-- ``field``: certified. A sample is clear only when the scene's obstacle field, grown by the
-  needle radius plus margin, exceeds the field's stated error bound plus half the sample
-  spacing there: the field is 1-Lipschitz, so every point between samples is then clear
-  too, whatever the field's error;
-- ``voxel_centres``: the reference planner's exact test against obstacle voxel centres
-  (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`), sample by sample as it does.
+The problem was checked when it was built: the calls here go to unchecked kernels
+(:func:`~needlekit.geometry.arcs.arc_points_unchecked`,
+:func:`~needlekit.geometry.arcs.min_tangent_dot_unchecked`) with the poses the search
+made, and validate nothing again.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from needlekit.geometry.arcs import propagate_arcs, sample_arcs
-from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
+from needlekit.constants import MOTION_SPACING_MM
+from needlekit.geometry.arcs import (
+    arc_end_unchecked,
+    arc_points_unchecked,
+    min_tangent_dot_unchecked,
+)
+from needlekit.planning.steerable.problem import SteerableProblem
 
-__all__ = ["MotionValidator", "MOTION_SPACING_MM"]
-
-#: Spacing of the collision samples along motions (mm), as in the reference planner.
-MOTION_SPACING_MM: float = 0.5
+__all__ = ["MOTION_SPACING_MM", "MotionValidator"]
 
 
 class MotionValidator:
@@ -32,15 +35,14 @@ class MotionValidator:
     Parameters
     ----------
     problem : SteerableProblem
-        Its collision model decides collisions.
+        Its collision checker decides collisions.
     spacing_mm : float
         Largest gap between samples along a motion.
 
     Attributes
     ----------
-    threshold_mm : float
-        ``field`` model: the smallest grown-field value a sample must exceed (the field's
-        error bound plus half the spacing); 0 for ``voxel_centres``.
+    checker : CollisionChecker
+        The problem's checker for this spacing.
     """
 
     def __init__(self, problem: SteerableProblem, spacing_mm: float = MOTION_SPACING_MM) -> None:
@@ -48,16 +50,15 @@ class MotionValidator:
         self.spacing_mm = float(spacing_mm)
         self.start = problem.start_pose
         self.start_point = problem.start_point_mm
-        self.start_dir = None if problem.start_pose is None else problem.start_pose[:3, 2].copy()
+        self.start_dir = (
+            None
+            if problem.start_pose is None
+            else np.ascontiguousarray(problem.start_pose[:3, 2], dtype=np.float64)
+        )
         self.cos_heading = float(np.cos(np.radians(problem.max_heading_change_deg)))
-        if problem.collision_model is CollisionModel.VOXEL_CENTRES:
-            self.obstacles = problem.voxel_obstacles
-            self._field = None
-            self.threshold_mm = 0.0
-        else:
-            self.obstacles = None
-            self._field = problem.scene.obstacle_field(problem.clearance_margin_mm)
-            self.threshold_mm = float(self._field.error_bound_mm) + 0.5 * self.spacing_mm
+        self.checker = problem.collision_checker(self.spacing_mm)
+        self._collides = self.checker.collides
+        self._check_heading = self.start_dir is not None and self.cos_heading > -1.0
 
     def points_collide(self, points: np.ndarray) -> bool:
         """Whether any of the points (n, 3) collides (start exclusion applied).
@@ -72,17 +73,7 @@ class MotionValidator:
         """
         if len(points) == 0:
             return False
-        excl = self.problem.start_exclusion_mm
-        if self.obstacles is not None:
-            return bool(
-                self.obstacles.collides(
-                    points, exclude_near=self.start_point, exclusion_mm=excl
-                ).any()
-            )
-        far = np.linalg.norm(points - self.start_point, axis=1) >= excl
-        if not far.any():
-            return False
-        return bool((self._field.signed_distance(points[far]) < self.threshold_mm).any())
+        return bool(self._collides(np.ascontiguousarray(points, dtype=np.float64)))
 
     def goal_collides(self, goal_mm: np.ndarray) -> bool:
         """Whether the goal point itself provably lies where the needle cannot be (no
@@ -97,17 +88,15 @@ class MotionValidator:
         -------
         bool
         """
-        g = np.asarray(goal_mm, dtype=float).reshape(1, 3)
-        if self.obstacles is not None:
-            return bool(self.obstacles.collides(g)[0])
-        return bool(self._field.signed_distance(g)[0] < -self._field.error_bound_mm)
+        return bool(self.checker.goal_collides(np.asarray(goal_mm, dtype=float)))
 
     def motion_valid(self, pose: np.ndarray, spin: float, kappa: float, length: float) -> bool:
         """Whether the motion ``(spin, kappa, length)`` from ``pose`` is valid.
 
         Parameters
         ----------
-        pose : ndarray, shape (4, 4)
+        pose : ndarray, shape (4, 4), float64, C-contiguous
+            A pose the search made (not checked again).
         spin, kappa, length : float
 
         Returns
@@ -116,19 +105,16 @@ class MotionValidator:
         """
         if length <= 0.0:
             return True
-        m = max(2, int(np.ceil(length / self.spacing_mm - 1e-9)) + 1)
-        pts = sample_arcs(pose, spin, kappa, length, m)[1:]
-        if kappa != 0.0 and self.start_dir is not None and self.cos_heading > -1.0:
-            s = np.linspace(0.0, length, m)[1:]
-            ends = propagate_arcs(pose, np.full(s.shape, spin), np.full(s.shape, kappa), s)
-            if (ends[:, :3, 2] @ self.start_dir).min() < self.cos_heading - 1e-12:
+        m = max(2, math.ceil(length / self.spacing_mm - 1e-9) + 1)
+        if self._check_heading:
+            if kappa != 0.0:
+                dot = min_tangent_dot_unchecked(pose, spin, kappa, length, m, self.start_dir)
+            else:
+                d = self.start_dir
+                dot = pose[0, 2] * d[0] + pose[1, 2] * d[1] + pose[2, 2] * d[2]
+            if dot < self.cos_heading - 1e-12:
                 return False
-        elif (
-            self.start_dir is not None
-            and float(pose[:3, 2] @ self.start_dir) < self.cos_heading - 1e-12
-        ):
-            return False
-        return not self.points_collide(pts)
+        return not self._collides(arc_points_unchecked(pose, spin, kappa, length, m)[1:])
 
     def primitives_valid(self, pose: np.ndarray, primitives: np.ndarray) -> bool:
         """Whether a chain of primitives from ``pose`` is valid (heading not checked for the
@@ -143,11 +129,12 @@ class MotionValidator:
         -------
         bool
         """
-        g = pose
+        g = np.ascontiguousarray(pose, dtype=np.float64)
         for spin, kappa, length in primitives:
+            spin, kappa, length = float(spin), float(kappa), float(length)
             if not self.motion_valid(g, spin, kappa, length):
                 return False
-            g = propagate_arcs(g, spin, kappa, length)
+            g = arc_end_unchecked(g, spin, kappa, length)
         return True
 
     def warm_up(self) -> float:
@@ -162,8 +149,10 @@ class MotionValidator:
         import time
 
         t0 = time.perf_counter()
-        pose = np.eye(4) if self.start is None else self.start
+        pose = np.eye(4) if self.start is None else np.ascontiguousarray(self.start)
         self.motion_valid(pose, 0.0, self.problem.kappa_max_per_mm, self.spacing_mm)
         self.motion_valid(pose, 0.0, 0.0, self.spacing_mm)
+        arc_end_unchecked(pose, 0.0, 0.0, 1.0)
+        self.checker.warm_up()
         self.problem.scene.clearance(pose[:3, 3][None])  # the field the plan check reads
         return time.perf_counter() - t0

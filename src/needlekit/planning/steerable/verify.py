@@ -30,20 +30,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from needlekit.anatomy.voxel_clearance import nearest_obstacle_distance
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
 from needlekit.planning.result import Verification
 from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
-from needlekit.planning.steerable.problem import CollisionModel, SteerableProblem
+from needlekit.planning.steerable.problem import SteerableProblem
 
 __all__ = ["Verification", "verify_approximate", "verify_plan"]
 
 #: Slack on the checked limits (curvature, length, goal distance, angles): rounding only.
 VERIFY_SLACK: float = 1e-9
-#: Beyond this clearance (mm) the voxel-centre model reports the cap (its kernel visits only
-#: the voxels within it); far above any margin a plan is judged by.
-CLEARANCE_REPORT_CAP_MM: float = 10.0
 
 
 def _dense_poses(plan: SteerablePlan, spacing_mm: float) -> np.ndarray:
@@ -114,48 +110,23 @@ def verify_plan(
             f"puncture angle: {puncture:.3f} deg to the {problem.entry_surface or 'entry'} surface, "
             f"minimum {problem.min_puncture_angle_deg:g} deg"
         )
-    points = poses[:, :3, 3]
-    radius = 0.5 * problem.needle_diameter_mm
-    excl = problem.start_exclusion_mm
-    far = np.linalg.norm(points - start[:3, 3], axis=1) >= excl
-    half_gap = 0.5 * float(spacing_mm)
-    if problem.collision_model is CollisionModel.VOXEL_CENTRES:
-        obstacles = problem.voxel_obstacles
-        hits = obstacles.collides(points, exclude_near=start[:3, 3], exclusion_mm=excl)
-        n_hits = int(np.count_nonzero(hits))
-        if n_hits:
-            first = points[np.flatnonzero(hits)[0]]
-            bad.append(
-                f"collision: {n_hits} samples within {obstacles.min_distance_mm:.4f} mm of an "
-                f"obstacle voxel centre or outside the image, first at {np.round(first, 2).tolist()}"
-            )
-        ball = obstacles.voxel_radius_mm + radius
-        centre_d = nearest_obstacle_distance(
-            obstacles,
-            points,
-            cap_mm=ball + CLEARANCE_REPORT_CAP_MM,
-            exclude_near=start[:3, 3],
-            exclusion_mm=excl,
+    points = np.ascontiguousarray(poses[:, :3, 3])
+    # the problem's collision checker, bound to the plan's own start (its exclusion)
+    checker = problem.collision_checker(spacing_mm)
+    if not np.array_equal(start[:3, 3], problem.start_point_mm):
+        from dataclasses import replace
+
+        checker = replace(problem, start_pose=start, start_point_mm=None).collision_checker(
+            spacing_mm
         )
-        sampled = float(centre_d.min()) - ball if len(points) else np.inf
-        certified = sampled - half_gap
-    else:
-        field = problem.scene.obstacle_field(0.0)
-        d = field.signed_distance(points[far]) if far.any() else np.array([np.inf])
-        sampled = float(d.min()) - radius
-        certified = sampled - half_gap - float(field.error_bound_mm)
-        n_hits = int(
-            np.count_nonzero(
-                d - radius - half_gap - field.error_bound_mm < problem.safety_margin_mm
-            )
-        )
-        if certified < problem.safety_margin_mm:
-            bad.append(
-                f"collision: certified clearance {certified:.4f} mm (sampled {sampled:.4f} mm, "
-                f"less half the {spacing_mm:g} mm sample gap and the field's "
-                f"{field.error_bound_mm:.4f} mm error bound) below the safety margin "
-                f"{problem.safety_margin_mm:g} mm, outside the start exclusion"
-            )
+    cert = checker.certify(points, spacing_mm)
+    if cert.violation is not None:
+        bad.append(cert.violation)
+    sampled, certified, n_hits = (
+        cert.sampled_clearance_mm,
+        cert.certified_clearance_mm,
+        cert.colliding_samples,
+    )
     cost = plan_cost(problem, plan)
     if expected_cost_mm is not None and not (
         abs(float(expected_cost_mm) - cost) <= 1e-6 + 1e-9 * abs(cost)
@@ -170,7 +141,7 @@ def verify_plan(
         "puncture_angle_deg": puncture,
         "min_clearance_mm": sampled,
         "certified_clearance_mm": certified,
-        "collision_model": problem.collision_model.value,
+        "collision_model": checker.name,
         "colliding_samples": n_hits,
     }
     return Verification(not bad, tuple(bad), metrics)

@@ -1,0 +1,480 @@
+"""Collision checkers: how a planning problem decides whether the needle collides.
+
+One protocol, :class:`CollisionChecker` (OMPL's ``StateValidityChecker``), with two built-in
+implementations that are peers:
+
+- ``field`` (:class:`FieldChecker`): the scene's obstacle field. Certified: a sample is
+  clear only when the field, grown by the needle radius plus margin, exceeds the field's
+  stated error bound plus half the sample spacing, so every point between samples is
+  clear too (the field is 1-Lipschitz), whatever the field's error;
+- ``voxel_centres`` (:class:`VoxelCentresChecker`): the reference planner's exact test
+  against obstacle voxel centres (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`).
+
+A checker is bound to one needle and one start: obstacles within the start exclusion of
+the start point are ignored (a transbronchial needle leaves the airway through its wall).
+Planners, the plan check and the moving-obstacle code call only the protocol; nobody
+branches on a checker's name. A new checker registers a factory by name
+(:func:`register_collision_checker`, or the ``needlekit.collision_checkers`` entry-point
+group) and problems name it in ``collision_model``.
+
+Examples
+--------
+>>> import numpy as np
+>>> from needlekit.anatomy.primitives import Sphere
+>>> from needlekit.anatomy.scene import Role, Scene, Structure
+>>> scene = Scene([Structure("vessel", Sphere([0.0, 0.0, 20.0], 5.0), Role.OBSTACLE)])
+>>> checker = FieldChecker(scene, needle_radius_mm=0.5, safety_margin_mm=0.0,
+...                        start_point_mm=np.zeros(3), exclusion_mm=0.0, spacing_mm=0.5)
+>>> checker.collides(np.array([[0.0, 0.0, 14.0], [0.0, 0.0, 10.0]]))
+True
+>>> checker.collides(np.array([[0.0, 0.0, 10.0]]))
+False
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from needlekit.anatomy.occupancy import VoxelObstacles, any_collides_unchecked
+from needlekit.anatomy.scene import Scene
+from needlekit.anatomy.voxel_clearance import smallest_obstacle_distance
+from needlekit.errors import InvalidInputError
+
+__all__ = [
+    "ClearanceCertificate",
+    "CollisionChecker",
+    "CollisionSetup",
+    "FieldChecker",
+    "VoxelCentresChecker",
+    "collision_checker_names",
+    "make_collision_checker",
+    "register_collision_checker",
+    "unregister_collision_checker",
+]
+
+#: Beyond this clearance (mm) the voxel-centre model reports the cap (its kernel visits only
+#: the voxels within it); far above any margin a plan is judged by.
+CLEARANCE_REPORT_CAP_MM: float = 10.0
+
+
+@dataclass(frozen=True)
+class ClearanceCertificate:
+    """What a checker certifies about a sampled path.
+
+    Attributes
+    ----------
+    colliding_samples : int
+        Samples that collide under the checker's rule.
+    sampled_clearance_mm : float
+        Smallest sampled distance from the needle's surface to an obstacle (an estimate).
+    certified_clearance_mm : float
+        A lower bound of that distance for the whole path, not only its samples.
+    violation : str or None
+        One line when the path collides under the checker's rule, else None.
+    """
+
+    colliding_samples: int
+    sampled_clearance_mm: float
+    certified_clearance_mm: float
+    violation: str | None
+
+
+@dataclass(frozen=True)
+class CollisionSetup:
+    """What a checker factory is given: the problem's needle, start and anatomy.
+
+    Attributes
+    ----------
+    scene : Scene
+    needle_diameter_mm, safety_margin_mm : float
+    start_point_mm : ndarray, shape (3,)
+    exclusion_mm : float
+        Obstacles within this distance of the start point are ignored.
+    spacing_mm : float
+        Largest gap between the samples the checker is asked about along a motion.
+    voxel_obstacles : VoxelObstacles or None
+        The problem's obstacle voxels, when it has them.
+    options : dict
+        The problem's ``collision_options`` (a checker's own settings).
+    """
+
+    scene: Scene
+    needle_diameter_mm: float
+    safety_margin_mm: float
+    start_point_mm: np.ndarray
+    exclusion_mm: float
+    spacing_mm: float
+    voxel_obstacles: VoxelObstacles | None = None
+    options: dict | None = None
+
+
+@runtime_checkable
+class CollisionChecker(Protocol):
+    """What planners, the plan check and the moving-obstacle code ask of a collision model.
+
+    Attributes
+    ----------
+    name : str
+        The model's registered name (recorded in results).
+    reads_scene : bool
+        Whether collisions come from the scene's obstacle field, so that obstacles added to
+        the scene (moving ones) count.
+    """
+
+    name: str
+    reads_scene: bool
+
+    def collides(self, points: np.ndarray) -> bool:
+        """Whether any of the motion samples collides (start exclusion applied).
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3), float64, C-contiguous
+            Samples no farther apart than the checker's spacing.
+        """
+
+    def goal_collides(self, goal_mm: np.ndarray) -> bool:
+        """Whether the goal point provably lies where the needle cannot be (no exclusion)."""
+
+    def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
+        """The plan check's verdict and clearance bound for a densely sampled path."""
+
+    def connected(
+        self, goal_mm: np.ndarray, *, max_length_mm: float, goal_tolerance_mm: float
+    ) -> bool | None:
+        """False only when no valid path can reach the goal (a proof); None when the
+        checker has no such argument."""
+
+    def warm_up(self) -> None:
+        """Compile or load every kernel the checker's calls use."""
+
+
+class FieldChecker:
+    """The ``field`` model: the scene's obstacle field, certified (module notes).
+
+    Parameters
+    ----------
+    scene : Scene
+    needle_radius_mm, safety_margin_mm : float
+    start_point_mm : ndarray, shape (3,)
+    exclusion_mm : float
+    spacing_mm : float
+        Largest gap between motion samples.
+    """
+
+    name = "field"
+    reads_scene = True
+
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        needle_radius_mm: float,
+        safety_margin_mm: float,
+        start_point_mm: np.ndarray,
+        exclusion_mm: float,
+        spacing_mm: float,
+    ) -> None:
+        self.scene = scene
+        self.radius = float(needle_radius_mm)
+        self.margin = float(safety_margin_mm)
+        self.start = np.ascontiguousarray(start_point_mm, dtype=np.float64).reshape(3)
+        self.exclusion = float(exclusion_mm)
+        self.spacing_mm = float(spacing_mm)
+        self._grown = None
+
+    @property
+    def grown(self):
+        """The obstacle field grown by the needle radius plus margin (built on first use)."""
+        if self._grown is None:
+            self._grown = self.scene.obstacle_field(self.radius + self.margin)
+        return self._grown
+
+    @property
+    def threshold_mm(self) -> float:
+        """The smallest grown-field value a sample must exceed: the field's error bound
+        plus half the sample spacing."""
+        return float(self.grown.error_bound_mm) + 0.5 * self.spacing_mm
+
+    def _far(self, points: np.ndarray) -> np.ndarray:
+        if self.exclusion <= 0.0:
+            return points
+        d = points - self.start
+        return points[np.einsum("ij,ij->i", d, d) >= self.exclusion * self.exclusion]
+
+    def collides(self, points: np.ndarray) -> bool:
+        far = self._far(points)
+        if len(far) == 0:
+            return False
+        return bool((self.grown.signed_distance(far) < self.threshold_mm).any())
+
+    def goal_collides(self, goal_mm: np.ndarray) -> bool:
+        g = np.asarray(goal_mm, dtype=float).reshape(1, 3)
+        return bool(self.grown.signed_distance(g)[0] < -self.grown.error_bound_mm)
+
+    def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
+        field = self.scene.obstacle_field(0.0)
+        far = self._far(points)
+        d = field.signed_distance(far) if len(far) else np.array([np.inf])
+        half_gap, bound = 0.5 * float(spacing_mm), float(field.error_bound_mm)
+        sampled = float(d.min()) - self.radius
+        certified = sampled - half_gap - bound
+        hits = int(np.count_nonzero(d - self.radius - half_gap - bound < self.margin))
+        violation = None
+        if certified < self.margin:
+            violation = (
+                f"collision: certified clearance {certified:.4f} mm (sampled {sampled:.4f} mm, "
+                f"less half the {spacing_mm:g} mm sample gap and the field's "
+                f"{bound:.4f} mm error bound) below the safety margin "
+                f"{self.margin:g} mm, outside the start exclusion"
+            )
+        return ClearanceCertificate(hits, sampled, certified, violation)
+
+    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+        return None
+
+    def warm_up(self) -> None:
+        p = self.start[None] + 1e-3
+        self.grown.signed_distance(p)
+        self.scene.obstacle_field(0.0).signed_distance(p)
+
+
+class VoxelCentresChecker:
+    """The ``voxel_centres`` model: the reference planner's exact voxel-centre test.
+
+    Parameters
+    ----------
+    obstacles : VoxelObstacles
+        Built for this needle's diameter and margin.
+    needle_radius_mm : float
+    start_point_mm : ndarray, shape (3,)
+    exclusion_mm : float
+    spacing_mm : float
+        Largest gap between motion samples (the connectivity proof needs it below the
+        voxel spacing).
+    """
+
+    name = "voxel_centres"
+    reads_scene = False
+
+    def __init__(
+        self,
+        obstacles: VoxelObstacles,
+        *,
+        needle_radius_mm: float,
+        start_point_mm: np.ndarray,
+        exclusion_mm: float,
+        spacing_mm: float,
+    ) -> None:
+        self.obstacles = obstacles
+        self.radius = float(needle_radius_mm)
+        self.start = np.ascontiguousarray(start_point_mm, dtype=np.float64).reshape(3)
+        self.exclusion = float(exclusion_mm)
+        self.spacing_mm = float(spacing_mm)
+        o = obstacles
+        self._args = (o.occupancy, o.inv_affine, o.affine, o.min_distance_mm)
+
+    def collides(self, points: np.ndarray) -> bool:
+        return bool(any_collides_unchecked(*self._args, self.start, self.exclusion, points))
+
+    def goal_collides(self, goal_mm: np.ndarray) -> bool:
+        return bool(self.obstacles.collides(np.asarray(goal_mm, dtype=float).reshape(1, 3))[0])
+
+    def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
+        o = self.obstacles
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        hits = o.collides(pts, exclude_near=self.start, exclusion_mm=self.exclusion)
+        n_hits = int(np.count_nonzero(hits))
+        violation = None
+        if n_hits:
+            first = pts[np.flatnonzero(hits)[0]]
+            violation = (
+                f"collision: {n_hits} samples within {o.min_distance_mm:.4f} mm of an "
+                f"obstacle voxel centre or outside the image, first at {np.round(first, 2).tolist()}"
+            )
+        ball = o.voxel_radius_mm + self.radius
+        nearest = smallest_obstacle_distance(
+            o,
+            pts,
+            cap_mm=ball + CLEARANCE_REPORT_CAP_MM,
+            near_mm=o.min_distance_mm,
+            exclude_near=self.start,
+            exclusion_mm=self.exclusion,
+        )
+        sampled = nearest - ball if len(pts) else math.inf
+        return ClearanceCertificate(n_hits, sampled, sampled - 0.5 * float(spacing_mm), violation)
+
+    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+        from needlekit.anatomy.voxel_connectivity import goal_connected
+
+        connected, _ = goal_connected(
+            self.obstacles,
+            self.start,
+            np.asarray(goal_mm, dtype=float),
+            max_length_mm=max_length_mm,
+            goal_tolerance_mm=goal_tolerance_mm,
+            exclusion_mm=self.exclusion,
+            spacing_mm=self.spacing_mm,
+        )
+        return connected
+
+    def warm_up(self) -> None:
+        p = self.start[None].copy()
+        self.collides(p)
+        self.certify(p, self.spacing_mm)
+        self.connected(self.start, max_length_mm=0.0, goal_tolerance_mm=0.0)
+
+
+# -- the registry ---------------------------------------------------------------------------
+
+Factory = Callable[[CollisionSetup], CollisionChecker]
+
+
+def _field(setup: CollisionSetup) -> FieldChecker:
+    if setup.voxel_obstacles is not None:
+        raise InvalidInputError(
+            "voxel_obstacles",
+            "given with the field collision model, which would ignore them; "
+            "set collision_model='voxel_centres'",
+        )
+    return FieldChecker(
+        setup.scene,
+        needle_radius_mm=0.5 * setup.needle_diameter_mm,
+        safety_margin_mm=setup.safety_margin_mm,
+        start_point_mm=setup.start_point_mm,
+        exclusion_mm=setup.exclusion_mm,
+        spacing_mm=setup.spacing_mm,
+    )
+
+
+def _voxel_centres(setup: CollisionSetup) -> VoxelCentresChecker:
+    obs = setup.voxel_obstacles
+    if not isinstance(obs, VoxelObstacles):
+        raise InvalidInputError(
+            "voxel_obstacles",
+            "the voxel_centres collision model needs the obstacle voxels "
+            "(e.g. a Med-RAD case's voxel_obstacles(...))",
+        )
+    wanted = 0.5 * setup.needle_diameter_mm + obs.voxel_radius_mm + setup.safety_margin_mm
+    if abs(obs.min_distance_mm - wanted) > 1e-9:
+        raise InvalidInputError(
+            "voxel_obstacles",
+            f"built for a threshold of {obs.min_distance_mm:.4f} mm, but this needle "
+            f"(diameter {setup.needle_diameter_mm:g} mm, margin "
+            f"{setup.safety_margin_mm:g} mm) needs {wanted:.4f} mm",
+        )
+    return VoxelCentresChecker(
+        obs,
+        needle_radius_mm=0.5 * setup.needle_diameter_mm,
+        start_point_mm=setup.start_point_mm,
+        exclusion_mm=setup.exclusion_mm,
+        spacing_mm=setup.spacing_mm,
+    )
+
+
+_REGISTRY: dict[str, Factory] = {"field": _field, "voxel_centres": _voxel_centres}
+_BUILTIN = frozenset(_REGISTRY)
+_entry_points_loaded = False
+
+
+def register_collision_checker(name: str, factory: Factory, *, replace: bool = False) -> None:
+    """Make a collision checker available by name (``collision_model: NAME``).
+
+    Parameters
+    ----------
+    name : str
+    factory : callable
+        ``factory(setup: CollisionSetup) -> CollisionChecker``.
+    replace : bool
+        Allow replacing a non-built-in checker of that name.
+
+    Raises
+    ------
+    InvalidInputError
+        A built-in name, a name already taken (without ``replace``), or a factory that
+        is not callable.
+    """
+    if not isinstance(name, str) or not name.isidentifier():
+        raise InvalidInputError("name", f"expected an identifier, got {name!r}")
+    if not callable(factory):
+        raise InvalidInputError("factory", f"expected a callable, got {type(factory).__name__}")
+    if name in _BUILTIN:
+        raise InvalidInputError("name", f"{name!r} is a built-in collision checker")
+    if name in _REGISTRY and not replace:
+        raise InvalidInputError("name", f"a collision checker {name!r} is already registered")
+    _REGISTRY[name] = factory
+
+
+def unregister_collision_checker(name: str) -> None:
+    """Remove a registered (not built-in) collision checker.
+
+    Parameters
+    ----------
+    name : str
+    """
+    if name in _BUILTIN or name not in _REGISTRY:
+        raise InvalidInputError("name", f"no registered collision checker {name!r} to remove")
+    del _REGISTRY[name]
+
+
+def _load_entry_points() -> None:
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="needlekit.collision_checkers"):
+        if ep.name not in _REGISTRY:
+            _REGISTRY[ep.name] = ep.load()
+
+
+def collision_checker_names() -> list[str]:
+    """The names problems may give as ``collision_model``, built-ins first.
+
+    Returns
+    -------
+    list of str
+    """
+    _load_entry_points()
+    return [*sorted(_BUILTIN), *sorted(set(_REGISTRY) - _BUILTIN)]
+
+
+def make_collision_checker(name: str, setup: CollisionSetup) -> CollisionChecker:
+    """Build the named checker for one problem.
+
+    Parameters
+    ----------
+    name : str
+    setup : CollisionSetup
+
+    Returns
+    -------
+    CollisionChecker
+
+    Raises
+    ------
+    InvalidInputError
+        An unknown name, or a factory that refuses the setup or returns something that
+        is not a checker.
+    """
+    if name not in _REGISTRY:
+        _load_entry_points()
+    factory = _REGISTRY.get(name)
+    if factory is None:
+        raise InvalidInputError(
+            "collision_model",
+            f"expected one of {', '.join(collision_checker_names())}, got {name!r}",
+        )
+    checker: Any = factory(setup)
+    if not isinstance(checker, CollisionChecker):
+        raise InvalidInputError(
+            "collision_model",
+            f"the factory of {name!r} returned a {type(checker).__name__}, not a CollisionChecker",
+        )
+    return checker
