@@ -1,4 +1,12 @@
-"""Plan costs: path length, or the integral of a clearance cost map along the path.
+"""Plan costs as objectives (OMPL's ``OptimizationObjective``): path length, or the
+integral of a clearance cost map along the path, or a user's own.
+
+An objective gives the cost of one motion and declares an admissible lower bound: a
+number ``b`` such that every motion costs at least ``b`` times its length
+(:attr:`CostObjective.lower_bound_per_mm`). Resolution-optimal search needs it: RCS*
+orders and prunes by ``g + b * (shortest connection length)`` and certifies its plan only
+when the objective declares a bound (``None``: the search still runs, with no pruning by
+the bound, and says why its result is not certified).
 
 The clearance cost map charges every millimetre of insertion
 
@@ -9,20 +17,150 @@ surface minus the needle radius and margin, from the scene's obstacle field), ``
 weight and ``R`` the reach: paths pay up to ``1 + w`` per mm when they graze an obstacle
 and exactly 1 per mm once they keep ``R`` away. A plan's cost is ``int c(x(s)) ds``
 (trapezoid rule on samples every ``spacing_mm`` of each motion), in mm-equivalents. Since
-``c >= 1``, the cost is never below the length, so length-based lower bounds (RCS*'s
-turn-then-straight heuristic) stay admissible; with ``w = 0`` the cost is the length.
+``c >= 1``, its bound is 1 (the cost is never below the length); with ``w = 0`` the cost
+is the length.
+
+Examples
+--------
+An objective of one's own: a path that costs twice its length, with that bound declared.
+
+>>> import numpy as np
+>>> class Doubled:
+...     name = "doubled"
+...     lower_bound_per_mm = 2.0
+...     def motion_cost(self, pose, spin, kappa, length, spacing_mm=COST_SPACING_MM):
+...         return 2.0 * length
+>>> isinstance(Doubled(), CostObjective)
+True
 """
 
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 
-from needlekit.geometry.arcs import sample_arcs, samples_for_spacing
+from needlekit.geometry.arcs import arc_end_unchecked, sample_arcs, samples_for_spacing
 
 #: Integration step of cost maps (mm, largest; measured from each motion's start).
 COST_SPACING_MM: float = 0.5
 
-__all__ = ["COST_SPACING_MM", "chain_cost", "clearance_cost_rate", "motion_cost", "plan_cost"]
+__all__ = [
+    "COST_SPACING_MM",
+    "ClearanceCostMap",
+    "CostObjective",
+    "PathLength",
+    "chain_cost",
+    "clearance_cost_rate",
+    "motion_cost",
+    "plan_cost",
+]
+
+
+@runtime_checkable
+class CostObjective(Protocol):
+    """What planners ask of a cost.
+
+    Attributes
+    ----------
+    name : str
+        Recorded in results.
+    lower_bound_per_mm : float or None
+        An admissible bound: every motion costs at least this times its length (> 0), or
+        None when the objective declares none (RCS* then cannot certify optimality).
+    """
+
+    name: str
+    lower_bound_per_mm: float | None
+
+    def motion_cost(
+        self, pose, spin: float, kappa: float, length: float, spacing_mm: float = ...
+    ) -> float:
+        """Cost of the motion ``(spin, kappa, length)`` from ``pose`` (4, 4)."""
+
+
+class PathLength:
+    """Inserted length (mm): every mm costs 1, so the bound is 1 (exactly the length)."""
+
+    name = "path_length"
+    lower_bound_per_mm = 1.0
+    exact_length = True  # the cost of a motion is its length: planners may skip the call
+
+    def motion_cost(self, pose, spin, kappa, length, spacing_mm=COST_SPACING_MM) -> float:
+        """The motion's length.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        spin, kappa, length : float
+        spacing_mm : float
+            Unused.
+
+        Returns
+        -------
+        float
+        """
+        return float(length)
+
+
+class ClearanceCostMap:
+    """The clearance cost map ``1 + w * max(0, 1 - d / R)`` integrated along the motion
+    (module notes); never below 1 per mm, so the bound is 1.
+
+    Parameters
+    ----------
+    scene : Scene
+        Its obstacle field gives the clearance ``d``.
+    margin_mm : float
+        Needle radius plus safety margin.
+    weight : float
+        ``w`` (>= 0).
+    reach_mm : float
+        ``R`` (> 0).
+    """
+
+    name = "clearance"
+    lower_bound_per_mm = 1.0
+    exact_length = False
+
+    def __init__(self, scene, margin_mm: float, weight: float, reach_mm: float) -> None:
+        self.scene, self.margin_mm = scene, float(margin_mm)
+        self.weight, self.reach_mm = float(weight), float(reach_mm)
+
+    def rate(self, points) -> np.ndarray:
+        """The cost per mm at points (>= 1).
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        pts = np.asarray(points, dtype=float).reshape(-1, 3)
+        d = self.scene.clearance(pts, self.margin_mm)
+        x = np.clip(1.0 - np.asarray(d, dtype=float) / self.reach_mm, 0.0, 1.0)
+        return 1.0 + self.weight * x
+
+    def motion_cost(self, pose, spin, kappa, length, spacing_mm=COST_SPACING_MM) -> float:
+        """The trapezoid integral of the cost map along the motion.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        spin, kappa, length : float
+        spacing_mm : float
+
+        Returns
+        -------
+        float
+        """
+        if length <= 0.0:
+            return float(length)
+        m = samples_for_spacing(length, spacing_mm)
+        rate = self.rate(sample_arcs(pose, spin, kappa, length, m))
+        return float(length * (rate.sum() - 0.5 * (rate[0] + rate[-1])) / (m - 1))
 
 
 def clearance_cost_rate(problem, points) -> np.ndarray:
@@ -38,16 +176,16 @@ def clearance_cost_rate(problem, points) -> np.ndarray:
     -------
     ndarray, shape (n,)
     """
-    pts = np.asarray(points, dtype=float).reshape(-1, 3)
-    d = problem.scene.clearance(pts, problem.clearance_margin_mm)
-    x = np.clip(1.0 - np.asarray(d, dtype=float) / problem.cost_reach_mm, 0.0, 1.0)
-    return 1.0 + problem.cost_weight * x
+    return ClearanceCostMap(
+        problem.scene, problem.clearance_margin_mm, problem.cost_weight, problem.cost_reach_mm
+    ).rate(points)
 
 
 def motion_cost(
     problem, pose, spin: float, kappa: float, length: float, spacing_mm: float = COST_SPACING_MM
 ) -> float:
-    """Cost of one motion ``(spin, kappa, length)`` from ``pose``.
+    """Cost of one motion ``(spin, kappa, length)`` from ``pose``, by the problem's
+    objective.
 
     Parameters
     ----------
@@ -61,15 +199,8 @@ def motion_cost(
     Returns
     -------
     float
-        ``length`` for path-length cost, else the trapezoid integral of the cost map.
     """
-    from needlekit.planning.steerable.problem import CostKind
-
-    if problem.cost is CostKind.PATH_LENGTH or length <= 0.0:
-        return float(length)
-    m = samples_for_spacing(length, spacing_mm)
-    rate = clearance_cost_rate(problem, sample_arcs(pose, spin, kappa, length, m))
-    return float(length * (rate.sum() - 0.5 * (rate[0] + rate[-1])) / (m - 1))
+    return float(problem.objective.motion_cost(pose, spin, kappa, length, spacing_mm))
 
 
 def chain_cost(problem, pose, primitives, spacing_mm: float = COST_SPACING_MM) -> float:
@@ -87,12 +218,11 @@ def chain_cost(problem, pose, primitives, spacing_mm: float = COST_SPACING_MM) -
     -------
     float
     """
-    from needlekit.geometry.arcs import propagate_arcs
-
-    total, g = 0.0, pose
+    objective = problem.objective
+    total, g = 0.0, np.ascontiguousarray(pose, dtype=np.float64)
     for spin, kappa, length in np.asarray(primitives, dtype=float).reshape(-1, 3):
-        total += motion_cost(problem, g, spin, kappa, length, spacing_mm)
-        g = propagate_arcs(g, spin, kappa, length)
+        total += float(objective.motion_cost(g, spin, kappa, length, spacing_mm))
+        g = arc_end_unchecked(g, float(spin), float(kappa), float(length))
     return total
 
 

@@ -29,6 +29,7 @@ from needlekit.constants import (
     MOTION_SPACING_MM,
 )
 from needlekit.errors import InvalidInputError
+from needlekit.planning.steerable.cost import ClearanceCostMap, CostObjective, PathLength
 
 __all__ = ["CollisionModel", "CostKind", "SteerableProblem"]
 
@@ -109,8 +110,9 @@ class SteerableProblem:
         Largest angle between the start direction and any later direction.
     start_exclusion_mm : float
         Obstacles within this distance of the start are ignored.
-    cost : CostKind
-        What plans minimise.
+    cost : CostKind, str or CostObjective
+        What plans minimise: a built-in kind (path length, clearance cost map) or an
+        objective of one's own (:mod:`needlekit.planning.steerable.cost`).
     cost_weight : float
         ``w`` of the clearance cost map (>= 0; extra cost per mm when touching an obstacle).
     cost_reach_mm : float
@@ -134,6 +136,9 @@ class SteerableProblem:
         punctured there, so there is no entry surface and no puncture angle
         (``min_puncture_angle_deg`` must be 0, ``entry_surface`` and ``entry_normal``
         unset). Default False: the start is a puncture.
+    objective : CostObjective
+        The cost as an objective (computed): what planners call, with its admissible
+        lower bound per mm.
     puncture_normal : ndarray, shape (3,) or None
         The normal the puncture angle is measured against, pointing into the tissue
         (computed by :meth:`tissue_normal` at the start point; None where undefined and
@@ -171,6 +176,7 @@ class SteerableProblem:
     entry_normal: np.ndarray | None = None
     start_inside: bool = False
     puncture_normal: np.ndarray | None = field(init=False, default=None)
+    objective: CostObjective = field(init=False, default=None, repr=False, compare=False)
     _checkers: dict = field(init=False, default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -223,13 +229,34 @@ class SteerableProblem:
             raise InvalidInputError(
                 "entry_surface", f"no structure named {self.entry_surface!r} in the scene"
             )
+        object.__setattr__(self, "objective", self._objective())
+        self._check_collision_model()
+        self._resolve_puncture_normal()
+
+    def _objective(self) -> CostObjective:
+        """The cost as an objective: a built-in kind's, or the one given."""
+        if isinstance(self.cost, CostObjective) and not isinstance(self.cost, (str, CostKind)):
+            bound = self.cost.lower_bound_per_mm
+            if bound is not None and not (
+                isinstance(bound, (int, float)) and np.isfinite(bound) and bound > 0
+            ):
+                raise InvalidInputError(
+                    "cost",
+                    f"the objective's lower_bound_per_mm must be a number > 0 or None, got {bound!r}",
+                )
+            return self.cost
         try:
             object.__setattr__(self, "cost", CostKind(self.cost))
         except ValueError:
             kinds = ", ".join(k.value for k in CostKind)
-            raise InvalidInputError("cost", f"expected one of {kinds}, got {self.cost!r}") from None
-        self._check_collision_model()
-        self._resolve_puncture_normal()
+            raise InvalidInputError(
+                "cost", f"expected one of {kinds} or a CostObjective, got {self.cost!r}"
+            ) from None
+        if self.cost is CostKind.PATH_LENGTH:
+            return PathLength()
+        return ClearanceCostMap(
+            self.scene, self.clearance_margin_mm, self.cost_weight, self.cost_reach_mm
+        )
 
     def _check_start_inside(self, alpha: float) -> None:
         """A start inside the tissue punctures nothing: no angle, surface or normal."""

@@ -57,7 +57,7 @@ from needlekit.planning.steerable.goal import (
     single_arc_connection,
 )
 from needlekit.planning.steerable.plan import SteerablePlan
-from needlekit.planning.steerable.problem import CostKind, SteerableProblem
+from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.search import SteerableSearch, precheck
 
@@ -230,14 +230,12 @@ class _Node:
     li: int
     si: int
     explored: set | None = None
-
-    @property
-    def f(self) -> float:
-        return self.g + self.h
+    f: float = 0.0  # g + (the objective's bound per mm) * h: a lower bound of the plan's cost
 
 
 def _cost_to_go(pose, problem: SteerableProblem) -> float:
-    # shortest turn-then-straight length: a lower bound of any cost (every mm costs >= 1)
+    # the shortest turn-then-straight length: times the objective's bound per mm, a lower
+    # bound of the cost to the goal
     return connection_length_unchecked(
         pose, problem.goal_mm, problem.r_min_mm, problem.goal_tolerance_mm
     )
@@ -355,7 +353,10 @@ def _search(
     duplicates = _DuplicateIndex()
     n_duplicates = 0
     connect = goal_connection if optimal else single_arc_connection
-    nodes = [_Node(start, -1, 0.0, h0, 0.0, 0, False, 0, 0, set())]
+    bound = problem.objective.lower_bound_per_mm
+    scale = 0.0 if bound is None else float(bound)  # no bound: order by g, prune nothing
+    prune = optimal and bound is not None
+    nodes = [_Node(start, -1, 0.0, h0, 0.0, 0, False, 0, 0, set(), scale * h0)]
     counter = itertools.count()
     buckets: dict[int, list] = {}
     best = math.inf
@@ -382,7 +383,7 @@ def _search(
 
     goal_c = np.ascontiguousarray(goal, dtype=np.float64)
     r_min, tau = problem.r_min_mm, problem.goal_tolerance_mm
-    length_cost = problem.cost is CostKind.PATH_LENGTH
+    length_cost = bool(getattr(problem.objective, "exact_length", False))
     spin_list = [float(v) for v in spins]
     length_list = [float(v) for v in lengths]
     length_rank = [int(v) for v in length_level]
@@ -408,18 +409,20 @@ def _search(
         g = parent.g + (
             length if length_cost else motion_cost(problem, parent.pose, spin, k, length)
         )
+        h = connection_length_unchecked(pose, goal_c, r_min, tau)
         nodes.append(
             _Node(
                 pose,
                 parent_idx,
                 g,
-                connection_length_unchecked(pose, goal_c, r_min, tau),
+                h,
                 parent.s + length,
                 rank,
                 curved,
                 li,
                 si,
                 set(),
+                g + scale * h,
             )
         )
         push(len(nodes) - 1)
@@ -459,8 +462,8 @@ def _search(
             return
         if n.s + conn.length_mm >= problem.max_length_mm:
             return
-        if n.g + conn.length_mm >= best - PRUNE_EPS_MM:  # the cost is at least the length
-            return
+        if bound is not None and n.g + bound * conn.length_mm >= best - PRUNE_EPS_MM:
+            return  # the objective's bound: no cheaper than this
         if not validator.primitives_valid(n.pose, conn.primitives):
             return
         cost = n.g + chain_cost(problem, n.pose, conn.primitives)
@@ -478,7 +481,7 @@ def _search(
         idx = pop()
         n = nodes[idx]
         parent = nodes[n.parent]
-        if optimal and best < parent.f + PRUNE_EPS_MM:
+        if prune and best < parent.f + PRUNE_EPS_MM:
             continue  # nothing in this family can beat the best plan
         refine(idx)
         # a spin-0 motion of the parent's kind after a shorter parent motion just extends it
@@ -486,7 +489,7 @@ def _search(
             continue
         if n.s >= problem.max_length_mm or not math.isfinite(n.h):
             continue
-        if optimal and best < n.f + PRUNE_EPS_MM:
+        if prune and best < n.f + PRUNE_EPS_MM:
             continue
         spin = spin_list[n.si] if n.curved else 0.0
         if not validator.motion_valid(
@@ -502,10 +505,15 @@ def _search(
     exhausted = not buckets
     stats = {
         "nodes": len(nodes),
-        "certified": bool(exhausted and optimal and best_plan is not None),
+        "certified": bool(exhausted and prune and best_plan is not None),
         "exhausted": exhausted,
         "duplicates": n_duplicates,
     }
+    if optimal and bound is None:
+        stats["not_certified"] = (
+            f"the cost {problem.objective.name!r} declares no lower bound per mm, so the "
+            "search cannot prove its plan optimal"
+        )
     if best_plan is not None:
         return search.result(PlanStatus.SOLVED, best_plan, best, **stats)
     if exhausted:

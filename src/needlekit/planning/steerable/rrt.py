@@ -253,6 +253,7 @@ def _grow(
     validator = search.validator
     start = problem.start_pose
     r, tau, kappa = problem.r_min_mm, problem.goal_tolerance_mm, problem.kappa_max_per_mm
+    bound = problem.objective.lower_bound_per_mm  # cost >= bound * length, when declared
     k = len(goals)
     verdicts = [precheck(problem, goals[i], validator) for i in range(k)]
     open_goals = [i for i in range(k) if verdicts[i] is None]
@@ -287,7 +288,7 @@ def _grow(
                 continue
             if lengths[idx] + conn.length_mm >= problem.max_length_mm:
                 continue
-            if costs[idx] + conn.length_mm >= best[i]:  # the cost is at least the length
+            if bound is not None and costs[idx] + bound * conn.length_mm >= best[i]:
                 continue
             if not validator.primitives_valid(poses[idx], conn.primitives):
                 continue
