@@ -543,3 +543,31 @@ def test_padding_changes_no_value_on_the_smaller_grid():
     d_tight, d_wide = tight.signed_distance(pts), wide.signed_distance(pts)
     assert np.all(np.sign(d_tight) == np.sign(d_wide))
     assert np.all(d_tight[d_wide > 0] <= d_wide[d_wide > 0] + wide.error_bound_mm)
+
+
+def test_few_point_lookups_run_the_kernels_source_bit_for_bit():
+    # a problem's one-point questions go through the kernels' Python source (no numba
+    # load): it must give exactly what the kernels give, inside and outside the grid
+    from needlekit.anatomy._trilinear import (
+        _trilinear_gradient_serial,
+        _trilinear_serial,
+        trilinear_few,
+    )
+
+    rng = np.random.default_rng(1)
+    for t in range(200):
+        shape = tuple(int(v) for v in rng.integers(2, 9, size=3))
+        vals = rng.normal(size=shape).astype(np.float32 if t % 2 else np.float64)
+        a = np.diag(np.r_[rng.uniform(0.3, 2, 3), 1.0])
+        a[:3, 3] = rng.normal(size=3)
+        rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        a[:3, :3] = rot @ a[:3, :3]
+        inv = np.linalg.inv(a)
+        ijk = rng.uniform(-2, np.array(shape) + 1, size=(8, 3))
+        pts = ijk @ a[:3, :3].T + a[:3, 3]
+        out, grad, out2 = np.empty(8), np.empty((8, 3)), np.empty(8)
+        _trilinear_gradient_serial(vals, inv, pts, out, grad)
+        _trilinear_serial(vals, inv, pts, out2)
+        few_grad = trilinear_few(vals, inv, pts, gradient=True)
+        assert np.array_equal(trilinear_few(vals, inv, pts), out2)
+        assert np.array_equal(few_grad[0], out) and np.array_equal(few_grad[1], grad)

@@ -10,10 +10,14 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["PARALLEL_MIN_POINTS", "trilinear_reference"]
+__all__ = ["FEW_POINTS", "PARALLEL_MIN_POINTS", "trilinear_few", "trilinear_reference"]
 
 #: Batches smaller than this use the serial kernel: starting numba's threads costs ~10 us.
 PARALLEL_MIN_POINTS: int = 4096
+#: Batches of at most this many points run the kernels' own Python source
+#: (:func:`trilinear_few`): the same arithmetic, without loading numba for the one-point
+#: questions a problem asks when it is built (a process's first numba call costs ~0.25 s).
+FEW_POINTS: int = 8
 
 
 # ----------------------------------------------------------------------------------------
@@ -89,6 +93,35 @@ def _spacings(inv):  # pragma: no cover - compiled
     h1 = 1.0 / math.sqrt(inv[1, 0] ** 2 + inv[1, 1] ** 2 + inv[1, 2] ** 2)
     h2 = 1.0 / math.sqrt(inv[2, 0] ** 2 + inv[2, 1] ** 2 + inv[2, 2] ** 2)
     return h0, h1, h2
+
+
+def trilinear_few(values, inv_affine, points, *, gradient: bool = False):
+    """The kernels' lookup for a few points, run as Python (its ``py_func``): the same
+    operations in the same order, so the same values bit for bit.
+
+    Parameters
+    ----------
+    values : ndarray, shape (i, j, k)
+    inv_affine : ndarray, shape (4, 4)
+    points : ndarray, shape (n, 3)
+    gradient : bool
+
+    Returns
+    -------
+    out : ndarray, shape (n,)
+    grad : ndarray, shape (n, 3)
+        Only with ``gradient``.
+    """
+    look = _lookup.py_func
+    h0, h1, h2 = _spacings.py_func(inv_affine)
+    out = np.empty(points.shape[0])
+    grad = np.empty((points.shape[0], 3))
+    for q in range(points.shape[0]):
+        x, y, z = float(points[q, 0]), float(points[q, 1]), float(points[q, 2])
+        val, gx, gy, gz = look(values, inv_affine, h0, h1, h2, x, y, z, gradient)
+        out[q] = val
+        grad[q] = (gx, gy, gz)
+    return (out, grad) if gradient else out
 
 
 @numba.njit(cache=True, parallel=True)

@@ -48,11 +48,13 @@ import numpy as np
 
 from needlekit._validation import as_scalar
 from needlekit.anatomy._trilinear import (
+    FEW_POINTS,
     PARALLEL_MIN_POINTS,
     _trilinear,
     _trilinear_gradient,
     _trilinear_gradient_serial,
     _trilinear_serial,
+    trilinear_few,
     trilinear_reference,
 )
 from needlekit.anatomy.fields import DistanceField
@@ -427,12 +429,16 @@ class VoxelSDF(DistanceField):
     # -- queries --------------------------------------------------------------------------
 
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
+        if points.shape[0] <= FEW_POINTS:
+            return trilinear_few(self.values, self.inv_affine, points)
         out = np.empty(points.shape[0])
         kernel = _trilinear if points.shape[0] >= PARALLEL_MIN_POINTS else _trilinear_serial
         kernel(self.values, self.inv_affine, points, out)
         return out
 
     def _gradient(self, points: np.ndarray) -> np.ndarray:
+        if points.shape[0] <= FEW_POINTS:
+            return trilinear_few(self.values, self.inv_affine, points, gradient=True)[1]
         out = np.empty(points.shape[0])
         grad = np.empty((points.shape[0], 3))
         big = points.shape[0] >= PARALLEL_MIN_POINTS
