@@ -83,3 +83,53 @@ def test_plan_status_knows_which_outcomes_carry_a_plan():
     assert PlanStatus.SOLVED.has_plan and PlanStatus.APPROXIMATE.has_plan
     assert not PlanStatus.INFEASIBLE.has_plan and not PlanStatus.TIMEOUT.has_plan
     assert PlanStatus("invalid_problem") is PlanStatus.INVALID_PROBLEM
+
+
+def test_deriving_another_goal_or_direction_rebuilds_nothing_and_agrees(monkeypatch):
+    # a transbronchial-like start on an airway wall: the entry surface and its normal come
+    # from the fields near the start, which a derived problem must not query again
+    from dataclasses import replace
+
+    from needlekit.planning.steerable.rcs import solve_rcs
+
+    airway = Sphere([0.0, 0.0, -4.0], 3.5)
+    vessel = Sphere([6.0, -10.0, 30.0], 3.0)
+    scene = Scene(
+        [
+            Structure("lung", Role.ALLOWED_REGION, Sphere([0, 0, 30], 120.0)),
+            Structure("airway", Role.OBSTACLE, airway),
+            Structure("vessel", Role.OBSTACLE, vessel),
+        ]
+    )
+    base = SteerableProblem(
+        scene, goal_mm=[0.0, -20.0, 60.0], start_pose=np.eye(4), min_puncture_angle_deg=20.0
+    )
+    assert base.entry_surface == "airway"
+    pose = np.eye(4)
+    c, s = np.cos(0.2), np.sin(0.2)
+    pose[:3, :3] = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    calls = []
+    original = SteerableProblem.tissue_normal
+    monkeypatch.setattr(
+        SteerableProblem, "tissue_normal", lambda self, p: calls.append(1) or original(self, p)
+    )
+    derived = base.with_start_pose(pose).with_goal([5.0, -15.0, 55.0])
+    assert calls == []  # nothing near the start was asked again
+    rebuilt = replace(base, start_pose=pose, start_point_mm=None, goal_mm=[5.0, -15.0, 55.0])
+    assert calls  # a rebuild asks
+    for name in ("entry_surface", "goal_mm", "start_pose", "start_point_mm", "puncture_normal"):
+        np.testing.assert_array_equal(getattr(derived, name), getattr(rebuilt, name))
+    a = solve_rcs(derived, time_limit_s=60.0, max_iterations=200)
+    b = solve_rcs(rebuilt, time_limit_s=60.0, max_iterations=200)
+    assert (a.status, a.cost_mm, a.stats["iterations"]) == (
+        b.status,
+        b.cost_mm,
+        b.stats["iterations"],
+    )
+    with pytest.raises(InvalidInputError, match="goal_mm"):
+        base.with_goal([np.nan, 0.0, 0.0])
+    with pytest.raises(InvalidInputError, match="start_pose"):
+        base.with_start_pose(np.zeros((4, 4)))
+    moved = np.eye(4)
+    moved[:3, 3] = [0.0, 0.0, 2.0]  # another start point: built again, entry surface too
+    assert base.with_start_pose(moved).start_point_mm.tolist() == [0.0, 0.0, 2.0]

@@ -431,7 +431,9 @@ class SteerableProblem:
         return 0.5 * self.needle_diameter_mm + self.safety_margin_mm
 
     def with_goal(self, goal_mm) -> SteerableProblem:
-        """The same problem to another goal.
+        """The same problem to another goal. Only the goal is checked: the start, its
+        entry surface and normal, the collision checkers and the objective do not depend
+        on it and are kept.
 
         Parameters
         ----------
@@ -441,12 +443,16 @@ class SteerableProblem:
         -------
         SteerableProblem
         """
-        from dataclasses import replace
-
-        return replace(self, goal_mm=np.asarray(goal_mm, dtype=float))
+        goal, single = as_points(goal_mm, "goal_mm")
+        if not single:
+            raise InvalidInputError("goal_mm", "expected one point (3,)")
+        return self._derived(goal_mm=goal[0])
 
     def with_start_pose(self, start_pose) -> SteerableProblem:
-        """The same problem from another start pose (same start point or not).
+        """The same problem from another start pose. From the same start point (a sweep's
+        directions) only the pose is checked and what depends on the point alone (entry
+        surface, puncture normal, collision checkers) is kept; from another point the
+        problem is built again.
 
         Parameters
         ----------
@@ -456,9 +462,24 @@ class SteerableProblem:
         -------
         SteerableProblem
         """
-        from dataclasses import replace
+        g, single = as_poses(start_pose, "start_pose")
+        if not single:
+            raise InvalidInputError("start_pose", "expected one 4x4 pose")
+        pose = g[0]
+        if not np.array_equal(pose[:3, 3], self.start_point_mm):
+            from dataclasses import replace
 
-        return replace(self, start_pose=np.asarray(start_pose, dtype=float), start_point_mm=None)
+            return replace(self, start_pose=pose, start_point_mm=None)
+        return self._derived(start_pose=pose, start_point_mm=pose[:3, 3].copy())
+
+    def _derived(self, **checked) -> SteerableProblem:
+        """A copy with checked fields changed, nothing else recomputed."""
+        import copy
+
+        out = copy.copy(self)
+        for name, value in checked.items():
+            object.__setattr__(out, name, value)
+        return out
 
     @classmethod
     def from_scenario(cls, scenario, **overrides) -> SteerableProblem:

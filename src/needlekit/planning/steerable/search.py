@@ -312,6 +312,4 @@ class SteerableSearch:
 
 
 def _with_goal(problem: SteerableProblem, goal: np.ndarray) -> SteerableProblem:
-    from dataclasses import replace
-
-    return replace(problem, goal_mm=goal, start_point_mm=None)
+    return problem.with_goal(goal)
