@@ -47,9 +47,9 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
+from needlekit.planning.steerable._rcs_kernels import child_motion
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import (
     connection_length_unchecked,
@@ -175,31 +175,35 @@ class _DuplicateIndex:
         self.cell = 1e3 * tol
         self.cells: dict[tuple, list] = {}
 
-    def _cells(self, pose) -> tuple[tuple, list]:
-        home = []
+    def _cells(self, pose) -> list:
+        """Every cell that may hold a pose within ``tol`` of this one."""
         keys: list[tuple] = [()]
         for v in (pose[0, 3], pose[1, 3], pose[2, 3], pose[0, 0], pose[1, 0], pose[2, 0]):
             q = float(v) / self.cell
             k = math.floor(q)
             f = q - k
-            home.append(k)
             near = [k]
             if f * self.cell <= self.tol:
                 near.append(k - 1)
             if (1.0 - f) * self.cell <= self.tol:
                 near.append(k + 1)
             keys = [(*key, n) for key in keys for n in near]
-        return tuple(home), keys
+        return keys
 
-    def check_and_add(self, pose: np.ndarray, parent: int, g_parent: float, optimal: bool) -> bool:
-        """False when another parent holds this pose (no more expensively, for RCS*)."""
-        p = pose[:3, 3]
-        home, keys = self._cells(pose)
+    def check_and_add(
+        self, pose: np.ndarray, home: tuple, near_face: bool, parent: int, g_parent: float,
+        optimal: bool,
+    ) -> bool:  # fmt: skip
+        """False when another parent holds this pose (no more expensively, for RCS*).
+
+        ``home`` is the pose's own cell and ``near_face`` whether it lies within the
+        tolerance of a cell face (:func:`~needlekit.planning.steerable._rcs_kernels.child_motion`).
+        """
         mine = False
-        for key in keys:
+        for key in self._cells(pose) if near_face else (home,):
             for q, other, g_other in self.cells.get(key, ()):
                 d = 10.0 * float(np.linalg.norm(pose[:3, :3] - q[:3, :3])) / math.sqrt(2.0)
-                d += float(np.linalg.norm(p - q[:3, 3]))
+                d += float(np.linalg.norm(pose[:3, 3] - q[:3, 3]))
                 if d > self.tol:
                     continue
                 if other == parent:
@@ -209,13 +213,6 @@ class _DuplicateIndex:
         if not mine:
             self.cells.setdefault(home, []).append((pose, parent, g_parent))
         return True
-
-
-def _spin_matrix(spin: float) -> np.ndarray:
-    c, sn = math.cos(spin), math.sin(spin)
-    m = np.eye(4)
-    m[0, 0], m[0, 1], m[1, 0], m[1, 1] = c, -sn, sn, c
-    return m
 
 
 @dataclass
@@ -388,6 +385,7 @@ def _search(
     length_list = [float(v) for v in lengths]
     length_rank = [int(v) for v in length_level]
     spin_rank = [int(v) for v in spin_level]
+    dup_cell, dup_tol = duplicates.cell, duplicates.tol
 
     def add_child(parent_idx: int, curved: bool, li: int, si: int) -> None:
         nonlocal n_duplicates
@@ -397,19 +395,18 @@ def _search(
             return
         parent.explored.add(key)
         spin = spin_list[si] if curved else 0.0
-        if curved and not duplicates.check_and_add(
-            parent.pose @ _spin_matrix(spin), parent_idx, parent.g, optimal
-        ):
-            n_duplicates += 1
-            return
         length = length_list[li]
         k = kappa if curved else 0.0
-        pose = arc_end_unchecked(parent.pose, spin, k, length)
+        spun, home, near, pose, h = child_motion(
+            parent.pose, spin, k, length, goal_c, r_min, tau, dup_cell, dup_tol
+        )
+        if curved and not duplicates.check_and_add(spun, home, near, parent_idx, parent.g, optimal):
+            n_duplicates += 1
+            return
         rank = parent.rank + length_rank[li] + (spin_rank[si] if curved else 0) + 1
         g = parent.g + (
             length if length_cost else motion_cost(problem, parent.pose, spin, k, length)
         )
-        h = connection_length_unchecked(pose, goal_c, r_min, tau)
         nodes.append(
             _Node(
                 pose,

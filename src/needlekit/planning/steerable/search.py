@@ -170,6 +170,11 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     goal_connection(start, goal, r, tau)
     connection_length_unchecked(np.ascontiguousarray(start), np.ascontiguousarray(goal), r, tau)
     single_arc_connection(start, goal, r, tau)
+    from needlekit.planning.steerable._rcs_kernels import child_motion
+
+    child_motion(
+        np.ascontiguousarray(start), 0.1, kappa, 1.0, np.ascontiguousarray(goal), r, tau, 1e-3, 1e-6
+    )
     propagate_arcs(start, 0.0, kappa, 1.0)
     propagate_arcs(start, np.zeros(2), np.full(2, kappa), np.ones(2))
     arc_line_lengths_from(start[None], goal, r)
