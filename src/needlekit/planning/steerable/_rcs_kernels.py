@@ -14,7 +14,7 @@ import numpy as np
 from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.planning.steerable.goal import connection_length_unchecked
 
-__all__ = ["child_motion"]
+__all__ = ["child_motion", "se3_gap"]
 
 
 @numba.njit(cache=True)
@@ -66,3 +66,27 @@ def child_motion(pose, spin, kappa, length, goal, r, tau, cell, tol):  # pragma:
     end = arc_end_unchecked(pose, spin, kappa, length)
     h = connection_length_unchecked(end, goal, r, tau)
     return spun, (k[0], k[1], k[2], k[3], k[4], k[5]), near, end, h
+
+
+@numba.njit(cache=True)
+def se3_gap(a, b):  # pragma: no cover - compiled
+    """The duplicate test's SE(3) distance ``10 |Ra - Rb|_F / sqrt(2) + |ta - tb|``.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (4, 4)
+
+    Returns
+    -------
+    float
+    """
+    rot = 0.0
+    for i in range(3):
+        for j in range(3):
+            d = a[i, j] - b[i, j]
+            rot += d * d
+    pos = 0.0
+    for i in range(3):
+        d = a[i, 3] - b[i, 3]
+        pos += d * d
+    return 10.0 * math.sqrt(rot) / math.sqrt(2.0) + math.sqrt(pos)

@@ -49,7 +49,7 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
-from needlekit.planning.steerable._rcs_kernels import child_motion
+from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import (
     connection_length_unchecked,
@@ -202,9 +202,7 @@ class _DuplicateIndex:
         mine = False
         for key in self._cells(pose) if near_face else (home,):
             for q, other, g_other in self.cells.get(key, ()):
-                d = 10.0 * float(np.linalg.norm(pose[:3, :3] - q[:3, :3])) / math.sqrt(2.0)
-                d += float(np.linalg.norm(pose[:3, 3] - q[:3, 3]))
-                if d > self.tol:
+                if se3_gap(pose, q) > self.tol:
                     continue
                 if other == parent:
                     mine = True

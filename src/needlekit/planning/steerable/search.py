@@ -170,7 +170,9 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     goal_connection(start, goal, r, tau)
     connection_length_unchecked(np.ascontiguousarray(start), np.ascontiguousarray(goal), r, tau)
     single_arc_connection(start, goal, r, tau)
-    from needlekit.planning.steerable._rcs_kernels import child_motion
+    from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
+
+    se3_gap(start, start)
 
     child_motion(
         np.ascontiguousarray(start), 0.1, kappa, 1.0, np.ascontiguousarray(goal), r, tau, 1e-3, 1e-6
