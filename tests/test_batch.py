@@ -14,8 +14,8 @@ from needlekit.batch import (
     worker_cached,
 )
 from needlekit.errors import InvalidInputError
-from needlekit.io.problems import ScenarioSource, load_problem
 from needlekit.planning.steerable.sweep import sphere_directions, sweep
+from needlekit.scenario.problems import ScenarioSource, load_problem
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -141,7 +141,7 @@ def test_the_output_path_is_checked_first(tmp_path, capsys, monkeypatch):
 
 
 def _toy_settings(**kw):
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     s = scale_settings(patients=[0], directions=[8, 24], trials=[0], dask_workers=[0],
                        max_iterations=30, **kw)  # fmt: skip
@@ -154,8 +154,9 @@ def _finite_non_negative(value) -> bool:
 
 def test_the_record_of_a_serial_sweep_on_the_toy_scene(tmp_path):
     from needlekit.io.files import write_json
-    from needlekit.io.results import ResultKind, read_result
+    from needlekit.io.results import ResultKind
     from needlekit.report.result_report import write_result_report
+    from needlekit.scenario.results import read_result
 
     record = run_scale_benchmark(_toy_settings(workers=[1]))
     assert record["benchmark"] == "scale" and record["planning"] is None

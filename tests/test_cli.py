@@ -276,13 +276,13 @@ def test_demo_writes_figures_and_phantom_views(capsys, tmp_path, exact_clearance
     assert np.linalg.norm(np.diff(plan["points_mm"], axis=0), axis=1).max() <= 0.5 + 1e-9
     # the exact oracle: every plan written clears the phantom's exact anatomy, by at least
     # the clearance it certifies
-    from needlekit.io.plans import read_plan_json
-    from needlekit.io.scenario import load_scenario
     from needlekit.planning.steerable.plan import SteerablePlan
-    from needlekit.planning.steerable.problem import SteerableProblem
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.problems import problem_from_scenario
+    from needlekit.scenario.results import read_plan_json
 
     sc = load_scenario(lung / "scenario.yaml")
-    problem = SteerableProblem.from_scenario(sc)
+    problem = problem_from_scenario(sc)
     best, _, _ = read_plan_json(lung / "plan.json")
     # both the planner's figure and the check's (at the check's own sample spacing)
     for claimed in (plan["stats"], plan["check"]):

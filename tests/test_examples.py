@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from needlekit.anatomy.scene import Role
-from needlekit.io.scenario import load_scenario
+from needlekit.scenario.loading import load_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -607,8 +607,11 @@ def test_a_plan_on_a_real_lung_is_drawn_with_its_check(tmp_path, capsys):
 @pytest.mark.parametrize(
     "module",
     [
-        "needlekit.io.records",
+        "needlekit.records",
         "needlekit.io.results",
+        "needlekit.scenario.results",
+        "needlekit.planning.steerable.dynamic_record",
+        "needlekit.planning.steerable.sweep_result",
         "needlekit.report.result_report",
         "needlekit.report.steerable_report",
     ],

@@ -268,9 +268,9 @@ def test_help_of_every_command_imports_no_heavy_module():
 
 def test_the_dynamic_checks_say_what_dynamic_settings_says(files):
     """``plan --dynamic`` refuses a static scenario or a missing insertion speed before
-    numba, in the words of :func:`needlekit.io.problems.dynamic_settings`."""
+    numba, in the words of :func:`needlekit.scenario.problems.dynamic_settings`."""
     from needlekit.errors import InvalidInputError
-    from needlekit.io.problems import dynamic_settings
+    from needlekit.scenario.problems import dynamic_settings
 
     for name in (TOY, str(files / "moving_no_speed.yaml")):
         with pytest.raises(InvalidInputError) as exc:

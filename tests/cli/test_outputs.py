@@ -320,20 +320,20 @@ needle: {r_min_mm: %s}
     ],
 )
 def test_scenario_in_other_units_gets_a_millimetre_warning(caplog, tmp_path, radius, r_min, warnings):  # fmt: skip
-    from needlekit.io.scenario import load_scenario
+    from needlekit.scenario.loading import load_scenario
 
     path = tmp_path / "tiny.yaml"
     path.write_text(TINY.replace("radius_mm: 1", f"radius_mm: {radius}") % r_min)
-    with caplog.at_level(logging.WARNING, logger="needlekit.io.scenario"):
+    with caplog.at_level(logging.WARNING, logger="needlekit.scenario.loading"):
         load_scenario(path)
-    got = [r.getMessage() for r in caplog.records if r.name == "needlekit.io.scenario"]
+    got = [r.getMessage() for r in caplog.records if r.name == "needlekit.scenario.loading"]
     assert len(got) == len(warnings)
     for message, part in zip(got, warnings, strict=True):
         assert part in message and "lengths in scenario files are millimetres" in message
 
 
 def test_the_toy_scenario_gets_no_warning(caplog):
-    from needlekit.io.scenario import load_scenario
+    from needlekit.scenario.loading import load_scenario
 
     with caplog.at_level(logging.WARNING):
         load_scenario(TOY)
@@ -344,7 +344,7 @@ def test_the_extent_check_builds_no_lazy_field():
     from needlekit.anatomy.fields import LazyField
     from needlekit.anatomy.primitives import Sphere
     from needlekit.anatomy.scene import Role, Scene, Structure
-    from needlekit.io.scenario import _cheap_extent_mm
+    from needlekit.scenario.loading import _cheap_extent_mm
 
     def build():
         raise AssertionError("a lazy field was built to find the extent")
@@ -367,6 +367,6 @@ def test_the_cli_shows_the_millimetre_warning_on_stderr(tmp_path):
     )
     assert done.returncode == 0
     assert done.stderr == (
-        "WARNING needlekit.io.scenario: tiny.yaml: the anatomy is only 2 mm across; lengths "
+        "WARNING needlekit.scenario.loading: tiny.yaml: the anatomy is only 2 mm across; lengths "
         "in scenario files are millimetres (was it written in cm or m?)\n"
     )

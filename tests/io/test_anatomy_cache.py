@@ -259,7 +259,7 @@ def _plan_json_like(report):
 
 
 def test_a_scenario_source_carries_the_cache_settings(patient, tmp_path):
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     src = ScenarioSource.of(tmp_path / "scenario.yaml", cache_dir=tmp_path / "c", use_cache=False)
     assert src.cache_dir == str((tmp_path / "c").resolve()) and src.use_cache is False

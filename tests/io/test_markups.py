@@ -24,8 +24,8 @@ from needlekit.io.markups import (
     write_markups_lines,
     write_plan_curve,
 )
-from needlekit.io.plans import read_plan_json
 from needlekit.planning.steerable.plan import SteerablePlan
+from needlekit.scenario.results import read_plan_json
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from needlekit.anatomy.primitives import Capsule, Cylinder, Ellipsoid, Sphere, Superquadric
 from needlekit.anatomy.scene import Role
 from needlekit.errors import InvalidInputError, NeedlekitError
-from needlekit.io.scenario import load_scenario, parse_scenario
 from needlekit.io.scenario_schema import SCENARIO_SCHEMA
+from needlekit.scenario.loading import load_scenario, parse_scenario
 
 TOY = {
     "version": 1,

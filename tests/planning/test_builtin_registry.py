@@ -9,7 +9,6 @@ import pytest
 
 import needlekit.planning.registry as registry
 from needlekit.errors import InvalidInputError
-from needlekit.io.problems import planner_settings
 from needlekit.planning.interface import (
     BUILTIN_PLANNERS,
     BuiltinPlanner,
@@ -18,6 +17,7 @@ from needlekit.planning.interface import (
     planner_names,
     register_planner,
 )
+from needlekit.scenario.problems import planner_settings
 
 
 @pytest.mark.parametrize("entry", BUILTIN_PLANNERS, ids=lambda e: e.name)

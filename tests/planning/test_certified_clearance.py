@@ -15,13 +15,13 @@ import pytest
 from needlekit.anatomy.primitives import Sphere
 from needlekit.cli import main
 from needlekit.io.plans import write_plan_json
-from needlekit.io.problems import load_problem
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
 from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
 from needlekit.planning.steerable.verify import verify_plan
+from needlekit.scenario.problems import load_problem
 
 VOXEL_MM = 2.0
 BALL_RADIUS_MM = 10.0

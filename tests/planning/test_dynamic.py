@@ -14,7 +14,6 @@ from needlekit.anatomy.primitives import Capsule, Sphere
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
-from needlekit.io.scenario import parse_scenario
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.dynamic import (
     PREDICTIONS,
@@ -34,6 +33,7 @@ from needlekit.planning.steerable.moving import (
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.verify import verify_plan
+from needlekit.scenario.loading import parse_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 DATA = Path(__file__).resolve().parents[2] / "src" / "needlekit" / "data"

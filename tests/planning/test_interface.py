@@ -13,7 +13,6 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
-from needlekit.io.problems import load_problem, planner_settings
 from needlekit.planning.interface import (
     Termination,
     get_planner,
@@ -24,6 +23,7 @@ from needlekit.planning.interface import (
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.rcs import RCSOptions, Resolution
 from needlekit.planning.steerable.solve import solve
+from needlekit.scenario.problems import load_problem, planner_settings
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -234,7 +234,7 @@ def test_solve_dispatches_through_the_registry_with_seeds_and_budgets():
 
 
 def test_an_unknown_planner_is_refused_before_the_anatomy_loads(tmp_path, capsys, monkeypatch):
-    import needlekit.io.problems as problems
+    import needlekit.scenario.problems as problems
 
     def no_load(*a, **k):
         raise AssertionError("the anatomy was loaded")

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from needlekit.io.problems import multi_problem_from_scenario
-from needlekit.io.scenario import load_scenario
 from needlekit.planning.interface import Termination, get_planner
 from needlekit.planning.straight.cfrw import cfrw_map
 from needlekit.planning.straight.verify import verify_multi
+from needlekit.scenario.loading import load_scenario
+from needlekit.scenario.problems import multi_problem_from_scenario
 
 EXAMPLE = (
     Path(__file__).resolve().parents[2]
@@ -27,7 +27,7 @@ VESSELS = ("vessel_a", "vessel_b", "vessel_c")
 
 def test_base_phantom_drop_leaves_structures_out():
     from needlekit.errors import InvalidInputError
-    from needlekit.io.scenario import parse_scenario
+    from needlekit.scenario.loading import parse_scenario
 
     doc = {"version": 1, "base": {"phantom": {"name": "liver", "seed": 0}}}
     full = parse_scenario(doc)

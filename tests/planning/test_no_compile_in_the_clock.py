@@ -18,7 +18,7 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 PROBE = r"""
 import json, sys
 import numba
-from needlekit.io.problems import load_problem
+from needlekit.scenario.problems import load_problem
 from needlekit.planning.interface import Termination
 from needlekit.planning.steerable.solve import solve
 

@@ -8,9 +8,10 @@ import pytest
 from needlekit.anatomy.primitives import Sphere
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.errors import InvalidInputError
-from needlekit.io.scenario import load_scenario
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.problem import CostKind, SteerableProblem
+from needlekit.scenario.loading import load_scenario
+from needlekit.scenario.problems import problem_from_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -72,10 +73,10 @@ def test_bad_problems_name_the_field(scene, kw, field):
 
 def test_from_scenario_with_overrides():
     sc = load_scenario(EXAMPLES / "toy.yaml")
-    p = SteerableProblem.from_scenario(sc)
+    p = problem_from_scenario(sc)
     assert np.allclose(p.goal_mm, [20, 30, 40]) and p.r_min_mm == 50
     assert np.allclose(p.start_pose[:3, 2], np.array([0, 1, 0.3]) / np.linalg.norm([0, 1, 0.3]))
-    q = SteerableProblem.from_scenario(sc, r_min_mm=100.0, needle_diameter_mm=2.0)
+    q = problem_from_scenario(sc, r_min_mm=100.0, needle_diameter_mm=2.0)
     assert q.r_min_mm == 100 and q.clearance_margin_mm == pytest.approx(1.0)
 
 

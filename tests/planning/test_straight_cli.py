@@ -7,7 +7,7 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.io.markups import read_markups
-from needlekit.io.problems import multi_problem_from_scenario
+from needlekit.scenario.problems import multi_problem_from_scenario
 
 SCENARIO = """\
 version: 1

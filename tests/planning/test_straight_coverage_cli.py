@@ -8,10 +8,10 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
-from needlekit.io.problems import coverage_region, multi_problem_from_scenario
-from needlekit.io.scenario import load_scenario
 from needlekit.planning.straight.ablation import planned_coverage, voxelise
 from needlekit.planning.straight.coverage import AblationZone, evaluate_coverage
+from needlekit.scenario.loading import load_scenario
+from needlekit.scenario.problems import coverage_region, multi_problem_from_scenario
 
 SCENARIO = """\
 version: 1

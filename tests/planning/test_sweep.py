@@ -113,7 +113,7 @@ def test_the_progress_learns_the_total_before_the_first_direction():
     from pathlib import Path
 
     from needlekit.cli._common import sweep_progress
-    from needlekit.io.problems import load_problem
+    from needlekit.scenario.problems import load_problem
 
     _, problem = load_problem(Path(__file__).parents[2] / "examples" / "toy.yaml")
     calls = []

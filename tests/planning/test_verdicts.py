@@ -12,11 +12,11 @@ from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
-from needlekit.io.problems import load_problem
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.solve import solve
 from needlekit.planning.steerable.sweep import sweep
+from needlekit.scenario.problems import load_problem, problem_from_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 PLANNERS = ("rcs_star", "rcs", "rrt")
@@ -162,12 +162,12 @@ def test_verify_works_with_a_half_space_entry_surface(tmp_path, capsys):
 
 
 def _routes(scenario: Path, tmp_path: Path):
-    """(status, cost) through needlekit plan, from_scenario + solve, sweep and bench."""
+    """(status, cost) through needlekit plan, problem_from_scenario + solve, sweep and bench."""
     out = tmp_path / "plan.json"
     code = main(["plan", str(scenario), "--out", str(out), "--max-iterations", "5000",
                  "--time-limit-s", "60"])  # fmt: skip
     plan = json.loads(out.read_text())
-    problem = SteerableProblem.from_scenario(scenario)
+    problem = problem_from_scenario(scenario)
     direct = solve(problem, "rcs_star", time_limit_s=60.0, max_iterations=5000)
     swept = sweep(problem, "rcs_star", directions=[problem.start_pose[:3, 2]],
                   time_limit_s=60.0, max_iterations=5000).results[0]  # fmt: skip

@@ -42,12 +42,12 @@ PLANNERS = ("rcs_star", "rcs", "rrt")
 
 @pytest.fixture(scope="module")
 def lung():
-    from needlekit.io.scenario import load_scenario
-    from needlekit.planning.steerable.problem import SteerableProblem
     from needlekit.planning.steerable.sweep import sweep
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.problems import problem_from_scenario
 
     sc = load_scenario(EXAMPLES / "lung_phantom.yaml")
-    p = SteerableProblem.from_scenario(sc)
+    p = problem_from_scenario(sc)
     dirs = sphere_directions(136)
     runs = {
         pl: sweep(p, pl, directions=dirs, time_limit_s=30.0, max_iterations=200) for pl in PLANNERS
@@ -59,10 +59,10 @@ def lung():
 def test_every_plan_of_the_lung_sweep_clears_the_exact_anatomy(lung, exact_clearance):
     # iteration budgets end each search: the same plans on any machine, each re-checked
     # against the phantom's exact structures (not the voxel grids the planners used)
-    from needlekit.planning.steerable.problem import SteerableProblem
+    from needlekit.scenario.problems import problem_from_scenario
 
     sc, runs, _ = lung
-    p = SteerableProblem.from_scenario(sc)
+    p = problem_from_scenario(sc)
     for pl in PLANNERS:
         stats = runs[pl].stats
         assert (stats["n_effective"], stats["n_solved"]) == (42, 5)

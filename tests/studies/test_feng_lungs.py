@@ -104,7 +104,7 @@ def quick(medrad_dir, tmp_path_factory):
 
 
 def _problem(out, goal):
-    from needlekit.io.problems import load_problem
+    from needlekit.scenario.problems import load_problem
 
     return load_problem(out / goal / "scenario.yaml")[1]
 
@@ -178,9 +178,8 @@ def test_every_solved_plan_passes_the_independent_check(quick, capsys):
 def test_the_best_path_bends_where_the_direct_connection_collides(quick):
     """Obstacles matter: from RCS*'s best direction, the direct turn-then-straight
     connection hits the anatomy, and the plan found instead passes."""
-    from needlekit.io.plans import plan_from_dict
     from needlekit.planning.steerable.goal import goal_connection
-    from needlekit.planning.steerable.plan import SteerablePlan
+    from needlekit.planning.steerable.plan import SteerablePlan, plan_from_dict
     from needlekit.planning.steerable.verify import verify_plan
 
     out, record, sweeps = quick

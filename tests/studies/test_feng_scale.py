@@ -101,7 +101,7 @@ def test_an_unreachable_scheduler_is_one_line_naming_the_flag(capsys, tmp_path, 
 
 @pytest.fixture(scope="module")
 def phantom_lung():
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     return ScenarioSource.of(EXAMPLES / "lung_phantom.yaml").load()[1]
 
@@ -176,7 +176,7 @@ def test_an_inline_scenario_source_is_its_document(tmp_path):
 
     import yaml
 
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     doc = yaml.safe_load((EXAMPLES / "toy.yaml").read_text())
     inline = ScenarioSource.of_document(doc, EXAMPLES, name="toy.yaml", goal_mm=[1, 2, 3])

@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.straight import _timed
+from needlekit.provenance import machine_info
 
 __all__ = ["run_approach_benchmark"]
 
@@ -89,13 +89,13 @@ def _reference_available() -> str | None:
 
 def _case(name: str, path: Path, repeat: int) -> dict:
     from needlekit.anatomy.scene import Role
-    from needlekit.io.problems import multi_problem_from_scenario
-    from needlekit.io.scenario import load_scenario
     from needlekit.planning.straight.approach import (
         approach_analysis,
         approach_scores,
         structure_mesh,
     )
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.problems import multi_problem_from_scenario
 
     sc = load_scenario(path)
     multi, _ = multi_problem_from_scenario(sc)

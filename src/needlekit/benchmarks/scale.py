@@ -232,7 +232,7 @@ def run_scale_benchmark(settings: dict | None = None, *, progress: Progress = No
         None), ``planning``, ``sweep``, ``study`` (each None when not run), ``wall_s``
         and ``results`` (one line per series for the terminal).
     """
-    from needlekit.benchmarks.record import machine_info
+    from needlekit.provenance import machine_info
 
     s = scale_settings() if settings is None else settings
     t0, load = time.perf_counter(), {"start": _load()}
@@ -274,7 +274,7 @@ def run_scale_benchmark(settings: dict | None = None, *, progress: Progress = No
 
 
 def _feng_source(root):
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
     from needlekit.studies.feng_lungs import feng_lung_scenario
 
     doc = feng_lung_scenario(1, medrad_dir=root)

@@ -208,7 +208,7 @@ def sweep_series(
 
     Parameters
     ----------
-    source : needlekit.io.problems.ScenarioSource
+    source : needlekit.scenario.problems.ScenarioSource
         The case; this process builds it once (for the serial runs), each worker of every
         executor once.
     directions : sequence of int

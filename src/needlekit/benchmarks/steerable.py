@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from needlekit.benchmarks.record import machine_info
 from needlekit.constants import (
     DEFAULT_GOAL_TOLERANCE_MM,
     DEFAULT_MAX_HEADING_CHANGE_DEG,
@@ -27,6 +26,7 @@ from needlekit.constants import (
     DEFAULT_TIME_LIMIT_S,
 )
 from needlekit.planning.result import PlanStatus
+from needlekit.provenance import machine_info
 
 __all__ = [
     "BENCH_NEEDLE",
@@ -66,7 +66,7 @@ def _row(res, **case) -> dict:
 
 def medrad_lung_problem(case, start: str, r_min_mm: float):
     """The benchmark's problem for one Med-RAD lung start, built the way a scenario file
-    with that case, start, target and needle is (:func:`needlekit.io.problems.problem_from_scenario`).
+    with that case, start, target and needle is (:func:`needlekit.scenario.problems.problem_from_scenario`).
 
     Parameters
     ----------
@@ -79,8 +79,8 @@ def medrad_lung_problem(case, start: str, r_min_mm: float):
     -------
     SteerableProblem
     """
-    from needlekit.io.problems import problem_from_scenario
-    from needlekit.io.scenario import GoalSpec, NeedleSpec, Scenario, StartSpec
+    from needlekit.scenario.loading import GoalSpec, NeedleSpec, Scenario, StartSpec
+    from needlekit.scenario.problems import problem_from_scenario
 
     s = case.start(start)
     scenario = Scenario(
@@ -152,8 +152,8 @@ def run_steerable_benchmark(
         time of infeasible answers, largest overrun, agreement with the reference).
     """
     from needlekit.io.medrad import load_medrad
-    from needlekit.io.problems import load_problem
     from needlekit.planning.steerable.solve import solve
+    from needlekit.scenario.problems import load_problem
 
     def run(problem, planner):
         return solve(problem, planner, time_limit_s=time_limit_s, seed=0)

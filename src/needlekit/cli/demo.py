@@ -25,7 +25,7 @@ DEMO_MAX_ITERATIONS = 300
 
 def _lung_sweep(out: Path) -> int:
     from needlekit.io.files import write_text
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
     from needlekit.studies.sweep_study import run_sweep_study
 
     case = out / "lung"

@@ -17,7 +17,7 @@ def _cmd_markups(args: argparse.Namespace) -> int:
         raise InvalidInputError("--out", f"{out}: expected a name ending in .mrk.json")
     data = read_json_object(args.plan, "plan")  # a malformed file is answered before numba
     from needlekit.io.markups import DEFAULT_CURVE_SPACING_MM, write_plan_curve
-    from needlekit.io.plans import plan_from_dict
+    from needlekit.planning.steerable.plan import plan_from_dict
 
     spacing = DEFAULT_CURVE_SPACING_MM if args.spacing_mm is None else args.spacing_mm
     plan, _ = plan_from_dict(data, args.plan.name)

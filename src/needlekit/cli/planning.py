@@ -18,7 +18,7 @@ def _pose_override(args: argparse.Namespace):
 
 
 def _source(args: argparse.Namespace):
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     return ScenarioSource.of(
         args.scenario,
@@ -64,7 +64,7 @@ def _check_planners(args: argparse.Namespace, doc: dict, names=None) -> tuple[st
 
 def _settings(args: argparse.Namespace, doc: dict, names=None):
     """The scenario's planner block under the flags, checked before the anatomy is read."""
-    from needlekit.io.problems import planner_settings
+    from needlekit.scenario.problems import planner_settings
 
     return planner_settings(
         doc.get("planner"),
@@ -136,11 +136,11 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
 
 def _check_dynamic(args: argparse.Namespace, doc: dict) -> None:
     """What ``plan --dynamic`` needs from the flags and the document, checked before any
-    planner module is imported (:func:`needlekit.io.problems.dynamic_settings` checks the
+    planner module is imported (:func:`needlekit.scenario.problems.dynamic_settings` checks the
     values)."""
     if args.goals is not None:
         raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
-    from needlekit.io.problems import dynamic_block  # light: no planner module
+    from needlekit.scenario.problems import dynamic_block  # light: no planner module
 
     dynamic_block(doc, args.scenario.name, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
 
@@ -149,8 +149,8 @@ def _plan_dynamic(args: argparse.Namespace, settings) -> int:
     """``needlekit plan --dynamic``: re-plan from the tip among the scenario's moving
     obstacles, beside the plan made once at t = 0 and executed open-loop."""
     from needlekit.io.files import staged_outputs, write_json
-    from needlekit.io.problems import dynamic_settings, moving_case
     from needlekit.planning.steerable.dynamic import replan_among_moving
+    from needlekit.scenario.problems import dynamic_settings, moving_case
 
     kw = dynamic_settings(args.scenario, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
     sc, static, moving = moving_case(_source(args))
@@ -323,8 +323,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
 
         return verify_multi_file(args, doc)
     _document(args)  # a bad scenario file too, before numba
-    from needlekit.io.plans import read_plan_json
     from needlekit.planning.steerable.verify import verify_plan
+    from needlekit.scenario.results import read_plan_json
 
     plan, _, data = read_plan_json(args.plan)
     if plan is None:

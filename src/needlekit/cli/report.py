@@ -28,8 +28,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from needlekit.io.results import read_results
     from needlekit.report.result_report import write_result_report
+    from needlekit.scenario.results import ResultScenarios, read_results
 
     _check_inputs(args)
     # every file read and checked, and its scenario found, before any anatomy loads
@@ -38,8 +38,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
         args.out,
         results,
         title=args.title,
-        cache_dir=args.cache_dir,
-        use_cache=not args.no_cache,
+        scenarios=ResultScenarios(args.cache_dir, use_cache=not args.no_cache),
     )
     for part in report.parts:
         print(f"{part.result.path}: {part.result.kind.value}: {part.summary}")

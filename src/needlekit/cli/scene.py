@@ -28,7 +28,7 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     from needlekit.io.scenario_schema import read_scenario_document
 
     doc = read_scenario_document(args.scenario)  # a bad file is answered before numba
-    from needlekit.io.scenario import load_scenario
+    from needlekit.scenario.loading import load_scenario
 
     sc = load_scenario(args.scenario, document=doc)
     if args.scene_command == "info":

@@ -478,7 +478,7 @@ def write_plan_curve(
         Destination.
     plan : needlekit.planning.steerable.plan.SteerablePlan
         The plan (e.g. ``PlanResult.plan`` or the first value of
-        :func:`needlekit.io.plans.read_plan_json`).
+        :func:`needlekit.scenario.results.read_plan_json`).
     spacing_mm : float
         Largest spacing of the control points along the path (mm, > 0); the ends of
         every primitive are control points too.

@@ -3,7 +3,7 @@ reading and validation of a scenario document against it.
 
 Written once here; every file is validated against it before anything is built
 (:func:`read_scenario_document`, :func:`validate_scenario_document`), and
-:mod:`needlekit.io.scenario` adds the checks a schema cannot express (exactly one source
+:mod:`needlekit.scenario.loading` adds the checks a schema cannot express (exactly one source
 per structure, unique names, files that exist, a 4x4 rigid pose).
 
 This module is light on purpose: it imports neither numpy nor the anatomy (numba), and

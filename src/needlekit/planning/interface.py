@@ -42,15 +42,15 @@ Example: a planner written outside needlekit
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any, Protocol, runtime_checkable
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S, PLANNER_FINISH_RESERVE_S
 from needlekit.errors import InvalidInputError
+from needlekit.planning.options import options_from_mapping  # re-exported
 from needlekit.planning.registry import (  # re-exported: the registry is part of this API
     BUILTIN_PLANNERS,
     ENTRY_POINT_GROUP,
@@ -288,62 +288,3 @@ class SearchRun:
             "first_solution_s": self.first_solution_s,
             "cost_history": [list(p) for p in self.history],
         }
-
-
-# -- options ------------------------------------------------------------------------------
-
-
-def options_from_mapping(options_type: type, mapping: Mapping | Any | None, planner: str):
-    """A planner's typed options from a mapping (a scenario's ``planner.options``).
-
-    Unknown keys are an error naming them; a dataclass-typed field accepts a mapping of its
-    own fields (e.g. RCS's ``resolution``).
-
-    Parameters
-    ----------
-    options_type : type
-        The planner's frozen options dataclass.
-    mapping : mapping, options_type instance or None
-    planner : str
-        For error messages.
-
-    Returns
-    -------
-    options_type instance
-
-    Raises
-    ------
-    InvalidInputError
-        Unknown keys, or values the options refuse.
-    """
-    if mapping is None:
-        return options_type()
-    if isinstance(mapping, options_type):
-        return mapping
-    if not isinstance(mapping, Mapping):
-        raise InvalidInputError(
-            "planner.options", f"{planner}: expected a mapping, got {type(mapping).__name__}"
-        )
-    fields = {f.name: f for f in dataclasses.fields(options_type)}
-    _refuse_unknown_options(planner, fields, mapping)
-    values = {}
-    for key, value in mapping.items():
-        default = fields[key].default
-        if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
-            value = options_from_mapping(type(default), value, f"{planner}.{key}")
-        values[key] = value
-    try:
-        return options_type(**values)
-    except InvalidInputError as exc:
-        raise InvalidInputError("planner.options", f"{planner}: {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError("planner.options", f"{planner}: {exc}") from None
-
-
-def _refuse_unknown_options(planner: str, names, mapping: Mapping) -> None:
-    unknown = sorted(set(mapping) - set(names), key=str)
-    if unknown:
-        known = ", ".join(sorted(names)) or "no options"
-        raise InvalidInputError(
-            "planner.options", f"{planner} takes {known}; unknown: {', '.join(map(str, unknown))}"
-        )

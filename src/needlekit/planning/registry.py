@@ -15,12 +15,10 @@ import importlib
 import logging
 import threading
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from needlekit.errors import InvalidInputError
-
-if TYPE_CHECKING:
-    from needlekit.planning.interface import Planner
+from needlekit.planning.options import options_from_mapping, refuse_unknown_options
 
 __all__ = [
     "BUILTIN_PLANNERS",
@@ -36,15 +34,13 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+#: What the registry holds: ``factory(options) -> planner``, a class with ``options_type``
+#: whose instances follow :class:`needlekit.planning.interface.Planner` (not imported here:
+#: the interface re-exports this module).
+PlannerFactory = Callable[..., Any]
+
 #: Entry-point group under which other packages declare planners: ``name = module:Factory``.
 ENTRY_POINT_GROUP = "needlekit.planners"
-
-
-def _interface():
-    # the options helpers live beside the Planner protocol (which imports this module)
-    from needlekit.planning import interface
-
-    return interface
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +67,7 @@ class BuiltinPlanner:
     option_names: tuple[str, ...]
     factory: str
 
-    def load(self) -> Callable[..., Planner]:
+    def load(self) -> PlannerFactory:
         """The planner class (imports its module).
 
         Returns
@@ -116,13 +112,13 @@ BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
 )
 
 #: Name -> planner factory, or the :class:`BuiltinPlanner` standing for it until needed.
-_REGISTRY: dict[str, Callable[..., Planner] | BuiltinPlanner] = {}
+_REGISTRY: dict[str, PlannerFactory | BuiltinPlanner] = {}
 _BUILTINS_LOADED = False
 _ENTRY_POINTS_LOADED = False
 _LOCK = threading.Lock()
 
 
-def register_planner(name: str, factory: Callable[..., Planner], *, replace: bool = False) -> None:
+def register_planner(name: str, factory: PlannerFactory, *, replace: bool = False) -> None:
     """Make a planner available by name (to :func:`get_planner`, the CLI, sweeps, studies).
 
     Parameters
@@ -205,7 +201,7 @@ def _load_entry_points() -> None:
             log.warning("planner entry point %r (%s) not loaded: %s", ep.name, ep.value, exc)
 
 
-def _entry(name: str) -> Callable[..., Planner] | BuiltinPlanner:
+def _entry(name: str) -> PlannerFactory | BuiltinPlanner:
     """The registry's entry for ``name`` (a built-in planner's module not imported)."""
     _load_builtins()
     if name not in _REGISTRY:
@@ -218,7 +214,7 @@ def _entry(name: str) -> Callable[..., Planner] | BuiltinPlanner:
         ) from None
 
 
-def _lookup(name: str) -> Callable[..., Planner]:
+def _lookup(name: str) -> PlannerFactory:
     entry = _entry(name)
     if not isinstance(entry, BuiltinPlanner):
         return entry
@@ -268,7 +264,7 @@ def check_planner_options(
     ------
     InvalidInputError
         Unknown planner, another family, or an unknown option; the same messages as
-        :func:`get_planner` and :func:`needlekit.io.problems.planner_settings`.
+        :func:`get_planner` and :func:`needlekit.scenario.problems.planner_settings`.
     """
     entry = _entry(name)
     if family is not None and entry.family != family:
@@ -282,10 +278,10 @@ def check_planner_options(
     else:
         fields = tuple(f.name for f in dataclasses.fields(entry.options_type))
     if isinstance(options, Mapping):
-        _interface()._refuse_unknown_options(name, fields, options)
+        refuse_unknown_options(name, fields, options)
 
 
-def planner_class(name: str) -> Callable[..., Planner]:
+def planner_class(name: str) -> PlannerFactory:
     """The registered factory of a planner (its ``options_type`` and ``family``).
 
     Parameters
@@ -305,7 +301,7 @@ def planner_class(name: str) -> Callable[..., Planner]:
     return _lookup(name)
 
 
-def get_planner(name: str, options: Mapping | Any | None = None) -> Planner:
+def get_planner(name: str, options: Mapping | Any | None = None) -> Any:
     """A planner by name, with its options checked.
 
     Parameters
@@ -324,4 +320,4 @@ def get_planner(name: str, options: Mapping | Any | None = None) -> Planner:
         Unknown planner or option.
     """
     factory = _lookup(name)
-    return factory(_interface().options_from_mapping(factory.options_type, options, name))
+    return factory(options_from_mapping(factory.options_type, options, name))

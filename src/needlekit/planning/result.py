@@ -1,47 +1,22 @@
 """What every planner returns: a status, the cost, statistics, and JSON.
 
 Modelled on OMPL's ``PlannerStatus``: ``solve(problem, budget)`` always returns a result;
-the status says what it means.
+the status (:class:`needlekit.records.Status`) says what it means.
 """
 
 from __future__ import annotations
 
-import enum
 from dataclasses import dataclass, field
+
+from needlekit.records import Status
 
 __all__ = ["PlanStatus", "Verification"]
 
 
-class PlanStatus(enum.Enum):
-    """Outcome of a planning run.
-
-    SOLVED
-        A plan that reaches the goal and passed the independent check; for
-        resolution-optimal planners that finished their search, certified optimal at the
-        resolution searched (see the result's statistics).
-    APPROXIMATE
-        A valid path that ends near, but not within tolerance of, the goal.
-    INFEASIBLE
-        No plan exists at the resolution searched (the search space was exhausted), or the
-        goal is provably out of reach (e.g. outside the reachable set of the start).
-    TIMEOUT
-        The budget ran out before a plan was found (or, for anytime planners, before the
-        search finished; a best plan so far is then reported as SOLVED).
-    INVALID_PROBLEM
-        The problem itself is malformed (start in collision beyond the start exclusion,
-        goal outside the allowed region, ...).
-    """
-
-    SOLVED = "solved"
-    APPROXIMATE = "approximate"
-    INFEASIBLE = "infeasible"
-    TIMEOUT = "timeout"
-    INVALID_PROBLEM = "invalid_problem"
-
-    @property
-    def has_plan(self) -> bool:
-        """Whether a path comes with this status."""
-        return self in (PlanStatus.SOLVED, PlanStatus.APPROXIMATE)
+#: The status of every planner's result: :class:`needlekit.records.Status` (one vocabulary
+#: for the steerable and straight planners and the controller's trials), under the name
+#: planning has always used.
+PlanStatus = Status
 
 
 @dataclass(frozen=True)

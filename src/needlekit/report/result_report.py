@@ -1,6 +1,6 @@
 """One self-contained page from result files (``needlekit report RESULT... --out page.html``).
 
-Each result file (:mod:`needlekit.io.results`) becomes one part of the page, drawn by the
+Each result file (:func:`needlekit.scenario.results.read_results`) becomes one part of the page, drawn by the
 builders its own command uses, from the objects rebuilt from the file:
 
 - a plan (``needlekit plan``, ``sweep --plan``): :func:`~.steerable_report.plan_sections`:
@@ -27,7 +27,9 @@ builders its own command uses, from the objects rebuilt from the file:
 - scaling curves (``needlekit bench scale``): :func:`~.scale_figures.scale_sections`, the
   record's series as measured (nothing to check again).
 
-:func:`write_result_report` loads each scenario once, however many results name it.
+:func:`write_result_report` takes its scenarios from the caller
+(:class:`needlekit.scenario.results.ResultScenarios` loads each once, however many results
+name it): the report layer draws and does not load scenarios.
 """
 
 from __future__ import annotations
@@ -90,35 +92,16 @@ class ResultReport:
     parts: list = field(default_factory=list)
 
 
-class _Scenarios:
-    """Scenarios loaded once each (a Med-RAD patient takes tens of seconds)."""
-
-    def __init__(self, cache_dir=None, use_cache: bool = True) -> None:
-        self.cache_dir, self.use_cache, self.loaded = cache_dir, use_cache, {}
-
-    def __call__(self, path: Path):
-        from needlekit.io.scenario import load_scenario
-
-        key = os.path.realpath(path)
-        if key not in self.loaded:
-            self.loaded[key] = load_scenario(
-                path, cache_dir=self.cache_dir, use_cache=self.use_cache
-            )
-        return self.loaded[key]
-
-
-def _steerable_problem(sc, rf: ResultFile, start_pose=None, goal_mm=None):
+def _steerable_problem(load, sc, rf: ResultFile, start_pose=None, goal_mm=None):
     """The scenario's steerable problem, from the result's start pose and goal when given
     (a plan is checked against the goal it was made for)."""
-    from needlekit.io.problems import problem_from_scenario
-
     overrides: dict = {}
     if start_pose is not None:
         overrides |= {"start_pose": np.asarray(start_pose, float), "start_point_mm": None}
     if goal_mm is not None:
         overrides["goal_mm"] = np.asarray(goal_mm, float)
     try:
-        return problem_from_scenario(sc, **overrides)
+        return load.steerable_problem(sc, **overrides)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{rf.scenario}: {exc.field}", exc.reason) from None
 
@@ -147,12 +130,12 @@ def _verdict(checks) -> tuple[bool | None, str]:
 
 
 def _plan_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.io.records import plan_result_from_dict
+    from needlekit.planning.steerable.result import PlanResult
     from needlekit.report.steerable_report import plan_sections
 
-    result = plan_result_from_dict(rf.data, rf.path.name)
+    result = PlanResult.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(sc, rf, result.start_pose, result.goal_mm)
+    problem = _steerable_problem(load, sc, rf, result.start_pose, result.goal_mm)
     check = _check(problem, result)
     ok, verdict = _verdict([check])
     cost = "" if result.plan is None else f", cost {result.cost_mm:.4f}"
@@ -166,12 +149,12 @@ def _plan_part(rf: ResultFile, load) -> ReportPart:
 
 
 def _goals_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.io.records import goals_from_dict
+    from needlekit.planning.steerable.result import goals_from_dict
     from needlekit.report.steerable_report import goals_sections, plan_rows
 
     results = goals_from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(sc, rf, results[0].start_pose, results[0].goal_mm)
+    problem = _steerable_problem(load, sc, rf, results[0].start_pose, results[0].goal_mm)
     checks = [_check(problem, r) for r in results]
     planner, mode = rf.data["planner"], rf.data["mode"]
     sections = goals_sections(problem, results, planner=planner, mode=mode, checks=checks)
@@ -190,11 +173,11 @@ def _goals_part(rf: ResultFile, load) -> ReportPart:
 
 
 def _sweep_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.io.records import sweeps_from_dict
+    from needlekit.planning.steerable.sweep_result import sweeps_from_dict
     from needlekit.report.sweep_report import sweep_study_sections
 
     sc = load(rf.scenario)
-    problem = _steerable_problem(sc, rf)
+    problem = _steerable_problem(load, sc, rf)
     sweeps = sweeps_from_dict(rf.data, rf.path.name, goal_mm=problem.goal_mm)
     first = next(iter(sweeps))
     best = sweeps[first].best
@@ -214,10 +197,8 @@ def _sweep_part(rf: ResultFile, load) -> ReportPart:
     )
 
 
-def _straight_problem(sc, rf: ResultFile):
-    from needlekit.io.problems import multi_problem_from_scenario
-
-    multi, options = multi_problem_from_scenario(sc)
+def _straight_problem(load, sc, rf: ResultFile):
+    multi, options = load.multi_problem(sc)
     p = multi.problem
     for key, mine in (("gamma_mm", p.gamma_mm), ("needle_radius_mm", p.needle.radius_mm)):
         theirs = float(rf.data[key])
@@ -329,7 +310,7 @@ def _cfrw_part(rf: ResultFile, load) -> ReportPart:
     from needlekit.planning.straight.cfrw import cfrw_map
 
     sc = load(rf.scenario)
-    multi, _ = _straight_problem(sc, rf)
+    multi, _ = _straight_problem(load, sc, rf)
     d = rf.data
     theta = np.asarray(d["theta_deg"], float)
     phi = np.asarray(d["phi_deg"], float)
@@ -367,14 +348,15 @@ def _cfrw_part(rf: ResultFile, load) -> ReportPart:
 
 
 def _multi_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.io.records import coverage_from_dict, multi_plan_from_dict
+    from needlekit.planning.straight.ablation import AblationOutcome
+    from needlekit.planning.straight.sequence import MultiNeedlePlan
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.report.straight_report import plan_maps, straight_sections
 
     sc = load(rf.scenario)
-    multi, options = _straight_problem(sc, rf)
-    plan = multi_plan_from_dict(rf.data, rf.path.name)
-    coverage = coverage_from_dict(rf.data.get("coverage"), f"{rf.path.name}: coverage")
+    multi, options = _straight_problem(load, sc, rf)
+    plan = MultiNeedlePlan.from_dict(rf.data, rf.path.name)
+    coverage = AblationOutcome.from_dict(rf.data.get("coverage"), f"{rf.path.name}: coverage")
     res = rf.data.get("resolution_deg", options.get("resolution_deg", 1.0))
     maps = plan_maps(multi.problem, plan, resolution_deg=float(res))
     for n, m in zip(plan.needles, maps, strict=True):
@@ -424,19 +406,6 @@ def _puncture_part(rf: ResultFile, load) -> ReportPart:
         sections,
         f"{summary['completed']} of {summary['trials']} trials completed",
     )
-
-
-class _Loaded:
-    """A loaded scenario and its problem, handed to
-    :func:`~needlekit.io.problems.moving_case` as a
-    :class:`~needlekit.io.problems.ScenarioSource` hands them (so the scenarios loaded once
-    serve it too)."""
-
-    def __init__(self, scenario, problem) -> None:
-        self.scenario, self.problem = scenario, problem
-
-    def load(self):
-        return self.scenario, self.problem
 
 
 def _same_motions(rf: ResultFile, recorded: dict, moving) -> None:
@@ -516,15 +485,14 @@ def _recheck_rows(rec, check, base) -> tuple[list, list]:
 
 
 def _dynamic_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.io.problems import moving_case
-    from needlekit.io.records import dynamic_from_dict
     from needlekit.planning.steerable.dynamic import DynamicResult
+    from needlekit.planning.steerable.dynamic_record import DynamicRecord
     from needlekit.report.dynamic_report import dynamic_sections
 
-    rec = dynamic_from_dict(rf.data, rf.path.name)
+    rec = DynamicRecord.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(sc, rf, rec.executed.start_pose, rec.goal_mm)
-    _, static, moving = moving_case(_Loaded(sc, problem))
+    problem = _steerable_problem(load, sc, rf, rec.executed.start_pose, rec.goal_mm)
+    _, static, moving = load.moving_case(sc, problem)
     _same_motions(rf, rec.motions, moving)
     check, base = _dynamic_checks(rf, rec, static, moving)
     result = DynamicResult(rec.status, rec.reason, rec.executed, check, rec.cycles,
@@ -601,10 +569,13 @@ def result_part(result: ResultFile, load=None) -> ReportPart:
     Parameters
     ----------
     result : ResultFile
-        As :func:`needlekit.io.results.read_result` returns it.
-    load : callable, optional
-        ``load(path) -> Scenario`` (default: :func:`needlekit.io.scenario.load_scenario`
-        with the user cache).
+        As :func:`needlekit.scenario.results.read_result` returns it.
+    load : ResultScenarios, optional
+        Where the scenarios come from: ``load(path) -> Scenario``, and
+        ``load.steerable_problem(scenario, **overrides)``, ``load.multi_problem(scenario)``,
+        ``load.moving_case(scenario, problem)``
+        (:class:`needlekit.scenario.results.ResultScenarios`; the report layer does not
+        load scenarios itself). Needed by every kind that reads a scenario.
 
     Returns
     -------
@@ -618,7 +589,13 @@ def result_part(result: ResultFile, load=None) -> ReportPart:
     """
     if not isinstance(result, ResultFile):
         raise InvalidInputError("result", f"expected a ResultFile, got {type(result).__name__}")
-    return _BUILDERS[result.kind](result, load or _Scenarios())
+    if load is None and result.kind.needs_scenario:
+        raise InvalidInputError(
+            "scenarios",
+            f"{result.path} ({result.kind.value}) is drawn with its scenario: pass "
+            "needlekit.scenario.results.ResultScenarios()",
+        )
+    return _BUILDERS[result.kind](result, load)
 
 
 def write_result_report(
@@ -626,8 +603,7 @@ def write_result_report(
     results: Sequence[ResultFile],
     *,
     title: str | None = None,
-    cache_dir: str | os.PathLike | None = None,
-    use_cache: bool = True,
+    scenarios=None,
 ) -> ResultReport:
     """Draw result files on one self-contained HTML page, written atomically.
 
@@ -639,12 +615,12 @@ def write_result_report(
     path : path-like
         The page (``.html``).
     results : sequence of ResultFile
-        As :func:`needlekit.io.results.read_results` returns them.
+        As :func:`needlekit.scenario.results.read_results` returns them.
     title : str, optional
         Default: the result's own title, or the files' names.
-    cache_dir : path-like, optional
-        Prepared-anatomy cache of Med-RAD scenarios.
-    use_cache : bool
+    scenarios : ResultScenarios, optional
+        Loads each scenario once, however many results name it (see :func:`result_part`);
+        needed when a result reads a scenario.
 
     Returns
     -------
@@ -652,8 +628,7 @@ def write_result_report(
     """
     if isinstance(results, ResultFile) or not results:
         raise InvalidInputError("results", "expected one or more ResultFile")
-    load = _Scenarios(cache_dir, use_cache)
-    parts = [result_part(r, load) for r in results]
+    parts = [result_part(r, scenarios) for r in results]
     if len(parts) == 1:
         sections = parts[0].sections
         title = title or parts[0].title

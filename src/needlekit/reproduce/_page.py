@@ -104,10 +104,10 @@ class Stages:
 
 
 def _machine() -> dict:
-    """The benchmark records' machine description (:func:`~needlekit.benchmarks.record.machine_info`)
+    """The benchmark records' machine description (:func:`~needlekit.provenance.machine_info`)
     with needlekit's version and the load average at the end of the run."""
     from needlekit import __version__
-    from needlekit.benchmarks.record import machine_info
+    from needlekit.provenance import machine_info
 
     info = machine_info()
     info["needlekit"] = __version__

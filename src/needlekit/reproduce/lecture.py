@@ -126,12 +126,12 @@ def _kinematics(case: Path, quick: bool):
 def _multi_target(case: Path, quick: bool):
     """Part 2: the lecture's per-target RRT beside one shared tree."""
     from needlekit.io.files import write_json, write_text
-    from needlekit.io.problems import ScenarioSource
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.rrt import solve_rrt_multi, solve_rrt_per_target
     from needlekit.planning.steerable.verify import verify_plan
     from needlekit.report.html_page import FigureSection, TableSection
     from needlekit.report.steerable_report import goals_figure
+    from needlekit.scenario.problems import ScenarioSource
 
     src = resources.files("needlekit") / "data" / TARGETS_SCENARIO
     with resources.as_file(src) as path:
@@ -211,15 +211,15 @@ def _multi_target(case: Path, quick: bool):
 def _dynamic(case: Path):
     """Part 3: the plan made at t = 0 against re-planning from the tip, a vessel drifting."""
     from needlekit.io.files import write_json, write_text
-    from needlekit.io.problems import (
+    from needlekit.planning.steerable.dynamic import replan_among_moving
+    from needlekit.report.dynamic_report import dynamic_sections
+    from needlekit.scenario.loading import read_scenario_document
+    from needlekit.scenario.problems import (
         ScenarioSource,
         dynamic_settings,
         moving_case,
         planner_settings,
     )
-    from needlekit.io.scenario import read_scenario_document
-    from needlekit.planning.steerable.dynamic import replan_among_moving
-    from needlekit.report.dynamic_report import dynamic_sections
 
     src = resources.files("needlekit") / "data" / MOVING_SCENARIO
     with resources.as_file(src) as path:

@@ -440,13 +440,13 @@ def run_feng_lungs(
         any sweep).
     """
     from needlekit.batch import executor_workers
-    from needlekit.benchmarks.record import machine_info
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.io.plans import write_plan_json
-    from needlekit.io.problems import ScenarioSource
     from needlekit.planning.interface import get_planner
     from needlekit.planning.steerable.sweep import sphere_directions, sweeps_to_dict
     from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
+    from needlekit.provenance import machine_info
+    from needlekit.scenario.problems import ScenarioSource
     from needlekit.studies.feng_timing import timing_record
 
     t0 = time.perf_counter()

@@ -161,11 +161,11 @@ def run_liver_case(
     """
     from dataclasses import replace
 
-    from needlekit.io.problems import coverage_region, multi_problem_from_scenario
-    from needlekit.io.scenario import parse_scenario
     from needlekit.planning.interface import Termination, get_planner
     from needlekit.planning.straight.ablation import plan_with_coverage
     from needlekit.planning.straight.verify import verify_multi
+    from needlekit.scenario.loading import parse_scenario
+    from needlekit.scenario.problems import coverage_region, multi_problem_from_scenario
 
     t0 = time.perf_counter()
     doc = liver_scenario(case, gamma_mm, medrad_dir=medrad_dir, resolution_deg=resolution_deg)
@@ -269,8 +269,8 @@ def run_liver_study(
     dict
         The record written: ``settings``, ``machine``, ``summary`` and ``rows``.
     """
-    from needlekit.benchmarks.record import machine_info
     from needlekit.io.files import write_json
+    from needlekit.provenance import machine_info
 
     for g in gammas_mm:
         if not (np.isfinite(g) and g >= 0):

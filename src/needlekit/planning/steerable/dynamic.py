@@ -69,6 +69,7 @@ __all__ = [
     "DynamicStatus",
     "check_settings",
     "continuation_problem",
+    "json_ready",
     "plan_static",
     "replan_among_moving",
 ]
@@ -283,7 +284,7 @@ class DynamicResult:
         if self.static is not None:
             res, check = self.static
             out["static"] = {"plan": res.to_dict(), "check": _check_dict(check)}
-        return _json_ready(out)
+        return json_ready(out)
 
 
 def _check_dict(check: Verification | None) -> dict | None:
@@ -292,12 +293,12 @@ def _check_dict(check: Verification | None) -> dict | None:
     return {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics}
 
 
-def _json_ready(value):
+def json_ready(value):
     """Plain JSON values: numpy numbers as Python ones, non-finite numbers as None."""
     if isinstance(value, Mapping):
-        return {str(k): _json_ready(v) for k, v in value.items()}
+        return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
-        return [_json_ready(v) for v in value]
+        return [json_ready(v) for v in value]
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):

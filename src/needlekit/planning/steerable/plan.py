@@ -16,8 +16,9 @@ from needlekit._validation import as_batch, as_poses
 from needlekit.constants import DEFAULT_SAMPLE_SPACING_MM
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs, sample_arcs, samples_for_spacing
+from needlekit.records import field_of
 
-__all__ = ["SteerablePlan"]
+__all__ = ["SteerablePlan", "plan_from_dict"]
 
 
 @dataclass(frozen=True)
@@ -119,3 +120,93 @@ class SteerablePlan:
                 for s, k, ell in self.primitives
             ],
         }
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> SteerablePlan:
+        """A path from its start pose and primitives, as :meth:`to_dict` writes them (no
+        primitives: nothing inserted).
+
+        Parameters
+        ----------
+        data : dict
+            ``start_pose`` (4x4) and ``primitives``.
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        SteerablePlan
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named after ``where``).
+        """
+        start = field_of(data, "start_pose", where, "pose")
+        rows = []
+        for i, q in enumerate(field_of(data, "primitives", where, "list")):
+            at = f"{where}: primitives[{i}]"
+            rows.append(
+                [field_of(q, k, at) for k in ("rotation_rad", "curvature_per_mm", "length_mm")]
+            )
+        try:
+            return cls(start, np.array(rows, dtype=float).reshape(-1, 3))
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{where}: {exc.field}", exc.reason) from None
+
+
+def plan_from_dict(data: dict, where: str):
+    """The plan and goal of a ``plan.json`` document (or of one plan inside another file,
+    such as a sweep's best plans).
+
+    Parameters
+    ----------
+    data : dict
+        ``goal_mm``, ``cost_mm``, ``start_pose`` and ``primitives`` as
+        :meth:`PlanResult.to_dict
+        <needlekit.planning.steerable.result.PlanResult.to_dict>` writes them.
+    where : str
+        Names the document in messages (``"plan.json"``, ``"sweep.json: best_plans.rrt"``).
+
+    Returns
+    -------
+    plan : SteerablePlan or None
+        None when the document holds no plan (e.g. status ``timeout``).
+    goal_mm : ndarray, shape (3,)
+
+    Raises
+    ------
+    InvalidInputError
+        A field not as the format says (named after ``where``).
+    """
+    if not isinstance(data, dict):
+        raise InvalidInputError(where, "expected a JSON object (a plan)")
+    try:
+        goal = np.asarray(data["goal_mm"], dtype=float).reshape(3)
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(f"{where}: goal_mm", "expected three numbers") from None
+    cost = data.get("cost_mm")
+    if cost is not None and (
+        isinstance(cost, bool) or not isinstance(cost, (int, float)) or not np.isfinite(cost)
+    ):
+        raise InvalidInputError(f"{where}: cost_mm", f"expected a number or null, got {cost!r}")
+    prims = data.get("primitives") or []
+    if data.get("start_pose") is None or not prims:
+        return None, goal
+    try:
+        rows = [
+            [float(q["rotation_rad"]), float(q["curvature_per_mm"]), float(q["length_mm"])]
+            for q in prims
+        ]
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(
+            f"{where}: primitives",
+            "expected objects with rotation_rad, curvature_per_mm, length_mm",
+        ) from None
+    try:
+        plan = SteerablePlan(np.asarray(data["start_pose"], dtype=float), np.array(rows))
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{where}: {exc.field}", exc.reason) from None
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{where}: start_pose", "expected a 4x4 matrix") from None
+    return plan, goal

@@ -480,26 +480,3 @@ class SteerableProblem:
         for name, value in checked.items():
             object.__setattr__(out, name, value)
         return out
-
-    @classmethod
-    def from_scenario(cls, scenario, **overrides) -> SteerableProblem:
-        """The problem a scenario describes: a convenience for
-        :func:`needlekit.io.problems.problem_from_scenario`, where scenarios are read (the
-        planning layer does not read the io layer's shapes).
-
-        Parameters
-        ----------
-        scenario : needlekit.io.scenario.Scenario or path-like
-            A loaded scenario, or a scenario file.
-        **overrides
-            Attributes to set instead of the scenario's (e.g. ``r_min_mm=100``).
-
-        Returns
-        -------
-        SteerableProblem
-            With the scenario's collision model (and its obstacle voxels when that is
-            ``voxel_centres``).
-        """
-        from needlekit.io.problems import problem_from_scenario
-
-        return problem_from_scenario(scenario, **overrides)

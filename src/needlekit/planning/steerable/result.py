@@ -7,10 +7,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit.constants import DEFAULT_SAMPLE_SPACING_MM
+from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus
-from needlekit.planning.steerable.plan import SteerablePlan
+from needlekit.planning.steerable.plan import SteerablePlan, plan_from_dict
+from needlekit.records import Status, enum_of, field_of, number_or_inf
 
-__all__ = ["PlanResult"]
+__all__ = ["PlanResult", "goals_from_dict"]
 
 
 @dataclass(frozen=True)
@@ -89,3 +91,65 @@ class PlanResult:
             start = None if self.start_pose is None else np.asarray(self.start_pose).tolist()
             out.update({"primitives": [], "points_mm": [], "start_pose": start})
         return out
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> PlanResult:
+        """A planner result from its ``plan.json`` record, as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        PlanResult
+            ``stats`` as recorded (the JSON-ready ones only).
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as the format says, or a status with a plan but no motions.
+        """
+        status = enum_of(Status, field_of(data, "status", where, "str"), f"{where}: status")
+        planner = field_of(data, "planner", where, "str")
+        plan, goal = plan_from_dict(data, where)
+        if status.has_plan and plan is None:
+            msg = f"status {status.value} without motions"
+            raise InvalidInputError(f"{where}: primitives", msg)
+        start = field_of(data, "start_pose", where, "pose", optional=True)
+        stats = field_of(data, "stats", where, "dict", optional=True) or {}
+        time_s = field_of(data, "time_s", where, optional=True) or 0.0
+        cost = number_or_inf(data, "cost_mm", where)
+        return cls(status, planner, plan, cost, float(time_s), goal, dict(stats), start)
+
+
+def goals_from_dict(data: dict, where: str) -> list[PlanResult]:
+    """The results of ``needlekit plan --goals`` from its record, one per target.
+
+    Parameters
+    ----------
+    data : dict
+        ``planner``, ``mode`` (``per-target`` or ``one-tree``) and ``targets`` (plan
+        records).
+    where : str
+        Names the record in messages.
+
+    Returns
+    -------
+    list of PlanResult
+
+    Raises
+    ------
+    InvalidInputError
+        A field not as the format says (named).
+    """
+    field_of(data, "planner", where, "str")
+    mode = field_of(data, "mode", where, "str")
+    if mode not in ("per-target", "one-tree"):
+        raise InvalidInputError(f"{where}: mode", f"expected per-target or one-tree, got {mode!r}")
+    targets = field_of(data, "targets", where, "list")
+    if not targets:
+        raise InvalidInputError(f"{where}: targets", "expected one or more plans")
+    return [PlanResult.from_dict(t, f"{where}: targets[{i}]") for i, t in enumerate(targets)]

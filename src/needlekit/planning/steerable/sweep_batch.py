@@ -25,12 +25,12 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.steerable.problem import SteerableProblem
-from needlekit.planning.steerable.sweep import (
+from needlekit.planning.steerable.sweep_result import (
     SweepResult,
     effective_directions,
     sphere_directions,
 )
-from needlekit.planning.steerable.sweep import sweep_stats as _stats
+from needlekit.planning.steerable.sweep_result import sweep_stats as _stats
 
 __all__ = [
     "REFUSED_PER_TASK",

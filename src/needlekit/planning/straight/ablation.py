@@ -33,6 +33,7 @@ from needlekit.planning.straight.coverage import (
 )
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.planning.straight.sequence import MultiNeedlePlan
+from needlekit.records import field_of
 
 __all__ = [
     "DEFAULT_VOXEL_MM",
@@ -296,16 +297,45 @@ class AblationOutcome:
             "ablated_outside_region_ml": rep.ablated_outside_region_ml,
             "tumour_volume_ml": rep.tumour_volume_ml,
             "region_volume_ml": rep.region_volume_ml,
-            "zone": {
-                "kind": z.kind,
-                "length_mm": z.length_mm,
-                "diameter_mm": z.diameter_mm,
-                "tip_offset_mm": z.tip_offset_mm,
-            },
+            "zone": z.to_dict(),
             "coverage_goal": self.chosen.coverage_goal,
             "planned": None if self.planned is None else self.planned.to_dict(),
             "chosen": self.chosen.to_dict(),
         }
+
+    @classmethod
+    def from_dict(cls, data: dict | None, where: str) -> AblationOutcome | None:
+        """The ablation coverage of a multi-needle plan from its record (``multi.json``'s
+        ``coverage``), as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        data : dict or None
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        AblationOutcome or None
+            None when the record is null (the plan's targets were not chosen for coverage).
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named).
+        """
+        if data is None:
+            return None
+        zone = AblationZone.from_dict(field_of(data, "zone", where, "dict"), f"{where}: zone")
+        chosen = CoveragePlan.from_dict(
+            field_of(data, "chosen", where, "dict"), f"{where}: chosen", zone
+        )
+        planned = field_of(data, "planned", where, "dict", optional=True)
+        if planned is not None:
+            planned = CoverageReport.from_dict(planned, f"{where}: planned")
+        ok = field_of(data, "status", where, "str") == "covered"
+        reason = field_of(data, "reason", where, "str", optional=True) or ""
+        return cls(chosen, planned, ok, reason)
 
 
 def plan_with_coverage(

@@ -44,6 +44,7 @@ from scipy import ndimage, sparse
 from needlekit._validation import as_points, as_positive, as_scalar, unbatch
 from needlekit.anatomy.primitives.ellipsoid import ellipsoid_distance
 from needlekit.errors import InvalidInputError
+from needlekit.records import field_of
 
 __all__ = [
     "DEFAULT_CANDIDATE_SPACING_FRACTION",
@@ -216,6 +217,52 @@ class AblationZone:
     def needs_direction(self) -> bool:
         """Whether the zone depends on the needle direction (not a sphere at the tip)."""
         return self.kind == "ellipsoid" or self.tip_offset_mm > 0.0
+
+    def to_dict(self) -> dict:
+        """JSON-ready fields (a ``zone`` of ``multi.json``).
+
+        Returns
+        -------
+        dict
+            ``kind``, ``length_mm``, ``diameter_mm``, ``tip_offset_mm``.
+        """
+        return {
+            "kind": self.kind,
+            "length_mm": self.length_mm,
+            "diameter_mm": self.diameter_mm,
+            "tip_offset_mm": self.tip_offset_mm,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> AblationZone:
+        """A zone from its record, as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        AblationZone
+
+        Raises
+        ------
+        InvalidInputError
+            A field missing or out of range (named after ``where``).
+        """
+        try:
+            return cls(
+                field_of(data, "kind", where, "str"),
+                field_of(data, "length_mm", where),
+                field_of(data, "diameter_mm", where),
+                field_of(data, "tip_offset_mm", where),
+            )
+        except InvalidInputError as exc:
+            if exc.field.startswith(where):
+                raise
+            raise InvalidInputError(f"{where}.{exc.field}", exc.reason) from None
 
     def centre_of(self, targets_mm, directions=None) -> np.ndarray:
         """Zone centres of needles with these targets (tips) and directions.
@@ -567,6 +614,32 @@ class CoverageReport:
         """
         return {k: (int(v) if k == "needles" else float(v)) for k, v in vars(self).items()}
 
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> CoverageReport:
+        """A report from its record, as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        CoverageReport
+
+        Raises
+        ------
+        InvalidInputError
+            A field missing or not a number (named).
+        """
+        return cls(
+            **{
+                k: field_of(data, k, where, "int" if k == "needles" else "number")
+                for k in cls.__dataclass_fields__
+            }
+        )
+
 
 def evaluate_coverage(region: TargetRegion, zone: AblationZone, targets_mm,
                       directions=None) -> CoverageReport:  # fmt: skip
@@ -693,12 +766,7 @@ class CoveragePlan:
             "targets_mm": self.targets_mm.tolist(),
             "centres_mm": self.centres_mm.tolist(),
             "directions": self.directions.tolist(),
-            "zone": {
-                "kind": z.kind,
-                "length_mm": z.length_mm,
-                "diameter_mm": z.diameter_mm,
-                "tip_offset_mm": z.tip_offset_mm,
-            },
+            "zone": z.to_dict(),
             "report": self.report.to_dict(),
             "coverage_goal": self.coverage_goal,
             "candidates": self.candidates,
@@ -706,6 +774,50 @@ class CoveragePlan:
             "greedy_needles": self.greedy_needles,
             "needles_lower_bound": self.needles_lower_bound,
         }
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str, zone: AblationZone) -> CoveragePlan:
+        """A plan from its record, as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+        zone : AblationZone
+            The zone (the record's ``zone``, read by the caller: an
+            :class:`~needlekit.planning.straight.ablation.AblationOutcome` keeps it once).
+
+        Returns
+        -------
+        CoveragePlan
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named).
+        """
+        try:
+            status = CoverageStatus(field_of(data, "status", where, "str"))
+        except ValueError:
+            raise InvalidInputError(f"{where}: status", "expected covered or partial") from None
+        arrays = []
+        for key in ("targets_mm", "centres_mm", "directions"):
+            a = np.asarray(field_of(data, key, where, "list"), dtype=float).reshape(-1, 3)
+            if not np.all(np.isfinite(a)):
+                raise InvalidInputError(f"{where}: {key}", "expected finite points (k, 3)")
+            arrays.append(a)
+        return cls(
+            status,
+            *arrays,
+            zone,
+            CoverageReport.from_dict(field_of(data, "report", where, "dict"), f"{where}: report"),
+            float(field_of(data, "coverage_goal", where)),
+            field_of(data, "candidates", where, "int"),
+            float(field_of(data, "candidate_spacing_mm", where)),
+            field_of(data, "greedy_needles", where, "int"),
+            field_of(data, "needles_lower_bound", where, "int"),
+        )
 
 
 # -- choosing the targets ----------------------------------------------------------------------

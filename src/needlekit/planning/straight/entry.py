@@ -25,6 +25,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.cfrw import CFRWMap, inside_polylines
 from needlekit.planning.straight.problem import angles_of
+from needlekit.records import field_of
 
 __all__ = [
     "Entry",
@@ -85,6 +86,44 @@ class Entry:
             "normal_angle_deg": float(self.normal_angle_deg),
             "iterations": int(self.iterations),
         }
+
+    @classmethod
+    def from_dict(cls, row: dict, where: str) -> Entry | None:
+        """A trajectory from its record, as :meth:`to_dict` writes it (also a needle of
+        ``multi.json``, whose record holds the same fields).
+
+        Parameters
+        ----------
+        row : dict
+            ``entry_mm`` (None: no trajectory), ``target_mm``, ``theta_deg``, ``phi_deg``,
+            ``length_mm``, ``clearance_mm``, ``normal_angle_deg`` and optionally
+            ``iterations``.
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        Entry or None
+            None when the record holds no entry point.
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named).
+        """
+        entry = field_of(row, "entry_mm", where, "point", optional=True)
+        if entry is None:
+            return None
+        return cls(
+            entry,
+            field_of(row, "target_mm", where, "point"),
+            float(np.radians(field_of(row, "theta_deg", where))),
+            float(np.radians(field_of(row, "phi_deg", where))),
+            float(field_of(row, "length_mm", where)),
+            float(field_of(row, "clearance_mm", where)),
+            float(field_of(row, "normal_angle_deg", where)),
+            field_of(row, "iterations", where, "int", optional=True) or 0,
+        )
 
 
 def _score(cfrw: CFRWMap, objective: Objective) -> np.ndarray:

@@ -32,6 +32,7 @@ from needlekit.planning.straight.cfrw import (
 )
 from needlekit.planning.straight.entry import Entry, Objective, best_on_map
 from needlekit.planning.straight.problem import StraightProblem
+from needlekit.records import Status, enum_of, field_of
 
 __all__ = ["EXHAUSTIVE_ORDER_MAX", "MultiNeedlePlan", "NeedleRecord", "plan_needles"]
 
@@ -95,6 +96,39 @@ class NeedleRecord:
             "blocked": self.blocked,
         }
 
+    @classmethod
+    def from_dict(cls, row: dict, where: str) -> NeedleRecord:
+        """A needle from its record, as :meth:`to_dict` writes it.
+
+        Parameters
+        ----------
+        row : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        NeedleRecord
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named).
+        """
+        blocked = field_of(row, "blocked", where, "dict")
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in blocked.values()):
+            raise InvalidInputError(f"{where}: blocked", "expected whole-number counts")
+        nc = field_of(row, "needle_clearance_mm", where, optional=True)
+        return cls(
+            field_of(row, "order", where, "int"),
+            field_of(row, "target_index", where, "int"),
+            field_of(row, "planned_target_mm", where, "point"),
+            field_of(row, "target_mm", where, "point"),
+            Entry.from_dict(row, where),
+            float("inf") if nc is None else float(nc),
+            dict(blocked),
+        )
+
 
 @dataclass(frozen=True)
 class MultiNeedlePlan:
@@ -112,10 +146,15 @@ class MultiNeedlePlan:
     gamma_mm, needle_radius_mm : float
     reason : str
         Why not solved ("" when solved): the first needle without a trajectory and what
-        blocks its directions.
+        blocks its directions, or where the budget ran out.
     maps : tuple of CFRWMap
         Each needle's CFRW map in insertion order, as its trajectory was chosen on it
         (for reports; not in :meth:`to_dict`).
+    status : Status or None
+        ``SOLVED``; ``INFEASIBLE`` when a needle has no trajectory in its CFRW; a budget
+        stop is ``APPROXIMATE`` with the needles placed before it, or ``TIMEOUT`` with
+        none (never ``INFEASIBLE``). None (the default) derives it from ``solved``:
+        ``SOLVED`` or ``INFEASIBLE``.
     """
 
     needles: tuple
@@ -126,6 +165,16 @@ class MultiNeedlePlan:
     needle_radius_mm: float
     reason: str = ""
     maps: tuple = field(default=(), repr=False, compare=False)
+    status: Status | None = None
+
+    def __post_init__(self) -> None:
+        if self.status is None:
+            status = Status.SOLVED if self.solved else Status.INFEASIBLE
+            object.__setattr__(self, "status", status)
+        elif (self.status is Status.SOLVED) != bool(self.solved):
+            raise InvalidInputError(
+                "status", f"{self.status.value} does not go with solved={self.solved}"
+            )
 
     def to_dict(self) -> dict:
         """JSON-ready record (the ``multi.json`` format).
@@ -135,7 +184,7 @@ class MultiNeedlePlan:
         dict
         """
         return {
-            "status": "solved" if self.solved else "infeasible",
+            "status": self.status.value,
             "reason": self.reason,
             "gamma_mm": self.gamma_mm,
             "needle_radius_mm": self.needle_radius_mm,
@@ -143,6 +192,54 @@ class MultiNeedlePlan:
             "orders_tried": self.orders_tried,
             "needles": [n.to_dict() for n in self.needles],
         }
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> MultiNeedlePlan:
+        """A multi-needle plan from its ``multi.json`` record, as :meth:`to_dict` writes
+        it (without its CFRW maps).
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        MultiNeedlePlan
+            Solved when every target of ``order`` has a needle with a trajectory; its
+            status as recorded (records without a status read as solved or infeasible).
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it, or a status that does not go with
+            the needles (named).
+        """
+        rows = field_of(data, "needles", where, "list")
+        needles = tuple(
+            NeedleRecord.from_dict(row, f"{where}: needles[{i}]") for i, row in enumerate(rows)
+        )
+        order = field_of(data, "order", where, "list")
+        if not all(isinstance(k, int) and not isinstance(k, bool) for k in order):
+            raise InvalidInputError(f"{where}: order", "expected target indices")
+        placed = len(needles) == len(order)  # a budget stop leaves targets out
+        solved = bool(needles) and placed and all(n.entry is not None for n in needles)
+        given = field_of(data, "status", where, "str", optional=True)
+        status = None if given is None else enum_of(Status, given, f"{where}: status")
+        if status is not None and (status is Status.SOLVED) != solved:
+            msg = f"{status.value} does not go with the needles' trajectories"
+            raise InvalidInputError(f"{where}: status", msg)
+        return cls(
+            needles,
+            tuple(order),
+            solved,
+            field_of(data, "orders_tried", where, "int"),
+            float(field_of(data, "gamma_mm", where)),
+            float(field_of(data, "needle_radius_mm", where)),
+            "" if solved else str(field_of(data, "reason", where, "str", optional=True) or ""),
+            status=status,
+        )
 
 
 def _rigid_rank(
@@ -289,9 +386,11 @@ def plan_needles(
     records = []
     kept: list = []
     reason = ""
+    status = None  # SOLVED or INFEASIBLE, from the needles
     for rank, j in enumerate(order, start=1):
         if keep_going is not None and not keep_going():
             reason = f"the budget ran out before needle {rank}"
+            status = Status.APPROXIMATE if records else Status.TIMEOUT
             break
         target = targets[j].copy()
         if deformation is not None and placed:
@@ -346,11 +445,14 @@ def plan_needles(
         radius,
         reason,
         tuple(kept),
+        status,
     )
 
 
 def _stopped(radius: float, gamma: float) -> MultiNeedlePlan:
-    return MultiNeedlePlan((), (), False, 0, gamma, radius, "the budget ran out while mapping")
+    """A plan the budget stopped before any needle was placed: a timeout."""
+    reason = "the budget ran out while mapping"
+    return MultiNeedlePlan((), (), False, 0, gamma, radius, reason, status=Status.TIMEOUT)
 
 
 def _anatomy_clearance(problem: StraightProblem, e: Entry) -> float:

@@ -5,6 +5,10 @@ A scenario's anatomy (a patient's masks and distance fields, or a phantom) is he
 slow to ship; a :class:`ScenarioSource` is a path and a few numbers. Each worker of a
 process pool or Dask cluster turns it into the problem once
 (:func:`needlekit.batch.worker_cached`) and reuses it for every task it runs.
+
+The module imports only numpy at its top: the command line calls :func:`dynamic_block` and
+:func:`planner_settings` before any anatomy or planner module (numba) is loaded, so those
+are imported by the functions that need them.
 """
 
 from __future__ import annotations
@@ -19,10 +23,15 @@ from needlekit.constants import DEFAULT_GOAL_TOLERANCE_MM
 from needlekit.errors import InvalidInputError
 
 __all__ = [
+    "DYNAMIC_SETTINGS",
     "PlannerSettings",
     "ScenarioSource",
     "coverage_region",
+    "dynamic_block",
+    "dynamic_settings",
     "load_problem",
+    "moving_case",
+    "multi_problem_from_scenario",
     "planner_settings",
     "problem_from_scenario",
 ]
@@ -57,7 +66,7 @@ def load_problem(
 
     Returns
     -------
-    scenario : needlekit.io.scenario.Scenario
+    scenario : needlekit.scenario.loading.Scenario
         With the start and goal filled in from the overrides where it lacked them.
     problem : SteerableProblem
         With the scenario's collision model (:func:`problem_from_scenario`).
@@ -67,7 +76,7 @@ def load_problem(
     InvalidInputError
         Missing start or goal, or a bad override.
     """
-    from needlekit.io.scenario import load_scenario
+    from needlekit.scenario.loading import load_scenario
 
     path = Path(scenario_path)
     sc = load_scenario(path, cache_dir=cache_dir, use_cache=use_cache)
@@ -76,7 +85,7 @@ def load_problem(
 
 def _with_overrides(sc, name: str, start_pose, goal_mm, r_min_mm, needle_diameter_mm):
     """:func:`load_problem`'s overrides applied to a loaded scenario."""
-    from needlekit.io.scenario import GoalSpec, StartSpec
+    from needlekit.scenario.loading import GoalSpec, StartSpec
 
     overrides: dict = {}
     if start_pose is not None:
@@ -109,7 +118,7 @@ def problem_from_scenario(scenario, **overrides):
 
     Parameters
     ----------
-    scenario : needlekit.io.scenario.Scenario or path-like
+    scenario : needlekit.scenario.loading.Scenario or path-like
         A loaded scenario or a scenario file.
     **overrides
         :class:`~needlekit.planning.steerable.problem.SteerableProblem` attributes to set
@@ -127,8 +136,8 @@ def problem_from_scenario(scenario, **overrides):
         No start or goal, or a collision model the scenario's anatomy cannot give.
     """
     from needlekit.io.medrad import MedradCase
-    from needlekit.io.scenario import Scenario, load_scenario
     from needlekit.planning.steerable.problem import CollisionModel, CostKind, SteerableProblem
+    from needlekit.scenario.loading import Scenario, load_scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     if sc.start is None and "start_pose" not in overrides:
@@ -339,7 +348,7 @@ class ScenarioSource:
     def _load(self, share_base: bool):
         import json
 
-        from needlekit.io.scenario import load_scenario
+        from needlekit.scenario.loading import load_scenario
 
         path = Path(self.scenario_path)
         inline = self.document is not None
@@ -483,7 +492,7 @@ def multi_problem_from_scenario(scenario, *, targets_mm=None):
 
     Parameters
     ----------
-    scenario : needlekit.io.scenario.Scenario or path-like
+    scenario : needlekit.scenario.loading.Scenario or path-like
     targets_mm : array_like, shape (k, 3), optional
         Replace the block's targets.
 
@@ -498,10 +507,10 @@ def multi_problem_from_scenario(scenario, *, targets_mm=None):
     InvalidInputError
         No ``straight`` block, or a field out of range (named).
     """
-    from needlekit.io.scenario import Scenario, load_scenario
     from needlekit.planning.straight.deformation import GridDeformation, NeedleDragDeformation
     from needlekit.planning.straight.planner import MultiNeedleProblem
     from needlekit.planning.straight.problem import StraightNeedle, StraightProblem
+    from needlekit.scenario.loading import Scenario, load_scenario
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     block = dict(sc.straight or {})
@@ -579,7 +588,7 @@ def coverage_region(scenario, problem):
 
     Parameters
     ----------
-    scenario : needlekit.io.scenario.Scenario
+    scenario : needlekit.scenario.loading.Scenario
     problem : StraightProblem
         From :func:`multi_problem_from_scenario` (its entry surface is the body).
 

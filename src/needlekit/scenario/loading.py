@@ -1,7 +1,8 @@
 """Scenario files: anatomy, needle, start, goal and planner settings in one YAML file.
 
 The format is described in ``docs/scenarios.md`` and by the JSON Schema in
-:mod:`needlekit.io.scenario_schema` (``needlekit schema`` prints it). A minimal file::
+:mod:`needlekit.io.scenario_schema` (``needlekit schema`` prints it; that module reads
+and checks the file, this one builds the scenario). A minimal file::
 
     version: 1
     base: {phantom: {name: lung, seed: 0}}
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,8 @@ from needlekit.constants import (
     DEFAULT_NEEDLE_DIAMETER_MM,
     DEFAULT_R_MIN_MM,
     DEFAULT_START_EXCLUSION_MM,
+    MM_WARNING_MIN_EXTENT_MM,
+    MM_WARNING_MIN_R_MIN_MM,
 )
 from needlekit.errors import InvalidInputError
 from needlekit.io.scenario_schema import (
@@ -46,6 +49,8 @@ from needlekit.io.scenario_schema import (
     read_scenario_document,
     validate_scenario_document,
 )
+from needlekit.planning.steerable.moving import Motion
+from needlekit.planning.straight.coverage import AblationZone
 
 _log = logging.getLogger(__name__)
 
@@ -408,8 +413,6 @@ def _straight_deformation(out: dict, spec: dict, ctx: _Ctx) -> dict:
 
 def _coverage(spec: dict, ctx: _Ctx, base, structures) -> dict:
     """The coverage block with its defaults, the zone checked and the tumour named."""
-    from needlekit.anatomy.scene import Role
-    from needlekit.planning.straight.coverage import AblationZone
 
     z = dict(spec.get("zone") or {"kind": "ellipsoid"})
     kind = z["kind"]
@@ -595,7 +598,6 @@ def parse_scenario(
 
 def _moving(specs: list, ctx: _Ctx) -> dict:
     """The structures' ``moving`` blocks, checked, in RAS (by name)."""
-    from needlekit.planning.steerable.moving import Motion
 
     out = {}
     for i, spec in enumerate(specs):
@@ -636,8 +638,6 @@ def _cheap_extent_mm(scene: Scene) -> float | None:
 
 def _warn_if_not_mm(scene: Scene, needle: NeedleSpec, source: str) -> None:
     """Log a warning when the sizes look like centimetres or metres, not millimetres."""
-    from needlekit.constants import MM_WARNING_MIN_EXTENT_MM, MM_WARNING_MIN_R_MIN_MM
-
     extent = _cheap_extent_mm(scene)
     if extent is not None and extent < MM_WARNING_MIN_EXTENT_MM:
         _log.warning(
@@ -711,6 +711,4 @@ def load_scenario(
         use_cache=use_cache,
         share_base=share_base,
     )
-    from dataclasses import replace
-
     return replace(sc, path=p)
