@@ -136,22 +136,64 @@ class CollisionChecker(Protocol):
         ----------
         points : ndarray, shape (n, 3), float64, C-contiguous
             Samples no farther apart than the checker's spacing.
+
+        Returns
+        -------
+        bool
+            True unless the needle is certainly clear along the whole motion.
         """
 
     def goal_collides(self, goal_mm: np.ndarray) -> bool:
-        """Whether the goal point provably lies where the needle cannot be (no exclusion)."""
+        """Whether the goal point provably lies where the needle cannot be (no exclusion).
+
+        Parameters
+        ----------
+        goal_mm : ndarray, shape (3,)
+
+        Returns
+        -------
+        bool
+        """
 
     def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
-        """The plan check's verdict and clearance bound for a densely sampled path."""
+        """The plan check's verdict and clearance bound for a densely sampled path.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            The path's samples (start exclusion applied by the checker).
+        spacing_mm : float
+            Largest gap between them.
+
+        Returns
+        -------
+        ClearanceCertificate
+        """
 
     def connected(
         self, goal_mm: np.ndarray, *, max_length_mm: float, goal_tolerance_mm: float
     ) -> bool | None:
-        """False only when no valid path can reach the goal (a proof); None when the
-        checker has no such argument."""
+        """Whether free space connects the start to the goal.
+
+        Parameters
+        ----------
+        goal_mm : ndarray, shape (3,)
+        max_length_mm, goal_tolerance_mm : float
+
+        Returns
+        -------
+        bool or None
+            False only with a proof that no valid path reaches the goal; None when the
+            checker has no such argument.
+        """
 
     def warm_up(self) -> None:
-        """Compile or load every kernel the checker's calls use."""
+        """Compile or load every kernel the checker's calls use.
+
+        Returns
+        -------
+        None
+        """
 
 
 class FieldChecker:

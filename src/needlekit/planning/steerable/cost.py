@@ -76,7 +76,20 @@ class CostObjective(Protocol):
     def motion_cost(
         self, pose, spin: float, kappa: float, length: float, spacing_mm: float = ...
     ) -> float:
-        """Cost of the motion ``(spin, kappa, length)`` from ``pose`` (4, 4)."""
+        """Cost of the motion ``(spin, kappa, length)`` from ``pose``.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        spin, kappa, length : float
+        spacing_mm : float
+            Largest spacing of integration samples, where the cost integrates a map.
+
+        Returns
+        -------
+        float
+            At least ``lower_bound_per_mm * length`` when a bound is declared.
+        """
 
 
 class PathLength:
