@@ -187,3 +187,60 @@ def test_a_cost_without_a_bound_is_not_certified_and_says_why():
         _problem(free, cost=Scaled(1.0, -1.0))
     assert _problem(free).objective.lower_bound_per_mm == PathLength.lower_bound_per_mm == 1.0
     assert math.isclose(_problem(free, cost="clearance").objective.lower_bound_per_mm, 1.0)
+
+
+TOY_BALL = """\
+version: 1
+name: toy lung with a ball only a user's checker knows
+structures:
+  - {name: lung,   role: allowed_region, ellipsoid: {semi_axes_mm: [80, 60, 100]}}
+  - {name: airway, role: obstacle, cylinder: {p0_mm: [0, -20, -90], p1_mm: [0, -20, 90], radius_mm: 8}}
+needle: {diameter_mm: 1.0, r_min_mm: 50}
+start: {point_mm: [0, -12, 0], direction: [0, 1, 0.3]}
+goal: {point_mm: [20, 30, 40], tolerance_mm: 1.0}
+planner: {name: rcs_star, time_limit_s: 60.0, seed: 0}
+collision_model: exact_ball
+collision_options: {centre: [6.0, 14.2, 16.0], radius: 3.0}
+"""
+
+
+def test_a_users_collision_checker_runs_through_the_commands(exact_ball, tmp_path, capsys):
+    import json
+
+    from needlekit.cli import main
+
+    scen = tmp_path / "ball.yaml"
+    scen.write_text(TOY_BALL)
+    plain = tmp_path / "plain.yaml"  # the same scene with the field model: no ball
+    plain.write_text(TOY_BALL.split("collision_model:")[0])
+    out, out_plain = tmp_path / "plan.json", tmp_path / "plain.json"
+    assert main(["plan", str(scen), "--out", str(out), "--max-iterations", "400"]) == 0
+    assert main(["plan", str(plain), "--out", str(out_plain), "--max-iterations", "400"]) == 0
+    plan, direct = json.loads(out.read_text()), json.loads(out_plain.read_text())
+    assert plan["status"] == direct["status"] == "solved"
+    assert plan["stats"]["collision_model"] == "exact_ball"
+    assert plan["cost_mm"] > direct["cost_mm"]  # the ball costs a detour
+    capsys.readouterr()
+    assert main(["verify", str(scen), str(out)]) == 0
+    assert main(["verify", str(scen), str(out_plain)]) == 1  # through the ball
+    assert "collision" in capsys.readouterr().out
+    sweep_out = tmp_path / "sweep.json"
+    code = main(
+        [
+            "sweep",
+            str(scen),
+            "--out",
+            str(sweep_out),
+            "--directions",
+            "6",
+            "--max-iterations",
+            "200",
+        ]
+    )
+    assert code == 0
+    rows = json.loads(sweep_out.read_text())
+    assert "exact_ball" in json.dumps(rows)
+    scen.with_name("typo.yaml").write_text(TOY_BALL.replace("exact_ball", "exact_bal"))
+    assert main(["plan", str(scen.with_name("typo.yaml"))]) == 2
+    err = capsys.readouterr().err
+    assert "collision_model" in err and "exact_ball" in err and err.count("\n") == 1

@@ -15,7 +15,8 @@ the start point are ignored (a transbronchial needle leaves the airway through i
 Planners, the plan check and the moving-obstacle code call only the protocol; nobody
 branches on a checker's name. A new checker registers a factory by name
 (:func:`register_collision_checker`, or the ``needlekit.collision_checkers`` entry-point
-group) and problems name it in ``collision_model``.
+group; :mod:`needlekit.anatomy.collision_registry`) and problems name it in
+``collision_model``.
 
 Examples
 --------
@@ -34,12 +35,17 @@ False
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from needlekit.anatomy.collision_registry import (
+    collision_checker_names,
+    collision_factory,
+    register_collision_checker,
+    unregister_collision_checker,
+)
 from needlekit.anatomy.occupancy import VoxelObstacles, any_collides_unchecked
 from needlekit.anatomy.scene import Scene
 from needlekit.anatomy.voxel_clearance import smallest_obstacle_distance
@@ -372,9 +378,7 @@ class VoxelCentresChecker:
         self.connected(self.start, max_length_mm=0.0, goal_tolerance_mm=0.0)
 
 
-# -- the registry ---------------------------------------------------------------------------
-
-Factory = Callable[[CollisionSetup], CollisionChecker]
+# -- the built-in factories (the registry is needlekit.anatomy.collision_registry) --------
 
 
 def _field(setup: CollisionSetup) -> FieldChecker:
@@ -419,74 +423,6 @@ def _voxel_centres(setup: CollisionSetup) -> VoxelCentresChecker:
     )
 
 
-_REGISTRY: dict[str, Factory] = {"field": _field, "voxel_centres": _voxel_centres}
-_BUILTIN = frozenset(_REGISTRY)
-_entry_points_loaded = False
-
-
-def register_collision_checker(name: str, factory: Factory, *, replace: bool = False) -> None:
-    """Make a collision checker available by name (``collision_model: NAME``).
-
-    Parameters
-    ----------
-    name : str
-    factory : callable
-        ``factory(setup: CollisionSetup) -> CollisionChecker``.
-    replace : bool
-        Allow replacing a non-built-in checker of that name.
-
-    Raises
-    ------
-    InvalidInputError
-        A built-in name, a name already taken (without ``replace``), or a factory that
-        is not callable.
-    """
-    if not isinstance(name, str) or not name.isidentifier():
-        raise InvalidInputError("name", f"expected an identifier, got {name!r}")
-    if not callable(factory):
-        raise InvalidInputError("factory", f"expected a callable, got {type(factory).__name__}")
-    if name in _BUILTIN:
-        raise InvalidInputError("name", f"{name!r} is a built-in collision checker")
-    if name in _REGISTRY and not replace:
-        raise InvalidInputError("name", f"a collision checker {name!r} is already registered")
-    _REGISTRY[name] = factory
-
-
-def unregister_collision_checker(name: str) -> None:
-    """Remove a registered (not built-in) collision checker.
-
-    Parameters
-    ----------
-    name : str
-    """
-    if name in _BUILTIN or name not in _REGISTRY:
-        raise InvalidInputError("name", f"no registered collision checker {name!r} to remove")
-    del _REGISTRY[name]
-
-
-def _load_entry_points() -> None:
-    global _entry_points_loaded
-    if _entry_points_loaded:
-        return
-    _entry_points_loaded = True
-    from importlib.metadata import entry_points
-
-    for ep in entry_points(group="needlekit.collision_checkers"):
-        if ep.name not in _REGISTRY:
-            _REGISTRY[ep.name] = ep.load()
-
-
-def collision_checker_names() -> list[str]:
-    """The names problems may give as ``collision_model``, built-ins first.
-
-    Returns
-    -------
-    list of str
-    """
-    _load_entry_points()
-    return [*sorted(_BUILTIN), *sorted(set(_REGISTRY) - _BUILTIN)]
-
-
 def make_collision_checker(name: str, setup: CollisionSetup) -> CollisionChecker:
     """Build the named checker for one problem.
 
@@ -505,15 +441,7 @@ def make_collision_checker(name: str, setup: CollisionSetup) -> CollisionChecker
         An unknown name, or a factory that refuses the setup or returns something that
         is not a checker.
     """
-    if name not in _REGISTRY:
-        _load_entry_points()
-    factory = _REGISTRY.get(name)
-    if factory is None:
-        raise InvalidInputError(
-            "collision_model",
-            f"expected one of {', '.join(collision_checker_names())}, got {name!r}",
-        )
-    checker: Any = factory(setup)
+    checker: Any = collision_factory(name)(setup)
     if not isinstance(checker, CollisionChecker):
         raise InvalidInputError(
             "collision_model",

@@ -18,6 +18,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from needlekit.anatomy.collision_registry import check_collision_model
 from needlekit.constants import (
     DEFAULT_MAX_HEADING_CHANGE_DEG,
     DEFAULT_MAX_LENGTH_MM,
@@ -404,10 +405,16 @@ SCENARIO_SCHEMA: dict[str, Any] = {
         "straight": _STRAIGHT,
         "dynamic": _DYNAMIC,
         "collision_model": {
-            "enum": ["field", "voxel_centres"],
-            "description": "how collisions are decided: the scene's distance field (certified: "
-            "its error bound subtracted) or the reference planner's exact test against obstacle "
-            "voxel centres (needs a Med-RAD base); default field",
+            "type": "string",
+            "pattern": "^[A-Za-z_][A-Za-z0-9_]*$",
+            "description": "how collisions are decided: a registered collision checker's name; "
+            "built in: field (the scene's distance field, certified: its error bound "
+            "subtracted) and voxel_centres (the reference planner's exact test against obstacle "
+            "voxel centres; needs a Med-RAD base); default field",
+        },
+        "collision_options": {
+            "type": "object",
+            "description": "settings handed to the collision checker's factory (its own)",
         },
     },
     "required": ["version"],
@@ -498,6 +505,12 @@ def validate_scenario_document(data: Any, source: str) -> None:
         best = jsonschema.exceptions.best_match(errors)
         where, msg = _schema_message(best)
         raise InvalidInputError(f"{source}: {where}", msg)
+    if isinstance(data, dict) and "collision_model" in data:
+        # a registered checker's name (the registry is light: no kernel loads)
+        try:
+            check_collision_model(data["collision_model"])
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{source}: collision_model", exc.reason) from None
 
 
 def read_scenario_document(path: str | os.PathLike) -> dict:

@@ -146,8 +146,10 @@ class Scenario:
     base : object or None
         The phantom or Med-RAD case the scene was built from.
     collision_model : str
-        ``"field"`` or ``"voxel_centres"`` (see
-        :class:`needlekit.planning.steerable.problem.CollisionModel`).
+        A registered collision checker's name: ``"field"``, ``"voxel_centres"`` or a
+        user's own (:mod:`needlekit.anatomy.collision_registry`).
+    collision_options : dict
+        The checker's own settings (``collision_options``).
     straight : dict
         The ``straight`` block (straight multi-needle planning), its ``targets`` resolved to
         points (mm, RAS) and its ``deformation`` grid path made absolute.
@@ -174,6 +176,7 @@ class Scenario:
     moving: dict = field(default_factory=dict)
     dynamic: dict = field(default_factory=dict)
     static_scene: Scene | None = None
+    collision_options: dict = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------------------
@@ -593,6 +596,7 @@ def parse_scenario(
         moving,
         dict(data.get("dynamic", {})),
         static_scene,
+        dict(data.get("collision_options", {})),
     )
 
 

@@ -158,6 +158,7 @@ def problem_from_scenario(scenario, **overrides):
         "max_heading_change_deg": n.max_heading_change_deg,
         "start_exclusion_mm": n.start_exclusion_mm,
         "collision_model": sc.collision_model,
+        "collision_options": dict(sc.collision_options) or None,
     }
     if sc.goal is not None:
         kw["goal_tolerance_mm"] = sc.goal.tolerance_mm
@@ -170,8 +171,9 @@ def problem_from_scenario(scenario, **overrides):
     kw.update(overrides)
     if kw.get("start_pose") is not None and "start_point_mm" not in overrides:
         kw["start_point_mm"] = None
-    model = CollisionModel(kw["collision_model"])
-    if model is CollisionModel.VOXEL_CENTRES and kw.get("voxel_obstacles") is None:
+    # the built-in voxel model's data comes from the scenario's base (a user's checker
+    # takes what it needs from its setup: scene, needle, start, options)
+    if kw["collision_model"] == CollisionModel.VOXEL_CENTRES and kw.get("voxel_obstacles") is None:
         if not isinstance(sc.base, MedradCase):
             raise InvalidInputError(
                 "collision_model",
