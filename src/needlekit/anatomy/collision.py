@@ -145,10 +145,19 @@ class CollisionChecker(Protocol):
         """The plan check's verdict and clearance bound for a densely sampled path."""
 
     def connected(
-        self, goal_mm: np.ndarray, *, max_length_mm: float, goal_tolerance_mm: float
+        self,
+        goal_mm: np.ndarray,
+        *,
+        max_length_mm: float,
+        goal_tolerance_mm: float,
+        start_direction: np.ndarray,
+        r_min_mm: float,
+        max_heading_change_deg: float,
     ) -> bool | None:
         """False only when no valid path can reach the goal (a proof); None when the
-        checker has no such argument."""
+        checker has no such argument. The path limits (length, tolerance, start direction,
+        smallest radius of curvature, heading limit in deg) bound where a valid path can
+        go."""
 
     def warm_up(self) -> None:
         """Compile or load every kernel the checker's calls use."""
@@ -235,7 +244,7 @@ class FieldChecker:
             )
         return ClearanceCertificate(hits, sampled, certified, violation)
 
-    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+    def connected(self, goal_mm, **limits) -> bool | None:
         return None
 
     def warm_up(self) -> None:
@@ -309,7 +318,16 @@ class VoxelCentresChecker:
         sampled = nearest - ball if len(pts) else math.inf
         return ClearanceCertificate(n_hits, sampled, sampled - 0.5 * float(spacing_mm), violation)
 
-    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+    def connected(
+        self,
+        goal_mm,
+        *,
+        max_length_mm,
+        goal_tolerance_mm,
+        start_direction=None,
+        r_min_mm=None,
+        max_heading_change_deg=None,
+    ) -> bool | None:
         from needlekit.anatomy.voxel_connectivity import goal_connected
 
         connected, _ = goal_connected(
@@ -320,6 +338,9 @@ class VoxelCentresChecker:
             goal_tolerance_mm=goal_tolerance_mm,
             exclusion_mm=self.exclusion,
             spacing_mm=self.spacing_mm,
+            start_direction=start_direction,
+            r_min_mm=r_min_mm,
+            max_heading_change_deg=max_heading_change_deg,
         )
         return connected
 
@@ -327,7 +348,14 @@ class VoxelCentresChecker:
         p = self.start[None].copy()
         self.collides(p)
         self.certify(p, self.spacing_mm)
-        self.connected(self.start, max_length_mm=0.0, goal_tolerance_mm=0.0)
+        self.connected(
+            self.start,
+            max_length_mm=0.0,
+            goal_tolerance_mm=0.0,
+            start_direction=np.array([0.0, 0.0, 1.0]),
+            r_min_mm=1.0,
+            max_heading_change_deg=90.0,
+        )
 
 
 # -- the registry ---------------------------------------------------------------------------
