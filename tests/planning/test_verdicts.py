@@ -243,3 +243,133 @@ def test_the_connectivity_proof_holds_only_where_samples_are_finer_than_voxels()
         goal_connected(p.voxel_obstacles, p.start_point_mm, p.goal_mm, spacing_mm=1.0, **kw)[0]
         is None
     )
+
+
+def _pocket_problem(opening: str, max_heading_change_deg: float = 90.0):
+    """A goal in a pocket of free space inside a closed shell of obstacle voxels (1 mm),
+    opened by a 6 mm wide hole on the side facing the start ("near"), away from it
+    ("far"), or not at all ("none"). The start looks at the goal from 50 mm."""
+    from needlekit.anatomy.occupancy import VoxelObstacles
+
+    idx = np.arange(-40, 41)
+    g = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).astype(float)
+    r = np.linalg.norm(g - [0.0, 0.0, 20.0], axis=-1)
+    occ = (r >= 8.0) & (r <= 10.0)
+    axis = np.hypot(g[..., 0], g[..., 1]) <= 3.0
+    if opening == "near":
+        occ &= ~(axis & (g[..., 2] < 20.0))
+    elif opening == "far":
+        occ &= ~(axis & (g[..., 2] > 20.0))
+    affine = np.eye(4)
+    affine[:3, 3] = -40.0
+    scene = Scene([Structure("body", Role.ALLOWED_REGION, Sphere([0, 0, 0], 100.0))])
+    start = np.eye(4)
+    start[:3, 3] = [0.0, 0.0, -30.0]
+    obstacles = VoxelObstacles(occ, affine, needle_diameter_mm=1.0)
+    return SteerableProblem(scene, goal_mm=[0.0, 0.0, 20.0], start_pose=start,
+                            collision_model="voxel_centres", voxel_obstacles=obstacles,
+                            max_heading_change_deg=max_heading_change_deg)  # fmt: skip
+
+
+def _connected(p, **limits):
+    from needlekit.anatomy.voxel_connectivity import goal_connected
+
+    return goal_connected(
+        p.voxel_obstacles, p.start_point_mm, p.goal_mm, max_length_mm=p.max_length_mm,
+        goal_tolerance_mm=p.goal_tolerance_mm, exclusion_mm=p.start_exclusion_mm,
+        spacing_mm=0.5, **limits,
+    )[0]  # fmt: skip
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_pocket_open_only_away_from_the_start_is_proved_sealed(planner):
+    # the hole faces away: a path would have to pass the goal and turn back, beyond the
+    # 90 deg heading limit; the ellipsoid alone (no limits) still sees the way round
+    p = _pocket_problem("far")
+    res = solve(p, planner, time_limit_s=30.0, max_iterations=1)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert res.stats["reason"].startswith("reachable workspace is not connected to the goal")
+    assert _connected(p) is True
+    # a heading limit beyond 90 deg makes the cones no proof: back to the ellipsoid
+    wide = _pocket_problem("far", max_heading_change_deg=120.0)
+    limits = {"start_direction": wide.start_pose[:3, 2], "r_min_mm": wide.r_min_mm}
+    assert _connected(wide, max_heading_change_deg=120.0, **limits) is True
+    assert _connected(wide, max_heading_change_deg=90.0, **limits) is False
+
+
+def test_a_pocket_open_toward_the_start_stays_connected():
+    p = _pocket_problem("near")
+    limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
+              "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
+    assert _connected(p, **limits) is True
+    assert _connected(_pocket_problem("none"), **limits) is False
+    res = solve(p, "rcs_star", time_limit_s=60.0, max_iterations=400)
+    assert res.status is PlanStatus.SOLVED and res.cost_mm == pytest.approx(49.0, abs=1e-9)
+
+
+def _random_path(rng, r_min, step=0.02, length=120.0):
+    """Points of a random path from the origin along +z: curvature vector normal to the
+    tangent, at most 1 / r_min (often the maximum), until the heading passes 90 deg."""
+    x, t = np.zeros(3), np.array([0.0, 0.0, 1.0])
+    pts = [x.copy()]
+    kvec = np.zeros(3)
+    for n in range(int(length / step)):
+        if n % int(rng.integers(50, 1500)) == 0:  # a new arc: spin and curvature
+            kvec = rng.normal(size=3)
+            kappa = min(rng.choice([1.0, rng.uniform()]), 1.0) / r_min
+        k = kvec - (kvec @ t) * t
+        k *= kappa / max(np.linalg.norm(k), 1e-12)
+        t_new = t + step * k
+        t_new /= np.linalg.norm(t_new)
+        if t_new[2] < 0.0:
+            break
+        x = x + step * 0.5 * (t + t_new)
+        t = t_new
+        pts.append(x.copy())
+    return np.array(pts)
+
+
+def test_every_point_of_a_valid_path_lies_in_the_region():
+    from needlekit.anatomy.voxel_connectivity import _in_region, _region
+
+    rng = np.random.default_rng(7)
+    spacing = np.array([0.55, 0.55, 0.7])
+    h = 0.5 * float(np.linalg.norm(spacing))
+    d = np.array([0.0, 0.0, 1.0])
+    for r_min in (20.0, 50.0, 100.0):
+        geo = _region(d, r_min, 90.0, 150.0, 1.0, h, 0.25 * 0.5**2)
+        for _ in range(30):
+            pts = _random_path(rng, r_min)
+            end = pts[-1] + rng.uniform(-0.5, 0.5, 3)  # a goal within tau of the end
+            offset = rng.uniform(-0.5, 0.5, 3) * spacing  # where the grid's centres sit
+            cells = np.rint((pts - offset) / spacing) * spacing + offset
+            assert np.all(np.linalg.norm(cells - pts, axis=1) <= h + 1e-12)
+            inside = [_in_region(c[0], c[1], c[2], np.zeros(3), d, end, geo) for c in cells]
+            assert all(inside), (r_min, int(np.argmin(inside)))
+            # and the points themselves keep r_min from the torus's circle of centres
+            a, b = pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])
+            assert np.all(np.hypot(a, b - r_min) >= r_min - 1e-6)
+
+
+# Lung 1 targets for which the UNC reference prints "Reachable workspace is not connected to
+# the goal!" (rcs_star 0 0 1, r_min 50) and the sound region proves it too (start, target).
+_LUNG1_SEALED = [
+    (2, [115.2144716035016, 151.41531942429202, 1181.6688017578572]),
+    (3, [90.63070592903479, 173.79176685473982, 1167.069244538841]),
+    (5, [48.254392417071614, 209.70823312612774, 1232.7625326090133]),
+]
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize(("start", "target"), _LUNG1_SEALED)
+def test_lung_targets_the_reference_finds_sealed_are_proved_infeasible(medrad_lung1, start, target):
+    case = medrad_lung1
+    p = SteerableProblem(
+        case.scene, goal_mm=target, start_pose=case.start(start).world_T_tip, r_min_mm=50.0,
+        needle_diameter_mm=1.0, goal_tolerance_mm=1.0, max_length_mm=150.0,
+        max_heading_change_deg=90.0, start_exclusion_mm=3.0, collision_model="voxel_centres",
+        voxel_obstacles=case.voxel_obstacles(needle_diameter_mm=1.0),
+    )  # fmt: skip
+    res = solve(p, "rcs_star", time_limit_s=30.0, max_iterations=1)
+    assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
+    assert res.stats["reason"].startswith("reachable workspace is not connected to the goal")

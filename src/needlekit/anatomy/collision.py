@@ -177,7 +177,14 @@ class CollisionChecker(Protocol):
         """
 
     def connected(
-        self, goal_mm: np.ndarray, *, max_length_mm: float, goal_tolerance_mm: float
+        self,
+        goal_mm: np.ndarray,
+        *,
+        max_length_mm: float,
+        goal_tolerance_mm: float,
+        start_direction: np.ndarray,
+        r_min_mm: float,
+        max_heading_change_deg: float,
     ) -> bool | None:
         """Whether free space connects the start to the goal.
 
@@ -185,6 +192,9 @@ class CollisionChecker(Protocol):
         ----------
         goal_mm : ndarray, shape (3,)
         max_length_mm, goal_tolerance_mm : float
+        start_direction : ndarray, shape (3,)
+        r_min_mm, max_heading_change_deg : float
+            The path limits: they bound where a valid path can go.
 
         Returns
         -------
@@ -283,7 +293,7 @@ class FieldChecker:
             )
         return ClearanceCertificate(hits, sampled, certified, violation)
 
-    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+    def connected(self, goal_mm, **limits) -> bool | None:
         return None
 
     def warm_up(self) -> None:
@@ -357,7 +367,16 @@ class VoxelCentresChecker:
         sampled = nearest - ball if len(pts) else math.inf
         return ClearanceCertificate(n_hits, sampled, sampled - 0.5 * float(spacing_mm), violation)
 
-    def connected(self, goal_mm, *, max_length_mm, goal_tolerance_mm) -> bool | None:
+    def connected(
+        self,
+        goal_mm,
+        *,
+        max_length_mm,
+        goal_tolerance_mm,
+        start_direction=None,
+        r_min_mm=None,
+        max_heading_change_deg=None,
+    ) -> bool | None:
         from needlekit.anatomy.voxel_connectivity import goal_connected
 
         connected, _ = goal_connected(
@@ -368,6 +387,9 @@ class VoxelCentresChecker:
             goal_tolerance_mm=goal_tolerance_mm,
             exclusion_mm=self.exclusion,
             spacing_mm=self.spacing_mm,
+            start_direction=start_direction,
+            r_min_mm=r_min_mm,
+            max_heading_change_deg=max_heading_change_deg,
         )
         return connected
 
@@ -375,7 +397,14 @@ class VoxelCentresChecker:
         p = self.start[None].copy()
         self.collides(p)
         self.certify(p, self.spacing_mm)
-        self.connected(self.start, max_length_mm=0.0, goal_tolerance_mm=0.0)
+        self.connected(
+            self.start,
+            max_length_mm=0.0,
+            goal_tolerance_mm=0.0,
+            start_direction=np.array([0.0, 0.0, 1.0]),
+            r_min_mm=1.0,
+            max_heading_change_deg=90.0,
+        )
 
 
 # -- the built-in factories (the registry is needlekit.anatomy.collision_registry) --------

@@ -2,22 +2,48 @@
 
 The reference planner refuses a problem whose "reachable workspace is not connected" to the
 goal (``docs/notes/steerable-reference-planner.md``, section 5, check 6). This is the same
-idea made sound for the ``voxel_centres`` collision model:
+idea made sound for the ``voxel_centres`` collision model. Take a valid path: curvature at
+most ``1 / r``, every direction within ``H`` of the start direction ``d``, samples at most
+``delta`` (the motion spacing) apart, each keeping ``m`` (``min_dist``) from every obstacle
+voxel centre outside the start exclusion, the last within ``tau`` of the goal. Join its
+samples by chords: a polyline from the start ``s`` to near the goal ``g``.
 
-- a valid path's samples (every ``spacing`` mm) each keep ``min_dist`` from every obstacle
-  voxel centre outside the start exclusion; the voxel centre nearest a sample lies within
-  half a voxel diagonal ``h`` of it, so that voxel keeps ``min_dist - h`` from them: it is
-  *free*;
-- consecutive samples are closer than the smallest voxel spacing, so their nearest voxels
-  are 26-neighbours;
-- every sample lies in the ellipsoid ``|p - s| + |p - g| <= l_max + tau`` (a path through
-  ``p`` is at least that long), so its voxel centre lies in the one grown by ``2 h``;
-- the last sample lies within ``tau`` of the goal, its voxel centre within ``tau + h``.
+- Clearance of the polyline: a point ``x`` of the chord ``pq`` has
+  ``|x - o|^2 >= m^2 - |p - q|^2 / 4`` for every such centre ``o``, so it keeps
+  ``m' = sqrt(m^2 - delta^2 / 4)``.
+- Voxels: the polyline is continuous, so the closed voxel cells it meets form a chain of
+  face neighbours (6-connected; where it crosses an edge or a corner, every cell around it
+  holds the crossing point). Each cell's centre lies within half a voxel diagonal ``h`` of
+  a polyline point, so it keeps ``m' - h`` from those centres: it is *free*. The chain
+  starts at the start's voxel and ends at a voxel within ``tau + h`` of the goal.
+- Region: every point of a path (and of its chords) lies in each of these sets, so the
+  voxel centres of the chain lie in them grown by ``h``:
 
-So when no 26-connected chain of free voxels inside that ellipsoid leads from the start's
-voxel to within ``tau + h`` of the goal, no valid path exists: ``INFEASIBLE``, proved. The
-fill (a greedy best-first search in a numba kernel, nearest the goal first) stops as soon
-as it reaches the goal.
+  - the ellipsoid ``|x - s| + |x - g| <= l_max + tau`` (a path through ``x`` is at least
+    that long; convex, so it holds the chords) -- the centre in the one grown by ``2 h``;
+  - with ``H <= 90`` deg, the cone ``K`` of half-angle ``H`` about ``d``: ``x - s`` is an
+    integral of directions inside ``K``, so it lies in ``K``; likewise the path's end minus
+    ``x``, so ``g - x`` lies within ``tau`` of ``K``. Both sets are convex;
+  - with ``H <= 90`` deg, outside the start's horn torus: for a unit ``n`` normal to ``d``,
+    write ``a = (x - s) . d`` and ``b = (x - s) . n``. The angle ``phi`` of the direction
+    from ``d`` grows at most at the curvature, ``dphi/da <= 1 / (r cos phi)``, as on the
+    circle of radius ``r`` through ``s`` tangent to ``d`` toward ``n``; so for ``a < r``
+    the angle stays below the circle's, ``db/da <= tan phi`` stays below its slope, ``b``
+    below its height, and ``x`` outside its disc. Over every ``n``: the distance from
+    ``x`` to the circle of centres ``s + r n`` is at least ``r``. A chord dips at most
+    ``r - sqrt(r^2 - delta^2 / 4)`` below that.
+
+So when no 6-connected chain of free voxels inside the grown region leads from the start's
+voxel to a free voxel within ``tau + h`` of the goal, no valid path exists:
+``INFEASIBLE``, proved. The reference's own region (the start's trumpet and a spindle toward
+the goal) and its 6-connected fill over the obstacle-free voxels with no start exclusion are
+not such a proof; this module does not copy them.
+
+Two greedy best-first fills search for the chain: one from the start toward the goal, one
+from the goal's voxels toward the start. They take turns, each resuming where it stopped,
+with a cap on the voxels each may queue that grows fourfold a round, so a connected goal is
+found as fast as the start's fill heads there and a sealed pocket is closed as soon as the
+smaller side is exhausted.
 """
 
 from __future__ import annotations
@@ -36,7 +62,11 @@ __all__ = ["goal_connected"]
 def _slot(keys, key):  # pragma: no cover - compiled
     """Open addressing: the slot holding ``key``, or the empty slot where it goes."""
     mask = keys.shape[0] - 1
-    h = (key * -7046029254386353131) & mask  # Fibonacci hashing (0x9E3779B97F4A7C15)
+    # Fibonacci hashing (0x9E3779B97F4A7C15), its high bits folded onto the low ones: the
+    # low bits of a product depend only on the key's low bits, and keys that differ only
+    # in their high bits (another slice of the grid) would all probe the same run
+    x = key * -7046029254386353131
+    h = (x ^ (x >> 32)) & mask
     while keys[h] != -1 and keys[h] != key:
         h = (h + 1) & mask
     return h
@@ -51,113 +81,220 @@ def _grow(keys):  # pragma: no cover - compiled
     return bigger
 
 
-@numba.njit(cache=True)
-def _fill(occ, affine, inv, start, goal, excl_r, free_r, reach, budget):  # pragma: no cover
-    ni, nj, nk = occ.shape
-    r0, r1, r2 = box_half_widths(affine, free_r)
-    fr2, ex2, reach2 = free_r * free_r, excl_r * excl_r, reach * reach
+#: The fills' first cap on reached voxels; each round multiplies it by four.
+FIRST_CAP: int = 4096
 
-    def centre(i, j, k):
-        return voxel_centre(affine, i, j, k)
+#: Slack (mm) on the region's tests: more than the plan check's angle and curvature
+#: tolerances move a point within any l_max, far less than a voxel.
+REGION_SLACK_MM: float = 1e-6
 
-    def free(i, j, k):
-        # no obstacle centre (outside the start exclusion) closer than free_r
-        x, y, z = centre(i, j, k)
-        for a in range(max(i - r0, 0), min(i + r0 + 1, ni)):
-            for b in range(max(j - r1, 0), min(j + r1 + 1, nj)):
-                for c in range(max(k - r2, 0), min(k + r2 + 1, nk)):
-                    if not occ[a, b, c]:
-                        continue
-                    cx, cy, cz = centre(a, b, c)
-                    if (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2 >= fr2:
-                        continue
-                    if (cx - start[0]) ** 2 + (cy - start[1]) ** 2 + (cz - start[2]) ** 2 < ex2:
-                        continue
-                    return False
+_CONNECTED, _SEALED, _CAPPED = 0, 1, 2
+_FACES = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]])
+
+
+@numba.njit(cache=True, inline="always")
+def _cone_distance(vx, vy, vz, d, cos_h, sin_h):  # pragma: no cover - compiled
+    """Distance (mm) from ``v`` to the cone of half-angle ``H`` about the unit ``d``."""
+    a = vx * d[0] + vy * d[1] + vz * d[2]
+    n2 = vx * vx + vy * vy + vz * vz
+    b = math.sqrt(max(n2 - a * a, 0.0))
+    if a * sin_h >= b * cos_h:
+        return 0.0
+    if a * cos_h + b * sin_h <= 0.0:
+        return math.sqrt(n2)
+    return b * cos_h - a * sin_h
+
+
+@numba.njit(cache=True, inline="always")
+def _in_region(x, y, z, start, d, goal, geo):  # pragma: no cover - compiled
+    """Whether a voxel centre lies in the grown region (module notes). ``geo``: budget,
+    use_cone, cos H, sin H, slack from s, slack from g, r (0: no torus), torus floor."""
+    ds = math.sqrt((x - start[0]) ** 2 + (y - start[1]) ** 2 + (z - start[2]) ** 2)
+    dg = math.sqrt((x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2)
+    if ds + dg > geo[0]:
+        return False
+    if geo[1] == 0.0:
         return True
+    vx, vy, vz = x - start[0], y - start[1], z - start[2]
+    if _cone_distance(vx, vy, vz, d, geo[2], geo[3]) > geo[4]:
+        return False
+    if _cone_distance(goal[0] - x, goal[1] - y, goal[2] - z, d, geo[2], geo[3]) > geo[5]:
+        return False
+    r = geo[6]
+    if r > 0.0:
+        a = vx * d[0] + vy * d[1] + vz * d[2]
+        b = math.sqrt(max(vx * vx + vy * vy + vz * vz - a * a, 0.0))
+        if a * a + (b - r) ** 2 < geo[7] * geo[7] and geo[7] > 0.0:
+            return False
+    return True
 
-    def inside(x, y, z):
-        ds = math.sqrt((x - start[0]) ** 2 + (y - start[1]) ** 2 + (z - start[2]) ** 2)
-        dg = math.sqrt((x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2)
-        return ds + dg <= budget
 
-    # greedy best-first: voxels wait in buckets by their distance to the goal (in steps of
-    # the smallest spacing), the nearest bucket first; when the goal is reachable the fill
-    # heads straight for it, and when it is not, it exhausts the region all the same.
-    # Memory grows with the voxels reached (a hash set of visited voxels and a list of
-    # queued ones), not with the region's box.
-    step = min(
+@numba.njit(cache=True, inline="always")
+def _inner_half_widths(affine, radius):  # pragma: no cover - compiled
+    """Voxels to either side, per axis, that can hold a centre nearer than ``radius``
+    (offset ``k`` along an axis puts a centre at least ``k`` spacings away)."""
+    h0 = math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2)
+    h1 = math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2)
+    h2 = math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2)
+    return max(int(radius / h0), 0), max(int(radius / h1), 0), max(int(radius / h2), 0)
+
+
+@numba.njit(cache=True, inline="always")
+def _free(occ, affine, i, j, k, start, excl_r, free_r):  # pragma: no cover - compiled
+    """No obstacle centre (outside the start exclusion) closer than ``free_r``."""
+    ni, nj, nk = occ.shape
+    r0, r1, r2 = _inner_half_widths(affine, free_r)
+    x, y, z = voxel_centre(affine, i, j, k)
+    for a in range(max(i - r0, 0), min(i + r0 + 1, ni)):
+        for b in range(max(j - r1, 0), min(j + r1 + 1, nj)):
+            for c in range(max(k - r2, 0), min(k + r2 + 1, nk)):
+                if not occ[a, b, c]:
+                    continue
+                cx, cy, cz = voxel_centre(affine, a, b, c)
+                if (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2 >= free_r * free_r:
+                    continue
+                if (cx - start[0]) ** 2 + (cy - start[1]) ** 2 + (cz - start[2]) ** 2 < excl_r**2:
+                    continue
+                return False
+    return True
+
+
+@numba.njit(cache=True, inline="always")
+def _push(state, x, y, z, a, target, step):  # pragma: no cover - compiled
+    """Queue voxel ``a`` (centre x, y, z) in the bucket of its distance to ``target``."""
+    first, keys, queued, nxt, counts = state
+    n_buckets = first.shape[0]
+    if counts[1] == queued.shape[0]:
+        queued = np.concatenate((queued, np.empty_like(queued)))
+        nxt = np.concatenate((nxt, np.empty_like(nxt)))
+    dt = math.sqrt((x - target[0]) ** 2 + (y - target[1]) ** 2 + (z - target[2]) ** 2)
+    b = min(int(dt / step), n_buckets - 1)
+    queued[counts[1]] = a
+    nxt[counts[1]] = first[b]
+    first[b] = counts[1]
+    counts[1] += 1
+    counts[2] = min(counts[2], b)
+    return first, keys, queued, nxt, counts
+
+
+@numba.njit(cache=True, inline="always")
+def _mark(state, a):  # pragma: no cover - compiled
+    """Add ``a`` to the reached set; False when it was there already."""
+    first, keys, queued, nxt, counts = state
+    h = _slot(keys, a)
+    if keys[h] == a:
+        return False, state
+    keys[h] = a
+    counts[0] += 1
+    if 2 * counts[0] > keys.shape[0]:
+        keys = _grow(keys)
+    return True, (first, keys, queued, nxt, counts)
+
+
+@numba.njit(cache=True, inline="always")
+def _step(affine):  # pragma: no cover - compiled
+    return min(
         math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2),
         math.sqrt(affine[0, 1] ** 2 + affine[1, 1] ** 2 + affine[2, 1] ** 2),
         math.sqrt(affine[0, 2] ** 2 + affine[1, 2] ** 2 + affine[2, 2] ** 2),
     )
-    n_buckets = int(math.ceil(budget / step)) + 2
-    first = np.full(n_buckets, -1, dtype=np.int64)
-    keys = np.full(4096, -1, dtype=np.int64)  # visited voxels (linear index), a hash set
-    n_keys = 0
-    queued = np.empty(1024, dtype=np.int64)  # queued voxels' linear index ...
-    nxt = np.empty(1024, dtype=np.int64)  # ... and the next entry of their bucket
-    u = inv[0, 0] * start[0] + inv[0, 1] * start[1] + inv[0, 2] * start[2] + inv[0, 3]
-    v = inv[1, 0] * start[0] + inv[1, 1] * start[1] + inv[1, 2] * start[2] + inv[1, 3]
-    w = inv[2, 0] * start[0] + inv[2, 1] * start[1] + inv[2, 2] * start[2] + inv[2, 3]
-    si, sj, sk = int(round(u)), int(round(v)), int(round(w))
-    q0 = (si * nj + sj) * nk + sk
-    keys[_slot(keys, q0)] = q0
-    n_keys = 1
-    x, y, z = centre(si, sj, sk)
-    b0 = min(
-        int(math.sqrt((x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2) / step),
-        n_buckets - 1,
+
+
+@numba.njit(cache=True)
+def _seed(
+    occ, affine, inv, start, d, goal, s_key, excl_r, free_r, reach, geo, from_goal
+):  # pragma: no cover
+    """A fill's initial state: the start's voxel, or the free voxels of the region within
+    ``reach`` of the goal. The state: buckets (a list per step of distance to the fill's
+    target), the reached voxels (a hash set of linear indices), the queued voxels and the
+    next entry of their bucket, and (reached, queued, lowest bucket)."""
+    ni, nj, nk = occ.shape
+    step = _step(affine)
+    n_buckets = int(math.ceil(geo[0] / step)) + 2
+    state = (
+        np.full(n_buckets, -1, dtype=np.int64),
+        np.full(4096, -1, dtype=np.int64),
+        np.empty(1024, dtype=np.int64),
+        np.empty(1024, dtype=np.int64),
+        np.array([0, 0, n_buckets], dtype=np.int64),
     )
-    queued[0] = q0
-    nxt[0] = -1
-    first[b0] = 0
-    n_queued = 1
-    low = b0
-    seen = 1
-    while low < n_buckets:
+    target = start if from_goal else goal
+    if not from_goal:
+        i, j, k = s_key // (nj * nk), (s_key // nk) % nj, s_key % nk
+        _, state = _mark(state, s_key)
+        x, y, z = voxel_centre(affine, i, j, k)
+        return _push(state, x, y, z, s_key, target, step)
+    gi = int(round(inv[0, 0] * goal[0] + inv[0, 1] * goal[1] + inv[0, 2] * goal[2] + inv[0, 3]))
+    gj = int(round(inv[1, 0] * goal[0] + inv[1, 1] * goal[1] + inv[1, 2] * goal[2] + inv[1, 3]))
+    gk = int(round(inv[2, 0] * goal[0] + inv[2, 1] * goal[1] + inv[2, 2] * goal[2] + inv[2, 3]))
+    r0, r1, r2 = box_half_widths(affine, reach)
+    for i in range(max(gi - r0, 0), min(gi + r0 + 1, ni)):
+        for j in range(max(gj - r1, 0), min(gj + r1 + 1, nj)):
+            for k in range(max(gk - r2, 0), min(gk + r2 + 1, nk)):
+                a = (i * nj + j) * nk + k
+                x, y, z = voxel_centre(affine, i, j, k)
+                if (x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2 > reach * reach:
+                    continue
+                if a != s_key and not (
+                    _in_region(x, y, z, start, d, goal, geo)
+                    and _free(occ, affine, i, j, k, start, excl_r, free_r)
+                ):
+                    continue
+                _, state = _mark(state, a)
+                state = _push(state, x, y, z, a, target, step)
+    return state
+
+
+@numba.njit(cache=True)
+def _fill(
+    occ, affine, start, d, goal, s_key, excl_r, free_r, reach, geo, from_goal, state, cap
+):  # pragma: no cover
+    """Run one greedy best-first fill (6-connected, free voxels of the region) from its
+    state until it is done or has queued ``cap`` voxels: from the start it is done when it
+    pops a voxel within ``reach`` of the goal, from the goal when it pops the start's
+    voxel. Returns (connected / sealed / capped, state)."""
+    ni, nj, nk = occ.shape
+    step = _step(affine)
+    target = start if from_goal else goal
+    while state[4][2] < state[0].shape[0]:
+        first, counts = state[0], state[4]
+        low = counts[2]
         if first[low] < 0:
-            low += 1
+            counts[2] = low + 1
             continue
         e = first[low]
-        first[low] = nxt[e]
-        q = queued[e]
-        gi = q // (nj * nk)
-        gj = (q // nk) % nj
-        gk = q % nk
-        x, y, z = centre(gi, gj, gk)
-        if (x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2 <= reach2:
-            return True, seen
-        for di in range(-1, 2):
-            for dj in range(-1, 2):
-                for dk in range(-1, 2):
-                    ci, cj, ck = gi + di, gj + dj, gk + dk
-                    if ci < 0 or cj < 0 or ck < 0 or ci >= ni or cj >= nj or ck >= nk:
-                        continue
-                    a = (ci * nj + cj) * nk + ck
-                    h = _slot(keys, a)
-                    if keys[h] == a:
-                        continue
-                    keys[h] = a
-                    n_keys += 1
-                    if 2 * n_keys > keys.shape[0]:
-                        keys = _grow(keys)
-                    cx, cy, cz = centre(ci, cj, ck)
-                    if not inside(cx, cy, cz) or not free(ci, cj, ck):
-                        continue
-                    seen += 1
-                    if n_queued == queued.shape[0]:
-                        queued = np.concatenate((queued, np.empty_like(queued)))
-                        nxt = np.concatenate((nxt, np.empty_like(nxt)))
-                    dg = math.sqrt((cx - goal[0]) ** 2 + (cy - goal[1]) ** 2 + (cz - goal[2]) ** 2)
-                    b = min(int(dg / step), n_buckets - 1)
-                    queued[n_queued] = a
-                    nxt[n_queued] = first[b]
-                    first[b] = n_queued
-                    n_queued += 1
-                    if b < low:
-                        low = b
-    return False, seen
+        first[low] = state[3][e]
+        q = state[2][e]
+        qi, qj, qk = q // (nj * nk), (q // nk) % nj, q % nk
+        x, y, z = voxel_centre(affine, qi, qj, qk)
+        if from_goal and q == s_key:
+            return _CONNECTED, state
+        if (
+            not from_goal
+            and (x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2 <= reach * reach
+        ):
+            return _CONNECTED, state
+        if counts[1] > cap:
+            # put it back: the next round pops it first
+            state[3][e] = first[low]
+            first[low] = e
+            return _CAPPED, state
+        for f in range(6):
+            ci, cj, ck = qi + _FACES[f, 0], qj + _FACES[f, 1], qk + _FACES[f, 2]
+            if ci < 0 or cj < 0 or ck < 0 or ci >= ni or cj >= nj or ck >= nk:
+                continue
+            a = (ci * nj + cj) * nk + ck
+            new, state = _mark(state, a)
+            if not new:
+                continue
+            cx, cy, cz = voxel_centre(affine, ci, cj, ck)
+            if a != s_key and not (
+                _in_region(cx, cy, cz, start, d, goal, geo)
+                and _free(occ, affine, ci, cj, ck, start, excl_r, free_r)
+            ):
+                continue
+            state = _push(state, cx, cy, cz, a, target, step)
+    return _SEALED, state
 
 
 def goal_connected(
@@ -169,6 +306,9 @@ def goal_connected(
     goal_tolerance_mm: float,
     exclusion_mm: float,
     spacing_mm: float,
+    start_direction: np.ndarray | None = None,
+    r_min_mm: float | None = None,
+    max_heading_change_deg: float | None = None,
 ) -> tuple[bool | None, int]:
     """Whether free voxels connect the start to the goal (module notes).
 
@@ -180,6 +320,14 @@ def goal_connected(
         The problem's l_max, tau and start exclusion.
     spacing_mm : float
         The collision samples' spacing along paths.
+    start_direction : ndarray, shape (3,), optional
+        The start's insertion direction (unit). With a heading limit of at most 90 deg,
+        the region is cut to the heading cones and, with ``r_min_mm``, to outside the
+        start's horn torus; without it, the ellipsoid alone.
+    r_min_mm : float, optional
+        The smallest radius of curvature.
+    max_heading_change_deg : float, optional
+        The heading limit H.
 
     Returns
     -------
@@ -187,27 +335,48 @@ def goal_connected(
         False proves that no valid path exists; None when the argument does not apply
         (samples as far apart as the voxels, or a start outside the image).
     visited : int
-        Voxels the fill reached.
+        Voxels the two fills queued.
     """
     if spacing_mm >= float(np.min(obstacles.spacing_mm)):
         return None, 0
     start = np.ascontiguousarray(start_mm, dtype=np.float64).reshape(3)
     goal = np.ascontiguousarray(goal_mm, dtype=np.float64).reshape(3)
-    h = obstacles.voxel_radius_mm
-    budget = max_length_mm + goal_tolerance_mm + 2.0 * h
+    shape = np.array(obstacles.occupancy.shape)
     s_ijk = np.rint(obstacles.inv_affine[:3, :3] @ start + obstacles.inv_affine[:3, 3])
-    if np.any(s_ijk < 0) or np.any(s_ijk > np.array(obstacles.occupancy.shape) - 1):
+    if np.any(s_ijk < 0) or np.any(s_ijk > shape - 1):
         return None, 0
-    free_r = obstacles.min_distance_mm - h
-    connected, n = _fill(
-        obstacles.occupancy,
-        obstacles.affine,
-        obstacles.inv_affine,
-        start,
-        goal,
-        float(exclusion_mm),
-        float(free_r),
-        float(goal_tolerance_mm + h),
-        float(budget),
+    s_key = int((s_ijk[0] * shape[1] + s_ijk[1]) * shape[2] + s_ijk[2])
+    h, tau, m = obstacles.voxel_radius_mm, float(goal_tolerance_mm), obstacles.min_distance_mm
+    half_gap2 = 0.25 * float(spacing_mm) ** 2
+    free_r = math.sqrt(max(m * m - half_gap2, 0.0)) - h
+    geo = _region(
+        start_direction, r_min_mm, max_heading_change_deg, max_length_mm, tau, h, half_gap2
     )
-    return bool(connected), int(n)
+    d = np.zeros(3) if start_direction is None else np.asarray(start_direction, dtype=np.float64)
+    d = np.ascontiguousarray(d / max(float(np.linalg.norm(d)), 1e-300))
+    occ, affine = obstacles.occupancy, obstacles.affine
+    args = (start, d, goal, s_key, float(exclusion_mm), float(free_r), float(tau + h), geo)
+    states = [_seed(occ, affine, obstacles.inv_affine, *args, side) for side in (False, True)]
+    cap = FIRST_CAP
+    while True:
+        for side in (0, 1):
+            status, states[side] = _fill(occ, affine, *args, bool(side), states[side], cap)
+            if status != _CAPPED:
+                return status == _CONNECTED, int(states[0][4][1] + states[1][4][1])
+        cap *= 4
+
+
+def _region(direction, r_min, heading_deg, max_length_mm, tau, h, half_gap2) -> np.ndarray:
+    """The region's figures for the kernel (its ``geo``; module notes)."""
+    slack = REGION_SLACK_MM
+    geo = np.zeros(8)
+    geo[0] = float(max_length_mm) + tau + 2.0 * h + slack
+    if direction is None or heading_deg is None or heading_deg > 90.0:
+        return geo
+    hr = math.radians(float(heading_deg))
+    geo[1:6] = 1.0, math.cos(hr), math.sin(hr), h + slack, tau + h + slack
+    if r_min is not None and r_min > 0.0:
+        r = float(r_min)
+        dip = r - math.sqrt(max(r * r - half_gap2, 0.0))  # a chord's dip into the torus
+        geo[6], geo[7] = r, r - dip - h - slack
+    return geo

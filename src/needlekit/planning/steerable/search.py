@@ -135,13 +135,18 @@ def precheck(
     if refusal is not None:
         return refusal
     connected = validator.checker.connected(
-        goal_mm, max_length_mm=problem.max_length_mm, goal_tolerance_mm=tau
+        goal_mm,
+        max_length_mm=problem.max_length_mm,
+        goal_tolerance_mm=tau,
+        start_direction=d0,
+        r_min_mm=problem.r_min_mm,
+        max_heading_change_deg=problem.max_heading_change_deg,
     )
     if connected is False:
         return (
             PlanStatus.INFEASIBLE,
             "reachable workspace is not connected to the goal: no chain of free voxels "
-            "leads there within the maximum length",
+            "leads there within the region a valid path can visit",
         )
     return None
 
