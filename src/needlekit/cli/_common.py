@@ -34,6 +34,16 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"error: {message}\n")
 
 
+class _Formatter(argparse.HelpFormatter):
+    """argparse's help layout, except that a text of several lines (an epilog of examples)
+    is printed as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
 def _numbers(count: int, what: str):
     def parse(text: str) -> list[float]:
         parts = [p for p in text.replace(",", " ").split() if p]
