@@ -164,7 +164,7 @@ def test_a_field_replaces_only_that_field_of_the_scenario_s():
     ],
 )
 def test_an_unknown_name_or_a_wrong_type_is_one_error_naming_the_flag(pairs, planners, message):
-    with pytest.raises(InvalidInputError, match="^--option ") as exc:
+    with pytest.raises(InvalidInputError, match=r"^--option ") as exc:
         planner_flag_options(pairs, planners)
     assert message in str(exc.value)
 
