@@ -125,6 +125,11 @@ CASES = {
         ["plan", TOY, "--out", "{d}/pose.txt/plan.json"],
         ["plan", TOY, "--out", TOY],
         ["plan", TOY, "--bogus"],
+        ["plan", TOY, "--option", "bogus=1"],
+        ["plan", TOY, "--option", "resolution.max_length_mm=x"],
+        ["plan", TOY, "--option", "resolution=8"],
+        ["plan", TOY, "--planner", "rrt", "--option", "seed=1.5"],
+        ["plan", TOY, "--option", "novalue"],
     ],
     "sweep": [
         ["sweep", TOY, "--planner", "nope"],
@@ -137,6 +142,8 @@ CASES = {
         ["sweep", TOY, "--report", "{d}/pose.txt/r.html"],
         ["sweep", TOY, "--out", "{d}/a.json", "--plan", "{d}/a.json"],
         ["sweep", TOY, "--executor", "serial", "--workers", "2"],
+        ["sweep", TOY, "--planner", "rcs_star", "rrt", "--option", "nope=1"],
+        ["sweep", TOY, "--planner", "rcs", "rrt", "--option", "seed=x"],
     ],
     "verify": [
         ["verify", TOY, "{d}/missing.json"],

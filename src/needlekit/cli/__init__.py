@@ -3,70 +3,54 @@
 Every command returns an exit status; errors in the input print one line
 ``error: <message>`` on stderr and exit with status 2.
 
-Before a command runs, every path it reads or writes is checked
-(:mod:`needlekit.cli._paths`), and only then is the command's module imported: a bad
-argument is answered at once, without loading numba, scipy or plotly. A command's
+Each command declares its flags beside its handler (the ``register`` of its module,
+assembled by :mod:`needlekit.cli._parser`); flags several commands share are defined once
+(:mod:`needlekit.cli._flags`). Before a command runs, every path it reads or writes is
+checked (:mod:`needlekit.cli._paths`), and only then does its handler import the heavy
+modules: a bad argument is answered at once, without loading numba, scipy or plotly. A command's
 output files are written as one unit (:func:`needlekit.io.files.staged_outputs`): if
 it fails, every file that was there before is left as it was.
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 import sys
 from collections.abc import Sequence
 
 from needlekit.cli._common import EXIT_OK, EXIT_USAGE
-from needlekit.cli._parser import _build_parser
+from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import NeedlekitError
 
 __all__ = ["main"]
 
-#: Commands with sub-commands, and the attribute that holds the sub-command.
-_GROUPS = {
-    "kinematics": "kin_command",
-    "scene": "scene_command",
-    "study": "study_command",
-    "bench": "bench_command",
-}
 
-#: What runs each command: ``module:function(args) -> exit status``, imported only then.
-_HANDLERS = {
-    "kinematics forward": "needlekit.cli.kinematics:_cmd_forward",
-    "kinematics inverse": "needlekit.cli.kinematics:_cmd_inverse",
-    "schema": "needlekit.cli.scene:_cmd_schema",
-    "scene info": "needlekit.cli.scene:_cmd_scene",
-    "scene render": "needlekit.cli.scene:_cmd_scene",
-    "plan": "needlekit.cli.planning:_cmd_plan",
-    "sweep": "needlekit.cli.planning:_cmd_sweep",
-    "verify": "needlekit.cli.planning:_cmd_verify",
-    "markups": "needlekit.cli.markups:_cmd_markups",
-    "cfrw": "needlekit.cli.straight:_cmd_cfrw",
-    "multi": "needlekit.cli.straight:_cmd_multi",
-    "approach": "needlekit.cli.straight:_cmd_approach",
-    "puncture": "needlekit.cli.puncture:_cmd_puncture",
-    "report": "needlekit.cli.report:_cmd_report",
-    "demo": "needlekit.cli.demo:_cmd_demo",
-    "reproduce": "needlekit.cli.reproduce:_cmd_reproduce",
-    "study livers": "needlekit.cli.study:_cmd_study_livers",
-    "study feng-lungs": "needlekit.cli.study:_cmd_study_feng_lungs",
-    "bench kinematics": "needlekit.cli.bench:_cmd_bench",
-    "bench fields": "needlekit.cli.bench:_cmd_bench",
-    "bench control": "needlekit.cli.bench:_cmd_bench",
-    "bench steerable": "needlekit.cli.bench:_cmd_bench",
-    "bench straight": "needlekit.cli.bench:_cmd_bench",
-    "bench approach": "needlekit.cli.bench:_cmd_bench",
-    "bench scale": "needlekit.cli.bench:_cmd_bench",
-}
+def _tables() -> tuple[dict[str, str], dict[str, str]]:
+    """What the commands declare: the groups (``kinematics``) with the attribute that holds
+    their sub-command, and per command (``"kinematics forward"``) its handler,
+    ``module:function``."""
+    groups, handlers = {}, {}
+    for words, child, dest in walk_commands(_build_parser()):
+        if dest is not None:
+            groups[" ".join(words)] = dest
+        else:
+            run = child.get_default("command_handler")
+            handlers[" ".join(words)] = f"{run.__module__}:{run.__name__}"
+    return groups, handlers
+
+
+def __getattr__(name: str):
+    # ``_GROUPS`` and ``_HANDLERS``: read off the parser when asked for (tests, tools)
+    if name in ("_GROUPS", "_HANDLERS"):
+        return _tables()[name == "_HANDLERS"]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _run(command: str, args) -> int:
-    """Import the command's module and run it."""
-    module, function = _HANDLERS[command].split(":")
-    return getattr(importlib.import_module(module), function)(args)
+    """Run the command's handler (its heavy modules are imported inside it)."""
+    return args.command_handler(args)
 
 
 def _quiet_stdout() -> None:
@@ -87,12 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE if argv else EXIT_OK
     command = args.command
-    if command in _GROUPS:
-        sub = getattr(args, _GROUPS[command])
-        if sub is None:
-            parser.parse_args([command, "--help"])  # prints the group's help and exits
-            return EXIT_USAGE
-        command = f"{command} {sub}"
+    if getattr(args, "command_handler", None) is None:  # a group without its sub-command
+        parser.parse_args([command, "--help"])  # prints the group's help and exits
+        return EXIT_USAGE
     try:
         check_paths(args)
         from needlekit.io.files import staged_outputs

@@ -8,8 +8,6 @@ import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from needlekit.cli._paths import add_input
-
 EXIT_OK = 0
 EXIT_USAGE = 2
 
@@ -32,6 +30,16 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(EXIT_USAGE, f"error: {message}\n")
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse's help layout, except that a text of several lines (an epilog of examples)
+    is printed as written."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
 
 
 def _numbers(count: int, what: str):
@@ -88,22 +96,6 @@ def _seed(text: str) -> int:
     if v < 0:  # numpy's SeedSequence takes only non-negative entropy
         raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
     return v
-
-
-def _problem_overrides(p: argparse.ArgumentParser) -> None:
-    add_input(
-        p,
-        "--start-pose",
-        help="4x4 start pose text file (RAS mm), instead of the scenario's",
-    )
-    p.add_argument(
-        "--goal",
-        type=_numbers(3, "three numbers x,y,z (mm)"),
-        metavar="X,Y,Z",
-        help="goal point (RAS mm)",
-    )
-    p.add_argument("--r-min-mm", type=_positive, help="minimum radius of curvature (mm)")
-    p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
 
 
 def _start_pose(path):

@@ -15,7 +15,23 @@ import sys
 from importlib import resources
 from pathlib import Path
 
+from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK, sweep_progress
+
+#: What ``needlekit demo`` writes in its --out folder.
+DEMO_FILES = (
+    "lung/scenario.yaml",
+    "lung/sweep.json",
+    "lung/plan.json",
+    "lung/report.html",
+    "forward_steering_planar.png",
+    "forward_steering_3d.png",
+    "inverse_steering.png",
+    "reachability.png",
+    "demo.json",
+    "phantoms.html",
+    "phantoms.json",
+)
 
 #: Budgets of the demo sweep: iteration limits make its numbers the same on every machine.
 DEMO_PLANNERS = ("rcs_star", "rcs", "rrt")
@@ -105,3 +121,26 @@ def _demo(out: Path) -> int:
     print(write_scenes_html(figures, out / "phantoms.html", title="needlekit built-in phantoms"))
     print(write_json(out / "phantoms.json", summary))
     return code
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``demo`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    demo = sub.add_parser("demo", help="run the main demonstration job and write its outputs")
+    _flags.OUT.add(
+        demo,
+        folder=True,
+        contents=DEMO_FILES,
+        default="out/demo",
+        help="output folder (default out/demo)",
+    )
+    demo.set_defaults(command_handler=_cmd_demo)

@@ -6,9 +6,17 @@ import argparse
 import json
 import math
 
-import numpy as np
-
-from needlekit.cli._common import EXIT_OK, _fmt_table, _start_pose
+from needlekit.cli import _flags
+from needlekit.cli._common import (
+    EXIT_OK,
+    _fmt_table,
+    _non_negative,
+    _numbers,
+    _Parser,
+    _positive,
+    _start_pose,
+)
+from needlekit.cli._paths import add_input
 from needlekit.constants import MAX_TRAJECTORY_SAMPLES
 from needlekit.errors import InvalidInputError, NeedlekitError
 
@@ -26,6 +34,8 @@ def _check_sample_count(durations_s, dt_s: float) -> None:
 
 
 def _cmd_forward(args: argparse.Namespace) -> int:
+    import numpy as np
+
     segments = np.array(args.segment, dtype=float)
     if np.any(segments[:, 2] < 0):
         raise NeedlekitError("--segment: durations must be >= 0")
@@ -66,6 +76,8 @@ def _cmd_forward(args: argparse.Namespace) -> int:
 
 
 def _cmd_inverse(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from needlekit.needle.reachability import shortest_arc_line
     from needlekit.needle.transform_method import tm_inverse
 
@@ -110,3 +122,70 @@ def _cmd_inverse(args: argparse.Namespace) -> int:
         rows.append(row)
     print(_fmt_table(headers, rows))
     return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``kinematics forward|inverse`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    kin = sub.add_parser(
+        "kinematics", help="bevel-tip needle kinematics: forward and inverse steering"
+    )
+    kin_sub = kin.add_subparsers(dest="kin_command", metavar="MODE", parser_class=_Parser)
+    fwd = kin_sub.add_parser(
+        "forward",
+        help="tip trajectory of the 3D bevel-tip model for piecewise-constant inputs",
+        description=(
+            "Forward steering: propagate the tip pose exactly for segments of constant "
+            "insertion speed u1 (mm/s) and spin rate u2 (rad/s)."
+        ),
+    )
+    fwd.add_argument(
+        "--kappa-per-mm", type=_non_negative, required=True, help="needle curvature (1/mm)"
+    )
+    fwd.add_argument(
+        "--segment",
+        type=_numbers(3, "three numbers u1_mm_s,u2_rad_s,duration_s"),
+        action="append",
+        required=True,
+        metavar="U1,U2,T",
+        help="one input segment; repeat for several",
+    )
+    add_input(fwd, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
+    fwd.add_argument(
+        "--dt-s", type=_positive, default=None, help="sampling interval of the printed trajectory"
+    )
+    _flags.JSON.add(fwd, help="print JSON instead of a table")
+    fwd.set_defaults(command_handler=_cmd_forward)
+
+    inv = kin_sub.add_parser(
+        "inverse",
+        help="single-arc inverse steering from a tip pose to target points",
+        description=(
+            "Inverse steering with the transformation-matrix method: the arc (alpha, r, "
+            "phi, l) from the tip through each target, and the shortest arc-then-line path "
+            "when --r-min-mm is given."
+        ),
+    )
+    inv.add_argument(
+        "--target",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        action="append",
+        required=True,
+        metavar="X,Y,Z",
+        help="target point in the world frame (mm); repeat for several",
+    )
+    add_input(inv, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
+    inv.add_argument(
+        "--r-min-mm", type=_positive, help="minimum radius of curvature; tighter arcs are an error"
+    )
+    _flags.JSON.add(inv, help="print JSON instead of a table")
+    inv.set_defaults(command_handler=_cmd_inverse)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli._common import EXIT_OK
+from needlekit.cli import _flags
+from needlekit.cli._common import EXIT_OK, _positive
+from needlekit.cli._paths import add_input
 from needlekit.errors import InvalidInputError
 
 
@@ -36,3 +38,32 @@ def _cmd_markups(args: argparse.Namespace) -> int:
     n = len(plan.points_mm(spacing))
     print(f"curve: {n} control points, {plan.length_mm:.4f} mm, LPS -> {out}")
     return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``markups`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    mk = sub.add_parser(
+        "markups",
+        help="export a plan's tip path as a 3D Slicer Markups curve (.mrk.json, LPS)",
+        description="Write the tip path of plan.json as a Slicer Markups Curve: control points "
+        "at most --spacing-mm apart along the path, in LPS mm. Open it in Slicer with "
+        "File > Add Data.",
+    )
+    add_input(mk, "plan", help="plan file (plan.json, as `needlekit plan` writes it)")
+    _flags.OUT.add(mk, required=True, help="markups file to write (.mrk.json)")
+    mk.add_argument(
+        "--spacing-mm",
+        type=_positive,
+        help="largest spacing of the curve's control points along the path (default 2 mm)",
+    )
+    mk.set_defaults(command_handler=_cmd_markups)

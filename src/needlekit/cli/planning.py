@@ -5,7 +5,17 @@ from __future__ import annotations
 import argparse
 import json
 
-from needlekit.cli._common import EXIT_OK, sweep_progress
+from needlekit.cli import _flags
+from needlekit.cli._common import (
+    EXIT_OK,
+    _Formatter,
+    _non_negative,
+    _numbers,
+    _positive,
+    _positive_int,
+    sweep_progress,
+)
+from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError, NeedlekitError
 
 
@@ -38,14 +48,29 @@ def _document(args: argparse.Namespace) -> dict:
     return read_scenario_document(args.scenario)
 
 
-def _flag_options(args: argparse.Namespace) -> dict:
-    """Per planner name, the settings the flags give."""
-    return {} if args.rrt_connection is None else {"rrt": {"connection": args.rrt_connection}}
+def _flag_options(args: argparse.Namespace, doc: dict, names: tuple[str, ...]) -> dict:
+    """Per planner name, its settings under the flags: ``--option`` (typed and named as the
+    planner declares) and ``--rrt-connection``, over the scenario block's options."""
+    from needlekit.cli._options import merged_options, planner_flag_options
+
+    flags = planner_flag_options(args.option, names)
+    if args.rrt_connection is not None:
+        if "connection" in flags.get("rrt", {}):
+            raise InvalidInputError("--option connection", "also given as --rrt-connection")
+        flags.setdefault("rrt", {})["connection"] = args.rrt_connection
+    if args.seed is not None and any("seed" in o for o in flags.values()):
+        raise InvalidInputError("--option seed", "also given as --seed")
+    block = doc.get("planner") or {}
+    return {
+        name: merged_options(block.get("options") if name == block.get("name") else None, opts)
+        for name, opts in flags.items()
+    }
 
 
-def _check_planners(args: argparse.Namespace, doc: dict, names=None) -> tuple[str, ...]:
-    """The planners asked for (the first the main one), refused by name, family or option
-    name before any planner module is imported; :func:`_settings` checks the values."""
+def _check_planners(args: argparse.Namespace, doc: dict, names=None):
+    """The planners asked for (the first the main one) and their options, refused by name,
+    family, option name or type before any planner module is imported; :func:`_settings`
+    checks the values."""
     from needlekit.planning.interface import check_planner_options
 
     block = doc.get("planner") or {}
@@ -54,15 +79,17 @@ def _check_planners(args: argparse.Namespace, doc: dict, names=None) -> tuple[st
     elif isinstance(names, str):
         names = [names]
     names = tuple(dict.fromkeys(names))
-    flags = _flag_options(args)
+    for name in names:  # the name and its family first, then what its options are called
+        check_planner_options(name, None, family="steerable")
+    options = _flag_options(args, doc, names)
     for name in names:
         opts = dict(block.get("options") or {}) if name == block.get("name") else {}
-        opts.update(flags.get(name) or {})
+        opts.update(options.get(name) or {})
         check_planner_options(name, opts, family="steerable")
-    return names
+    return names, options
 
 
-def _settings(args: argparse.Namespace, doc: dict, names=None):
+def _settings(args: argparse.Namespace, doc: dict, names, options: dict):
     """The scenario's planner block under the flags, checked before the anatomy is read."""
     from needlekit.scenario.problems import planner_settings
 
@@ -72,13 +99,14 @@ def _settings(args: argparse.Namespace, doc: dict, names=None):
         time_limit_s=args.time_limit_s,
         seed=args.seed,
         max_iterations=args.max_iterations,
-        options=_flag_options(args),
+        options=options,
     )
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
     doc = _document(args)
-    planner = _check_planners(args, doc, args.planner)[0]
+    names, options = _check_planners(args, doc, args.planner)
+    planner = names[0]
     if args.dynamic:
         _check_dynamic(args, doc)
     else:
@@ -88,7 +116,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         elif args.report is not None:
             raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
     # every check on the input done: now the planners (numba)
-    settings = _settings(args, doc, args.planner)
+    settings = _settings(args, doc, args.planner, options)
     if args.dynamic:
         return _plan_dynamic(args, settings)
     if args.goals is not None:
@@ -261,13 +289,13 @@ def _plan_goals(args: argparse.Namespace, settings) -> int:
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     doc = _document(args)
-    _check_planners(args, doc, args.planner)
+    _, options = _check_planners(args, doc, args.planner)
     # every check on the input done: now the planners (numba)
     from needlekit.batch import open_executor
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
     from needlekit.studies.sweep_study import run_sweep_study
 
-    settings = _settings(args, doc, args.planner)
+    settings = _settings(args, doc, args.planner, options)
     source = _source(args)
     source.cached()  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
@@ -349,3 +377,218 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         for v in check.violations:
             print(f"  - {v}")
     return EXIT_OK if check.ok else 1
+
+
+# -- the command lines ------------------------------------------------------------------------
+
+_PLAN_EPILOG = """\
+modes (exit 0 with a plan to every goal, 1 without):
+  one goal       needlekit plan examples/toy.yaml --goal 20,30,40 --out plan.json
+  several goals  needlekit plan examples/toy.yaml --goals 20,30,40 -10,25,45 --report goals.html
+  moving         needlekit plan src/needlekit/data/lung_phantom_moving.yaml --dynamic --out dynamic.json
+
+planner options: --option NAME=VALUE, typed as the planner declares them, e.g.
+  needlekit plan examples/toy.yaml --planner rcs_star --option resolution.max_length_mm=8
+  needlekit plan examples/toy.yaml --planner rrt --option connection=arc --seed 3
+"""
+
+
+def _problem_overrides(p) -> None:
+    """What may replace the scenario's problem: start pose, goal, needle."""
+    add_input(
+        p, "--start-pose", help="4x4 start pose text file (RAS mm), instead of the scenario's"
+    )
+    p.add_argument(
+        "--goal",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        metavar="X,Y,Z",
+        help="goal point (RAS mm)",
+    )
+    p.add_argument("--r-min-mm", type=_positive, help="minimum radius of curvature (mm)")
+    p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
+
+
+def _rrt_connection(p) -> None:
+    _flags.RRT_CONNECTION.add(
+        p,
+        help="RRT's greedy goal connection: arc then line (default) or one arc to the target "
+        "(the reference implementation's rule, behind Feng et al.'s tables)",
+    )
+
+
+def _plan_planner_group(planp: argparse.ArgumentParser) -> None:
+    g = planp.add_argument_group(
+        "planner", "which planner, its options and its budget (every mode)"
+    )
+    g.add_argument(
+        "--planner",
+        metavar="NAME",
+        help="a registered planner: rcs_star, rcs, rrt or one a plug-in registers "
+        "(default: the scenario's, else rcs_star)",
+    )
+    _flags.add_option(g)
+    _flags.TIME_LIMIT_S.add(g, help="planning budget (default: the scenario's, else 1 s)")
+    _flags.SEED.add(g, help="seed of randomised planners (default: the scenario's, else 0)")
+    _flags.MAX_ITERATIONS.add(
+        g,
+        help="iteration budget besides the time limit (reproducible runs; default: the scenario's)",
+    )
+    _rrt_connection(g)
+
+
+def _plan_mode_groups(planp: argparse.ArgumentParser) -> None:
+    goals = planp.add_argument_group(
+        "several goals",
+        "--goals X,Y,Z ...: a plan from the start to each target, written together to --out "
+        "(with --report, drawn on one page)",
+    )
+    goals.add_argument(
+        "--goals",
+        type=_numbers(3, "three numbers x,y,z (mm)"),
+        nargs="+",
+        metavar="X,Y,Z",
+        help="several targets (RAS mm): a plan to each, written together to --out",
+    )
+    goals.add_argument(
+        "--multi",
+        choices=["per-target", "one-tree"],
+        default="per-target",
+        help="with --goals: a new search from the start for each target, as the lecture "
+        "does (default), or one RRT tree for all of them (rrt only)",
+    )
+    dyn = planp.add_argument_group(
+        "moving obstacles",
+        "--dynamic: among the scenario's moving obstacles, advance along each plan and plan "
+        "again from the tip; beside it, the plan made once at t = 0 executed open-loop",
+    )
+    dyn.add_argument(
+        "--dynamic",
+        action="store_true",
+        help="among the scenario's moving obstacles: advance --step-mm along each plan, then "
+        "plan again from the tip; also the plan made once at t = 0, executed open-loop",
+    )
+    dyn.add_argument(
+        "--insertion-speed-mm-s",
+        type=_positive,
+        help="with --dynamic: insertion speed (default: the scenario's dynamic block)",
+    )
+    dyn.add_argument(
+        "--step-mm",
+        type=_positive,
+        help="with --dynamic: advance between re-plans (default: the scenario's, else 5 mm)",
+    )
+    dyn.add_argument(
+        "--predict",
+        choices=["arrival", "swept", "snapshot"],
+        help="with --dynamic: plan against each moving obstacle wherever it may be when the "
+        "tip passes (default), swept over the next advance, or where it is now",
+    )
+    dyn.add_argument(
+        "--lookahead-s",
+        type=_non_negative,
+        help="with --predict swept: how long to sweep (default: the advance's time)",
+    )
+
+
+def _register_plan(sub) -> None:
+    planp = sub.add_parser(
+        "plan",
+        help="plan a curved (steerable) needle path for a scenario",
+        description="Plan with RCS*, RCS or RRT and write plan.json; exit 0 with a plan, 1 "
+        "without. Three modes: one goal (the scenario's, or --goal), several goals (--goals) "
+        "and moving obstacles (--dynamic).",
+        epilog=_PLAN_EPILOG,
+        formatter_class=_Formatter,
+    )
+    add_input(planp, "scenario", help="scenario file (YAML)")
+    one = planp.add_argument_group(
+        "the problem (one goal)",
+        "the scenario's start, goal and needle, or these instead; without --goals or "
+        "--dynamic, one plan to the goal",
+    )
+    _problem_overrides(one)
+    _plan_planner_group(planp)
+    _plan_mode_groups(planp)
+    out = planp.add_argument_group("output")
+    _flags.OUT.add(out, default="plan.json", help="plan file to write (default plan.json)")
+    add_output(
+        out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
+    )
+    _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
+    planp.set_defaults(command_handler=_cmd_plan)
+
+
+def _register_sweep(sub) -> None:
+    sw = sub.add_parser(
+        "sweep",
+        help="plan over the start directions of the effective puncture region (Feng et al.)",
+        description="Sample start directions around the scenario's start point, keep those at least "
+        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
+    )
+    add_input(sw, "scenario", help="scenario file (YAML)")
+    _problem_overrides(sw)
+    _flags.add_cache_options(sw)
+    sw.add_argument(
+        "--planner",
+        nargs="+",
+        metavar="NAME",
+        help="registered planner(s) to compare (default: the scenario's, else rcs_star)",
+    )
+    _flags.add_option(
+        sw,
+        help="a planner option, typed as the planner declares it (repeatable), given to each "
+        "planner compared that has it; a field as OPTION.FIELD, e.g. resolution.max_length_mm=8",
+    )
+    _flags.OUT.add(sw, default="sweep.json", help="sweep table to write (default sweep.json)")
+    add_output(sw, "--plan", help="also write the first planner's best plan here")
+    add_output(sw, "--report", help="also write a self-contained HTML report (Fig. 8, Fig. 9)")
+    _flags.DIRECTIONS.add(sw, default=544, help="candidate directions on the sphere (default 544)")
+    _flags.TIME_LIMIT_S.add(
+        sw, help="budget per direction (default: the scenario's, else 1 s as Feng et al.)"
+    )
+    _flags.SEED.add(sw, help="seed of randomised planners (default: the scenario's, else 0)")
+    sw.add_argument(
+        "--healpix",
+        type=_positive_int,
+        metavar="NSIDE",
+        help="use the 12 NSIDE^2 equal-area HEALPix directions instead of --directions",
+    )
+    _flags.MAX_ITERATIONS.add(
+        sw,
+        help="iteration budget per direction besides the time limit (reproducible sweeps; "
+        "default: the scenario's)",
+    )
+    _flags.add_executor_options(sw)
+    _rrt_connection(sw)
+    sw.set_defaults(command_handler=_cmd_sweep)
+
+
+def _register_verify(sub) -> None:
+    ver = sub.add_parser(
+        "verify",
+        help="re-check a plan file independently; exit 1 on any violation",
+        description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
+    )
+    add_input(ver, "scenario", help="scenario file (YAML)")
+    add_input(ver, "plan", help="plan file (plan.json)")
+    _problem_overrides(ver)
+    _flags.add_cache_options(ver)
+    _flags.JSON.add(ver, help="print JSON instead of text")
+    ver.set_defaults(command_handler=_cmd_verify)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``plan``, ``sweep`` and ``verify`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    _register_plan(sub)
+    _register_sweep(sub)
+    _register_verify(sub)

@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import math
 
-from needlekit.cli._common import EXIT_OK, _fmt_table
+from needlekit.cli import _flags
+from needlekit.cli._common import EXIT_OK, _fmt_table, _non_negative, _positive_int
 from needlekit.errors import InvalidInputError
+
+#: What ``needlekit puncture`` writes in its --out folder.
+PUNCTURE_FILES = ("puncture.json", "puncture.html")
 
 #: The puncture controller's period (ms): ``ProcedureSettings.dt_s`` (a test keeps them
 #: equal), here so that the parser checks ``--adaptation-delay-ms`` without loading numpy.
@@ -24,6 +28,12 @@ def adaptation_delay_ms(text: str) -> float:
     if not (math.isfinite(v) and v >= 0 and abs(periods - round(periods)) <= 1e-9 * (1 + periods)):
         raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
     return v
+
+
+#: ``--adaptation-delay-ms`` of ``puncture`` and ``bench control``.
+ADAPTATION_DELAY_MS = _flags.Flag(
+    "--adaptation-delay-ms", {"type": adaptation_delay_ms, "default": 0.0, "metavar": "MS"}
+)
 
 
 def _cmd_puncture(args: argparse.Namespace) -> int:
@@ -99,3 +109,78 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     for path in study.files.values():
         print(f"-> {path}")
     return EXIT_OK if s["aborted"]["count"] == 0 and v["total"] == 0 else 1
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``puncture`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    pu = sub.add_parser(
+        "puncture",
+        help="simulate robotic punctures with adaptive VFI control (Tang et al., Section III)",
+        description="Run simulated punctures of a Panda guided by EM sensors under kinematic "
+        "uncertainty and write DIR/puncture.json and DIR/puncture.html.",
+    )
+    pu.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
+    _flags.SEED.add(pu, default=0, help="root seed (default 0)")
+    _flags.OUT.add(
+        pu,
+        folder=True,
+        contents=PUNCTURE_FILES,
+        default="out/puncture",
+        help="output folder (default out/puncture)",
+    )
+    pu.add_argument(
+        "--exact-sensors", action="store_true", help="noise-free EM sensors (rate and latency kept)"
+    )
+    pu.add_argument(
+        "--stability-radius-mm",
+        type=_non_negative,
+        default=1.5,
+        help="ball in which the adaptation may grow the task error (0: the paper's row; "
+        "default 1.5)",
+    )
+    pu.add_argument(
+        "--history",
+        type=int,
+        default=40,
+        metavar="KEYFRAMES",
+        help="measurement keyframes in the adaptation objective (0: the newest alone; default 40)",
+    )
+    pu.add_argument(
+        "--guide-samples",
+        type=int,
+        default=1,
+        metavar="N",
+        help="bronchoscope samples averaged into the guide line (default 1: one noisy "
+        "measurement, the paper's simulation; 100: 1 s at 100 Hz as its mannequin trials; "
+        "0: every sample of the trial, running)",
+    )
+    pu.add_argument(
+        "--no-vfi-clamp",
+        action="store_true",
+        help="the adaptation's VFI rows as the VFI law writes them (default: never pull the "
+        "estimate back into a constraint it violates)",
+    )
+    pu.add_argument(
+        "--no-redraw",
+        action="store_true",
+        help="keep each trial's first guide-line draw (default: redraw one whose start point "
+        "lies inside the patient cylinder or out of the arm's reach)",
+    )
+    pu.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    ADAPTATION_DELAY_MS.add(
+        pu,
+        help="run the adaptation off the 1 kHz control step, its update applied MS ms after "
+        "its job starts (whole control periods; default 0: inline, in the sample's step)",
+    )
+    _flags.add_executor_options(pu)
+    pu.set_defaults(command_handler=_cmd_puncture)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 
+from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK
 from needlekit.errors import InvalidInputError
 
@@ -49,3 +51,38 @@ def _cmd_report(args: argparse.Namespace) -> int:
         print(f"error: an independent check failed ({names}); the page shows why")
         return 1
     return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``report`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    rp = sub.add_parser(
+        "report",
+        help="draw result files (plan, sweep, cfrw, multi, puncture, dynamic) on one self-contained page",
+        description="Read result files written by plan, plan --goals, plan --dynamic, sweep, cfrw, multi and "
+        "puncture, load the scenarios they name, check their plans again and write one HTML "
+        "page (opens offline) with a part per result: 3D scenes, tables, figures. Exit 1 "
+        "when an independent check fails (the page is written).",
+    )
+    rp.add_argument("results", type=Path, nargs="+", metavar="RESULT", help="result files (JSON)")
+    _flags.OUT.add(rp, required=True, help="HTML page to write")
+    rp.add_argument(
+        "--scenario",
+        type=Path,
+        action="append",
+        metavar="FILE",
+        help="the scenario, where the one a result names has moved: once for every result "
+        "that reads one, or repeated, once per such result in order",
+    )
+    rp.add_argument("--title", help="page title (default: from the results)")
+    _flags.add_cache_options(rp)
+    rp.set_defaults(command_handler=_cmd_report)

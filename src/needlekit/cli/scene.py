@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
-from needlekit.cli._common import EXIT_OK, _fmt_table
+from needlekit.cli import _flags
+from needlekit.cli._common import EXIT_OK, _fmt_table, _Parser, _positive_int
+from needlekit.cli._paths import add_input
 
 
 def _cmd_schema(args: argparse.Namespace | None = None) -> int:
@@ -17,7 +17,9 @@ def _cmd_schema(args: argparse.Namespace | None = None) -> int:
     return EXIT_OK
 
 
-def _fmt_extent(extent: np.ndarray) -> str:
+def _fmt_extent(extent) -> str:
+    import numpy as np
+
     if not np.all(np.isfinite(extent)):
         return "unbounded"
     size = extent[1] - extent[0]
@@ -31,6 +33,8 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     from needlekit.scenario.loading import load_scenario
 
     sc = load_scenario(args.scenario, document=doc)
+    import numpy as np
+
     if args.scene_command == "info":
         from needlekit.anatomy.summary import summarize_scene
 
@@ -81,3 +85,43 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     fig = scene_figure(sc.scene, start_poses=starts, targets_mm=targets, max_cells=args.max_cells)
     print(write_scene_html(fig, args.out))
     return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``schema`` and ``scene info|render`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    schema = sub.add_parser(
+        "schema",
+        help="print the JSON Schema of scenario files",
+        description="Print the JSON Schema (draft 2020-12) that scenario files are validated against.",
+    )
+    schema.set_defaults(command_handler=_cmd_schema)
+    scene = sub.add_parser("scene", help="inspect and render the anatomy of a scenario")
+    scene_sub = scene.add_subparsers(dest="scene_command", metavar="ACTION", parser_class=_Parser)
+    info = scene_sub.add_parser(
+        "info", help="summarise the structures: role, extent, voxel size, volume"
+    )
+    add_input(info, "scenario", help="scenario file (YAML)")
+    _flags.JSON.add(info, help="print JSON instead of a table")
+    info.set_defaults(command_handler=_cmd_scene)
+    render = scene_sub.add_parser(
+        "render", help="write a self-contained interactive 3D view (HTML)"
+    )
+    add_input(render, "scenario", help="scenario file (YAML)")
+    _flags.OUT.add(render, required=True, help="output HTML file")
+    render.add_argument(
+        "--max-cells",
+        type=_positive_int,
+        default=160,
+        help="surface resolution: samples per axis (default 160)",
+    )
+    render.set_defaults(command_handler=_cmd_scene)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli._common import EXIT_OK
+from needlekit.cli import _flags
+from needlekit.cli._common import EXIT_OK, _positive, _positive_int
+from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
 
 
@@ -294,3 +296,114 @@ def _cmd_approach(args: argparse.Namespace) -> int:
         f"({analysis_s:.2f} s) -> {args.out}"
     )
     return EXIT_OK if record["needlekit"]["shortest"] is not None else 1
+
+
+def _scenario_and_out(p, out_default: str, out_help: str) -> None:
+    add_input(p, "scenario", help="scenario file with a straight block (YAML)")
+    _flags.OUT.add(p, default=out_default, help=out_help)
+
+
+def _target(p) -> None:
+    p.add_argument("--target", type=_positive_int, default=1, help="which target (default 1)")
+
+
+def _register_cfrw(sub) -> None:
+    cf = sub.add_parser(
+        "cfrw",
+        help="the collision-free reachable workspace of a straight needle (Liu et al. 2016)",
+        description="Map every direction to one target of the scenario's straight block: entry, "
+        "length, certified clearance, blocking reason; boundary layers; best entries; Pareto front.",
+    )
+    _scenario_and_out(cf, "cfrw.json", "map to write (default cfrw.json)")
+    _target(cf)
+    cf.add_argument(
+        "--resolution-deg", type=_positive, help="grid step (default: the scenario's, else 1)"
+    )
+    cf.add_argument(
+        "--layers",
+        type=_positive,
+        nargs="+",
+        default=[150.0, 160.0, 170.0],
+        metavar="H_MM",
+        help="heights of the boundary layers above the target (default 150 160 170, Fig. 11)",
+    )
+    _flags.add_cache_options(cf)
+    cf.set_defaults(command_handler=_cmd_cfrw)
+
+
+def _register_multi(sub) -> None:
+    mu = sub.add_parser(
+        "multi",
+        help="plan several straight needles one after another (Liu et al. 2016, Fig. 4)",
+        description="CFRW per needle, the optimal entry in it, placed needles as obstacles, "
+        "targets moved by the deformation; write multi.json; exit 0 when every needle is planned.",
+    )
+    _scenario_and_out(mu, "multi.json", "plan to write (default multi.json)")
+    add_output(
+        mu, "--markups", folder=True, help="also write each trajectory as a Slicer line (.mrk.json)"
+    )
+    add_output(
+        mu, "--report", help="also write a self-contained HTML report (Fig. 11/14/17, scene)"
+    )
+    mu.add_argument(
+        "--planner", default="liu_cfrw", metavar="NAME", help="straight planner (default liu_cfrw)"
+    )
+    mu.add_argument(
+        "--resolution-deg", type=_positive, help="CFRW grid step (default: the scenario's, else 1)"
+    )
+    mu.add_argument(
+        "--objective",
+        choices=["min_length", "max_clearance", "min_normal_angle"],
+        help="what each trajectory optimises (default: the scenario's, else min_length)",
+    )
+    mu.add_argument(
+        "--order",
+        type=_positive_int,
+        nargs="+",
+        metavar="K",
+        help="fixed insertion order (1-based targets)",
+    )
+    _flags.TIME_LIMIT_S.add(mu, default=3600.0, help="budget (default 3600 s)")
+    _flags.add_cache_options(mu)
+    mu.set_defaults(command_handler=_cmd_multi)
+
+
+def _register_approach(sub) -> None:
+    ap = sub.add_parser(
+        "approach",
+        help="which skin triangles a straight needle can come from (Slicer's "
+        "PercutaneousApproachAnalysis, exactly, and with needlekit's criteria)",
+        description="For one target, every triangle of the entry surface's mesh: the line to "
+        "the target against the obstacles' meshes (PAA's test, exact), and the needle's "
+        "certified clearance, inside-the-body, length and angle limits (needlekit's); the "
+        "accessible area fractions and shortest lines. Exit 1 when no triangle is accessible.",
+    )
+    _scenario_and_out(ap, "approach.json", "analysis (default approach.json)")
+    add_output(ap, "--report", help="also write a self-contained HTML view of the skin map")
+    _target(ap)
+    ap.add_argument(
+        "--max-cells",
+        type=_positive_int,
+        default=200,
+        help="marching-cubes samples per axis for structures without a mesh file (default 200)",
+    )
+    ap.add_argument("--summary-only", action="store_true", help="leave the per-triangle arrays out")
+    _flags.add_cache_options(ap)
+    ap.set_defaults(command_handler=_cmd_approach)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``cfrw``, ``multi`` and ``approach`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    _register_cfrw(sub)
+    _register_multi(sub)
+    _register_approach(sub)

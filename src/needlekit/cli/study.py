@@ -4,7 +4,28 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli._common import EXIT_OK, _fmt_table
+from needlekit.cli import _flags
+from needlekit.cli._common import (
+    EXIT_OK,
+    _fmt_table,
+    _non_negative,
+    _Parser,
+    _positive,
+    _positive_int,
+)
+
+#: What ``needlekit study feng-lungs`` writes in its --out folder (as
+#: ``needlekit.studies.feng_lungs.FENG_LUNGS_FILES``; a test keeps them equal).
+FENG_LUNGS_FILES = (
+    "goal1/scenario.yaml",
+    "goal1/sweep.json",
+    "goal1/plan.json",
+    "goal2/scenario.yaml",
+    "goal2/sweep.json",
+    "goal2/plan.json",
+    "feng_lungs.json",
+    "report.html",
+)
 
 
 def _cmd_study_livers(args: argparse.Namespace) -> int:
@@ -140,3 +161,77 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
         any(t["n_solved"] for t in rec["table4"].values()) for rec in record["goals"].values()
     )
     return EXIT_OK if reached else 1
+
+
+def _register_livers(study_sub) -> None:
+    sl = study_sub.add_parser(
+        "livers",
+        help="every Med-RAD liver nodule ablated by straight needles (issue 11)",
+        description="For each Med-RAD liver, each start pose and its nodule, and each gamma: "
+        "targets chosen to cover the nodule plus margin, trajectories planned as `needlekit "
+        "multi` plans examples/medrad_liver4.yaml, every planned needle re-checked; what "
+        "blocks a case that is not covered is said.",
+    )
+    _flags.OUT.add(sl, default="livers.json", help="study record (default livers.json)")
+    sl.add_argument("--livers", type=_positive_int, nargs="+", help="patients (default every one)")
+    sl.add_argument(
+        "--gamma",
+        type=_non_negative,
+        nargs="+",
+        default=[1.5, 3.0],
+        metavar="MM",
+        help="safety distances (default 1.5 3)",
+    )
+    sl.add_argument("--resolution-deg", type=_positive, help="CFRW grid step (default 1)")
+    _flags.add_medrad(sl)
+    _flags.add_cache_options(sl)
+    sl.set_defaults(command_handler=_cmd_study_livers)
+
+
+def _register_feng_lungs(study_sub) -> None:
+    sf = study_sub.add_parser(
+        "feng-lungs",
+        help="Feng et al.'s effective-region protocol on a Med-RAD lung, two targets (issue 12)",
+        description="Feng et al.'s protocol on real anatomy: Med-RAD lung 5 from start 1's "
+        "point, their needle (2 mm, r_min 50 mm, l_max 100 mm, alpha 20 deg, tau 1 mm), 544 "
+        "start directions, RCS*, RCS and RRT 1 s each, to the given target and a second one "
+        "(Feng's goal offset). Writes per target the scenario, sweep.json and the best RCS* "
+        "plan, feng_lungs.json (Table 4 beside Feng's) and report.html. Exit 1 when a plan "
+        "fails its independent check or no planner reaches a target.",
+    )
+    _flags.OUT.add(sf, folder=True, contents=FENG_LUNGS_FILES, required=True, help="output folder")
+    _flags.TIME_LIMIT_S.add(sf, help="budget per direction and planner (default 1)")
+    _flags.DIRECTIONS.add(sf, help="candidate start directions (default 544)")
+    _flags.MAX_ITERATIONS.add(sf, help="iteration budget per direction (default none)")
+    _flags.SEED.add(sf, default=0, help="seed of RRT (default 0)")
+    _flags.QUICK.add(
+        sf, help="136 directions, 300 iterations per direction (a minute or so; flags given win)"
+    )
+    _flags.RRT_CONNECTION.add(
+        sf,
+        default="arc",
+        help="RRT's goal connection: one arc to the target (default, the reference "
+        "implementation's rule behind Feng's tables) or arc then line",
+    )
+    _flags.add_medrad(sf)
+    _flags.add_cache_options(sf)
+    _flags.add_executor_options(sf)
+    sf.set_defaults(command_handler=_cmd_study_feng_lungs)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``study livers|feng-lungs`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    study = sub.add_parser("study", help="studies over many real cases, one table each")
+    study_sub = study.add_subparsers(dest="study_command", metavar="STUDY", parser_class=_Parser)
+    _register_livers(study_sub)
+    _register_feng_lungs(study_sub)

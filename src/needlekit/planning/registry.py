@@ -26,6 +26,7 @@ __all__ = [
     "BuiltinPlanner",
     "check_planner_options",
     "get_planner",
+    "option_types",
     "planner_class",
     "planner_names",
     "register_planner",
@@ -60,12 +61,18 @@ class BuiltinPlanner:
         The fields of its ``options_type``.
     factory : str
         ``"module:Class"``.
+    option_types : tuple of (str, type or tuple) pairs
+        Each option's type as text is read into it (the command line's ``--option``):
+        ``int``, ``float``, ``bool``, ``str``, ``tuple`` (whole numbers), or the
+        ``(name, type)`` pairs of a dataclass-typed option's own fields; as
+        :func:`option_types` derives them from the class (a test keeps them equal).
     """
 
     name: str
     family: str
     option_names: tuple[str, ...]
     factory: str
+    option_types: tuple[tuple[str, Any], ...] = ()
 
     def load(self) -> PlannerFactory:
         """The planner class (imports its module).
@@ -92,22 +99,38 @@ class BuiltinPlanner:
         return where == self.factory
 
 
+#: RCS's and RCS*'s ``resolution`` option: the fields of ``Resolution``.
+_RESOLUTION = (("max_length_mm", float), ("length_levels", int), ("spin_levels", int))
+
 #: needlekit's own planners, in registry order; a test keeps each entry equal to its class.
 BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
     BuiltinPlanner(
-        "rcs_star", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSStarPlanner"
+        "rcs_star",
+        "steerable",
+        ("resolution",),
+        "needlekit.planning.steerable.rcs:RCSStarPlanner",
+        (("resolution", _RESOLUTION),),
     ),
     BuiltinPlanner(
-        "rcs", "steerable", ("resolution",), "needlekit.planning.steerable.rcs:RCSPlanner"
+        "rcs",
+        "steerable",
+        ("resolution",),
+        "needlekit.planning.steerable.rcs:RCSPlanner",
+        (("resolution", _RESOLUTION),),
     ),
     BuiltinPlanner(
-        "rrt", "steerable", ("connection", "seed"), "needlekit.planning.steerable.rrt:RRTPlanner"
+        "rrt",
+        "steerable",
+        ("connection", "seed"),
+        "needlekit.planning.steerable.rrt:RRTPlanner",
+        (("connection", str), ("seed", int)),
     ),
     BuiltinPlanner(
         "liu_cfrw",
         "straight",
         ("resolution_deg", "objective", "order"),
         "needlekit.planning.straight.planner:LiuPlanner",
+        (("resolution_deg", float), ("objective", str), ("order", tuple)),
     ),
 )
 
@@ -279,6 +302,53 @@ def check_planner_options(
         fields = tuple(f.name for f in dataclasses.fields(entry.options_type))
     if isinstance(options, Mapping):
         refuse_unknown_options(name, fields, options)
+
+
+def option_types(name: str) -> dict[str, Any]:
+    """The type of each of a planner's options, without importing a built-in planner.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    dict
+        Option name -> ``int``, ``float``, ``bool``, ``str``, ``tuple`` (whole numbers),
+        or for a dataclass-typed option (RCS's ``resolution``) a dict of its fields' types.
+        Another type (of a plug-in's option) is given as ``str``: the text as written,
+        for the planner's options to check.
+
+    Raises
+    ------
+    InvalidInputError
+        No planner of that name.
+    """
+    entry = _entry(name)
+    if isinstance(entry, BuiltinPlanner):
+        return {k: dict(t) if isinstance(t, tuple) else t for k, t in entry.option_types}
+    return _dataclass_types(entry.options_type)
+
+
+def _dataclass_types(cls: type) -> dict[str, Any]:
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        hint = hints.get(f.name, str)
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if dataclasses.is_dataclass(f.default):
+            out[f.name] = _dataclass_types(type(f.default))
+        elif hint in (bool, int, float, str, tuple):
+            out[f.name] = hint
+        elif typing.get_origin(hint) is tuple or (len(args) == 1 and args[0] is tuple):
+            out[f.name] = tuple
+        elif len(args) == 1 and args[0] in (bool, int, float, str):  # X | None
+            out[f.name] = args[0]
+        else:
+            out[f.name] = str
+    return out
 
 
 def planner_class(name: str) -> PlannerFactory:

@@ -1,0 +1,150 @@
+"""``--option NAME=VALUE``: planner options from the command line, typed as the planner
+declares them.
+
+``NAME`` is one of the planner's options (:attr:`options_type` fields); a field of an option
+that has fields of its own (RCS's ``resolution``) is ``OPTION.FIELD``, e.g.
+``resolution.max_length_mm=8``. ``VALUE`` is read by the declared type
+(:func:`needlekit.planning.registry.option_types`, which needs no planner module):
+``int`` a whole number, ``float`` a number, ``bool`` true/false (yes/no, on/off, 1/0),
+``str`` the text, ``tuple`` whole numbers separated by commas. An unknown name or a value
+that is not of its type is refused here, in one line naming the flag, before any planner
+module (numba) is imported; the planner's options check the values themselves (ranges)
+when it is built.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+from needlekit.errors import InvalidInputError
+
+_TRUE = ("true", "yes", "on", "1")
+_FALSE = ("false", "no", "off", "0")
+
+
+def _typed(kind, text: str):
+    """``text`` read as ``kind``; ValueError saying what was expected."""
+    if kind is bool:
+        if text.lower() in _TRUE + _FALSE:
+            return text.lower() in _TRUE
+        raise ValueError(f"expected true or false, got {text!r}")
+    if kind is int:
+        try:
+            return int(text)
+        except ValueError:
+            raise ValueError(f"expected a whole number, got {text!r}") from None
+    if kind is float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise ValueError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(v):
+            raise ValueError(f"expected a finite number, got {text!r}")
+        return v
+    if kind is tuple:
+        try:
+            return tuple(int(p) for p in text.replace(",", " ").split())
+        except ValueError:
+            raise ValueError(f"expected whole numbers separated by commas, got {text!r}") from None
+    return text
+
+
+def _one(planner: str, types: Mapping, name: str, text: str):
+    """``(option, value)`` for ``--option name=text`` of one planner; ``value`` is a dict of
+    one field for ``OPTION.FIELD``. KeyError: the planner has no such option."""
+    head, dot, field = name.partition(".")
+    if head not in types:
+        raise KeyError(head)
+    kind = types[head]
+    flag = f"--option {name}"
+    if isinstance(kind, Mapping):
+        if not dot:
+            fields = ", ".join(kind)
+            raise InvalidInputError(
+                flag, f"{planner}'s {head} has fields: give {head}.FIELD=VALUE ({fields})"
+            )
+        if field not in kind:
+            raise InvalidInputError(
+                flag, f"{planner}'s {head} has {', '.join(kind)}; unknown: {field}"
+            )
+        kind = kind[field]
+    elif dot:
+        raise InvalidInputError(flag, f"{planner}'s {head} has no fields")
+    try:
+        value = _typed(kind, text)
+    except ValueError as exc:
+        raise InvalidInputError(flag, f"{planner}: {exc}") from None
+    return head, ({field: value} if dot else value)
+
+
+def planner_flag_options(
+    pairs: Sequence[tuple[str, str]] | None, planners: Sequence[str]
+) -> dict[str, dict]:
+    """Per planner, the options ``--option`` gives it, typed and their names checked.
+
+    Each option goes to every planner of ``planners`` that has it (a sweep comparing
+    several planners); one that none of them has is an error.
+
+    Parameters
+    ----------
+    pairs : sequence of (str, str) or None
+        ``(NAME, VALUE)`` as the parser read them, in order (a later one wins).
+    planners : sequence of str
+        Registered planner names.
+
+    Returns
+    -------
+    dict
+        Planner name -> ``{option: value}``; a dataclass-typed option's value is a dict of
+        the fields given.
+
+    Raises
+    ------
+    InvalidInputError
+        ``--option NAME: ...``: an unknown name, a value not of its type.
+    """
+    from needlekit.planning.registry import option_types
+
+    types = {p: option_types(p) for p in planners}
+    out: dict[str, dict] = {p: {} for p in planners}
+    for name, text in pairs or ():
+        taken = False
+        for planner in planners:
+            try:
+                head, value = _one(planner, types[planner], name, text)
+            except KeyError:
+                continue
+            taken = True
+            opts = out[planner]
+            if isinstance(value, dict):
+                opts[head] = {**opts.get(head, {}), **value}
+            else:
+                opts[head] = value
+        if not taken:
+            known = "; ".join(f"{p} takes {', '.join(types[p]) or 'no options'}" for p in planners)
+            raise InvalidInputError(f"--option {name}", f"unknown option ({known})")
+    return out
+
+
+def merged_options(block: Mapping | None, flags: Mapping) -> dict:
+    """A planner's options: the scenario's block under the flags, a field of a
+    dataclass-typed option replacing only that field.
+
+    Parameters
+    ----------
+    block : mapping or None
+        The scenario's ``planner.options`` (for the planner it names).
+    flags : mapping
+        What the flags give (:func:`planner_flag_options`).
+
+    Returns
+    -------
+    dict
+    """
+    out = dict(block or {})
+    for key, value in flags.items():
+        if isinstance(value, dict) and isinstance(out.get(key), Mapping):
+            value = {**out[key], **value}
+        out[key] = value
+    return out
