@@ -52,7 +52,8 @@ from needlekit.control.controller import (
     task_parameter_jacobian,
 )
 from needlekit.control.parameters import N_PARAMETERS, ParameterJacobians
-from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
+from needlekit.control.qp import CROSSED_BOUNDS, QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.control.vfi import Zone
 from needlekit.errors import InvalidInputError
 
@@ -327,6 +328,7 @@ def adaptation_step(
     vfis: list[StepVFI] = (),
     vfi_share: float = 0.5,
     history: MeasurementHistory | None = None,
+    solver: QPSolver | str | None = None,
 ) -> AdaptationOutput:
     """Parameter rates from one measurement (Eq. 3).
 
@@ -353,6 +355,8 @@ def adaptation_step(
     history : MeasurementHistory, optional
         Keyframes (including this measurement) whose mean squared error the objective
         drives down instead of this measurement's alone.
+    solver : QPSolver or str, optional
+        The QP solver (an object or a registered name; default DAQP).
 
     Returns
     -------
@@ -386,10 +390,7 @@ def adaptation_step(
         settings.clamp_vfi_rows, stab, stab_rhs, settings.bound_gain, settings.lower,
         settings.upper, a,
     )  # fmt: skip
-    if infeasible:
-        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
-    else:
-        sol = _solve_prepared(H, f, A, bu, bl, np.zeros(len(bu), dtype=np.intc))
+    sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)
     if sol.status is not QPStatus.OPTIMAL:
         log.warning("adaptation QP %s (exit flag %d): a_dot = 0", sol.status.value, sol.exitflag)
         return AdaptationOutput(np.zeros(n), sol.status, err)

@@ -31,7 +31,8 @@ import numpy as np
 
 from needlekit.control import _tick
 from needlekit.control.panda import ArmState, PandaModel
-from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
+from needlekit.control.qp import CROSSED_BOUNDS, QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.control.vfi import (
     Line,
     Plane,
@@ -293,6 +294,7 @@ def control_step(
     state: ArmState | None = None,
     vfis: list[StepVFI] | None = None,
     vfi_share: float = 1.0,
+    solver: QPSolver | str | None = None,
 ) -> ControlOutput:
     """Joint velocities for one control step (Tang et al.'s Eq. 1 with the step's VFIs).
 
@@ -315,6 +317,9 @@ def control_step(
     vfi_share : float
         Share of each VFI's decay rate given to the joints (the rest goes to the
         parameters' adaptation, which moves the estimated distances too).
+    solver : QPSolver or str, optional
+        The QP solver (an object or a registered name,
+        :func:`~needlekit.control.qp_registry.get_qp_solver`; default DAQP).
 
     Returns
     -------
@@ -344,7 +349,7 @@ def control_step(
         m = 3 if kind == _tick.VFI_PUNCTURE else len(ks)
     else:
         kind, m = _tick.VFI_NONE, len(vfis)
-    H, f, A, bu, bl, sense, dist = _buffers(n, m)
+    H, f, A, bu, bl, dist = _buffers(n, m)
     err, infeasible = _tick.control_qp(
         task, kind, s.q, s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian, s.axes,
         s.origins, ks, geo, par, p_d, v_d, model.q_min, model.q_max, model.q_dot_max,
@@ -361,10 +366,7 @@ def control_step(
             A[i], bu[n + i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
             key = _DIST_KEYS[v.name]
             distances[key] = min(distances.get(key, np.inf), v.distance)
-    if infeasible:
-        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
-    else:
-        sol = _solve_prepared(H, f, A, bu, bl, sense)
+    sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
     return ControlOutput(q_dot, sol.status, err, distances)
 
@@ -375,8 +377,8 @@ _local = threading.local()
 
 
 def _buffers(n: int, m: int) -> tuple:
-    """The QP buffers of an ``n``-joint step with ``m`` VFI rows, kept per thread (a step
-    overwrites them; DAQP copies what it keeps)."""
+    """The QP buffers (:mod:`needlekit.control.qp`'s layout) of an ``n``-joint step with
+    ``m`` VFI rows, kept per thread (a step overwrites them; a solver keeps no reference)."""
     cache = getattr(_local, "buffers", None)
     if cache is None:
         cache = _local.buffers = {}
@@ -384,7 +386,7 @@ def _buffers(n: int, m: int) -> tuple:
     if buf is None:
         buf = cache[(n, m)] = (
             np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(n + m),
-            np.zeros(n + m), np.zeros(n + m, dtype=np.intc), np.zeros(3),
+            np.zeros(n + m), np.zeros(3),
         )  # fmt: skip
     return buf
 

@@ -35,7 +35,8 @@ from needlekit.control.controller import ControllerSettings, GuideLine, Step, st
 from needlekit.control.dq import dq_to_matrix
 from needlekit.control.panda import PandaModel
 from needlekit.control.parameters import model_from_parameters, parameter_jacobians
-from needlekit.control.qp import QPStatus
+from needlekit.control.qp import QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -160,6 +161,8 @@ class AdaptationWorker:
         Samples over which the convergence test averages.
     converged_mm, converged_deg : float
         The convergence thresholds.
+    solver : QPSolver or str, optional
+        The adaptation's QP solver (default DAQP).
     """
 
     def __init__(
@@ -174,12 +177,14 @@ class AdaptationWorker:
         window: int,
         converged_mm: float,
         converged_deg: float,
+        solver: QPSolver | str | None = None,
     ) -> None:
         self.arm, self.adaptation, self.controller = arm, adaptation, controller
         self.vfi_share, self.period_s, self.history = vfi_share, period_s, history
         self.window = window
         self.recent: deque = deque(maxlen=window)
         self.converged_mm, self.converged_deg = converged_mm, converged_deg
+        self.solver = get_qp_solver(solver)
 
     def run(self, job: AdaptationJob, a: np.ndarray, est: PandaModel) -> AdaptationUpdate:
         """One step of the law from the estimate ``a``.
@@ -211,7 +216,7 @@ class AdaptationWorker:
         out = adaptation_step(
             a, est_tip, job.measured_pose, pj, self.adaptation, step=step,
             task_error=job.task_error, controller=cs, vfis=vfis, vfi_share=self.vfi_share,
-            history=self.history,
+            history=self.history, solver=self.solver,
         )  # fmt: skip
         a = a + self.period_s * out.a_dot
         est = model_from_parameters(self.arm, a)
