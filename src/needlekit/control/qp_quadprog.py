@@ -63,11 +63,12 @@ class QuadprogSolver(QPSolver):
         has_hi, has_lo = upper < NO_BOUND, lower > -NO_BOUND
         eq = has_hi & has_lo & (upper == lower)
         hi, lo = has_hi & ~eq, has_lo & ~eq
-        C = np.vstack([rows[eq], -rows[hi], rows[lo]]).T
+        C = np.ascontiguousarray(np.vstack([rows[eq], -rows[hi], rows[lo]]).T)
         b = np.concatenate([upper[eq], -upper[hi], lower[lo]])
+        if not b.shape[0]:  # quadprog takes no constraints as None, not an empty matrix
+            C = b = None
         try:
-            x = self._solve(np.array(H, dtype=float), -f, np.ascontiguousarray(C), b,
-                            int(eq.sum()))[0]  # fmt: skip
+            x = self._solve(np.array(H, dtype=float), -f, C, b, int(eq.sum()))[0]
         except ValueError as exc:
             if _INCONSISTENT in str(exc):
                 return QPSolution(None, QPStatus.INFEASIBLE, -1)
