@@ -273,3 +273,13 @@ def test_a_puncture_step_is_the_same_with_either_solver():
                          **kw)  # fmt: skip
         assert a.status is b.status
         np.testing.assert_allclose(a.q_dot, b.q_dot, rtol=0, atol=FLAT_ATOL)
+
+
+def test_the_commands_refuse_an_unknown_solver_in_one_line(capsys, tmp_path):
+    from needlekit.cli import main
+
+    for argv in (["puncture", "--trials", "1", "--out", str(tmp_path), "--qp-solver", "osqp"],
+                 ["bench", "control", "--qp-solver", "osqp"]):  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == ["error: qp_solver: unknown QP solver 'osqp'; available: daqp, quadprog"]

@@ -541,6 +541,13 @@ def _build_parser() -> argparse.ArgumentParser:
         help="run the adaptation off the 1 kHz control step, its update applied MS ms after "
         "its job starts (whole control periods; default 0: inline, in the sample's step)",
     )
+    pu.add_argument(
+        "--qp-solver",
+        default="daqp",
+        metavar="NAME",
+        help="QP solver of the controller and the adaptation: daqp (default), quadprog "
+        "(pip install 'needlekit[quadprog]') or one registered under needlekit.qp_solvers",
+    )
     _executor_options(pu)
 
     rp = sub.add_parser(
@@ -740,6 +747,13 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="MS",
         help="time the adaptation as a job off the tick, applied MS ms after it starts "
         "(whole control periods; default 0: inline, in the sample's tick)",
+    )
+    bc.add_argument(
+        "--qp-solver",
+        default="daqp",
+        metavar="NAME",
+        help="QP solver of the controller and the adaptation (default daqp; quadprog with "
+        "pip install 'needlekit[quadprog]')",
     )
     bs = bench_sub.add_parser(
         "steerable",

@@ -35,7 +35,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from needlekit.benchmarks.control import run_control_benchmark
 
         record = run_control_benchmark(
-            trials=args.trials, seed=args.seed, adaptation_delay_ms=args.adaptation_delay_ms
+            trials=args.trials,
+            seed=args.seed,
+            adaptation_delay_ms=args.adaptation_delay_ms,
+            qp_solver=args.qp_solver,
         )
     elif args.bench_command == "steerable":
         from tqdm import tqdm

@@ -36,6 +36,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
 
     from needlekit.batch import open_executor
     from needlekit.control.procedure import ProcedureSettings
+    from needlekit.control.qp_registry import get_qp_solver
     from needlekit.control.schedule import delay_steps_from_ms
     from needlekit.studies.puncture_study import (
         PunctureScenario,
@@ -46,6 +47,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     delay = delay_steps_from_ms(
         args.adaptation_delay_ms, ProcedureSettings().dt_s, "--adaptation-delay-ms"
     )
+    get_qp_solver(args.qp_solver)  # an unknown name or a missing extra: before any trial
     options = TrialOptions(
         exact_sensors=args.exact_sensors,
         stability_radius_mm=args.stability_radius_mm,
@@ -53,6 +55,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         guide_samples=args.guide_samples,
         clamp_vfi_rows=not args.no_vfi_clamp,
         adaptation_delay_steps=delay,
+        qp_solver=args.qp_solver,
     )
     scenario = PunctureScenario(redraw_guides=not args.no_redraw)
     with (
