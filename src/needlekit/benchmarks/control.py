@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.benchmarks import tro2022 as _tro
 from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.timing import TICK_TARGET_US, step_statistics, tick_verdict
-from needlekit.benchmarks import tro2022 as _tro
 
 __all__ = [
     "STEP_KINDS",
