@@ -363,21 +363,26 @@ def adaptation_step(
     AdaptationOutput
     """
     a = np.asarray(a, dtype=float)
-    s = settings.orientation_scale_mm
-    err = measurement_error(estimated_tip, measured_tip, s)
+    err, jtj, jte, scale = _objective(a, estimated_tip, measured_tip, pj, settings, history)
     n = N_PARAMETERS
-    if history is not None and len(history):
-        jtj, jte = history.normal_equations(a, s)
-        scale = 1.0 / len(history)  # the mean over the keyframes
-    else:
-        jac = np.vstack([pj.tip, s * pj.angular])
-        jtj, jte, scale = jac.T @ jac, jac.T @ err, 1.0
     rows = [v for v in vfis if v.jac_a is not None]
     vfi = np.array(
         [(v.distance, v.safe, (1.0 - vfi_share) * v.gain, v.zone is Zone.OUTSIDE) for v in rows],
         dtype=float,
     ).reshape(-1, 4)
     vjac = np.array([v.jac_a for v in rows], dtype=float).reshape(-1, n)
+    return _adaptation_rates(
+        a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+    )
+
+
+def _adaptation_rates(
+    a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+) -> AdaptationOutput:
+    """The rest of :func:`adaptation_step` from the normal equations and the VFI rows
+    (``vfi`` (m, 4) and ``vjac`` (m, 12), as
+    :func:`~needlekit.control.controller.step_vfi_rows` gives them)."""
+    n = N_PARAMETERS
     stab, stab_rhs = _NO_ROW, 0.0
     if step is not None and task_error is not None:
         jx = task_parameter_jacobian(step, pj, controller or ControllerSettings())
@@ -397,4 +402,43 @@ def adaptation_step(
     return AdaptationOutput(sol.x, sol.status, err)
 
 
+def _objective(a, estimated_tip, measured_tip, pj, settings, history) -> tuple:
+    """``(y_err, J'J, J'e, scale)`` of the objective: over the keyframes (their mean,
+    ``scale = 1 / k``) or the one measurement."""
+    s = settings.orientation_scale_mm
+    err = measurement_error(estimated_tip, measured_tip, s)
+    if history is not None and len(history):
+        jtj, jte = history.normal_equations(a, s)
+        return err, jtj, jte, 1.0 / len(history)  # the mean over the keyframes
+    jac = np.vstack([pj.tip, s * pj.angular])
+    return err, jac.T @ jac, jac.T @ err, 1.0
+
+
+def adaptation_step_rows(
+    a, estimated_tip, measured_tip, pj, settings, vfi, vjac, *, step=None, task_error=None,
+    controller=None, history=None, solver=None,
+) -> AdaptationOutput:  # fmt: skip
+    """:func:`adaptation_step` with the VFIs as rows (``vfi`` (m, 4), ``vjac`` (m, 12):
+    :func:`~needlekit.control.controller.step_vfi_rows`, the adaptation's share of the
+    gains applied), the same arithmetic without building a :class:`StepVFI` per VFI (the
+    adaptation job's path).
+
+    Parameters
+    ----------
+    a, estimated_tip, measured_tip, pj, settings, step, task_error, controller, history, solver
+        As :func:`adaptation_step`.
+    vfi : ndarray, shape (m, 4)
+    vjac : ndarray, shape (m, 12)
+
+    Returns
+    -------
+    AdaptationOutput
+    """
+    err, jtj, jte, scale = _objective(a, estimated_tip, measured_tip, pj, settings, history)
+    return _adaptation_rates(
+        a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+    )
+
+
 _NO_ROW = np.zeros((0, N_PARAMETERS))
+_NO_VFI = np.zeros((0, 4))

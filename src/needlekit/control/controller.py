@@ -48,6 +48,7 @@ __all__ = [
     "Step",
     "StepVFI",
     "control_step",
+    "step_vfi_rows",
     "step_vfis",
     "task_parameter_jacobian",
 ]
@@ -254,7 +255,48 @@ def step_vfis(
     -------
     list of StepVFI
     """
-    cfg = settings
+    d, jq, jp, kinds = _step_vfi_data(state, step, guide, settings, pj, a)
+    with_a = pj is not None
+    return [
+        StepVFI(name, float(d[r]), safe, zone, gain, jq[r], jp[r] if with_a else None)
+        for r, (name, safe, zone, gain) in enumerate(kinds)
+    ]
+
+
+def step_vfi_rows(
+    state: ArmState, step: Step, guide: GuideLine, settings: ControllerSettings, pj, a, share
+) -> tuple[np.ndarray, np.ndarray]:
+    """The step's VFIs as the adaptation's rows: :func:`step_vfis` without the objects.
+
+    Parameters
+    ----------
+    state : ArmState
+    step : Step
+    guide : GuideLine
+    settings : ControllerSettings
+    pj : ParameterJacobians
+    a : ndarray, shape (12,)
+    share : float
+        The joints' share of each VFI's decay rate (the adaptation's is ``1 - share``).
+
+    Returns
+    -------
+    vfi : ndarray, shape (m, 4)
+        Per VFI: distance, safe value, the adaptation's gain ``(1 - share) gain``, and 1 for
+        a forbidden (outside) zone, 0 for a safe one.
+    jac_a : ndarray, shape (m, 12)
+        Each VFI's derivative in the parameters.
+    """
+    d, _, jp, kinds = _step_vfi_data(state, step, guide, settings, pj, a)
+    vfi = np.empty((len(kinds), 4))
+    for r, (_, safe, zone, gain) in enumerate(kinds):
+        vfi[r] = d[r], safe, (1.0 - share) * gain, zone is Zone.OUTSIDE
+    return vfi, jp
+
+
+def _step_vfi_data(state, step, guide, cfg, pj, a) -> tuple:
+    """``d``, ``jq``, ``jp`` of :func:`needlekit.control._tick.vfi_data` and the VFIs'
+    ``(name, safe, zone, gain)``."""
     geo, par, ks = guide._kernel_data(cfg)
     puncture = step is Step.PUNCTURE
     with_a = pj is not None
@@ -273,10 +315,7 @@ def step_vfis(
         )
     else:
         kinds = (("patient", cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient),) * len(ks)
-    return [
-        StepVFI(name, float(d[r]), safe, zone, gain, jq[r], jp[r] if with_a else None)
-        for r, (name, safe, zone, gain) in enumerate(kinds)
-    ]
+    return d, jq, jp, kinds
 
 
 _NO_PARAMETERS = np.zeros((1, 1))
