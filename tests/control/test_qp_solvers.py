@@ -283,3 +283,16 @@ def test_the_commands_refuse_an_unknown_solver_in_one_line(capsys, tmp_path):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err == ["error: qp_solver: unknown QP solver 'osqp'; available: daqp, quadprog"]
+
+
+def test_the_docs_example_of_adding_a_solver_runs(capsys):
+    from pathlib import Path
+
+    text = (Path(__file__).parents[2] / "docs" / "control.md").read_text()
+    block = text.split("A\nsolver built on scipy's SLSQP", 1)[1].split("```python\n", 1)[1]
+    code = block.split("```", 1)[0]
+    try:
+        exec(compile(code, "docs/control.md", "exec"), {})
+        assert capsys.readouterr().out.strip() == "optimal [0. 1.]"
+    finally:
+        unregister_qp_solver("slsqp")
