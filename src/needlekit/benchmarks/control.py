@@ -5,7 +5,7 @@ controller timed at every step (:func:`needlekit.control.procedure.run_trial`'s
 ``timings``): guide-line update, the adaptation when a needle sample arrived (every 10th
 step at 100 Hz) or the application of its update, convergence and loss checks, kinematics,
 VFIs and the QP; the simulated robot, sensors and logging are not counted. Each kind of
-step gets its own statistics (n, median, p90, p99, max in us):
+step gets its own statistics (n, median, p90, p99, p99.9, max in us):
 
 - ``control``: a tick without adaptation work;
 - ``control+adaptation``: a needle sample's tick with the adaptation inline
@@ -16,7 +16,9 @@ step gets its own statistics (n, median, p90, p99, max in us):
   budget of D control periods (overruns counted);
 - ``ticks``: every tick the 1 kHz loop runs (all but the jobs), the figure the robot sees.
 
-Every tick kind gets the verdicts of issue 13 (median <= 100 us, p99 <= 300 us). The record
+Every tick kind gets its own verdict (:func:`~needlekit.benchmarks.timing.tick_verdict`:
+median <= 100 us as issue 13 asked, and Franka's budget as issue 20 asks of each kind on its
+own, p99 <= 300 us and p99.9 <= 1 ms), as do all ticks pooled. The record
 also counts the garbage collections during the timed trials (``gc.callbacks``: collections
 per generation and their pauses) and states the load average before and after, and the
 machine (:func:`~needlekit.benchmarks.record.machine_info`).
@@ -192,8 +194,8 @@ def run_control_benchmark(
     -------
     dict
         ``benchmark``, ``machine``, ``inputs``, ``step_us`` (every tick), ``step_us_by_kind``
-        (n, median, p90, p99, p99.9, max; with its own ``verdict`` for each tick kind), ``adaptation_job`` (budget and overruns, when
-        off the tick), ``step_us_by_phase``, ``gc``, ``load_average`` (before and after),
+        (n, median, p90, p99, p99.9, max; with its own ``verdict`` for each tick kind),
+        ``adaptation_job`` (budget and overruns, when off the tick), ``step_us_by_phase``, ``gc``, ``load_average`` (before and after),
         ``trial_status``, ``wall_s``, ``tro2022`` and ``results`` (rows for the summary).
     """
     from dataclasses import replace
@@ -237,27 +239,7 @@ def run_control_benchmark(
         ]
     wall = time.perf_counter() - t0
     load_after = list(os.getloadavg())
-    phases, kinds, secs = rec.arrays()
-    ticks = kinds != "adaptation_job"
-    all_ticks = step_statistics(secs[ticks])
-    all_ticks["verdict"] = tick_verdict(all_ticks)
-    by_kind = {}
-    for kind in STEP_KINDS:
-        st = step_statistics(secs[kinds == kind])
-        if st["n"] and kind != "adaptation_job":
-            st["verdict"] = tick_verdict(st)
-        by_kind[kind] = st
-    by_phase = {p: step_statistics(secs[ticks & (phases == p)]) for p in rec.phases}
-    budget_us = delay * procedure.dt_s * 1e6
-    job = None
-    if delay:
-        jobs_us = secs[kinds == "adaptation_job"] * 1e6
-        over = int(np.count_nonzero(jobs_us > budget_us))
-        job = {
-            "budget_us": budget_us,
-            "overruns": over,
-            "overrun_fraction": over / len(jobs_us) if len(jobs_us) else 0.0,
-        }
+    all_ticks, by_kind, by_phase, job = _tick_statistics(rec, delay * procedure.dt_s * 1e6)
     adaptive = by_kind["adaptation_job" if delay else "control+adaptation"]
     tro = (
         _tro2022_reference({"adaptive": adaptive, "control": by_kind["control"]})
@@ -291,6 +273,32 @@ def run_control_benchmark(
         "tro2022": tro,
         "results": rows,
     }
+
+
+def _tick_statistics(rec: _StepRecorder, budget_us: float) -> tuple:
+    """Every tick's statistics, each kind's (with its own verdict for the tick kinds), each
+    phase's, and the jobs against their budget (None when the adaptation runs inline)."""
+    phases, kinds, secs = rec.arrays()
+    ticks = kinds != "adaptation_job"
+    all_ticks = step_statistics(secs[ticks])
+    all_ticks["verdict"] = tick_verdict(all_ticks)
+    by_kind = {}
+    for kind in STEP_KINDS:
+        st = step_statistics(secs[kinds == kind])
+        if st["n"] and kind != "adaptation_job":
+            st["verdict"] = tick_verdict(st)
+        by_kind[kind] = st
+    by_phase = {p: step_statistics(secs[ticks & (phases == p)]) for p in rec.phases}
+    job = None
+    if budget_us:
+        jobs_us = secs[kinds == "adaptation_job"] * 1e6
+        over = int(np.count_nonzero(jobs_us > budget_us))
+        job = {
+            "budget_us": budget_us,
+            "overruns": over,
+            "overrun_fraction": over / len(jobs_us) if len(jobs_us) else 0.0,
+        }
+    return all_ticks, by_kind, by_phase, job
 
 
 def _rows(all_ticks, by_kind, by_phase, job, gc_record, loads, tro) -> list[dict]:
