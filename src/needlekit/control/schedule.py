@@ -211,11 +211,9 @@ class AdaptationWorker:
         s_s = est.state(job.q)
         est_tip = dq_to_matrix(s_s.tip_dq)
         pj = parameter_jacobians(est, s_s, a)
-        if self.history is not None:
-            self.history.add(
-                np.linalg.inv(est.world_T_base) @ est_tip @ np.linalg.inv(est.flange_T_tip),
-                job.measured_pose,
-            )
+        if self.history is not None:  # both inverses in one LAPACK call (the same bits)
+            base_inv, tip_inv = np.linalg.inv(np.stack((est.world_T_base, est.flange_T_tip)))
+            self.history.add(base_inv @ est_tip @ tip_inv, job.measured_pose)
         step, cs = job.step, self.controller
         if step is None or job.guide is None:
             vfi, vjac = _NO_VFI, _NO_ROWS
