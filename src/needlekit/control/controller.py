@@ -456,5 +456,8 @@ def task_parameter_jacobian(step: Step, pj, settings: ControllerSettings) -> np.
     if step is Step.ALIGN:
         return pj.axis
     if step is Step.APPROACH or settings.puncture_keeps_axis:
-        return np.vstack([pj.tip, settings.axis_scale_mm * pj.axis])
+        out = np.empty((6, pj.tip.shape[1]))  # [tip; w axis] (np.vstack's values, faster)
+        out[:3] = pj.tip
+        np.multiply(settings.axis_scale_mm, pj.axis, out=out[3:])
+        return out
     return pj.tip
