@@ -21,7 +21,7 @@ def step_statistics(seconds) -> dict[str, Any]:
 
     Parameters
     ----------
-    seconds : array_like
+    seconds : array_like, shape (n,)
         Per-call times (s).
 
     Returns

