@@ -31,7 +31,7 @@ from needlekit.control.controller import (
 )
 from needlekit.control.panda import PandaModel
 from needlekit.control.parameters import model_from_parameters, parameter_jacobians
-from needlekit.control.qp import QPStatus, solve_qp
+from needlekit.control.qp import DEFAULT_SOLVER, QPStatus, solve_qp
 from needlekit.control.vfi import (
     Zone,
     joint_limit_bounds,
@@ -199,7 +199,8 @@ def test_the_kernels_qp_is_the_numpy_qp(step):
                        share)  # fmt: skip
         H, f, rows, rhs, lower, upper, err, dist = want
         m = len(rhs)
-        gH, gf, gA, gbu, gbl, sense, gdist = _buffers(7, m)
+        gH, gf, gA, gbu, gbl, gdist = _buffers(7, m)
+        sense = DEFAULT_SOLVER._sense_of(7 + m)  # DAQP's: every bound an inequality
         task = {Step.ALIGN: 0, Step.APPROACH: 1}.get(step, 1 if cfg.puncture_keeps_axis else 2)
         kind = _tick.VFI_PUNCTURE if step is Step.PUNCTURE else _tick.VFI_PATIENT
         geo, par, ks = guide._kernel_data(cfg)

@@ -5,7 +5,7 @@ controller timed at every step (:func:`needlekit.control.procedure.run_trial`'s
 ``timings``): guide-line update, the adaptation when a needle sample arrived (every 10th
 step at 100 Hz) or the application of its update, convergence and loss checks, kinematics,
 VFIs and the QP; the simulated robot, sensors and logging are not counted. Each kind of
-step gets its own statistics (n, median, p90, p99, max in us):
+step gets its own statistics (n, median, p90, p99, p99.9, max in us):
 
 - ``control``: a tick without adaptation work;
 - ``control+adaptation``: a needle sample's tick with the adaptation inline
@@ -16,7 +16,9 @@ step gets its own statistics (n, median, p90, p99, max in us):
   budget of D control periods (overruns counted);
 - ``ticks``: every tick the 1 kHz loop runs (all but the jobs), the figure the robot sees.
 
-Every tick kind gets the verdicts of issue 13 (median <= 100 us, p99 <= 300 us). The record
+Every tick kind gets its own verdict (:func:`~needlekit.benchmarks.timing.tick_verdict`:
+median <= 100 us as issue 13 asked, and Franka's budget as issue 20 asks of each kind on its
+own, p99 <= 300 us and p99.9 <= 1 ms), as do all ticks pooled. The record
 also counts the garbage collections during the timed trials (``gc.callbacks``: collections
 per generation and their pauses) and states the load average before and after, and the
 machine (:func:`~needlekit.benchmarks.record.machine_info`).
@@ -37,59 +39,20 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.benchmarks import tro2022 as _tro
 from needlekit.benchmarks.record import machine_info
+from needlekit.benchmarks.timing import TICK_TARGET_US, step_statistics, tick_verdict
 
-__all__ = ["STEP_KINDS", "TICK_TARGET_US", "run_control_benchmark", "step_statistics"]
+__all__ = [
+    "STEP_KINDS",
+    "TICK_TARGET_US",
+    "run_control_benchmark",
+    "step_statistics",
+    "tick_verdict",
+]
 
 #: The kinds of timed step :func:`needlekit.control.procedure.run_trial` reports.
 STEP_KINDS = ("control", "control+adaptation", "control+apply", "adaptation_job")
-#: Issue 13's targets for a control tick (us): Franka's 1 kHz loop leaves about 300 us to
-#: user code; the median must leave room for the tail.
-TICK_TARGET_US = {"median": 100.0, "p99": 300.0}
-
-
-def step_statistics(seconds) -> dict[str, Any]:
-    """``n``, ``median``, ``mean``, ``p90``, ``p99`` and ``max`` in microseconds.
-
-    Parameters
-    ----------
-    seconds : array_like
-
-    Returns
-    -------
-    dict
-
-    Examples
-    --------
-    >>> step_statistics([1e-6, 3e-6])["median"]
-    2.0
-    """
-    us = np.asarray(seconds, dtype=float) * 1e6
-    if not len(us):
-        return {"n": 0}
-    return {
-        "n": len(us),
-        "median": float(np.median(us)),
-        "mean": float(us.mean()),
-        "p90": float(np.percentile(us, 90)),
-        "p99": float(np.percentile(us, 99)),
-        "max": float(us.max()),
-    }
-
-
-def tick_verdict(stats: dict) -> dict[str, Any]:
-    """Whether a tick kind's median and p99 are within :data:`TICK_TARGET_US`.
-
-    Examples
-    --------
-    >>> tick_verdict({"n": 3, "median": 90.0, "p99": 310.0})["pass"]
-    False
-    """
-    if not stats.get("n"):
-        return {"median_ok": None, "p99_ok": None, "pass": None}
-    median_ok = stats["median"] <= TICK_TARGET_US["median"]
-    p99_ok = stats["p99"] <= TICK_TARGET_US["p99"]
-    return {"median_ok": median_ok, "p99_ok": p99_ok, "pass": median_ok and p99_ok}
 
 
 class _StepRecorder:
@@ -190,9 +153,7 @@ def _tro2022_reference(needlekit: dict[str, dict], steps_per_target: int = 400) 
     tick, or the off-tick job) and ``"control"`` (a tick without it) to their statistics;
     they are held against TRO's ``FULL`` and ``TASK_ONLY`` steps.
     """
-    from needlekit.benchmarks.tro2022 import tro2022_reference
-
-    ref = tro2022_reference(steps_per_target)
+    ref = _tro.tro2022_reference(steps_per_target)
     if ref["status"] != "measured":
         return ref
     ratios = {}
@@ -209,6 +170,7 @@ def run_control_benchmark(
     kinematics_calls: int = 2000,
     adaptation_delay_ms: float = 0.0,
     tro2022: bool = True,
+    qp_solver: str = "daqp",
 ) -> dict[str, Any]:
     """Time the controller's steps over whole simulated punctures.
 
@@ -224,18 +186,22 @@ def run_control_benchmark(
         of control periods; 0: inline, in the sample's tick).
     tro2022 : bool
         Run the TRO 2022 yardstick (when its package imports).
+    qp_solver : str
+        The controller's and the adaptation's QP solver (a registered name,
+        :func:`needlekit.control.qp_registry.get_qp_solver`).
 
     Returns
     -------
     dict
         ``benchmark``, ``machine``, ``inputs``, ``step_us`` (every tick), ``step_us_by_kind``
-        (with ``verdict`` for the tick kinds), ``adaptation_job`` (budget and overruns, when
-        off the tick), ``step_us_by_phase``, ``gc``, ``load_average`` (before and after),
+        (n, median, p90, p99, p99.9, max; with its own ``verdict`` for each tick kind),
+        ``adaptation_job`` (budget and overruns, when off the tick), ``step_us_by_phase``, ``gc``, ``load_average`` (before and after),
         ``trial_status``, ``wall_s``, ``tro2022`` and ``results`` (rows for the summary).
     """
     from dataclasses import replace
 
     from needlekit.control.procedure import run_trial
+    from needlekit.control.qp_registry import get_qp_solver
     from needlekit.control.schedule import delay_steps_from_ms
     from needlekit.errors import InvalidInputError
     from needlekit.studies.puncture_study import (
@@ -252,12 +218,15 @@ def run_control_benchmark(
     warm = sample_trial(scenario, np.random.default_rng(0), 0)[0]
     adaptation, procedure, spec = trial_settings(scenario, TrialOptions(), warm.nominal_parameters)
     delay = delay_steps_from_ms(adaptation_delay_ms, procedure.dt_s)
-    options = TrialOptions(adaptation_delay_steps=delay)
+    get_qp_solver(qp_solver)  # an unknown name or a missing extra fails before any trial
+    options = TrialOptions(adaptation_delay_steps=delay, qp_solver=qp_solver)
     for d in dict.fromkeys((0, delay)):  # a short warm-up: kernels load, caches fill
         run_trial(
             warm, np.random.default_rng(0), adaptation=adaptation, needle_sensor=spec,
             scope_sensor=spec,
-            procedure=replace(procedure, phase_timeout_s=0.5, adaptation_delay_steps=d),
+            procedure=replace(
+                procedure, phase_timeout_s=0.5, adaptation_delay_steps=d, qp_solver=qp_solver
+            ),
         )  # fmt: skip
     seeds = np.random.SeedSequence(seed).spawn(trials)
     rec = _StepRecorder()
@@ -270,27 +239,7 @@ def run_control_benchmark(
         ]
     wall = time.perf_counter() - t0
     load_after = list(os.getloadavg())
-    phases, kinds, secs = rec.arrays()
-    ticks = kinds != "adaptation_job"
-    all_ticks = step_statistics(secs[ticks])
-    all_ticks["verdict"] = tick_verdict(all_ticks)
-    by_kind = {}
-    for kind in STEP_KINDS:
-        st = step_statistics(secs[kinds == kind])
-        if st["n"] and kind != "adaptation_job":
-            st["verdict"] = tick_verdict(st)
-        by_kind[kind] = st
-    by_phase = {p: step_statistics(secs[ticks & (phases == p)]) for p in rec.phases}
-    budget_us = delay * procedure.dt_s * 1e6
-    job = None
-    if delay:
-        jobs_us = secs[kinds == "adaptation_job"] * 1e6
-        over = int(np.count_nonzero(jobs_us > budget_us))
-        job = {
-            "budget_us": budget_us,
-            "overruns": over,
-            "overrun_fraction": over / len(jobs_us) if len(jobs_us) else 0.0,
-        }
+    all_ticks, by_kind, by_phase, job = _tick_statistics(rec, delay * procedure.dt_s * 1e6)
     adaptive = by_kind["adaptation_job" if delay else "control+adaptation"]
     tro = (
         _tro2022_reference({"adaptive": adaptive, "control": by_kind["control"]})
@@ -310,6 +259,7 @@ def run_control_benchmark(
             "needle_sensor_hz": spec.rate_hz,
             "history_keyframes": options.history_keyframes,
             "adaptation_delay_ms": delay * procedure.dt_s * 1e3,
+            "qp_solver": qp_solver,
         },
         "targets_us": dict(TICK_TARGET_US),
         "step_us": all_ticks,
@@ -325,16 +275,46 @@ def run_control_benchmark(
     }
 
 
+def _tick_statistics(rec: _StepRecorder, budget_us: float) -> tuple:
+    """Every tick's statistics, each kind's (with its own verdict for the tick kinds), each
+    phase's, and the jobs against their budget (None when the adaptation runs inline)."""
+    phases, kinds, secs = rec.arrays()
+    ticks = kinds != "adaptation_job"
+    all_ticks = step_statistics(secs[ticks])
+    all_ticks["verdict"] = tick_verdict(all_ticks)
+    by_kind = {}
+    for kind in STEP_KINDS:
+        st = step_statistics(secs[kinds == kind])
+        if st["n"] and kind != "adaptation_job":
+            st["verdict"] = tick_verdict(st)
+        by_kind[kind] = st
+    by_phase = {p: step_statistics(secs[ticks & (phases == p)]) for p in rec.phases}
+    job = None
+    if budget_us:
+        jobs_us = secs[kinds == "adaptation_job"] * 1e6
+        over = int(np.count_nonzero(jobs_us > budget_us))
+        job = {
+            "budget_us": budget_us,
+            "overruns": over,
+            "overrun_fraction": over / len(jobs_us) if len(jobs_us) else 0.0,
+        }
+    return all_ticks, by_kind, by_phase, job
+
+
 def _rows(all_ticks, by_kind, by_phase, job, gc_record, loads, tro) -> list[dict]:
     def verdict(st):
         v = st.get("verdict") or {}
-        return "" if v.get("pass") is None else ("  PASS" if v["pass"] else "  FAIL")
+        if v.get("pass") is None:
+            return ""
+        missed = [q for q, key in _VERDICT_KEYS if not v[key]]
+        return "  PASS" if v["pass"] else "  FAIL (" + ", ".join(missed) + ")"
 
     rows = [
         {
             "name": "every tick (1 kHz loop)",
-            "summary": _short(all_ticks) + verdict(all_ticks) + " (target: median <= "
-            f"{TICK_TARGET_US['median']:g} us, p99 <= {TICK_TARGET_US['p99']:g} us)",
+            "summary": _short(all_ticks) + verdict(all_ticks) + " (target for every tick kind: "
+            f"median <= {TICK_TARGET_US['median']:g} us, p99 <= {TICK_TARGET_US['p99']:g} us, "
+            f"p99.9 <= {TICK_TARGET_US['p99.9']:g} us)",
         }
     ]
     for kind, st in by_kind.items():
@@ -384,7 +364,11 @@ def _rows(all_ticks, by_kind, by_phase, job, gc_record, loads, tro) -> list[dict
 def _short(st: dict) -> str:
     if not st.get("n"):
         return "no steps"
+    p999 = f", p99.9 {st['p99.9']:7.1f} us" if "p99.9" in st else ""
     return (
-        f"median {st['median']:6.1f} us, p99 {st['p99']:6.1f} us, max {st['max']:7.1f} us "
+        f"median {st['median']:6.1f} us, p99 {st['p99']:6.1f} us{p999}, max {st['max']:7.1f} us "
         f"({st['n']} steps)"
     )
+
+
+_VERDICT_KEYS = (("median", "median_ok"), ("p99", "p99_ok"), ("p99.9", "p999_ok"))

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.benchmarks.timing import step_statistics
+
 __all__ = ["TRO2022_PACKAGE", "tro2022_reference"]
 
 TRO2022_PACKAGE = "marinholab-papers-tro2022-adaptivecontrol"
@@ -60,8 +62,6 @@ def tro2022_reference(steps_per_target: int = 400, seed: int = 0) -> dict[str, A
         ``dqrobotics``, and per strategy (``full``: with adaptation, ``task_only``:
         without) the per-call statistics in us.
     """
-    from needlekit.benchmarks.control import step_statistics
-
     record: dict[str, Any] = {"name": "tro2022", "package": TRO2022_PACKAGE}
     try:
         record["version"] = version(TRO2022_PACKAGE)

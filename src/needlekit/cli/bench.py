@@ -49,7 +49,10 @@ def _control(args: argparse.Namespace) -> dict:
     from needlekit.benchmarks.control import run_control_benchmark
 
     return run_control_benchmark(
-        trials=args.trials, seed=args.seed, adaptation_delay_ms=args.adaptation_delay_ms
+        trials=args.trials,
+        seed=args.seed,
+        adaptation_delay_ms=args.adaptation_delay_ms,
+        qp_solver=args.qp_solver,
     )
 
 
@@ -176,7 +179,7 @@ def _register_kinematics_fields(bench_sub) -> None:
 
 
 def _register_control(bench_sub) -> None:
-    from needlekit.cli.puncture import ADAPTATION_DELAY_MS  # light: no numpy
+    from needlekit.cli.puncture import ADAPTATION_DELAY_MS, QP_SOLVER  # light: no numpy
 
     bc = _suite(
         bench_sub,
@@ -192,6 +195,11 @@ def _register_control(bench_sub) -> None:
         bc,
         help="time the adaptation as a job off the tick, applied MS ms after it starts "
         "(whole control periods; default 0: inline, in the sample's tick)",
+    )
+    QP_SOLVER.add(
+        bc,
+        help="QP solver of the controller and the adaptation (default daqp; quadprog with "
+        "pip install 'needlekit[quadprog]')",
     )
 
 

@@ -36,6 +36,10 @@ ADAPTATION_DELAY_MS = _flags.Flag(
 )
 
 
+#: ``--qp-solver`` of ``puncture`` and ``bench control``.
+QP_SOLVER = _flags.Flag("--qp-solver", {"default": "daqp", "metavar": "NAME"})
+
+
 def _cmd_puncture(args: argparse.Namespace) -> int:
     for name in ("history", "guide_samples"):  # before the heavy imports
         if getattr(args, name) < 0:
@@ -46,6 +50,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
 
     from needlekit.batch import open_executor
     from needlekit.control.procedure import ProcedureSettings
+    from needlekit.control.qp_registry import get_qp_solver
     from needlekit.control.schedule import delay_steps_from_ms
     from needlekit.studies.puncture_study import (
         PunctureScenario,
@@ -56,6 +61,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     delay = delay_steps_from_ms(
         args.adaptation_delay_ms, ProcedureSettings().dt_s, "--adaptation-delay-ms"
     )
+    get_qp_solver(args.qp_solver)  # an unknown name or a missing extra: before any trial
     options = TrialOptions(
         exact_sensors=args.exact_sensors,
         stability_radius_mm=args.stability_radius_mm,
@@ -63,6 +69,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         guide_samples=args.guide_samples,
         clamp_vfi_rows=not args.no_vfi_clamp,
         adaptation_delay_steps=delay,
+        qp_solver=args.qp_solver,
     )
     scenario = PunctureScenario(redraw_guides=not args.no_redraw)
     with (
@@ -181,6 +188,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         pu,
         help="run the adaptation off the 1 kHz control step, its update applied MS ms after "
         "its job starts (whole control periods; default 0: inline, in the sample's step)",
+    )
+    QP_SOLVER.add(
+        pu,
+        help="QP solver of the controller and the adaptation: daqp (default), quadprog "
+        "(pip install 'needlekit[quadprog]') or one registered under needlekit.qp_solvers",
     )
     _flags.add_executor_options(pu)
     pu.set_defaults(command_handler=_cmd_puncture)

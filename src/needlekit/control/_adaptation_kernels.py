@@ -234,8 +234,8 @@ def measurement_error(est, meas, s):
 @nb.njit(cache=True)
 def adaptation_qp(jtj, jte, scale, damp2, f_gain, vfi, vjac, clamp, stab, stab_rhs, bound_gain,
                   lower, upper, a):  # fmt: skip
-    """The adaptation QP's ``H``, ``f``, rows, and DAQP bounds (``bu``, ``bl``: on ``a_dot``,
-    then the rows), and whether a bound pair is crossed. ``vfi`` (m, 4): distance, safe
+    """The adaptation QP's ``H``, ``f``, rows, and bounds (``bu``, ``bl``: on ``a_dot``,
+    then the rows; the layout of :mod:`needlekit.control.qp`), and whether a bound pair is crossed. ``vfi`` (m, 4): distance, safe
     value, gain, 1 for a forbidden zone (else a safe one), with the rows' Jacobians ``vjac``
     (m, 12); ``stab`` (0 or 1, 12): the stability row, whose right-hand side is
     ``stab_rhs``. ``f_gain``: ``2 eta scale``."""

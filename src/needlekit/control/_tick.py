@@ -2,8 +2,9 @@
 
 :func:`control_qp` builds the whole QP of one control step (task error and Jacobian, Hessian
 and gradient, the step's VFI rows and the joint-limit bounds) into buffers the caller keeps
-from step to step, in DAQP's layout, so that :func:`needlekit.control.controller.control_step`
-is one kernel call and one DAQP call. :func:`vfi_data` gives the VFIs' distances and their
+from step to step, in the solver-neutral layout of :mod:`needlekit.control.qp` (DAQP reads
+it as it is), so that :func:`needlekit.control.controller.control_step` is one kernel call
+and one solver call. :func:`vfi_data` gives the VFIs' distances and their
 Jacobians in the joints and (optionally) in the 12 model parameters, which the adaptation
 law needs. Both do the arithmetic of the numpy code they replace
 (:func:`~needlekit.control.vfi.point_line_sq_distance` and the others) in the same order,
@@ -21,6 +22,7 @@ import numba as nb
 import numpy as np
 
 from needlekit.control.panda import _points_line_sq_distances
+from needlekit.control.qp import NO_BOUND
 
 #: Task kinds: the needle axis (ALIGN), tip and weighted axis, the tip alone.
 TASK_AXIS, TASK_TIP_AXIS, TASK_TIP = 0, 1, 2
@@ -28,8 +30,8 @@ TASK_AXIS, TASK_TIP_AXIS, TASK_TIP = 0, 1, 2
 #: cylinder (ALIGN, APPROACH), guide cylinder + cone + plane (PUNCTURE).
 VFI_NONE, VFI_PATIENT, VFI_PUNCTURE = 0, 1, 2
 
-#: "No bound" for DAQP (as :data:`needlekit.control.qp._INF`).
-_INF = 1e30
+#: "No bound" in the QP layout (:data:`needlekit.control.qp.NO_BOUND`).
+_INF = NO_BOUND
 
 
 def pack_geometry(guide, settings) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -131,7 +133,7 @@ def vfi_data(kind, tip, axis, jt, ja, axes, origins, ks, geo, with_a, pj_tip, pj
 def control_qp(task, kind, q, tip, axis, jt, ja, axes, origins, ks, geo, par, p_d, v_d,
                q_min, q_max, q_dot_max, share, H, f, A, bu, bl, dist):  # fmt: skip
     """Fill one control step's QP into ``H`` (n, n), ``f`` (n,), ``A`` (m, n), ``bu`` and
-    ``bl`` (n + m: bounds on q_dot, then rows) and ``dist`` (the VFI distances: patient, its
+    ``bl`` (n + m: bounds on q_dot, then rows; the layout of :mod:`needlekit.control.qp`) and ``dist`` (the VFI distances: patient, its
     smallest; puncture: guide, cone, plane). With ``kind == VFI_NONE`` the rows of ``A`` and
     ``bu[n:]`` are left to the caller.
 

@@ -52,7 +52,8 @@ from needlekit.control.controller import (
     task_parameter_jacobian,
 )
 from needlekit.control.parameters import N_PARAMETERS, ParameterJacobians
-from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
+from needlekit.control.qp import CROSSED_BOUNDS, QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.control.vfi import Zone
 from needlekit.errors import InvalidInputError
 
@@ -327,6 +328,7 @@ def adaptation_step(
     vfis: list[StepVFI] = (),
     vfi_share: float = 0.5,
     history: MeasurementHistory | None = None,
+    solver: QPSolver | str | None = None,
 ) -> AdaptationOutput:
     """Parameter rates from one measurement (Eq. 3).
 
@@ -353,27 +355,34 @@ def adaptation_step(
     history : MeasurementHistory, optional
         Keyframes (including this measurement) whose mean squared error the objective
         drives down instead of this measurement's alone.
+    solver : QPSolver or str, optional
+        The QP solver (an object or a registered name; default DAQP).
 
     Returns
     -------
     AdaptationOutput
     """
     a = np.asarray(a, dtype=float)
-    s = settings.orientation_scale_mm
-    err = measurement_error(estimated_tip, measured_tip, s)
+    err, jtj, jte, scale = _objective(a, estimated_tip, measured_tip, pj, settings, history)
     n = N_PARAMETERS
-    if history is not None and len(history):
-        jtj, jte = history.normal_equations(a, s)
-        scale = 1.0 / len(history)  # the mean over the keyframes
-    else:
-        jac = np.vstack([pj.tip, s * pj.angular])
-        jtj, jte, scale = jac.T @ jac, jac.T @ err, 1.0
     rows = [v for v in vfis if v.jac_a is not None]
     vfi = np.array(
         [(v.distance, v.safe, (1.0 - vfi_share) * v.gain, v.zone is Zone.OUTSIDE) for v in rows],
         dtype=float,
     ).reshape(-1, 4)
     vjac = np.array([v.jac_a for v in rows], dtype=float).reshape(-1, n)
+    return _adaptation_rates(
+        a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+    )
+
+
+def _adaptation_rates(
+    a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+) -> AdaptationOutput:
+    """The rest of :func:`adaptation_step` from the normal equations and the VFI rows
+    (``vfi`` (m, 4) and ``vjac`` (m, 12), as
+    :func:`~needlekit.control.controller.step_vfi_rows` gives them)."""
+    n = N_PARAMETERS
     stab, stab_rhs = _NO_ROW, 0.0
     if step is not None and task_error is not None:
         jx = task_parameter_jacobian(step, pj, controller or ControllerSettings())
@@ -386,14 +395,50 @@ def adaptation_step(
         settings.clamp_vfi_rows, stab, stab_rhs, settings.bound_gain, settings.lower,
         settings.upper, a,
     )  # fmt: skip
-    if infeasible:
-        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
-    else:
-        sol = _solve_prepared(H, f, A, bu, bl, np.zeros(len(bu), dtype=np.intc))
+    sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)
     if sol.status is not QPStatus.OPTIMAL:
         log.warning("adaptation QP %s (exit flag %d): a_dot = 0", sol.status.value, sol.exitflag)
         return AdaptationOutput(np.zeros(n), sol.status, err)
     return AdaptationOutput(sol.x, sol.status, err)
 
 
+def _objective(a, estimated_tip, measured_tip, pj, settings, history) -> tuple:
+    """``(y_err, J'J, J'e, scale)`` of the objective: over the keyframes (their mean,
+    ``scale = 1 / k``) or the one measurement."""
+    s = settings.orientation_scale_mm
+    err = measurement_error(estimated_tip, measured_tip, s)
+    if history is not None and len(history):
+        jtj, jte = history.normal_equations(a, s)
+        return err, jtj, jte, 1.0 / len(history)  # the mean over the keyframes
+    jac = np.vstack([pj.tip, s * pj.angular])
+    return err, jac.T @ jac, jac.T @ err, 1.0
+
+
+def adaptation_step_rows(
+    a, estimated_tip, measured_tip, pj, settings, vfi, vjac, *, step=None, task_error=None,
+    controller=None, history=None, solver=None,
+) -> AdaptationOutput:  # fmt: skip
+    """:func:`adaptation_step` with the VFIs as rows (``vfi`` (m, 4), ``vjac`` (m, 12):
+    :func:`~needlekit.control.controller.step_vfi_rows`, the adaptation's share of the
+    gains applied), the same arithmetic without building a :class:`StepVFI` per VFI (the
+    adaptation job's path).
+
+    Parameters
+    ----------
+    a, estimated_tip, measured_tip, pj, settings, step, task_error, controller, history, solver
+        As :func:`adaptation_step`.
+    vfi : ndarray, shape (m, 4)
+    vjac : ndarray, shape (m, 12)
+
+    Returns
+    -------
+    AdaptationOutput
+    """
+    err, jtj, jte, scale = _objective(a, estimated_tip, measured_tip, pj, settings, history)
+    return _adaptation_rates(
+        a, err, jtj, jte, scale, vfi, vjac, settings, step, task_error, pj, controller, solver
+    )
+
+
 _NO_ROW = np.zeros((0, N_PARAMETERS))
+_NO_VFI = np.zeros((0, 4))

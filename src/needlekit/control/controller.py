@@ -31,7 +31,8 @@ import numpy as np
 
 from needlekit.control import _tick
 from needlekit.control.panda import ArmState, PandaModel
-from needlekit.control.qp import QPSolution, QPStatus, _solve_prepared
+from needlekit.control.qp import CROSSED_BOUNDS, QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.control.vfi import (
     Line,
     Plane,
@@ -47,6 +48,7 @@ __all__ = [
     "Step",
     "StepVFI",
     "control_step",
+    "step_vfi_rows",
     "step_vfis",
     "task_parameter_jacobian",
 ]
@@ -253,7 +255,48 @@ def step_vfis(
     -------
     list of StepVFI
     """
-    cfg = settings
+    d, jq, jp, kinds = _step_vfi_data(state, step, guide, settings, pj, a)
+    with_a = pj is not None
+    return [
+        StepVFI(name, float(d[r]), safe, zone, gain, jq[r], jp[r] if with_a else None)
+        for r, (name, safe, zone, gain) in enumerate(kinds)
+    ]
+
+
+def step_vfi_rows(
+    state: ArmState, step: Step, guide: GuideLine, settings: ControllerSettings, pj, a, share
+) -> tuple[np.ndarray, np.ndarray]:
+    """The step's VFIs as the adaptation's rows: :func:`step_vfis` without the objects.
+
+    Parameters
+    ----------
+    state : ArmState
+    step : Step
+    guide : GuideLine
+    settings : ControllerSettings
+    pj : ParameterJacobians
+    a : ndarray, shape (12,)
+    share : float
+        The joints' share of each VFI's decay rate (the adaptation's is ``1 - share``).
+
+    Returns
+    -------
+    vfi : ndarray, shape (m, 4)
+        Per VFI: distance, safe value, the adaptation's gain ``(1 - share) gain``, and 1 for
+        a forbidden (outside) zone, 0 for a safe one.
+    jac_a : ndarray, shape (m, 12)
+        Each VFI's derivative in the parameters.
+    """
+    d, _, jp, kinds = _step_vfi_data(state, step, guide, settings, pj, a)
+    vfi = np.empty((len(kinds), 4))
+    for r, (_, safe, zone, gain) in enumerate(kinds):
+        vfi[r] = d[r], safe, (1.0 - share) * gain, zone is Zone.OUTSIDE
+    return vfi, jp
+
+
+def _step_vfi_data(state, step, guide, cfg, pj, a) -> tuple:
+    """``d``, ``jq``, ``jp`` of :func:`needlekit.control._tick.vfi_data` and the VFIs'
+    ``(name, safe, zone, gain)``."""
     geo, par, ks = guide._kernel_data(cfg)
     puncture = step is Step.PUNCTURE
     with_a = pj is not None
@@ -272,10 +315,7 @@ def step_vfis(
         )
     else:
         kinds = (("patient", cfg.patient_radius_mm**2, Zone.OUTSIDE, cfg.eta_patient),) * len(ks)
-    return [
-        StepVFI(name, float(d[r]), safe, zone, gain, jq[r], jp[r] if with_a else None)
-        for r, (name, safe, zone, gain) in enumerate(kinds)
-    ]
+    return d, jq, jp, kinds
 
 
 _NO_PARAMETERS = np.zeros((1, 1))
@@ -293,6 +333,7 @@ def control_step(
     state: ArmState | None = None,
     vfis: list[StepVFI] | None = None,
     vfi_share: float = 1.0,
+    solver: QPSolver | str | None = None,
 ) -> ControlOutput:
     """Joint velocities for one control step (Tang et al.'s Eq. 1 with the step's VFIs).
 
@@ -315,6 +356,9 @@ def control_step(
     vfi_share : float
         Share of each VFI's decay rate given to the joints (the rest goes to the
         parameters' adaptation, which moves the estimated distances too).
+    solver : QPSolver or str, optional
+        The QP solver (an object or a registered name,
+        :func:`~needlekit.control.qp_registry.get_qp_solver`; default DAQP).
 
     Returns
     -------
@@ -344,7 +388,7 @@ def control_step(
         m = 3 if kind == _tick.VFI_PUNCTURE else len(ks)
     else:
         kind, m = _tick.VFI_NONE, len(vfis)
-    H, f, A, bu, bl, sense, dist = _buffers(n, m)
+    H, f, A, bu, bl, dist = _buffers(n, m)
     err, infeasible = _tick.control_qp(
         task, kind, s.q, s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian, s.axes,
         s.origins, ks, geo, par, p_d, v_d, model.q_min, model.q_max, model.q_dot_max,
@@ -361,10 +405,7 @@ def control_step(
             A[i], bu[n + i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
             key = _DIST_KEYS[v.name]
             distances[key] = min(distances.get(key, np.inf), v.distance)
-    if infeasible:
-        sol = QPSolution(None, QPStatus.INFEASIBLE, -1)
-    else:
-        sol = _solve_prepared(H, f, A, bu, bl, sense)
+    sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
     return ControlOutput(q_dot, sol.status, err, distances)
 
@@ -375,8 +416,8 @@ _local = threading.local()
 
 
 def _buffers(n: int, m: int) -> tuple:
-    """The QP buffers of an ``n``-joint step with ``m`` VFI rows, kept per thread (a step
-    overwrites them; DAQP copies what it keeps)."""
+    """The QP buffers (:mod:`needlekit.control.qp`'s layout) of an ``n``-joint step with
+    ``m`` VFI rows, kept per thread (a step overwrites them; a solver keeps no reference)."""
     cache = getattr(_local, "buffers", None)
     if cache is None:
         cache = _local.buffers = {}
@@ -384,7 +425,7 @@ def _buffers(n: int, m: int) -> tuple:
     if buf is None:
         buf = cache[(n, m)] = (
             np.zeros((n, n)), np.zeros(n), np.zeros((m, n)), np.zeros(n + m),
-            np.zeros(n + m), np.zeros(n + m, dtype=np.intc), np.zeros(3),
+            np.zeros(n + m), np.zeros(3),
         )  # fmt: skip
     return buf
 
@@ -415,5 +456,8 @@ def task_parameter_jacobian(step: Step, pj, settings: ControllerSettings) -> np.
     if step is Step.ALIGN:
         return pj.axis
     if step is Step.APPROACH or settings.puncture_keeps_axis:
-        return np.vstack([pj.tip, settings.axis_scale_mm * pj.axis])
+        out = np.empty((6, pj.tip.shape[1]))  # [tip; w axis] (np.vstack's values, faster)
+        out[:3] = pj.tip
+        np.multiply(settings.axis_scale_mm, pj.axis, out=out[3:])
+        return out
     return pj.tip

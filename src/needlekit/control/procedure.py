@@ -32,6 +32,7 @@ import logging
 import math
 from dataclasses import dataclass
 from time import perf_counter
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +41,7 @@ from needlekit.control.controller import ControllerSettings, GuideLine, Step, co
 from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.control.parameters import model_from_parameters
 from needlekit.control.qp import QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.control.schedule import AdaptationJob, AdaptationMailbox, AdaptationWorker
 from needlekit.control.trial import TrialResult, TrialSetup
 from needlekit.errors import InvalidInputError
@@ -128,6 +130,10 @@ class ProcedureSettings:
         ``D``: 0 runs the adaptation inline, in the tick of each needle sample; D > 0 runs
         it off the tick (:mod:`needlekit.control.schedule`): the tick posts the job, and its
         update is applied D control periods after the job starts.
+    qp_solver : str or QPSolver
+        The QP solver of the controller and the adaptation: a registered name
+        (:func:`~needlekit.control.qp_registry.get_qp_solver`: ``"daqp"``, the default, or
+        ``"quadprog"``) or a :class:`~needlekit.control.qp.QPSolver`.
     """
 
     dt_s: float = 0.001
@@ -149,6 +155,7 @@ class ProcedureSettings:
     guide_samples: int = 1
     history_keyframes: int = 40
     adaptation_delay_steps: int = 0
+    qp_solver: Any = "daqp"
 
 
 _LOG_KEYS = (
@@ -216,227 +223,302 @@ def run_trial(
     Returns
     -------
     TrialResult
+
+    Raises
+    ------
+    InvalidInputError
+        ``adaptation_delay_steps`` is not a whole number >= 0, or ``qp_solver`` names no
+        registered solver.
     """
     ps = procedure or ProcedureSettings()
-    cs = controller or ControllerSettings()
     delay = ps.adaptation_delay_steps
     if not isinstance(delay, int | np.integer) or delay < 0:
         raise InvalidInputError(
             "adaptation_delay_steps", f"expected a whole number >= 0, got {delay!r}"
         )
-    truth = model_from_parameters(setup.arm, setup.true_parameters)
-    needle = EMSensor(needle_sensor or EMSensorSpec(), rng)
-    scope = EMSensor(scope_sensor or EMSensorSpec(), rng)
-    true_guide = GuideLine(setup.target_mm, setup.guide_direction)
-    # the bronchoscope sensor at the target, its z axis along l_g
-    scope_pose = pose_from_direction(true_guide.target_mm, true_guide.direction)
-
-    a = np.array(setup.nominal_parameters, dtype=float)
-    est = model_from_parameters(setup.arm, a)
-    q = np.array(setup.q0, dtype=float)
-    dt = ps.dt_s
-    q_hist: dict[int, np.ndarray] = {}
-    window = max(1, round(ps.convergence_window_s * needle.spec.rate_hz))
-    history = MeasurementHistory(ps.history_keyframes) if ps.history_keyframes else None
-    worker = AdaptationWorker(
-        setup.arm, adaptation, cs, vfi_share=ps.vfi_share, period_s=needle.period_s,
-        history=history, window=window, converged_mm=ps.converged_mm,
-        converged_deg=ps.converged_deg,
+    run = _TrialRun(
+        setup, rng, ps, controller or ControllerSettings(), adaptation,
+        needle_sensor or EMSensorSpec(), scope_sensor or EMSensorSpec(),
+        get_qp_solver(ps.qp_solver),
     )  # fmt: skip
-    mailbox = AdaptationMailbox(int(delay)) if delay else None
-    scope_sum, scope_n = np.zeros(6), 0
-    guide = None
-    phase, phase_start = Phase.ADAPT, 0.0
-    times = {Phase.ADAPT.value: 0.0}
-    counts = dict.fromkeys(
-        ("steps", "needle_samples", "qp_infeasible", "adaptation_infeasible", "stopped_steps"), 0
-    )
-    events: list[tuple[float, str]] = []  # (time, what): the robot stopped or resumed
-    stopped = False
-    status, reason = "completed", "target reached"
-    puncture_from = None
-    log: dict[str, list] = {k: [] for k in _LOG_KEYS}
-    true_base_r, true_needle_r = truth.world_T_base[:3, :3], truth.flange_T_tip[:3, :3]
-    patient_line = true_guide.patient_line(cs.patient_axis)
-    robot_points = np.asarray(cs.robot_points, dtype=np.int64)
-    max_line = max_cone = 0.0  # over the whole puncture
-    start_line = start_cone = math.nan
-    in_line = in_cone = math.nan  # once the real tip has entered the cylinder and the cone
-    inside = False
-    cone_deg = float(np.degrees(cs.cone_angle_rad))
-    min_plane = min_patient = np.inf
-    last_task: tuple = (None, None)  # the controller's latest (step, task error)
-    step_of = {Phase.ALIGN: Step.ALIGN, Phase.APPROACH: Step.APPROACH, Phase.WAIT: Step.APPROACH}
-    step_of[Phase.PUNCTURE] = Step.PUNCTURE
-    tick, converged = 0, False
-    while phase not in (Phase.DONE, Phase.ABORTED):
-        t = tick * dt
-        q_hist[tick] = q.copy()
-        q_hist.pop(tick - 1000, None)
-        true_tip = truth.tip_pose(q)
-        sample = needle.update(t, lambda tip=true_tip: tip)
-        scope_sample = scope.update(t, lambda: scope_pose)
-        tick_phase, tick_start, kind = phase, perf_counter(), "control"
-        if mailbox is not None and (update := mailbox.due(tick)) is not None:
-            a, est, converged = _apply(update, converged, counts)
-            kind = "control+apply"
-        if scope_sample is not None and not (ps.guide_samples and scope_n >= ps.guide_samples):
-            scope_sum += np.concatenate([scope_sample.pose[:3, 3], scope_sample.pose[:3, 2]])
-            scope_n += 1
-            guide = GuideLine(scope_sum[:3] / scope_n, scope_sum[3:] / scope_n)
-        if sample is not None:
-            counts["needle_samples"] += 1
-            q_s = q_hist.get(round(sample.taken_s / dt), q)
-            step = step_of.get(phase)
-            job = AdaptationJob(
-                tick, sample.pose, q_s, step, guide, last_task[1] if last_task[0] is step else None
-            )
-            if mailbox is None:  # inline, in this tick
-                a, est, converged = _apply(worker.run(job, a, est), converged, counts)
-                kind = "control+adaptation"
-            else:  # off the tick: the worker takes it below, outside the timed span
-                mailbox.post(tick, job)
-        # measurement loss
-        age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
-        if age > ps.abort_after_s:
-            phase, status, reason = Phase.ABORTED, "aborted", "needle sensor lost"
-            break
-        state = est.state(q)
-        q_dot = np.zeros(7)
-        if phase is not Phase.ADAPT and (age > ps.stop_after_s) != stopped:
-            stopped = not stopped
-            events.append((t, "stopped: needle sensor silent" if stopped else "resumed"))
-            log_fn = log_event.warning if stopped else log_event.info
-            log_fn("t = %.3f s: %s", t, events[-1][1])
-        if stopped and phase is not Phase.ADAPT:
-            counts["stopped_steps"] += 1
-        if phase is Phase.ADAPT:
-            if t - phase_start >= ps.adapt_min_s and converged:
-                phase, phase_start = Phase.ALIGN, t
-        elif guide is not None and age <= ps.stop_after_s:
-            step = step_of[phase]
-            p_s = guide.start_point(ps.start_distance_mm)
-            if phase is Phase.PUNCTURE:
-                frac, rate = quintic(t - phase_start, ps.puncture_duration_s)
-                p_d = puncture_from + (guide.target_mm - puncture_from) * frac
-                v_d = (guide.target_mm - puncture_from) * rate
-            else:
-                p_d, v_d = p_s, np.zeros(3)
-            out = control_step(
-                est, q, step, guide, cs, desired_mm=p_d, desired_velocity_mm_s=v_d,
-                state=state, vfi_share=ps.vfi_share,
-            )  # fmt: skip
-            if out.status is not QPStatus.OPTIMAL:
-                counts["qp_infeasible"] += 1
-            q_dot, last_task = out.q_dot, (step, out.task_error)
-            u = guide.insertion_direction
-            if phase is Phase.ALIGN and _angle_deg(state.needle_axis, u) <= ps.align_tolerance_deg:
-                phase, phase_start = Phase.APPROACH, t
-            elif (
-                phase is Phase.APPROACH
-                and np.linalg.norm(state.tip_mm - p_s) <= ps.approach_tolerance_mm
-            ):
-                phase, phase_start = Phase.WAIT, t
-            elif phase is Phase.WAIT and converged:
-                phase, phase_start = Phase.PUNCTURE, t
-                puncture_from = p_s
-            elif (
-                phase is Phase.PUNCTURE and t - phase_start >= ps.puncture_duration_s + ps.settle_s
-            ):
-                phase = Phase.DONE
-            if phase is not Phase.DONE:
-                times.setdefault(phase.value, t)
-        if phase not in (Phase.PUNCTURE, Phase.DONE) and t - phase_start > ps.phase_timeout_s:
-            phase, status, reason = Phase.ABORTED, "aborted", f"{phase.value} timed out"
-            break
-        if timings is not None:
-            timings.append((tick_phase.value, kind, perf_counter() - tick_start))
-        if mailbox is not None and (job := mailbox.start(tick)) is not None:
-            # as another thread or process would run it: not part of the tick
-            job_start = perf_counter()
-            mailbox.finish(worker.run(job, a, est))
-            if timings is not None:
-                timings.append((phase.value, "adaptation_job", perf_counter() - job_start))
-        # ground truth
-        tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
-        rel = tip_true - true_guide.target_mm
-        to_line = _distance_from_line(tip_true, true_guide.line)
-        angle = _angle_deg(axis_true, true_guide.insertion_direction)
-        if phase is Phase.PUNCTURE:
-            if math.isnan(start_line):
-                start_line, start_cone = to_line, angle
-            max_line, max_cone = max(max_line, to_line), max(max_cone, angle)
-            inside = inside or (to_line <= cs.guide_radius_mm and angle <= cone_deg)
-            if inside:
-                in_line = to_line if math.isnan(in_line) else max(in_line, to_line)
-                in_cone = angle if math.isnan(in_cone) else max(in_cone, angle)
-        if phase is Phase.PUNCTURE:
-            min_plane = min(min_plane, float(rel @ true_guide.direction))
-        elif phase in (Phase.ALIGN, Phase.APPROACH, Phase.WAIT):
-            d2, _ = truth.state(q).points_line_sq_distances(
-                robot_points, patient_line.point_mm, patient_line.direction
-            )
-            min_patient = min(min_patient, float(np.sqrt(d2.min())))
-        if tick % ps.log_every == 0:
-            log["t_s"].append(t)
-            log["phase"].append(phase.value)
-            log["to_target_mm"].append(float(np.linalg.norm(rel)))
-            log["tip_mm"].append(tip_true.copy())
-            log["to_line_mm"].append(to_line)
-            log["angle_deg"].append(angle)
-            log["tip_estimate_error_mm"].append(float(np.linalg.norm(state.tip_mm - tip_true)))
-            log["base_error_mm"].append(float(np.linalg.norm(a[:3] - setup.true_parameters[:3])))
-            log["base_rotation_error_deg"].append(_rotation_deg(est.world_T_base, true_base_r))
-            log["needle_rotation_error_deg"].append(_rotation_deg(est.flange_T_tip, true_needle_r))
-            m_line = m_angle = np.nan
-            if needle.latest is not None:
-                mp = needle.latest.pose
-                m_line = _distance_from_line(mp[:3, 3], true_guide.line)
-                m_angle = _angle_deg(mp[:3, 2], true_guide.insertion_direction)
-            log["measured_to_line_mm"].append(m_line)
-            log["measured_angle_deg"].append(m_angle)
-            log["needle_error_mm"].append(
-                float(np.linalg.norm(a[6:9] - setup.true_parameters[6:9]))
-            )
-            log["desired_to_target_mm"].append(
-                float(np.linalg.norm(p_d - guide.target_mm)) if phase is Phase.PUNCTURE else np.nan
-            )
-        q = q + dt * q_dot
-        tick += 1
-        counts["steps"] += 1
-    final = truth.tip_pose(q)
-    counts["needle_lost"] = needle.n_lost
-    if mailbox is not None:  # jobs run, and samples that a newer one replaced in the mailbox
-        counts["adaptation_jobs"] = mailbox.started
-        counts["adaptation_replaced"] = mailbox.replaced
-    miss = float(np.linalg.norm(final[:3, 3] - true_guide.target_mm))
-    reached_estimated = reached = False
-    if status == "completed":
-        short = float(np.linalg.norm(est.state(q).tip_mm - guide.target_mm))
-        reached_estimated = short <= ps.target_tolerance_mm
-        reached = miss <= ps.target_tolerance_mm
-        if not reached_estimated:  # by the robot's own estimate
-            status, reason = "aborted", f"the puncture stopped {short:.1f} mm short of the target"
-        elif not reached:  # the robot believes it is there; the real tip is not
-            reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"
+    run.loop(timings)
+    return run.result()
 
-    return TrialResult(
-        status,
-        reason,
-        miss,
-        _angle_deg(final[:3, 2], true_guide.insertion_direction),
-        max_line,
-        max_cone,
-        min_plane,
-        min_patient,
-        start_line,
-        start_cone,
-        in_line,
-        in_cone,
-        reached_estimated,
-        reached,
-        times,
-        counts,
-        {k: np.asarray(v) for k, v in log.items()},
-        events,
-    )
+
+class _TrialRun:
+    """One trial's state, advanced one 1 kHz tick at a time by :meth:`loop` (the steps of
+    :func:`run_trial`: sensing, the samples, the controller, the ground truth, the log)."""
+
+    def __init__(self, setup, rng, ps, cs, adaptation, needle_spec, scope_spec, solver):
+        self.setup, self.ps, self.cs, self.adaptation, self.solver = (
+            setup,
+            ps,
+            cs,
+            adaptation,
+            solver,
+        )
+        self.truth = model_from_parameters(setup.arm, setup.true_parameters)
+        self.needle = EMSensor(needle_spec, rng)
+        self.scope = EMSensor(scope_spec, rng)
+        self.true_guide = GuideLine(setup.target_mm, setup.guide_direction)
+        # the bronchoscope sensor at the target, its z axis along l_g
+        self.scope_pose = pose_from_direction(self.true_guide.target_mm, self.true_guide.direction)
+        self.a = np.array(setup.nominal_parameters, dtype=float)
+        self.est = model_from_parameters(setup.arm, self.a)
+        self.q = np.array(setup.q0, dtype=float)
+        self.q_hist: dict[int, np.ndarray] = {}
+        window = max(1, round(ps.convergence_window_s * self.needle.spec.rate_hz))
+        history = MeasurementHistory(ps.history_keyframes) if ps.history_keyframes else None
+        self.worker = AdaptationWorker(
+            setup.arm, adaptation, cs, vfi_share=ps.vfi_share, period_s=self.needle.period_s,
+            history=history, window=window, converged_mm=ps.converged_mm,
+            converged_deg=ps.converged_deg, solver=solver,
+        )  # fmt: skip
+        delay = int(ps.adaptation_delay_steps)
+        self.mailbox = AdaptationMailbox(delay) if delay else None
+        self.scope_sum, self.scope_n = np.zeros(6), 0
+        self.guide = None
+        self.phase, self.phase_start = Phase.ADAPT, 0.0
+        self.times = {Phase.ADAPT.value: 0.0}
+        self.counts = dict.fromkeys(
+            ("steps", "needle_samples", "qp_infeasible", "adaptation_infeasible", "stopped_steps"),
+            0,
+        )
+        self.events: list[tuple[float, str]] = []  # (time, what): the robot stopped or resumed
+        self.stopped = False
+        self.status, self.reason = "completed", "target reached"
+        self.puncture_from = None
+        self.p_d = None  # the desired tip position of the latest control step
+        self.log: dict[str, list] = {k: [] for k in _LOG_KEYS}
+        self.true_base_r = self.truth.world_T_base[:3, :3]
+        self.true_needle_r = self.truth.flange_T_tip[:3, :3]
+        self.patient_line = self.true_guide.patient_line(cs.patient_axis)
+        self.robot_points = np.asarray(cs.robot_points, dtype=np.int64)
+        self.max_line = self.max_cone = 0.0  # over the whole puncture
+        self.start_line = self.start_cone = math.nan
+        self.in_line = self.in_cone = math.nan  # once the real tip is in the cylinder and cone
+        self.inside = False
+        self.cone_deg = float(np.degrees(cs.cone_angle_rad))
+        self.min_plane = self.min_patient = np.inf
+        self.last_task: tuple = (None, None)  # the controller's latest (step, task error)
+        self.converged = False
+
+    def loop(self, timings) -> None:
+        """Run the ticks until the trial is done or aborted."""
+        ps, dt, tick = self.ps, self.ps.dt_s, 0
+        while self.phase not in (Phase.DONE, Phase.ABORTED):
+            t = tick * dt
+            self.q_hist[tick] = self.q.copy()
+            self.q_hist.pop(tick - 1000, None)
+            true_tip = self.truth.tip_pose(self.q)
+            sample = self.needle.update(t, lambda tip=true_tip: tip)
+            scope_sample = self.scope.update(t, lambda: self.scope_pose)
+            tick_phase, tick_start = self.phase, perf_counter()
+            kind = self._take_samples(tick, sample, scope_sample)
+            # measurement loss
+            latest = self.needle.latest
+            age = t - (0.0 if latest is None else latest.arrives_s)
+            if age > ps.abort_after_s:
+                self.phase, self.status, self.reason = (
+                    Phase.ABORTED, "aborted", "needle sensor lost"
+                )  # fmt: skip
+                break
+            state, q_dot = self._control(t, age)
+            if self.phase not in (Phase.PUNCTURE, Phase.DONE) and (
+                t - self.phase_start > ps.phase_timeout_s
+            ):
+                self.status, self.reason = "aborted", f"{self.phase.value} timed out"
+                self.phase = Phase.ABORTED
+                break
+            if timings is not None:
+                timings.append((tick_phase.value, kind, perf_counter() - tick_start))
+            if self.mailbox is not None and (job := self.mailbox.start(tick)) is not None:
+                # as another thread or process would run it: not part of the tick
+                job_start = perf_counter()
+                self.mailbox.finish(self.worker.run(job, self.a, self.est))
+                if timings is not None:
+                    timings.append((self.phase.value, "adaptation_job", perf_counter() - job_start))
+            truth = self._ground_truth(true_tip)
+            if tick % ps.log_every == 0:
+                self._log_tick(t, state, *truth)
+            self.q = self.q + dt * q_dot
+            tick += 1
+            self.counts["steps"] += 1
+
+    def _take_samples(self, tick: int, sample, scope_sample) -> str:
+        """A due adaptation update, the guide line, and a needle sample (adapted inline or
+        posted); returns the tick's kind."""
+        ps, kind = self.ps, "control"
+        if self.mailbox is not None and (update := self.mailbox.due(tick)) is not None:
+            self.a, self.est, self.converged = _apply(update, self.converged, self.counts)
+            kind = "control+apply"
+        if scope_sample is not None and not (ps.guide_samples and self.scope_n >= ps.guide_samples):
+            pose = scope_sample.pose
+            self.scope_sum += np.concatenate([pose[:3, 3], pose[:3, 2]])
+            self.scope_n += 1
+            self.guide = GuideLine(
+                self.scope_sum[:3] / self.scope_n, self.scope_sum[3:] / self.scope_n
+            )
+        if sample is not None:
+            self.counts["needle_samples"] += 1
+            q_s = self.q_hist.get(round(sample.taken_s / ps.dt_s), self.q)
+            step = _STEP_OF.get(self.phase)
+            last_step, last_error = self.last_task
+            job = AdaptationJob(
+                tick, sample.pose, q_s, step, self.guide, last_error if last_step is step else None
+            )
+            if self.mailbox is None:  # inline, in this tick
+                update = self.worker.run(job, self.a, self.est)
+                self.a, self.est, self.converged = _apply(update, self.converged, self.counts)
+                kind = "control+adaptation"
+            else:  # off the tick: the worker takes it after the timed span
+                self.mailbox.post(tick, job)
+        return kind
+
+    def _control(self, t: float, age: float) -> tuple:
+        """Stops and resumptions, the phase logic and the control step: ``(state, q_dot)``."""
+        ps, phase = self.ps, self.phase
+        state = self.est.state(self.q)
+        q_dot = np.zeros(7)
+        if phase is not Phase.ADAPT and (age > ps.stop_after_s) != self.stopped:
+            self.stopped = not self.stopped
+            self.events.append((t, "stopped: needle sensor silent" if self.stopped else "resumed"))
+            log_fn = log_event.warning if self.stopped else log_event.info
+            log_fn("t = %.3f s: %s", t, self.events[-1][1])
+        if self.stopped and phase is not Phase.ADAPT:
+            self.counts["stopped_steps"] += 1
+        if phase is Phase.ADAPT:
+            if t - self.phase_start >= ps.adapt_min_s and self.converged:
+                self.phase, self.phase_start = Phase.ALIGN, t
+        elif self.guide is not None and age <= ps.stop_after_s:
+            q_dot = self._steer(t, state)
+        return state, q_dot
+
+    def _steer(self, t: float, state) -> np.ndarray:
+        """One control step of the current phase, and the phase's end: the joint velocities."""
+        ps, phase, guide = self.ps, self.phase, self.guide
+        step = _STEP_OF[phase]
+        p_s = guide.start_point(ps.start_distance_mm)
+        if phase is Phase.PUNCTURE:
+            frac, rate = quintic(t - self.phase_start, ps.puncture_duration_s)
+            p_d = self.puncture_from + (guide.target_mm - self.puncture_from) * frac
+            v_d = (guide.target_mm - self.puncture_from) * rate
+        else:
+            p_d, v_d = p_s, np.zeros(3)
+        self.p_d = p_d
+        out = control_step(
+            self.est, self.q, step, guide, self.cs, desired_mm=p_d, desired_velocity_mm_s=v_d,
+            state=state, vfi_share=ps.vfi_share, solver=self.solver,
+        )  # fmt: skip
+        if out.status is not QPStatus.OPTIMAL:
+            self.counts["qp_infeasible"] += 1
+        self.last_task = (step, out.task_error)
+        u = guide.insertion_direction
+        if phase is Phase.ALIGN and _angle_deg(state.needle_axis, u) <= ps.align_tolerance_deg:
+            self.phase, self.phase_start = Phase.APPROACH, t
+        elif (
+            phase is Phase.APPROACH
+            and np.linalg.norm(state.tip_mm - p_s) <= ps.approach_tolerance_mm
+        ):
+            self.phase, self.phase_start = Phase.WAIT, t
+        elif phase is Phase.WAIT and self.converged:
+            self.phase, self.phase_start = Phase.PUNCTURE, t
+            self.puncture_from = p_s
+        elif (
+            phase is Phase.PUNCTURE and t - self.phase_start >= ps.puncture_duration_s + ps.settle_s
+        ):
+            self.phase = Phase.DONE
+        if self.phase is not Phase.DONE:
+            self.times.setdefault(self.phase.value, t)
+        return out.q_dot
+
+    def _ground_truth(self, true_tip: np.ndarray) -> tuple:
+        """The real tip against the real guide line, cylinder, cone, plane and the patient:
+        ``(tip, tip - target, distance from the line, angle)``."""
+        guide, phase = self.true_guide, self.phase
+        tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
+        rel = tip_true - guide.target_mm
+        to_line = _distance_from_line(tip_true, guide.line)
+        angle = _angle_deg(axis_true, guide.insertion_direction)
+        if phase is Phase.PUNCTURE:
+            if math.isnan(self.start_line):
+                self.start_line, self.start_cone = to_line, angle
+            self.max_line, self.max_cone = max(self.max_line, to_line), max(self.max_cone, angle)
+            self.inside = self.inside or (
+                to_line <= self.cs.guide_radius_mm and angle <= self.cone_deg
+            )
+            if self.inside:
+                self.in_line = to_line if math.isnan(self.in_line) else max(self.in_line, to_line)
+                self.in_cone = angle if math.isnan(self.in_cone) else max(self.in_cone, angle)
+            self.min_plane = min(self.min_plane, float(rel @ guide.direction))
+        elif phase in (Phase.ALIGN, Phase.APPROACH, Phase.WAIT):
+            line = self.patient_line
+            d2, _ = self.truth.state(self.q).points_line_sq_distances(
+                self.robot_points, line.point_mm, line.direction
+            )
+            self.min_patient = min(self.min_patient, float(np.sqrt(d2.min())))
+        return tip_true, rel, to_line, angle
+
+    def _log_tick(self, t, state, tip_true, rel, to_line, angle) -> None:
+        """One row of the trajectories."""
+        log, a, true_a, est = self.log, self.a, self.setup.true_parameters, self.est
+        guide, phase = self.true_guide, self.phase
+        log["t_s"].append(t)
+        log["phase"].append(phase.value)
+        log["to_target_mm"].append(float(np.linalg.norm(rel)))
+        log["tip_mm"].append(tip_true.copy())
+        log["to_line_mm"].append(to_line)
+        log["angle_deg"].append(angle)
+        log["tip_estimate_error_mm"].append(float(np.linalg.norm(state.tip_mm - tip_true)))
+        log["base_error_mm"].append(float(np.linalg.norm(a[:3] - true_a[:3])))
+        log["base_rotation_error_deg"].append(_rotation_deg(est.world_T_base, self.true_base_r))
+        log["needle_rotation_error_deg"].append(_rotation_deg(est.flange_T_tip, self.true_needle_r))
+        m_line = m_angle = np.nan
+        if self.needle.latest is not None:
+            mp = self.needle.latest.pose
+            m_line = _distance_from_line(mp[:3, 3], guide.line)
+            m_angle = _angle_deg(mp[:3, 2], guide.insertion_direction)
+        log["measured_to_line_mm"].append(m_line)
+        log["measured_angle_deg"].append(m_angle)
+        log["needle_error_mm"].append(float(np.linalg.norm(a[6:9] - true_a[6:9])))
+        log["desired_to_target_mm"].append(
+            float(np.linalg.norm(self.p_d - self.guide.target_mm))
+            if phase is Phase.PUNCTURE
+            else np.nan
+        )
+
+    def result(self) -> TrialResult:
+        """The trial's outcome after :meth:`loop`."""
+        ps, counts, status, reason = self.ps, self.counts, self.status, self.reason
+        final = self.truth.tip_pose(self.q)
+        counts["needle_lost"] = self.needle.n_lost
+        if self.mailbox is not None:  # jobs run, and samples a newer one replaced in the box
+            counts["adaptation_jobs"] = self.mailbox.started
+            counts["adaptation_replaced"] = self.mailbox.replaced
+        miss = float(np.linalg.norm(final[:3, 3] - self.true_guide.target_mm))
+        reached_estimated = reached = False
+        if status == "completed":
+            short = float(np.linalg.norm(self.est.state(self.q).tip_mm - self.guide.target_mm))
+            reached_estimated = short <= ps.target_tolerance_mm
+            reached = miss <= ps.target_tolerance_mm
+            if not reached_estimated:  # by the robot's own estimate
+                status = "aborted"
+                reason = f"the puncture stopped {short:.1f} mm short of the target"
+            elif not reached:  # the robot believes it is there; the real tip is not
+                reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"
+        return TrialResult(
+            status, reason, miss,
+            _angle_deg(final[:3, 2], self.true_guide.insertion_direction),
+            self.max_line, self.max_cone, self.min_plane, self.min_patient,
+            self.start_line, self.start_cone, self.in_line, self.in_cone,
+            reached_estimated, reached, self.times, counts,
+            {k: np.asarray(v) for k, v in self.log.items()}, self.events,
+        )  # fmt: skip
+
+
+_STEP_OF = {
+    Phase.ALIGN: Step.ALIGN,
+    Phase.APPROACH: Step.APPROACH,
+    Phase.WAIT: Step.APPROACH,
+    Phase.PUNCTURE: Step.PUNCTURE,
+}

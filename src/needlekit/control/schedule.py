@@ -25,17 +25,21 @@ is recorded as its own kind, to be held against the ``D`` control periods it is 
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from needlekit.control.adaptation import AdaptationSettings, MeasurementHistory, adaptation_step
-from needlekit.control.controller import ControllerSettings, GuideLine, Step, step_vfis
+from needlekit.control.adaptation import (
+    AdaptationSettings,
+    MeasurementHistory,
+    adaptation_step_rows,
+)
+from needlekit.control.controller import ControllerSettings, GuideLine, Step, step_vfi_rows
 from needlekit.control.dq import dq_to_matrix
 from needlekit.control.panda import PandaModel
 from needlekit.control.parameters import model_from_parameters, parameter_jacobians
-from needlekit.control.qp import QPStatus
+from needlekit.control.qp import QPSolver, QPStatus
+from needlekit.control.qp_registry import get_qp_solver
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -49,6 +53,8 @@ __all__ = [
 #: How far a delay in ms may lie from a whole number of control periods (rounding of the
 #: decimal input, e.g. 0.003 / 0.001).
 _PERIODS_ATOL = 1e-9
+#: No VFI rows (the robot adapting while it stands still).
+_NO_VFI, _NO_ROWS = np.zeros((0, 4)), np.zeros((0, 12))
 
 
 def delay_steps_from_ms(delay_ms: float, dt_s: float, field: str = "adaptation_delay_ms") -> int:
@@ -160,6 +166,8 @@ class AdaptationWorker:
         Samples over which the convergence test averages.
     converged_mm, converged_deg : float
         The convergence thresholds.
+    solver : QPSolver or str, optional
+        The adaptation's QP solver (default DAQP).
     """
 
     def __init__(
@@ -174,12 +182,16 @@ class AdaptationWorker:
         window: int,
         converged_mm: float,
         converged_deg: float,
+        solver: QPSolver | str | None = None,
     ) -> None:
         self.arm, self.adaptation, self.controller = arm, adaptation, controller
         self.vfi_share, self.period_s, self.history = vfi_share, period_s, history
         self.window = window
-        self.recent: deque = deque(maxlen=window)
+        # the newest ``window`` measurement errors, oldest first (the first ``_filled`` rows)
+        self.recent = np.zeros((window, 6))
+        self._filled = 0
         self.converged_mm, self.converged_deg = converged_mm, converged_deg
+        self.solver = get_qp_solver(solver)
 
     def run(self, job: AdaptationJob, a: np.ndarray, est: PandaModel) -> AdaptationUpdate:
         """One step of the law from the estimate ``a``.
@@ -199,25 +211,28 @@ class AdaptationWorker:
         s_s = est.state(job.q)
         est_tip = dq_to_matrix(s_s.tip_dq)
         pj = parameter_jacobians(est, s_s, a)
-        if self.history is not None:
-            self.history.add(
-                np.linalg.inv(est.world_T_base) @ est_tip @ np.linalg.inv(est.flange_T_tip),
-                job.measured_pose,
-            )
+        if self.history is not None:  # both inverses in one LAPACK call (the same bits)
+            base_inv, tip_inv = np.linalg.inv(np.stack((est.world_T_base, est.flange_T_tip)))
+            self.history.add(base_inv @ est_tip @ tip_inv, job.measured_pose)
         step, cs = job.step, self.controller
-        vfis = (
-            [] if step is None or job.guide is None else step_vfis(s_s, step, job.guide, cs, pj, a)
-        )
-        out = adaptation_step(
-            a, est_tip, job.measured_pose, pj, self.adaptation, step=step,
-            task_error=job.task_error, controller=cs, vfis=vfis, vfi_share=self.vfi_share,
-            history=self.history,
+        if step is None or job.guide is None:
+            vfi, vjac = _NO_VFI, _NO_ROWS
+        else:
+            vfi, vjac = step_vfi_rows(s_s, step, job.guide, cs, pj, a, self.vfi_share)
+        out = adaptation_step_rows(
+            a, est_tip, job.measured_pose, pj, self.adaptation, vfi, vjac, step=step,
+            task_error=job.task_error, controller=cs, history=self.history, solver=self.solver,
         )  # fmt: skip
         a = a + self.period_s * out.a_dot
         est = model_from_parameters(self.arm, a)
-        self.recent.append(out.error)  # rotation rows weighted by orientation_scale_mm
         converged = None
-        if len(self.recent) == self.window:  # changes only with a new sample
+        if self._filled < self.window:
+            self.recent[self._filled] = out.error  # rotation rows weighted by the scale
+            self._filled += 1
+        else:  # the oldest error leaves the window
+            self.recent[:-1] = self.recent[1:]
+            self.recent[-1] = out.error
+        if self._filled == self.window:  # changes only with a new sample
             mean = np.mean(self.recent, axis=0)
             converged = bool(
                 np.linalg.norm(mean[:3]) <= self.converged_mm

@@ -144,6 +144,9 @@ class TrialOptions:
         :attr:`needlekit.control.procedure.ProcedureSettings.adaptation_delay_steps` (0: the
         adaptation inline in the sample's control step; D > 0: off the step, applied D
         control periods later).
+    qp_solver : str
+        :attr:`needlekit.control.procedure.ProcedureSettings.qp_solver`: the registered
+        name of the controller's and the adaptation's QP solver.
     """
 
     exact_sensors: bool = False
@@ -152,6 +155,7 @@ class TrialOptions:
     guide_samples: int = 1
     clamp_vfi_rows: bool = True
     adaptation_delay_steps: int = 0
+    qp_solver: str = "daqp"
 
 
 def sample_trial(
@@ -246,6 +250,7 @@ def trial_settings(scenario: PunctureScenario, options: TrialOptions, initial):
         history_keyframes=options.history_keyframes,
         guide_samples=options.guide_samples,
         adaptation_delay_steps=options.adaptation_delay_steps,
+        qp_solver=options.qp_solver,
     )
     spec = EMSensorSpec()
     if options.exact_sensors:
