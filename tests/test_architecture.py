@@ -54,9 +54,7 @@ BASE = {
 
 #: Cycles another branch removes; each entry goes when that branch is merged.
 #: TODO(issue 20, control): remove once benchmarks.control no longer imports tro2022 back.
-KNOWN_CYCLES: set[frozenset[str]] = {
-    frozenset({"needlekit.benchmarks.control", "needlekit.benchmarks.tro2022"}),
-}
+KNOWN_CYCLES: set[frozenset[str]] = set()
 
 
 def _module_name(path: Path) -> str:
