@@ -83,12 +83,12 @@ def liver_cases(medrad_dir=None, livers: Sequence[int] | None = None) -> list[di
         No Med-RAD liver folder, or a patient that is not there.
     """
     from needlekit.io.medrad import _files, _starts_and_targets
-    from needlekit.io.medrad_paths import chosen_patients
+    from needlekit.io.medrad_paths import chosen_patients, patient_folder
 
     root, chosen = chosen_patients("liver", medrad_dir, livers, patients_flag="--livers")
     out = []
     for p in chosen:
-        folder = root / "Liver" / f"Patient{p}"
+        folder = patient_folder("liver", p, root)
         starts, _ = _starts_and_targets(_files(folder), folder)
         for s in starts:
             nodule = "nodule" if s.target == "target" else f"nodule{s.target[len('target') :]}"
