@@ -53,7 +53,8 @@ def step_statistics(seconds) -> dict[str, Any]:
 
     Parameters
     ----------
-    seconds : array_like
+    seconds : array_like, shape (n,)
+        Step times (s).
 
     Returns
     -------

@@ -94,6 +94,18 @@ def boundary_clearance(scene, problem, cfrw, h_mm: float, *, step_mm: float = 0.
     them), are measured with the vessels' exact distance, sampled every ``step_mm`` along
     the needle.
 
+    Parameters
+    ----------
+    scene : Scene
+        The paper's phantom (its vessels are measured exactly).
+    problem : StraightProblem
+    cfrw : CFRWMap
+        The target's map.
+    h_mm : float
+        Height of the layer (mm).
+    step_mm : float
+        Sampling step along each needle (mm).
+
     Returns
     -------
     dict

@@ -367,7 +367,7 @@ def summary_stats(values) -> dict:
 
     Parameters
     ----------
-    values : array_like
+    values : array_like, shape (n,)
 
     Returns
     -------

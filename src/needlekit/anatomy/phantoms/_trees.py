@@ -271,7 +271,16 @@ class Tree:
         return len(self.start)
 
     def concat(self, other: Tree) -> Tree:
-        """This tree's segments followed by ``other``'s (parents re-indexed)."""
+        """This tree's segments followed by ``other``'s (parents re-indexed).
+
+        Parameters
+        ----------
+        other : Tree
+
+        Returns
+        -------
+        Tree
+        """
         shift = np.where(other.parent >= 0, other.parent + len(self), -1)
         return Tree(
             np.concatenate([self.start, other.start]),
@@ -283,22 +292,44 @@ class Tree:
         )
 
     def atoms(self) -> list:
-        """Round-cone atoms of the segments."""
+        """Round-cone atoms of the segments.
+
+        Returns
+        -------
+        list
+            One round cone per segment, in segment order.
+        """
         return [
             round_cone(a, b, r0, r1)
             for a, b, r0, r1 in zip(self.start, self.end, self.r_start, self.r_end, strict=True)
         ]
 
     def diameters_mm(self) -> np.ndarray:
-        """Largest diameter of each segment (mm), shape (m,)."""
+        """Largest diameter of each segment (mm), shape (m,).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+        """
         return 2.0 * np.maximum(self.r_start, self.r_end)
 
     def lengths_mm(self) -> np.ndarray:
-        """Axis length of each segment (mm), shape (m,)."""
+        """Axis length of each segment (mm), shape (m,).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+        """
         return np.linalg.norm(self.end - self.start, axis=1)
 
     def children(self) -> list[list[int]]:
-        """Children of every segment."""
+        """Children of every segment.
+
+        Returns
+        -------
+        list of list of int
+            Per segment, the indices of the segments whose parent it is.
+        """
         out: list[list[int]] = [[] for _ in range(len(self))]
         for i, p in enumerate(self.parent):
             if p >= 0:
@@ -307,7 +338,12 @@ class Tree:
 
     def branch_angles_deg(self) -> np.ndarray:
         """Angle (deg) between each non-root segment and its parent, shape (m,)
-        (NaN for roots)."""
+        (NaN for roots).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+        """
         d = self.end - self.start
         d = d / np.linalg.norm(d, axis=1, keepdims=True)
         out = np.full(len(self), np.nan)
@@ -327,7 +363,19 @@ class CollisionWorld:
         self.n = 0
 
     def add(self, a, b, r: float) -> int:
-        """Add a capsule; returns its id."""
+        """Add a capsule; returns its id.
+
+        Parameters
+        ----------
+        a, b : array_like, shape (3,)
+            Axis end points (mm).
+        r : float
+            Radius (mm).
+
+        Returns
+        -------
+        int
+        """
         if self.n == len(self.r):
             self.a = np.concatenate([self.a, np.empty_like(self.a)])
             self.b = np.concatenate([self.b, np.empty_like(self.b)])
@@ -337,7 +385,17 @@ class CollisionWorld:
         return self.n - 1
 
     def add_tree(self, tree: Tree) -> list[int]:
-        """Add every segment of a tree; returns their ids."""
+        """Add every segment of a tree; returns their ids.
+
+        Parameters
+        ----------
+        tree : Tree
+            Each segment is added as a capsule of its larger radius.
+
+        Returns
+        -------
+        list of int
+        """
         return [
             self.add(a, b, max(r0, r1))
             for a, b, r0, r1 in zip(tree.start, tree.end, tree.r_start, tree.r_end, strict=True)
@@ -345,7 +403,22 @@ class CollisionWorld:
 
     def clearance(self, a, b, r: float, exempt=()) -> float:
         """Smallest surface gap (mm) between the capsule ``(a, b, r)`` and the others
-        (numba; :meth:`clearance_reference` is the numpy oracle)."""
+        (numba; :meth:`clearance_reference` is the numpy oracle).
+
+        Parameters
+        ----------
+        a, b : array_like, shape (3,)
+            Axis end points (mm).
+        r : float
+            Radius (mm).
+        exempt : iterable of int
+            Capsule ids left out (e.g. the parent segment).
+
+        Returns
+        -------
+        float
+            Negative when they overlap; inf with no other capsule.
+        """
         ex = np.array(list(exempt), dtype=np.int64)
         return float(
             _capsule_clearance(
@@ -361,7 +434,21 @@ class CollisionWorld:
         )
 
     def clearance_reference(self, a, b, r: float, exempt=()) -> float:
-        """:meth:`clearance` by :func:`segment_distances` (plain numpy)."""
+        """:meth:`clearance` by :func:`segment_distances` (plain numpy).
+
+        Parameters
+        ----------
+        a, b : array_like, shape (3,)
+            Axis end points (mm).
+        r : float
+            Radius (mm).
+        exempt : iterable of int
+            Capsule ids left out.
+
+        Returns
+        -------
+        float
+        """
         if self.n == 0:
             return np.inf
         d = segment_distances(a, b, self.a[: self.n], self.b[: self.n]) - self.r[: self.n] - r
