@@ -75,12 +75,39 @@ def as_batch(value: Any, name: str, item_shape: tuple[int, ...]) -> tuple[np.nda
 
 
 def as_points(value: Any, name: str) -> tuple[np.ndarray, bool]:
-    """Return points as ``(n, 3)`` float64 (see :func:`as_batch`)."""
+    """Return points as ``(n, 3)`` float64 (see :func:`as_batch`).
+
+    Parameters
+    ----------
+    value : array_like, shape (3,) or (n, 3)
+        Point(s) (mm).
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    points : ndarray, shape (n, 3), float64
+    single : bool
+        True when ``value`` was one point.
+    """
     return as_batch(value, name, (3,))
 
 
 def as_rotations(value: Any, name: str) -> tuple[np.ndarray, bool]:
-    """Return rotation matrices as ``(n, 3, 3)``, checking they are proper rotations."""
+    """Return rotation matrices as ``(n, 3, 3)``, checking they are proper rotations.
+
+    Parameters
+    ----------
+    value : array_like, shape (3, 3) or (n, 3, 3)
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    rotations : ndarray, shape (n, 3, 3), float64
+    single : bool
+        True when ``value`` was one matrix.
+    """
     rot, single = as_batch(value, name, (3, 3))
     _check_rotation(rot, name)
     return rot, single
@@ -124,7 +151,21 @@ def _check_rotation(rot: np.ndarray, name: str) -> None:
 
 
 def as_poses(value: Any, name: str) -> tuple[np.ndarray, bool]:
-    """Return homogeneous poses as ``(n, 4, 4)``, checking rotation and last row."""
+    """Return homogeneous poses as ``(n, 4, 4)``, checking rotation and last row.
+
+    Parameters
+    ----------
+    value : array_like, shape (4, 4) or (n, 4, 4)
+        Pose(s), translation in mm.
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    poses : ndarray, shape (n, 4, 4), float64
+    single : bool
+        True when ``value`` was one pose.
+    """
     pose, single = as_batch(value, name, (4, 4))
     last = np.abs(pose[:, 3, :] - np.array([0.0, 0.0, 0.0, 1.0])).max(axis=1)
     if np.any(last > ROTATION_ORTHONORMAL_TOL):
@@ -137,7 +178,18 @@ def as_poses(value: Any, name: str) -> tuple[np.ndarray, bool]:
 
 
 def as_scalar(value: Any, name: str) -> float:
-    """Return a finite float, or raise naming ``name``."""
+    """Return a finite float, or raise naming ``name``.
+
+    Parameters
+    ----------
+    value : float or 0-d array_like (shape ())
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    float
+    """
     arr = _as_float_array(value, name)
     if arr.ndim != 0:
         raise InvalidInputError(name, f"expected a single number, got shape {arr.shape}")
@@ -146,7 +198,20 @@ def as_scalar(value: Any, name: str) -> float:
 
 
 def as_positive(value: Any, name: str, *, allow_inf: bool = False) -> float:
-    """Return a float > 0 (optionally allowing +inf), or raise naming ``name``."""
+    """Return a float > 0 (optionally allowing +inf), or raise naming ``name``.
+
+    Parameters
+    ----------
+    value : float or 0-d array_like (shape ())
+    name : str
+        Argument name used in error messages.
+    allow_inf : bool
+        Accept +inf.
+
+    Returns
+    -------
+    float
+    """
     arr = _as_float_array(value, name)
     if arr.ndim != 0:
         raise InvalidInputError(name, f"expected a single number, got shape {arr.shape}")
@@ -159,5 +224,17 @@ def as_positive(value: Any, name: str, *, allow_inf: bool = False) -> float:
 
 
 def unbatch(arr: np.ndarray, single: bool) -> np.ndarray:
-    """Drop the batch axis again when the caller passed one item."""
+    """Drop the batch axis again when the caller passed one item.
+
+    Parameters
+    ----------
+    arr : ndarray, shape (n, ...)
+    single : bool
+        As the ``as_*`` function returned it.
+
+    Returns
+    -------
+    ndarray
+        ``arr[0]`` (shape ``(...)``) when ``single``, else ``arr``.
+    """
     return arr[0] if single else arr

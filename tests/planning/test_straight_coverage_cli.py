@@ -68,6 +68,33 @@ def test_the_region_is_the_voxelised_sphere_plus_margin(tmp_path):
     assert settings["zone"].length_mm == 30.0
 
 
+def test_plan_coverage_is_the_pipeline_the_command_study_and_benchmark_share(tmp_path):
+    from dataclasses import replace
+
+    from needlekit.planning.interface import Termination, get_planner
+    from needlekit.planning.straight.ablation import plan_coverage, plan_with_coverage
+
+    sc = load_scenario(_write(tmp_path, SCENARIO))
+    multi, options = multi_problem_from_scenario(sc)
+    region, settings = coverage_region(sc, multi.problem)
+    planner = get_planner("liu_cfrw", options)
+    steps: dict = {}
+    plan, outcome = plan_coverage(
+        multi, planner, region, settings, time_limit_s=60.0, timings=steps
+    )
+    by_hand = plan_with_coverage(
+        multi.problem,
+        region,
+        settings["zone"],
+        lambda t: planner.solve(replace(multi, targets_mm=t), Termination(60.0)),
+        max_needles=settings["max_needles"],
+        coverage_goal=settings["coverage_goal"],
+    )
+    assert plan.to_dict() == by_hand[0].to_dict()
+    assert outcome.to_dict() == by_hand[1].to_dict()
+    assert outcome.ok and steps["rounds"] >= 1 and steps["trajectories_s"] > 0
+
+
 def test_voxelise_counts_a_ball():
     from needlekit.anatomy.primitives import Sphere
 

@@ -409,7 +409,7 @@ def test_bad_title_or_sections_container_are_refused(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------
-# documentation (as tests/test_docstrings.py does for the modules it lists)
+# documentation (stricter than tests/test_docstrings.py, which walks every module)
 
 
 @pytest.mark.parametrize("module", ["needlekit.report.sweep_report", "needlekit.report.html_page"])

@@ -276,11 +276,11 @@ def run_approach_benchmark(*, repeat: int = 3, medrad_dir=None) -> dict:
     cases = []
     with _medrad_env(medrad_dir):
         from needlekit.errors import NeedlekitError
-        from needlekit.io.medrad import medrad_root
+        from needlekit.io.medrad import list_patients, medrad_root
 
         try:
             root = medrad_root(medrad_dir)
-            have = (root / "Liver" / "Patient4").is_dir()
+            have = 4 in list_patients("liver", root)
         except NeedlekitError as exc:  # no Med-RAD folder: recorded as the reason
             have, root = False, str(exc)
         if not path.is_file():

@@ -12,7 +12,20 @@ __all__ = ["best_time", "format_record", "machine_info"]
 
 
 def best_time(fn: Callable[[], Any], repeat: int) -> float:
-    """Best wall-clock time (s) of ``repeat`` calls; the minimum is the least noisy."""
+    """Best wall-clock time (s) of ``repeat`` calls; the minimum is the least noisy.
+
+    Parameters
+    ----------
+    fn : callable
+        Called with no argument.
+    repeat : int
+        Number of calls.
+
+    Returns
+    -------
+    float
+        Seconds (inf when ``repeat`` is 0).
+    """
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -22,7 +35,19 @@ def best_time(fn: Callable[[], Any], repeat: int) -> float:
 
 
 def format_record(record: dict[str, Any]) -> str:
-    """A short human-readable summary of a benchmark record."""
+    """A short human-readable summary of a benchmark record.
+
+    Parameters
+    ----------
+    record : dict
+        ``benchmark``, ``machine`` (:func:`machine_info`), ``inputs`` and ``results`` (rows
+        with ``name`` and ``summary``).
+
+    Returns
+    -------
+    str
+        Lines joined by newlines.
+    """
     lines = [f"benchmark: {record['benchmark']}"]
     m = record["machine"]
     lines.append(f"machine:   {m['cpu']} ({m['cpu_count']} cpus), Python {m['python']}")

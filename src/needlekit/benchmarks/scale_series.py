@@ -63,7 +63,21 @@ def _say(progress: Progress, msg: str) -> None:
 
 def preparation_point(patient: int, medrad_dir=None) -> dict:
     """One lung made ready for a first plan in a fresh process, cold then warm (a temporary
-    cache), Python's imports counted apart (as ``bench fields``)."""
+    cache), Python's imports counted apart (as ``bench fields``).
+
+    Parameters
+    ----------
+    patient : int
+        Med-RAD lung.
+    medrad_dir : path-like, optional
+
+    Returns
+    -------
+    dict
+        ``patient``, ``cold_s`` and ``warm_s`` (imports left out), ``import_s``,
+        ``cold_process_s``, ``warm_process_s``, ``peak_rss_mb`` and ``load_average`` (at the
+        start and the end).
+    """
     from needlekit.benchmarks.prepare import prepare_in_subprocess
 
     load = {"start": _load()}
@@ -300,7 +314,17 @@ def sweep_series(
 
 
 def executor_label(point: dict) -> str:
-    """An executor in words: ``serial``, ``process x2``, ``dask x4``."""
+    """An executor in words: ``serial``, ``process x2``, ``dask x4``.
+
+    Parameters
+    ----------
+    point : dict
+        A series point with ``executor`` and ``workers``.
+
+    Returns
+    -------
+    str
+    """
     return "serial" if point["executor"] == "serial" else f"{point['executor']} x{point['workers']}"
 
 

@@ -224,20 +224,12 @@ def _plan(sc, multi, options: dict, resolution_deg: float):
 
     if not _uses_coverage(sc):
         return solve(multi.targets_mm), None, steps
-    from needlekit.planning.straight.ablation import plan_with_coverage
+    from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.scenario.problems import coverage_region
 
     region, settings = step("coverage_region_s", lambda: coverage_region(sc, multi.problem))
-    plan, outcome = plan_with_coverage(
-        multi.problem,
-        region,
-        settings["zone"],
-        lambda targets: planner.solve(
-            replace(multi, targets_mm=targets), Termination(PLAN_TIME_LIMIT_S)
-        ),
-        max_needles=settings["max_needles"],
-        coverage_goal=settings["coverage_goal"],
-        timings=steps,
+    plan, outcome = plan_coverage(
+        multi, planner, region, settings, time_limit_s=PLAN_TIME_LIMIT_S, timings=steps
     )
     return plan, outcome, steps
 

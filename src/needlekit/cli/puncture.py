@@ -18,7 +18,23 @@ CONTROL_PERIOD_MS = 1.0
 
 
 def adaptation_delay_ms(text: str) -> float:
-    """``--adaptation-delay-ms``: a whole number >= 0 of control periods, in ms."""
+    """``--adaptation-delay-ms``: a whole number >= 0 of control periods, in ms.
+
+    Parameters
+    ----------
+    text : str
+        The flag's value.
+
+    Returns
+    -------
+    float
+        The delay (ms).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Not a number, negative, or not a whole number of periods.
+    """
     expected = f"expected a whole number >= 0 of control periods ({CONTROL_PERIOD_MS:g} ms)"
     try:
         v = float(text)

@@ -158,24 +158,12 @@ def _cmd_multi(args: argparse.Namespace) -> int:
 
 def _plan_coverage(sc, multi, planner, args):
     """Choose targets covering the tumour plus margin, plan them, re-check the coverage."""
-    from dataclasses import replace
-
-    from needlekit.planning.interface import Termination
-    from needlekit.planning.straight.ablation import plan_with_coverage
+    from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.planning.straight.sequence import MultiNeedlePlan
     from needlekit.scenario.problems import coverage_region
 
     region, settings = coverage_region(sc, multi.problem)
-    plan, outcome = plan_with_coverage(
-        multi.problem,
-        region,
-        settings["zone"],
-        lambda targets: planner.solve(
-            replace(multi, targets_mm=targets), Termination(args.time_limit_s)
-        ),
-        max_needles=settings["max_needles"],
-        coverage_goal=settings["coverage_goal"],
-    )
+    plan, outcome = plan_coverage(multi, planner, region, settings, time_limit_s=args.time_limit_s)
     if plan is None:
         p = multi.problem
         plan = MultiNeedlePlan((), (), False, 0, p.gamma_mm, p.needle.radius_mm, outcome.reason)

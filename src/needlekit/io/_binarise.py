@@ -84,7 +84,7 @@ def binarise(data: np.ndarray) -> tuple[np.ndarray, bool, int] | None:
 
     Parameters
     ----------
-    data : ndarray, 3-D, integer dtype (any memory layout)
+    data : ndarray, 3-D (shape (nx, ny, nz)), integer dtype (any memory layout)
 
     Returns
     -------

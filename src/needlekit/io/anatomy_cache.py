@@ -371,7 +371,7 @@ class CacheEntry:
         Parameters
         ----------
         name : str
-        values : ndarray
+        values : ndarray, any shape
         meta : dict
             JSON-serialisable.
 
@@ -484,7 +484,7 @@ def write_entry(
     inputs : dict
         What the key was made of (kept in the manifest, for people reading it).
     arrays : dict of str to (ndarray, dict)
-        Name -> (values, metadata). Names are file stems: letters, digits, ``_``, ``-``.
+        Name -> (values of any shape, metadata). Names are file stems: letters, digits, ``_``, ``-``.
 
     Returns
     -------

@@ -53,6 +53,7 @@ from needlekit.io.medrad_paths import (  # noqa: F401 - re-exported
     _repo_candidates,
     list_patients,
     medrad_root,
+    patient_folder,
 )
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import Mask, read_mask
@@ -572,10 +573,12 @@ def load_medrad(
     if isinstance(patient, bool) or not isinstance(patient, (int, np.integer)):
         raise InvalidInputError("patient", f"expected a patient number, got {patient!r}")
     base = medrad_root(root) / _ORGANS[key]
-    folder = base / f"Patient{int(patient)}"
-    if not folder.is_dir():
+    try:
+        folder = patient_folder(key, patient, root, flag="patient")
+    except InvalidInputError:  # the Med-RAD folder is there (base): say which patients are
         have = ", ".join(str(p) for p in list_patients(key, root)) or "none"
-        raise InvalidInputError("patient", f"no {key} patient {patient} in {base} (have {have})")
+        msg = f"no {key} patient {patient} in {base} (have {have})"
+        raise InvalidInputError("patient", msg) from None
     files = _files(folder)
     table = _LUNG if key == "lung" else _LIVER
     missing = [stem for stem in table if stem not in files]

@@ -203,6 +203,16 @@ class PlanarSteering:
 
         Pass it to :func:`simulate_planar` together with ``kappa_per_mm=self.kappa_per_mm``;
         arcs of different radii need one call each, since the model's curvature is fixed.
+
+        Parameters
+        ----------
+        sampling_time_s : float
+            Duration of the segment (s); the speed is the arc length over it.
+
+        Returns
+        -------
+        ndarray, shape (1, 3)
+            ``[[speed_mm_s, bevel, duration_s]]``.
         """
         return np.array([[self.length_mm / sampling_time_s, self.bevel, sampling_time_s]])
 

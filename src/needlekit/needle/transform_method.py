@@ -165,7 +165,13 @@ class SteeringSolution:
             return np.where(np.isinf(self.radius_mm), 0.0, 1.0 / self.radius_mm)
 
     def end_poses(self) -> np.ndarray:
-        """World poses at the arcs' ends (forward steering), shape (n, 4, 4)."""
+        """World poses at the arcs' ends (forward steering), shape (n, 4, 4).
+
+        Returns
+        -------
+        ndarray, shape (n, 4, 4)
+            ``world_T_end`` per arc (mm).
+        """
         return self.world_T_start @ _tm_pose_batch(
             self.alpha_rad, self.kappa_per_mm, self.length_mm
         )

@@ -262,6 +262,13 @@ def write_feng_lungs_report(
 ) -> Path:
     """Write the study's page (:func:`feng_lungs_sections`), atomically.
 
+    Parameters
+    ----------
+    path : path-like
+        The HTML page.
+    record, sweeps, problems, options : dict
+        As :func:`feng_lungs_sections` takes them.
+
     Returns
     -------
     Path

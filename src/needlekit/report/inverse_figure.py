@@ -141,16 +141,8 @@ def _inverse_data() -> _InverseData:
     )
 
 
-def _plot_inverse(d: _InverseData) -> Figure:
-    fig = _new_figure(14.0, 8.6)
-    gs = fig.add_gridspec(3, 2, width_ratios=(1.1, 1.0), height_ratios=(1.0, 1.0, 0.3))
-    ax = fig.add_subplot(gs[0:2, 0], projection="3d")
-    ax2 = fig.add_subplot(gs[0, 1])
-    ax3 = fig.add_subplot(gs[1:, 1])
-    leg_ax = fig.add_subplot(gs[2, 0])
-    leg_ax.axis("off")
-    _style_3d(ax)
-
+def _inverse_3d(ax, leg_ax, d: _InverseData) -> None:
+    """Panel (a): the arcs to the targets in 3D from the tip frame, and the legend."""
     g = d.world_T_tip
     tip, axis = g[:3, 3], g[:3, 2]
     shaft = tip + np.outer([-30.0, 0.0], axis)
@@ -207,6 +199,9 @@ def _plot_inverse(d: _InverseData) -> Figure:
     ]
     leg_ax.legend(handles, labels, loc="center", ncol=2, fontsize=8, borderaxespad=0.0)
 
+
+def _inverse_planar(ax2, d: _InverseData) -> None:
+    """Panel (b): planar steering way-point by way-point, beside the slide's radius."""
     # (b) planar way-point-wise steering
     colours = {1: _VERMILLION, -1: _BLUE}
     for step, arc in zip(d.steps, d.arcs, strict=True):
@@ -276,6 +271,11 @@ def _plot_inverse(d: _InverseData) -> Figure:
         fontsize=8,
     )
 
+
+def _inverse_down_axis(ax3, d: _InverseData) -> None:
+    """Panel (c): the targets down the needle axis, in the tip frame (the angle alpha)."""
+    g = d.world_T_tip
+    tip = g[:3, 3]
     # (c) the same targets seen down the needle axis, in the tip frame
     local = (d.targets - tip) @ g[:3, :3]
     lim = 1.18 * float(np.max(np.abs(local[:, :2])))
@@ -311,6 +311,20 @@ def _plot_inverse(d: _InverseData) -> Figure:
     ax3.set_xlabel("tip x (mm)")
     ax3.set_ylabel("tip y (mm)")
     ax3.set_title(f"(c) Down the needle axis: bending-plane angle {_ALPHA}")
+
+
+def _plot_inverse(d: _InverseData) -> Figure:
+    fig = _new_figure(14.0, 8.6)
+    gs = fig.add_gridspec(3, 2, width_ratios=(1.1, 1.0), height_ratios=(1.0, 1.0, 0.3))
+    ax = fig.add_subplot(gs[0:2, 0], projection="3d")
+    ax2 = fig.add_subplot(gs[0, 1])
+    ax3 = fig.add_subplot(gs[1:, 1])
+    leg_ax = fig.add_subplot(gs[2, 0])
+    leg_ax.axis("off")
+    _style_3d(ax)
+    _inverse_3d(ax, leg_ax, d)
+    _inverse_planar(ax2, d)
+    _inverse_down_axis(ax3, d)
     fig.suptitle("Inverse steering: from a tip pose and a target to the arc that reaches it")
     return fig
 

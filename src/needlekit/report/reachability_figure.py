@@ -122,6 +122,34 @@ def _reach_data() -> _ReachData:
     return _ReachData(rho, axial, cat, shortest, int(np.count_nonzero(single != lecture)), paths)
 
 
+def _reach_torus(ax3, r: float) -> None:
+    """Panel (c): the r_min disc revolved about the needle axis, a horn torus touching the
+    tip (``r``: r_min in mm)."""
+    # (c) the r_min disc revolved about the needle axis: a horn torus touching the tip
+    _style_3d(ax3)
+    uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 60), np.linspace(0, 2 * np.pi, 60))
+    rad = r + r * np.cos(uu)
+    ax3.plot_surface(
+        rad * np.cos(vv),
+        rad * np.sin(vv),
+        r * np.sin(uu),
+        color=_SKY,
+        alpha=0.35,
+        linewidth=0.2,
+        edgecolor="#3b7fa8",
+        rstride=3,
+        cstride=3,
+    )
+    ax3.plot([0, 0], [0, 0], [-110, 130], color=_INK, lw=1.0, ls=(0, (4, 3)))
+    ax3.quiver(0, 0, 0, 0, 0, 35, color=_INK, linewidth=2.0, arrow_length_ratio=0.3)
+    _equal_3d(ax3, np.array([[-2 * r, -2 * r, -1.2 * r], [2 * r, 2 * r, 1.2 * r]]), 0.0)
+    ax3.view_init(elev=22, azim=-60)
+    ax3.set_xlabel("x (mm)", labelpad=0)
+    ax3.set_ylabel("y (mm)", labelpad=0)
+    ax3.set_zlabel("z (mm)", labelpad=0)
+    ax3.set_title("(c) In 3D: the disc swept about the\nneedle axis, a horn torus", loc="left")
+
+
 def _plot_reach(d: _ReachData) -> Figure:
     r = R_MIN_REACH_MM
     fig = _new_figure(14.0, 6.6)
@@ -248,29 +276,7 @@ def _plot_reach(d: _ReachData) -> Figure:
     ax2.set_title("(b) Length of the shortest path (Dubins CS)")
     ax2.grid(False)
 
-    # (c) the r_min disc revolved about the needle axis: a horn torus touching the tip
-    _style_3d(ax3)
-    uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 60), np.linspace(0, 2 * np.pi, 60))
-    rad = r + r * np.cos(uu)
-    ax3.plot_surface(
-        rad * np.cos(vv),
-        rad * np.sin(vv),
-        r * np.sin(uu),
-        color=_SKY,
-        alpha=0.35,
-        linewidth=0.2,
-        edgecolor="#3b7fa8",
-        rstride=3,
-        cstride=3,
-    )
-    ax3.plot([0, 0], [0, 0], [-110, 130], color=_INK, lw=1.0, ls=(0, (4, 3)))
-    ax3.quiver(0, 0, 0, 0, 0, 35, color=_INK, linewidth=2.0, arrow_length_ratio=0.3)
-    _equal_3d(ax3, np.array([[-2 * r, -2 * r, -1.2 * r], [2 * r, 2 * r, 1.2 * r]]), 0.0)
-    ax3.view_init(elev=22, azim=-60)
-    ax3.set_xlabel("x (mm)", labelpad=0)
-    ax3.set_ylabel("y (mm)", labelpad=0)
-    ax3.set_zlabel("z (mm)", labelpad=0)
-    ax3.set_title("(c) In 3D: the disc swept about the\nneedle axis, a horn torus", loc="left")
+    _reach_torus(ax3, r)
     fig.suptitle(
         "Reachability from the tip: single arc (lecture condition) vs arc then straight line"
     )

@@ -128,77 +128,18 @@ def _path(polylines) -> str:
     return " ".join(parts)
 
 
-def cfrw_layers_figure(
-    cfrw: CFRWMap,
-    heights_mm=LIU_HEIGHTS_MM,
-    trajectories=(),
-    *,
-    plane_mm: float | None = None,
-    layers: Mapping[float, list] | None = None,
-    title: str | None = None,
-):
-    """The CFRW's boundaries in layered planes ``z = h`` of Sigma (Liu's Fig. 11).
-
-    Parameters
-    ----------
-    cfrw : CFRWMap
-    heights_mm : sequence of float
-        Heights (mm above the target along Sigma's z, each > 0) of the stacked layers of
-        panel (b); default the paper's 150, 160, 170 mm.
-    trajectories : sequence of NeedleRecord, Entry or (target_mm, entry_mm)
-        Lines to draw (world RAS mm): their crossing points with the plane in panel (a),
-        the lines themselves and their entry points in panel (b).
-    plane_mm : float, optional
-        Height of panel (a)'s plane (default the first of ``heights_mm``).
-    layers : mapping of float to list of ndarray, optional
-        ``cfrw.layer(h)`` already computed, by height. Missing ones: the plane's is
-        ``cfrw.layer(plane_mm)``, the others are it scaled by ``h / plane_mm`` (the CFRW
-        is a set of directions from the target, so its layers are central projections of
-        one curve; ``cfrw.layer`` samples and refines in angles, so it gives the same
-        scaled copy to rounding).
-    title : str, optional
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Panel (a) (``xaxis``/``yaxis``, Sigma mm, equal scales): the CFRW as one layout
-        shape (an SVG path of every polyline, ``fillrule="evenodd"``), one line trace per
-        polyline named ``"boundary z = <h> mm"`` with the vertices of ``cfrw.layer(h)``,
-        a marker trace per crossing trajectory named by its label. Panel (b) (``scene``):
-        one line trace per height named ``"z = <h> mm"`` (the polylines separated by
-        None), the target, each trajectory as a line from the target past the top layer
-        and its entry point.
-    """
+def _plane_panel(fig, cfrw: CFRWMap, plane: float, plane_polys: list, lines: list) -> list:
+    """Panel (a) of :func:`cfrw_layers_figure`: the CFRW in one plane and where the
+    trajectories cross it; returns each trajectory in Sigma as (label, tip, entry, colour)."""
     import plotly.graph_objects as go
-    from plotly.subplots import make_subplots
 
-    cfrw = _check_map(cfrw)
-    hs = _heights(heights_mm)
-    plane = hs[0] if plane_mm is None else _heights([plane_mm])[0]
-    polys = dict(layers or {})
-    if plane not in polys:
-        polys[plane] = cfrw.layer(plane)
-    for h in hs:  # the CFRW is a cone of directions: its layers are scaled copies
-        if h not in polys:
-            polys[h] = [p * (h / plane) for p in polys[plane]]
-    lines = _trajectories(trajectories)
-    fig = make_subplots(
-        1,
-        2,
-        specs=[[{"type": "xy"}, {"type": "scene"}]],
-        column_widths=[0.45, 0.55],
-        subplot_titles=(
-            f"(a) CFRW in the plane z = {plane:g} mm",
-            f"(b) CFRW boundaries at z = {', '.join(f'{h:g}' for h in hs)} mm",
-        ),
-    )
     # (a) one plane, filled by the even-odd rule
-    if polys[plane]:
+    if plane_polys:
         fig.add_shape(
-            type="path", path=_path(polys[plane]), fillcolor=_FILL, fillrule="evenodd",
+            type="path", path=_path(plane_polys), fillcolor=_FILL, fillrule="evenodd",
             line={"width": 0}, xref="x", yref="y", layer="below",
         )  # fmt: skip
-    for i, p in enumerate(polys[plane]):
+    for i, p in enumerate(plane_polys):
         fig.add_trace(
             go.Scatter(
                 x=p[:, 0], y=p[:, 1], mode="lines", name=f"boundary z = {plane:g} mm",
@@ -207,7 +148,7 @@ def cfrw_layers_figure(
             ),
             row=1, col=1,
         )  # fmt: skip
-    if not polys[plane]:
+    if not plane_polys:
         fig.add_annotation(
             text="no CFRW in this plane", x=0, y=0, xref="x", yref="y", showarrow=False
         )
@@ -235,6 +176,14 @@ def cfrw_layers_figure(
                 ),
                 row=1, col=1,
             )  # fmt: skip
+    return sigma_lines
+
+
+def _stacked_panel(fig, hs: list, polys: dict, sigma_lines: list) -> None:
+    """Panel (b) of :func:`cfrw_layers_figure`: the layers stacked in 3D, the target, and
+    each trajectory from the target past the top layer with its entry point."""
+    import plotly.graph_objects as go
+
     # (b) the layers stacked in 3D
     for j, h in enumerate(hs):
         xs, ys = [], []
@@ -280,6 +229,73 @@ def cfrw_layers_figure(
             ),
             row=1, col=2,
         )  # fmt: skip
+
+
+def cfrw_layers_figure(
+    cfrw: CFRWMap,
+    heights_mm=LIU_HEIGHTS_MM,
+    trajectories=(),
+    *,
+    plane_mm: float | None = None,
+    layers: Mapping[float, list] | None = None,
+    title: str | None = None,
+):
+    """The CFRW's boundaries in layered planes ``z = h`` of Sigma (Liu's Fig. 11).
+
+    Parameters
+    ----------
+    cfrw : CFRWMap
+    heights_mm : sequence of float
+        Heights (mm above the target along Sigma's z, each > 0) of the stacked layers of
+        panel (b); default the paper's 150, 160, 170 mm.
+    trajectories : sequence of NeedleRecord, Entry or (target_mm, entry_mm)
+        Lines to draw (world RAS mm): their crossing points with the plane in panel (a),
+        the lines themselves and their entry points in panel (b).
+    plane_mm : float, optional
+        Height of panel (a)'s plane (default the first of ``heights_mm``).
+    layers : mapping of float to list of ndarray, optional
+        ``cfrw.layer(h)`` already computed, by height. Missing ones: the plane's is
+        ``cfrw.layer(plane_mm)``, the others are it scaled by ``h / plane_mm`` (the CFRW
+        is a set of directions from the target, so its layers are central projections of
+        one curve; ``cfrw.layer`` samples and refines in angles, so it gives the same
+        scaled copy to rounding).
+    title : str, optional
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+        Panel (a) (``xaxis``/``yaxis``, Sigma mm, equal scales): the CFRW as one layout
+        shape (an SVG path of every polyline, ``fillrule="evenodd"``), one line trace per
+        polyline named ``"boundary z = <h> mm"`` with the vertices of ``cfrw.layer(h)``,
+        a marker trace per crossing trajectory named by its label. Panel (b) (``scene``):
+        one line trace per height named ``"z = <h> mm"`` (the polylines separated by
+        None), the target, each trajectory as a line from the target past the top layer
+        and its entry point.
+    """
+    from plotly.subplots import make_subplots
+
+    cfrw = _check_map(cfrw)
+    hs = _heights(heights_mm)
+    plane = hs[0] if plane_mm is None else _heights([plane_mm])[0]
+    polys = dict(layers or {})
+    if plane not in polys:
+        polys[plane] = cfrw.layer(plane)
+    for h in hs:  # the CFRW is a cone of directions: its layers are scaled copies
+        if h not in polys:
+            polys[h] = [p * (h / plane) for p in polys[plane]]
+    lines = _trajectories(trajectories)
+    fig = make_subplots(
+        1,
+        2,
+        specs=[[{"type": "xy"}, {"type": "scene"}]],
+        column_widths=[0.45, 0.55],
+        subplot_titles=(
+            f"(a) CFRW in the plane z = {plane:g} mm",
+            f"(b) CFRW boundaries at z = {', '.join(f'{h:g}' for h in hs)} mm",
+        ),
+    )
+    sigma_lines = _plane_panel(fig, cfrw, plane, polys[plane], lines)
+    _stacked_panel(fig, hs, polys, sigma_lines)
     fig.update_xaxes(title_text=f"x in {_SIGMA} (mm)", row=1, col=1)
     fig.update_yaxes(title_text=f"y in {_SIGMA} (mm)", scaleanchor="x", scaleratio=1, row=1, col=1)
     fig.update_layout(

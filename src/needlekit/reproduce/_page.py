@@ -78,6 +78,15 @@ class Stages:
     def bar(self, desc: str, total: int | None = None, unit: str = "task"):
         """A progress bar of the stage's tasks (total and time left; shown on a terminal).
 
+        Parameters
+        ----------
+        desc : str
+            What the tasks are (after the stage's name).
+        total : int, optional
+            Number of tasks, when known.
+        unit : str
+            A task's name in the bar.
+
         Returns
         -------
         callable
@@ -122,6 +131,12 @@ def _duration(s: float) -> str:
 
 def write_reproduction(rep: Reproduction, out_dir: str | os.PathLike) -> dict:
     """Write ``out_dir/KEY.html`` and ``out_dir/KEY.json`` (atomically, both or neither).
+
+    Parameters
+    ----------
+    rep : Reproduction
+    out_dir : path-like
+        The folder written into.
 
     Returns
     -------

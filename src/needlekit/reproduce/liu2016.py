@@ -94,6 +94,18 @@ def boundary_clearance(scene, problem, cfrw, h_mm: float, *, step_mm: float = 0.
     them), are measured with the vessels' exact distance, sampled every ``step_mm`` along
     the needle.
 
+    Parameters
+    ----------
+    scene : Scene
+        The paper's phantom (its vessels are measured exactly).
+    problem : StraightProblem
+    cfrw : CFRWMap
+        The target's map.
+    h_mm : float
+        Height of the layer (mm).
+    step_mm : float
+        Sampling step along each needle (mm).
+
     Returns
     -------
     dict
@@ -161,77 +173,10 @@ def _plan(multi, options, resolution_deg):
     return get_planner("liu_cfrw", opts).solve(multi, Termination(3600.0))
 
 
-def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progress=print):
-    """Re-run Liu et al.'s simulation; see the module's docstring.
-
-    Parameters
-    ----------
-    out_dir : path-like
-        Results land in ``out_dir/liu2016/``.
-    quick : bool
-        A 2 degree grid everywhere (full: 1 degree for the maps and the plans).
-    executor : optional
-        Unused (the parts are sequential: each needle depends on the one before).
-    progress : callable
-
-    Returns
-    -------
-    Reproduction
-    """
-    from dataclasses import replace
-
-    from needlekit.io.files import write_json, write_text
-    from needlekit.planning.straight.cfrw import cfrw_map
-    from needlekit.planning.straight.deformation import NeedleDragDeformation
-    from needlekit.planning.straight.verify import verify_multi
-    from needlekit.report.html_page import FigureSection, TableSection, TextSection
-    from needlekit.report.straight_figures import LIU_HEIGHTS_MM, cfrw_layers_figure
-    from needlekit.report.straight_report import plan_maps, straight_sections
-    from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.problems import multi_problem_from_scenario
-
-    del executor
-    stage = Stages(progress, 5, "liu2016")
-    case = Path(out_dir) / "liu2016"
-    res = 2.0 if quick else 1.0
-    stage("loading the scene (liver phantom, superquadric vessels)")
-    src = resources.files("needlekit") / "data" / SCENARIO
-    with resources.as_file(src) as path:
-        text = Path(path).read_text(encoding="utf-8")
-        sc = load_scenario(path)
-    write_text(case / "scenario.yaml", text)
-    multi, options = multi_problem_from_scenario(sc)
-    problem = multi.problem.with_target(multi.targets_mm[0])
-
-    stage(f"needle 1's CFRW ({res:g} degree grid) and its layers (Fig. 11)")
-    m1 = cfrw_map(problem, resolution_deg=res)
-    counts = m1.counts()
-
-    stage(f"Fig. 12: the boundary in the layer z = {FIG12_LAYER_MM:g} mm against the vessels")
-    fig12 = boundary_clearance(sc.scene, problem, m1, FIG12_LAYER_MM)
-
-    stage("three needles in the order 1, 2, 3 (Figs 13-18), re-checked by verify")
-    rigid = _plan(multi, options, res)
-    rigid_doc = rigid.to_dict()
-    rigid_doc.update(planner="liu_cfrw", scenario=str(case / "scenario.yaml"))
-    rigid_check = verify_multi(multi.problem, rigid_doc)
-    write_json(case / "multi.json", rigid_doc)
-
-    stage("the same with the targets moved by the needles before them (needle drag)")
-    deformed = replace(multi, deformation=NeedleDragDeformation())
-    moved = _plan(deformed, options, res)
-    moved_doc = moved.to_dict()
-    moved_doc.update(
-        planner="liu_cfrw", scenario=str(case / "scenario.yaml"), deformation="needle_drag"
-    )
-    moved_check = verify_multi(multi.problem, moved_doc)
-    write_json(case / "multi_deformed.json", moved_doc)
-
-    g = problem.world_T_sigma
-    rigid_rows = _needle_rows(rigid, g, rigid_check)
-    moved_rows = _needle_rows(moved, g, moved_check)
+def _comparisons(fig12, m1, counts, res, gamma, rigid, rigid_check, moved, moved_check, moved_rows):
+    """The rows of the comparison with the paper (Fig. 12, the needles, their interference,
+    the deformed plan, needle 1's map)."""
     sep = [n.needle_clearance_mm for n in rigid.needles[1:]]
-    gamma = problem.gamma_mm
 
     def agree(ok):
         return "yes" if ok else "no"
@@ -241,7 +186,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         and abs(fig12["min_mm"] - gamma) <= 0.05
         and abs(fig12["max_mm"] - gamma) <= 0.05
     )
-    comparisons = [
+    return [
         {
             "quantity": "closest distance of boundary trajectories to the vessels (Fig. 12)",
             "paper": "all 1.5 mm (gamma 1.5 mm)",
@@ -290,7 +235,12 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             "note": "the paper draws the boundary, gives no area or count",
         },
     ]
-    setup = [
+
+
+def _setup(problem, res: float) -> list[dict]:
+    """The rows of the set-up table: the paper's against needlekit's."""
+    gamma = problem.gamma_mm
+    return [
         {"item": "targets (Sigma)", "paper": "(0, 0, 0), (0, -15, 0), (0, -30, 0) mm",
          "needlekit": "the same, Sigma's origin at the phantom's tumour centre"},
         {"item": "obstacles", "paper": "primary blood vessels as superquadrics (Eq. 4), "
@@ -313,7 +263,11 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         {"item": "deformation", "paper": "a liver deformation model (refs. 31, 38)",
          "needlekit": "none in the main plan; needle drag (parameters assumed) in part 4"},
     ]  # fmt: skip
-    deviations = [
+
+
+def _deviations(res: float) -> list[str]:
+    """Where the reproduction departs from the paper, and why."""
+    return [
         "The vessels are ours (the paper draws them in Fig. 10(A) but gives no parameters): "
         "they set every clearance and length in the tables.",
         "The phantom's ribs stay as obstacles (the paper's simulation has vessels only); "
@@ -332,8 +286,14 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         "The in-vitro experiments (porcine liver, 10 trials, target error 2.1 +- 0.6 mm) are "
         "physical and are not reproduced.",
     ]
-    maps = plan_maps(multi.problem, rigid, resolution_deg=res)
-    sections = [
+
+
+def _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
+    """The page's own sections (the map, Figs 11 and 12, the two plans), then ``straight``."""
+    from needlekit.report.html_page import FigureSection, TableSection, TextSection
+    from needlekit.report.straight_figures import LIU_HEIGHTS_MM, cfrw_layers_figure
+
+    return [
         TextSection(
             f"Needle 1's CFRW: {counts['free']} of {m1.blocked.size} directions free at "
             f"{res:g} degrees. {m1.blocking_summary()}",
@@ -365,8 +325,84 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             moved_rows,
             "Each target moved by the needles placed before it, then planned in its CFRW.",
         ),
-        *straight_sections(rigid, maps, multi.problem.scene),
+        *straight,
     ]
+
+
+def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progress=print):
+    """Re-run Liu et al.'s simulation; see the module's docstring.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Results land in ``out_dir/liu2016/``.
+    quick : bool
+        A 2 degree grid everywhere (full: 1 degree for the maps and the plans).
+    executor : optional
+        Unused (the parts are sequential: each needle depends on the one before).
+    progress : callable
+
+    Returns
+    -------
+    Reproduction
+    """
+    from dataclasses import replace
+
+    from needlekit.io.files import write_json, write_text
+    from needlekit.io.problems import multi_problem_from_scenario
+    from needlekit.io.scenario import load_scenario
+    from needlekit.planning.straight.cfrw import cfrw_map
+    from needlekit.planning.straight.deformation import NeedleDragDeformation
+    from needlekit.planning.straight.verify import verify_multi
+    from needlekit.report.straight_report import plan_maps, straight_sections
+
+    del executor
+    stage = Stages(progress, 5, "liu2016")
+    case = Path(out_dir) / "liu2016"
+    res = 2.0 if quick else 1.0
+    stage("loading the scene (liver phantom, superquadric vessels)")
+    src = resources.files("needlekit") / "data" / SCENARIO
+    with resources.as_file(src) as path:
+        text = Path(path).read_text(encoding="utf-8")
+        sc = load_scenario(path)
+    write_text(case / "scenario.yaml", text)
+    multi, options = multi_problem_from_scenario(sc)
+    problem = multi.problem.with_target(multi.targets_mm[0])
+
+    stage(f"needle 1's CFRW ({res:g} degree grid) and its layers (Fig. 11)")
+    m1 = cfrw_map(problem, resolution_deg=res)
+    counts = m1.counts()
+
+    stage(f"Fig. 12: the boundary in the layer z = {FIG12_LAYER_MM:g} mm against the vessels")
+    fig12 = boundary_clearance(sc.scene, problem, m1, FIG12_LAYER_MM)
+
+    stage("three needles in the order 1, 2, 3 (Figs 13-18), re-checked by verify")
+    rigid = _plan(multi, options, res)
+    rigid_doc = rigid.to_dict()
+    rigid_doc.update(planner="liu_cfrw", scenario=str(case / "scenario.yaml"))
+    rigid_check = verify_multi(multi.problem, rigid_doc)
+    write_json(case / "multi.json", rigid_doc)
+
+    stage("the same with the targets moved by the needles before them (needle drag)")
+    deformed = replace(multi, deformation=NeedleDragDeformation())
+    moved = _plan(deformed, options, res)
+    moved_doc = moved.to_dict()
+    moved_doc.update(
+        planner="liu_cfrw", scenario=str(case / "scenario.yaml"), deformation="needle_drag"
+    )
+    moved_check = verify_multi(multi.problem, moved_doc)
+    write_json(case / "multi_deformed.json", moved_doc)
+
+    g = problem.world_T_sigma
+    rigid_rows = _needle_rows(rigid, g, rigid_check)
+    moved_rows = _needle_rows(moved, g, moved_check)
+    gamma = problem.gamma_mm
+    comparisons = _comparisons(
+        fig12, m1, counts, res, gamma, rigid, rigid_check, moved, moved_check, moved_rows
+    )
+    maps = plan_maps(multi.problem, rigid, resolution_deg=res)
+    straight = straight_sections(rigid, maps, multi.problem.scene)
+    sections = _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight)
     commands = [
         "needlekit multi liu2016/scenario.yaml --out multi.json --report multi.html "
         f"--resolution-deg {res:g}",
@@ -395,8 +431,8 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             "moved by tissue deformation."
         ),
         comparisons=comparisons,
-        setup=setup,
-        deviations=deviations,
+        setup=_setup(problem, res),
+        deviations=_deviations(res),
         sections=sections,
         commands=commands,
         record=record,

@@ -180,35 +180,10 @@ def statistic_comparisons(ours: dict, paper: dict, what: str, unit: str) -> list
     ]
 
 
-def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progress=print):
-    """Re-run Tang et al.'s simulation study; see the module's docstring.
+def _run_rows(rows, quick: bool, case: Path, stage, executor) -> dict:
+    """Each row's puncture study (only the defaults' row writes its page), by row key."""
+    from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, run_puncture_study
 
-    Parameters
-    ----------
-    out_dir : path-like
-        Each row's study lands in ``out_dir/tang/ROW/`` (``puncture.json``; the defaults'
-        row also ``puncture.html``).
-    quick : bool
-    executor : concurrent.futures.Executor, optional
-        Runs each row's trials.
-    progress : callable
-
-    Returns
-    -------
-    Reproduction
-    """
-    from needlekit.report.html_page import TableSection, TextSection
-    from needlekit.report.puncture_report import puncture_sections
-    from needlekit.studies.puncture_study import (
-        PAPER_RESULTS,
-        PunctureScenario,
-        TrialOptions,
-        run_puncture_study,
-    )
-
-    rows = [r for r in ROWS if not quick or r.key in QUICK_ROWS]
-    stage = Stages(progress, len(rows), "tang")
-    case = Path(out_dir) / "tang"
     studies = {}
     for row in rows:
         trials = QUICK_ROWS[row.key] if quick else FULL_TRIALS
@@ -231,14 +206,16 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             report=row.key == "defaults",
         )
         update.close()
-    table = [_paper_row(PAPER_RESULTS)] + [
-        _table_row(r.label, studies[r.key].summary) for r in rows
-    ]
-    d = studies["defaults"].summary
+    return studies
+
+
+def _comparisons(d: dict, paper: dict) -> list[dict]:
+    """The defaults' row against the paper: the error statistics, the violations and
+    the completed trials."""
     comparisons = statistic_comparisons(
-        d["position_error_mm"], PAPER_RESULTS["position_error_mm"], "position error", "mm"
+        d["position_error_mm"], paper["position_error_mm"], "position error", "mm"
     ) + statistic_comparisons(
-        d["angle_error_deg"], PAPER_RESULTS["angle_error_deg"], "angle to the guide line", "deg"
+        d["angle_error_deg"], paper["angle_error_deg"], "angle to the guide line", "deg"
     )
     angle_sd = next(
         (c for c in comparisons if c["quantity"].startswith("angle to the guide line: SD")), None
@@ -267,9 +244,12 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             "note": "the paper reports no aborted trial",
         }
     )
-    n_rows = ", ".join(f"{r.key} {QUICK_ROWS.get(r.key, FULL_TRIALS) if quick else FULL_TRIALS}"
-                       for r in rows)  # fmt: skip
-    setup = [
+    return comparisons
+
+
+def _setup(n_rows: str) -> list[dict]:
+    """The rows of the set-up table: the paper's against needlekit's."""
+    return [
         {"item": "trials", "paper": "100", "needlekit": n_rows},
         {"item": "targets", "paper": "uniform in a 10 mm cube", "needlekit": "the same"},
         {"item": "guide lines", "paper": "random x-y-z components, four octants above the "
@@ -290,6 +270,10 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         {"item": "adaptation", "paper": "Eq. 3", "needlekit": "Eq. 3 (row 1), with needlekit's "
          "changes (rows 2-8)"},
     ]  # fmt: skip
+
+
+def _deviations(quick: bool, n_rows: str) -> list[str]:
+    """Where the reproduction departs from the paper, and why."""
     deviations = [
         "needlekit's four changes to Eq. 3 (measurement history, stability-row ball, clamped "
         "VFI rows, guide-line redraws) make the defaults' row; the table shows each alone "
@@ -309,6 +293,57 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     if quick:
         deviations.insert(0, "Quick run: rows " + n_rows + " trials only; statistics of so "
                           "few trials are not the paper's comparison.")  # fmt: skip
+    return deviations
+
+
+def _commands() -> list[str]:
+    """The command lines that make each row's study at full size."""
+    return [
+        " ".join(
+            part
+            for part in (
+                f"needlekit puncture --trials {FULL_TRIALS} --seed 0 --out out/{r.key}",
+                r.flags,
+                "--executor process --workers 2",
+            )
+            if part
+        )
+        for r in ROWS
+    ]
+
+
+def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progress=print):
+    """Re-run Tang et al.'s simulation study; see the module's docstring.
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Each row's study lands in ``out_dir/tang/ROW/`` (``puncture.json``; the defaults'
+        row also ``puncture.html``).
+    quick : bool
+    executor : concurrent.futures.Executor, optional
+        Runs each row's trials.
+    progress : callable
+
+    Returns
+    -------
+    Reproduction
+    """
+    from needlekit.report.html_page import TableSection, TextSection
+    from needlekit.report.puncture_report import puncture_sections
+    from needlekit.studies.puncture_study import PAPER_RESULTS
+
+    rows = [r for r in ROWS if not quick or r.key in QUICK_ROWS]
+    stage = Stages(progress, len(rows), "tang")
+    case = Path(out_dir) / "tang"
+    studies = _run_rows(rows, quick, case, stage, executor)
+    table = [_paper_row(PAPER_RESULTS)] + [
+        _table_row(r.label, studies[r.key].summary) for r in rows
+    ]
+    d = studies["defaults"].summary
+    comparisons = _comparisons(d, PAPER_RESULTS)
+    n_rows = ", ".join(f"{r.key} {QUICK_ROWS.get(r.key, FULL_TRIALS) if quick else FULL_TRIALS}"
+                       for r in rows)  # fmt: skip
     sections = [
         TableSection(
             "Eq. 3 as written, each change alone, and together",
@@ -324,18 +359,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
         ),
         *puncture_sections(d, studies["defaults"].trials),
     ]
-    commands = [
-        " ".join(
-            part
-            for part in (
-                f"needlekit puncture --trials {FULL_TRIALS} --seed 0 --out out/{r.key}",
-                r.flags,
-                "--executor process --workers 2",
-            )
-            if part
-        )
-        for r in ROWS
-    ]
+    commands = _commands()
     record = {
         "rows": {
             r.key: {
@@ -362,8 +386,8 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
             "all together, on the same trials, beside the paper's row."
         ),
         comparisons=comparisons,
-        setup=setup,
-        deviations=deviations,
+        setup=_setup(n_rows),
+        deviations=_deviations(quick, n_rows),
         sections=sections,
         commands=commands,
         record=record,

@@ -36,7 +36,6 @@ cluster): the scenarios travel with the tasks, and each worker prepares the pati
 
 from __future__ import annotations
 
-import copy
 import os
 import time
 from collections.abc import Callable
@@ -46,6 +45,15 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.studies.feng_case import (
+    FENG_GOAL2_OFFSET_MM,
+    FENG_SCENARIO,
+    _case_record,
+    _check_goal,
+    _write_scenario,
+    feng_lung_scenario,
+    feng_patient_folder,
+)
 
 __all__ = [
     "FENG_GOAL2_OFFSET_MM",
@@ -61,34 +69,18 @@ __all__ = [
     "run_feng_lungs",
 ]
 
-#: Feng's needle and limits (their Section 5; their "k_max = 50 mm^-1" read as r_min 50 mm),
-#: the heading limit of their Algorithm 1 (no turn beyond 90 deg) and the reference
-#: planner's 3 mm start exclusion (the needle leaves the airway through its wall).
-FENG_SCENARIO: dict = {
-    "version": 1,
-    "base": {"medrad": {"organ": "lung", "patient": 5}},
-    "needle": {
-        "diameter_mm": 2.0,
-        "r_min_mm": 50,
-        "max_length_mm": 100,
-        "max_heading_change_deg": 90,
-        "min_puncture_angle_deg": 20,
-        "start_exclusion_mm": 3,
-    },
-    "start": {"case_start": "start1"},
-    "goal": {"case_target": "target", "tolerance_mm": 1.0},
-    "collision_model": "field",
-    "planner": {"name": "rcs_star", "time_limit_s": 1.0, "seed": 0},
-}
-#: Feng's goal 2 less their goal 1 (mm): the offset that makes goal 2 here.
-FENG_GOAL2_OFFSET_MM: tuple[float, float, float] = (-10.0, -10.0, 10.0)
+
 #: The planners, RCS* first (it gives Fig. 7 and plan.json, as in Feng's Fig. 7).
 FENG_PLANNERS: tuple[str, ...] = ("rcs_star", "rcs", "rrt")
+
 #: RRT joins the goal by one arc, the reference implementation's rule behind Feng's tables.
 FENG_RRT_CONNECTION: str = "arc"
+
 #: Feng's protocol: candidate directions and budget per direction and planner (s).
 FENG_DIRECTIONS: int = 544
+
 FENG_TIME_LIMIT_S: float = 1.0
+
 #: ``--quick``: a quarter of the directions and an iteration budget (the same figures on
 #: every machine); the time limit only caps a loaded machine.
 QUICK: dict = {"directions": 136, "time_limit_s": 5.0, "max_iterations": 300}
@@ -113,6 +105,7 @@ FENG_TABLE4: dict = {
                 "cost_before_lowest_mm": 607.8828},
     },
 }  # fmt: skip
+
 #: Feng's start and goals (their Section 5, mm, their CT frame). The start's x is printed
 #: 64.8324 there and -64.8324 in their worked example of Fig. 8b; only the latter puts the
 #: goals 60.8 and 72.6 mm away, as their costs (59.9-65.0 and 71.6-81.9 mm) need.
@@ -121,6 +114,7 @@ FENG_POINTS_MM: dict = {
     "goal1": (-105.8713, 158.2018, -613.2506),
     "goal2": (-115.8713, 148.2018, -603.2506),
 }
+
 #: What :func:`run_feng_lungs` writes in its folder.
 FENG_LUNGS_FILES: tuple[str, ...] = (
     "goal1/scenario.yaml",
@@ -132,72 +126,13 @@ FENG_LUNGS_FILES: tuple[str, ...] = (
     "feng_lungs.json",
     "report.html",
 )
+
 _GOALS = ("goal1", "goal2")
+
 _LABELS = {"rcs": "RCS", "rcs_star": "RCS*", "rrt": "RRT"}
+
 #: Feng's order of the mean costs, cheapest first (their Table 4 and text).
 FENG_ORDER: tuple[str, ...] = ("rcs_star", "rrt", "rcs")
-
-
-def feng_patient_folder(medrad_dir=None) -> Path:
-    """The Med-RAD folder of Feng's case (lung 5), which must exist (light: no anatomy).
-
-    Parameters
-    ----------
-    medrad_dir : path-like, optional
-
-    Returns
-    -------
-    Path
-
-    Raises
-    ------
-    InvalidInputError
-        Named ``--medrad``: no Med-RAD folder, or no lung 5 in it.
-    """
-    from needlekit.io.medrad_paths import patient_folder
-
-    return patient_folder("lung", FENG_SCENARIO["base"]["medrad"]["patient"], medrad_dir)
-
-
-def _case_target_mm(medrad_dir=None) -> np.ndarray:
-    """Med-RAD's target of the case (RAS mm), read from its text file alone."""
-    from needlekit.io.medrad import _files, _starts_and_targets
-
-    folder = feng_patient_folder(medrad_dir)
-    _, targets = _starts_and_targets(_files(folder), folder)
-    return np.asarray(targets[FENG_SCENARIO["goal"]["case_target"]], dtype=float)
-
-
-def feng_lung_scenario(goal: int, *, medrad_dir=None) -> dict:
-    """The scenario document of one target (``examples/medrad_lung_feng_goal{1,2}.yaml``).
-
-    Parameters
-    ----------
-    goal : {1, 2}
-        1: Med-RAD's target; 2: it moved by :data:`FENG_GOAL2_OFFSET_MM`.
-    medrad_dir : path-like, optional
-        Med-RAD folder (default ``$NEEDLEKIT_MEDRAD`` or ``../shared/data/med-rad``).
-
-    Returns
-    -------
-    dict
-
-    Raises
-    ------
-    InvalidInputError
-        Another goal number, or no Med-RAD lung patient 5.
-    """
-    if goal not in (1, 2):
-        raise InvalidInputError("goal", f"expected 1 or 2, got {goal!r}")
-    doc = copy.deepcopy(FENG_SCENARIO)
-    if medrad_dir is not None:
-        doc["base"]["medrad"]["root"] = str(Path(medrad_dir).resolve())
-    doc["name"] = f"Med-RAD lung 5, start 1, Feng's goal {goal}"
-    if goal == 2:
-        point = _case_target_mm(medrad_dir) + np.asarray(FENG_GOAL2_OFFSET_MM)
-        tau = doc["goal"]["tolerance_mm"]
-        doc["goal"] = {"point_mm": [float(v) for v in point], "tolerance_mm": tau}
-    return doc
 
 
 def _direct_fate(problem, direction) -> str:
@@ -363,23 +298,6 @@ def _goal_record(problem, sweeps: dict, fates: list, checks: dict) -> dict:
     }
 
 
-def _write_scenario(path, doc: dict, goal: str) -> Path:
-    import yaml
-
-    from needlekit.io.files import write_text
-
-    how = (
-        "Med-RAD's target (in the nodule)"
-        if goal == "goal1"
-        else f"Med-RAD's target moved by Feng's goal offset {list(FENG_GOAL2_OFFSET_MM)} mm (RAS)"
-    )
-    head = (
-        f"# Feng et al.'s protocol on Med-RAD lung 5, start 1: {goal}, {how}.\n"
-        "# Written by `needlekit study feng-lungs`; sweep it with `needlekit sweep`.\n"
-    )
-    return write_text(path, head + yaml.safe_dump(doc, sort_keys=False))
-
-
 def run_feng_lungs(
     out_dir: str | os.PathLike,
     *,
@@ -441,12 +359,10 @@ def run_feng_lungs(
     """
     from needlekit.batch import executor_workers
     from needlekit.io.files import staged_outputs, write_json
-    from needlekit.io.plans import write_plan_json
     from needlekit.planning.interface import get_planner
-    from needlekit.planning.steerable.sweep import sphere_directions, sweeps_to_dict
+    from needlekit.planning.steerable.sweep import sphere_directions
     from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
     from needlekit.provenance import machine_info
-    from needlekit.scenario.problems import ScenarioSource
     from needlekit.studies.feng_timing import timing_record
 
     t0 = time.perf_counter()
@@ -458,17 +374,7 @@ def run_feng_lungs(
     out = Path(out_dir)
     docs = {g: feng_lung_scenario(i, medrad_dir=medrad_dir) for i, g in enumerate(_GOALS, 1)}
     dirs = sphere_directions(int(settings["directions"]))
-    # the documents travel inline: workers on other machines cannot read files written here
-    sources = {
-        g: ScenarioSource.of_document(
-            doc, out, name=f"{g}/scenario.yaml", cache_dir=cache_dir, use_cache=use_cache
-        )
-        for g, doc in docs.items()
-    }
-    problems = {}
-    for g in _GOALS:  # the patient is prepared once in this process, for both targets
-        _, problems[g] = sources[g].cached()
-        _check_goal(problems[g], g)
+    sources, problems = _sources_and_problems(docs, out, cache_dir, use_cache)
     main_prep_s = time.perf_counter() - t0
     jobs = [  # RCS* first: its part ends first, and its time is measured
         SweepJob(problems[g], name, sources[g], options.get(name), rank=int(name != "rcs_star"))
@@ -489,24 +395,10 @@ def run_feng_lungs(
     found = iter(batch.sweeps)
     sweeps: dict = {g: {name: next(found) for name in FENG_PLANNERS} for g in _GOALS}
     t_post = time.perf_counter()
-    record: dict = {"goals": {}}
-    for g in _GOALS:  # measured at 0.1 s per target: not worth a task
-        first = sweeps[g][FENG_PLANNERS[0]]
-        fates = direct_connection_fates(problems[g], first.directions, first.effective)
-        checks = {k: _checks(problems[g], sw) for k, sw in sweeps[g].items()}
-        record["goals"][g] = _goal_record(problems[g], sweeps[g], fates, checks)
-    p = problems["goal1"]
+    goals = {g: _goal_result(problems[g], sweeps[g]) for g in _GOALS}
     record = {
         "study": "feng-lungs",
-        "case": {
-            "medrad": "lung patient 5 (LIDC525), start1",
-            "start_point_mm": [float(v) for v in p.start_point_mm],
-            "puncture_normal": [float(v) for v in p.puncture_normal],
-            "puncture_normal_source": p.metadata.get("puncture_normal_source"),
-            "collision_model": p.collision_model,
-            "field_error_bound_mm": float(p.scene.obstacle_field(0.0).error_bound_mm),
-            "goal2_offset_mm": list(FENG_GOAL2_OFFSET_MM),
-        },
+        "case": _case_record(problems["goal1"]),
         "settings": {
             **settings,
             "planners": list(FENG_PLANNERS),
@@ -517,7 +409,7 @@ def run_feng_lungs(
             "tolerance_mm": docs["goal1"]["goal"]["tolerance_mm"],
         },
         "feng": {"table4": FENG_TABLE4, "points_mm": FENG_POINTS_MM, "order": list(FENG_ORDER)},
-        **record,
+        "goals": goals,
         "machine": machine_info(),
     }
     post_s = time.perf_counter() - t_post
@@ -525,24 +417,7 @@ def run_feng_lungs(
     with staged_outputs():
         t_write = time.perf_counter()
         for g in _GOALS:
-            files[f"{g}/scenario.yaml"] = _write_scenario(out / g / "scenario.yaml", docs[g], g)
-            files[f"{g}/sweep.json"] = write_json(
-                out / g / "sweep.json",
-                {
-                    "scenario": "scenario.yaml",
-                    "time_limit_s": float(settings["time_limit_s"]),
-                    "max_iterations": settings["max_iterations"],
-                    "seed": seed,
-                    "options": options,
-                    **sweeps_to_dict(sweeps[g]),
-                },
-            )
-            best = sweeps[g][FENG_PLANNERS[0]].best
-            if best is not None:
-                check = record["goals"][g]["checks"][FENG_PLANNERS[0]]["best"]
-                files[f"{g}/plan.json"] = write_plan_json(
-                    out / g / "plan.json", best, scenario="scenario.yaml", check=check
-                )
+            files.update(_write_goal(out, g, docs[g], sweeps[g], record, settings, seed, options))
         write_s = time.perf_counter() - t_write
         record["wall_s"] = time.perf_counter() - t0  # the page's figure: up to the page
         t_report = time.perf_counter()
@@ -571,18 +446,58 @@ def run_feng_lungs(
     return FengLungsStudy(record, sweeps, files, problems, options)
 
 
-def _check_goal(problem, goal: str) -> None:
-    """A target must lie in free space and within l_max of the start (before any sweep)."""
-    field = problem.scene.obstacle_field(0.0)  # certified: less the field's error bound
-    clear = float(field.signed_distance(problem.goal_mm)) - field.error_bound_mm
-    margin = problem.clearance_margin_mm
-    if clear <= margin:
-        raise InvalidInputError(
-            goal, f"{np.round(problem.goal_mm, 3).tolist()} is {clear:.2f} mm from an obstacle; "
-            f"the needle needs {margin:g} mm",
-        )  # fmt: skip
-    dist = float(np.linalg.norm(problem.goal_mm - problem.start_point_mm))
-    if dist >= problem.max_length_mm:
-        raise InvalidInputError(
-            goal, f"{dist:.1f} mm from the start, beyond l_max = {problem.max_length_mm:g} mm"
+def _goal_result(problem, sweeps: dict) -> dict:
+    """One goal's record: the direct connections' fates and every planner's checks
+    (measured at 0.1 s per target: not worth a task)."""
+    first = sweeps[FENG_PLANNERS[0]]
+    fates = direct_connection_fates(problem, first.directions, first.effective)
+    checks = {k: _checks(problem, sw) for k, sw in sweeps.items()}
+    return _goal_record(problem, sweeps, fates, checks)
+
+
+def _sources_and_problems(docs: dict, out: Path, cache_dir, use_cache: bool):
+    """Each goal's scenario source (inline: workers on other machines cannot read files
+    written here) and its problem, the patient prepared once in this process for both
+    targets, each target checked."""
+    from needlekit.io.problems import ScenarioSource
+
+    sources = {
+        g: ScenarioSource.of_document(
+            doc, out, name=f"{g}/scenario.yaml", cache_dir=cache_dir, use_cache=use_cache
         )
+        for g, doc in docs.items()
+    }
+    problems = {}
+    for g in _GOALS:
+        _, problems[g] = sources[g].cached()
+        _check_goal(problems[g], g)
+    return sources, problems
+
+
+def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settings: dict,
+                seed: int, options: dict) -> dict:  # fmt: skip
+    """One goal's ``scenario.yaml``, ``sweep.json`` and (when RCS* found one) ``plan.json``
+    with its check; returns them by name."""
+    from needlekit.io.files import write_json
+    from needlekit.io.plans import write_plan_json
+    from needlekit.planning.steerable.sweep import sweeps_to_dict
+
+    files = {f"{g}/scenario.yaml": _write_scenario(out / g / "scenario.yaml", doc, g)}
+    files[f"{g}/sweep.json"] = write_json(
+        out / g / "sweep.json",
+        {
+            "scenario": "scenario.yaml",
+            "time_limit_s": float(settings["time_limit_s"]),
+            "max_iterations": settings["max_iterations"],
+            "seed": seed,
+            "options": options,
+            **sweeps_to_dict(sweeps),
+        },
+    )
+    best = sweeps[FENG_PLANNERS[0]].best
+    if best is not None:
+        check = record["goals"][g]["checks"][FENG_PLANNERS[0]]["best"]
+        files[f"{g}/plan.json"] = write_plan_json(
+            out / g / "plan.json", best, scenario="scenario.yaml", check=check
+        )
+    return files

@@ -83,12 +83,12 @@ def liver_cases(medrad_dir=None, livers: Sequence[int] | None = None) -> list[di
         No Med-RAD liver folder, or a patient that is not there.
     """
     from needlekit.io.medrad import _files, _starts_and_targets
-    from needlekit.io.medrad_paths import chosen_patients
+    from needlekit.io.medrad_paths import chosen_patients, patient_folder
 
     root, chosen = chosen_patients("liver", medrad_dir, livers, patients_flag="--livers")
     out = []
     for p in chosen:
-        folder = root / "Liver" / f"Patient{p}"
+        folder = patient_folder("liver", p, root)
         starts, _ = _starts_and_targets(_files(folder), folder)
         for s in starts:
             nodule = "nodule" if s.target == "target" else f"nodule{s.target[len('target') :]}"
@@ -159,10 +159,8 @@ def run_liver_case(
         counts, or None), ``verified`` (every planned needle passes the independent
         check; None when none was planned), ``violations``, ``prepare_s`` and ``plan_s``.
     """
-    from dataclasses import replace
-
-    from needlekit.planning.interface import Termination, get_planner
-    from needlekit.planning.straight.ablation import plan_with_coverage
+    from needlekit.planning.interface import get_planner
+    from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.scenario.loading import parse_scenario
     from needlekit.scenario.problems import coverage_region, multi_problem_from_scenario
@@ -176,14 +174,8 @@ def run_liver_case(
     planner = get_planner("liu_cfrw", options)
     steps: dict = {}
     t1 = time.perf_counter()
-    plan, outcome = plan_with_coverage(
-        multi.problem,
-        region,
-        settings["zone"],
-        lambda targets: planner.solve(replace(multi, targets_mm=targets), Termination(3600.0)),
-        max_needles=settings["max_needles"],
-        coverage_goal=settings["coverage_goal"],
-        timings=steps,
+    plan, outcome = plan_coverage(
+        multi, planner, region, settings, time_limit_s=3600.0, timings=steps
     )
     plan_s = time.perf_counter() - t1
     rep = outcome.planned or outcome.chosen.report

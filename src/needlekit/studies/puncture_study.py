@@ -372,7 +372,7 @@ def summary_stats(values) -> dict:
 
     Parameters
     ----------
-    values : array_like
+    values : array_like, shape (n,)
 
     Returns
     -------

@@ -16,8 +16,8 @@ name       procedure                                          module
 =========  =================================================  ==============================
 
 Geometry is described exactly (:mod:`._shapes`: tapered tubes, sheets, balls and
-half-spaces; :mod:`._trees`: space-filling vessel and airway trees) and the complex
-structures are baked into voxel distance grids. Builds are cached per (name, seed,
+half-spaces; :mod:`._trees`: space-filling vessel and airway trees, grown from the tubes
+of :mod:`._tubes`) and the complex structures are baked into voxel distance grids. Builds are cached per (name, seed,
 voxel size) in the process.
 
 Examples

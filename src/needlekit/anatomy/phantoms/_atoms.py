@@ -342,7 +342,12 @@ class AtomField(DistanceField):
         return self.bake_on(affine, shape)
 
     def release_cells(self) -> None:
-        """Drop the acceleration cells (rebuilt on the next query) to free memory."""
+        """Drop the acceleration cells (rebuilt on the next query) to free memory.
+
+        Returns
+        -------
+        None
+        """
         self._cells = None
 
 

@@ -111,7 +111,16 @@ def check_voxel_size(voxel_size_mm, lo: float, hi: float) -> float:
 
 
 def frozen(arr) -> np.ndarray:
-    """A read-only float64 copy of ``arr`` (cached phantoms share their arrays)."""
+    """A read-only float64 copy of ``arr`` (cached phantoms share their arrays).
+
+    Parameters
+    ----------
+    arr : array_like, any shape
+
+    Returns
+    -------
+    ndarray, shape of ``arr``, float64, not writeable
+    """
     out = np.array(arr, dtype=np.float64)
     out.flags.writeable = False
     return out

@@ -149,7 +149,13 @@ class EllipticCylinderSkin(DistanceField):
         )
 
     def bounds(self) -> np.ndarray:
-        """Box of the body (infinite along z), shape (2, 3) (mm)."""
+        """Box of the body (infinite along z), shape (2, 3) (mm).
+
+        Returns
+        -------
+        ndarray, shape (2, 3)
+            Lower and upper corner (mm, world frame).
+        """
         c, ab = self.center_xy_mm, self.semi_axes_mm
         return np.array(
             [[c[0] - ab[0], c[1] - ab[1], -np.inf], [c[0] + ab[0], c[1] + ab[1], np.inf]]

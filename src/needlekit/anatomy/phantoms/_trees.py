@@ -38,14 +38,20 @@ three-dimensional model of the conducting airways", Ann. Biomed. Eng. 28 (2000) 
 from __future__ import annotations
 
 import heapq
-import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
-from needlekit.anatomy.fields import DistanceField
-from needlekit.anatomy.phantoms._shapes import round_cone
+from needlekit.anatomy.phantoms._tubes import (  # the tubes are re-exported
+    CollisionWorld,
+    Tree,
+    _any_perpendicular,
+    _unit,
+    chain_atoms,
+    rotate,
+    sample_in_region,
+    segment_ok,
+)
 from needlekit.geometry.segments import segment_distances
 
 __all__ = [
@@ -61,6 +67,7 @@ __all__ = [
     "segment_distances",
 ]
 
+
 #: Rotations (rad) about a branch tried for a companion's offset, nearest first.
 _TURNS = (0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5, 2.0, -2.0, 2.6, -2.6, np.pi)
 
@@ -70,304 +77,6 @@ RESPLITS: int = 2
 
 #: Length factors of the successive variants of a branch that does not fit.
 _SHORTEN = (1.0, 1.0, 0.75, 0.75, 0.55, 0.55, 0.4, 0.4)
-
-#: Spacing (mm) of the samples along a new segment at which the organ and the forbidden
-#: zones are checked; the checks add half of it (the fields are 1-Lipschitz).
-CHECK_SPACING_MM: float = 1.5
-
-
-# ----------------------------------------------------------------------------------------
-# small geometry
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    # np.cross costs ~20 us on single vectors; this is the same product
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
-
-
-def rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rotate ``v`` about the unit ``axis`` by ``angle`` (rad), Rodrigues' formula.
-
-    Parameters
-    ----------
-    v, axis : ndarray, shape (3,)
-    angle : float
-
-    Returns
-    -------
-    ndarray, shape (3,)
-    """
-    c, s = np.cos(angle), np.sin(angle)
-    return v * c + _cross(axis, v) * s + axis * (axis @ v) * (1.0 - c)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
-
-
-def _any_perpendicular(u: np.ndarray) -> np.ndarray:
-    e = np.zeros(3)
-    e[int(np.argmin(np.abs(u)))] = 1.0
-    return _unit(_cross(u, e))
-
-
-@numba.njit(cache=True)
-def _capsule_clearance(p0, p1, r, q0, q1, rq, n, exempt):  # pragma: no cover - compiled
-    """min over ``i < n`` not in ``exempt`` of ``dist(p0-p1, q0[i]-q1[i]) - rq[i] - r``
-    (the closest-points logic of :func:`segment_distances`, one pair at a time)."""
-    best = np.inf
-    d1x = p1[0] - p0[0]
-    d1y = p1[1] - p0[1]
-    d1z = p1[2] - p0[2]
-    a = d1x * d1x + d1y * d1y + d1z * d1z
-    for i in range(n):
-        skip = False
-        for j in range(exempt.shape[0]):
-            if exempt[j] == i:
-                skip = True
-        if skip:
-            continue
-        d2x = q1[i, 0] - q0[i, 0]
-        d2y = q1[i, 1] - q0[i, 1]
-        d2z = q1[i, 2] - q0[i, 2]
-        rx = p0[0] - q0[i, 0]
-        ry = p0[1] - q0[i, 1]
-        rz = p0[2] - q0[i, 2]
-        e = d2x * d2x + d2y * d2y + d2z * d2z
-        f = d2x * rx + d2y * ry + d2z * rz
-        if a <= 1e-18 and e <= 1e-18:
-            s = 0.0
-            t = 0.0
-        elif a <= 1e-18:
-            s = 0.0
-            t = min(max(f / e, 0.0), 1.0)
-        else:
-            c = d1x * rx + d1y * ry + d1z * rz
-            if e <= 1e-18:
-                t = 0.0
-                s = min(max(-c / a, 0.0), 1.0)
-            else:
-                b = d1x * d2x + d1y * d2y + d1z * d2z
-                denom = a * e - b * b
-                s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
-                t = (b * s + f) / e
-                if t < 0.0:
-                    t = 0.0
-                    s = min(max(-c / a, 0.0), 1.0)
-                elif t > 1.0:
-                    t = 1.0
-                    s = min(max((b - c) / a, 0.0), 1.0)
-        cx = p0[0] + s * d1x - q0[i, 0] - t * d2x
-        cy = p0[1] + s * d1y - q0[i, 1] - t * d2y
-        cz = p0[2] + s * d1z - q0[i, 2] - t * d2z
-        best = min(best, math.sqrt(cx * cx + cy * cy + cz * cz) - rq[i] - r)
-    return best
-
-
-def sample_in_region(
-    rng: np.random.Generator,
-    region: DistanceField,
-    n: int,
-    *,
-    depth_mm: float = 0.0,
-    box=None,
-    exclude=None,
-) -> np.ndarray:
-    """``n`` points uniform in ``{region sd <= -depth_mm}``, by rejection in its box.
-
-    Parameters
-    ----------
-    rng : numpy.random.Generator
-    region : DistanceField
-    n : int
-    depth_mm : float
-        Least depth (mm) below the region's surface.
-    box : array_like, shape (2, 3), optional
-        Sampling box (default: the region's bounds).
-    exclude : callable, optional
-        ``exclude(points (k, 3)) -> bool (k,)`` marks points to reject.
-
-    Returns
-    -------
-    ndarray, shape (n, 3)
-    """
-    b = region.bounds() if box is None else np.asarray(box, float)
-    out: list[np.ndarray] = []
-    have = 0
-    while have < n:
-        p = rng.uniform(b[0], b[1], size=(max(4 * n, 256), 3))
-        ok = region.signed_distance(p) <= -depth_mm
-        if exclude is not None:
-            ok &= ~exclude(p)
-        out.append(p[ok])
-        have += int(ok.sum())
-    return np.concatenate(out)[:n]
-
-
-def chain_atoms(points, radii) -> list:
-    """Round cones joining consecutive points of a polyline (a curved tube).
-
-    Parameters
-    ----------
-    points : array_like, shape (n, 3)
-    radii : float or array_like, shape (n,)
-
-    Returns
-    -------
-    list of (int, ndarray)
-        ``n - 1`` atoms.
-    """
-    p = np.asarray(points, float)
-    r = np.broadcast_to(np.asarray(radii, float), (len(p),))
-    return [round_cone(p[i], p[i + 1], r[i], r[i + 1]) for i in range(len(p) - 1)]
-
-
-# ----------------------------------------------------------------------------------------
-# trees
-
-
-@dataclass
-class Tree:
-    """Tapered tube segments forming a tree.
-
-    Attributes
-    ----------
-    start, end : ndarray, shape (m, 3)
-        Segment end points (world RAS, mm).
-    r_start, r_end : ndarray, shape (m,)
-        Radii (mm) at the two ends.
-    parent : ndarray of int, shape (m,)
-        Index of the parent segment, -1 for roots.
-    generation : ndarray of int, shape (m,)
-        Branching generation (0 for roots).
-    """
-
-    start: np.ndarray
-    end: np.ndarray
-    r_start: np.ndarray
-    r_end: np.ndarray
-    parent: np.ndarray
-    generation: np.ndarray
-
-    @classmethod
-    def from_rows(cls, rows: list[tuple]) -> Tree:
-        """From rows ``(start, end, r_start, r_end, parent, generation)``."""
-        if not rows:
-            z = np.zeros((0, 3))
-            return cls(z, z, np.zeros(0), np.zeros(0), np.zeros(0, int), np.zeros(0, int))
-        st, en, r0, r1, par, gen = zip(*rows, strict=True)
-        return cls(
-            np.array(st),
-            np.array(en),
-            np.array(r0),
-            np.array(r1),
-            np.array(par, dtype=int),
-            np.array(gen, dtype=int),
-        )
-
-    def __len__(self) -> int:
-        return len(self.start)
-
-    def concat(self, other: Tree) -> Tree:
-        """This tree's segments followed by ``other``'s (parents re-indexed)."""
-        shift = np.where(other.parent >= 0, other.parent + len(self), -1)
-        return Tree(
-            np.concatenate([self.start, other.start]),
-            np.concatenate([self.end, other.end]),
-            np.concatenate([self.r_start, other.r_start]),
-            np.concatenate([self.r_end, other.r_end]),
-            np.concatenate([self.parent, shift]),
-            np.concatenate([self.generation, other.generation]),
-        )
-
-    def atoms(self) -> list:
-        """Round-cone atoms of the segments."""
-        return [
-            round_cone(a, b, r0, r1)
-            for a, b, r0, r1 in zip(self.start, self.end, self.r_start, self.r_end, strict=True)
-        ]
-
-    def diameters_mm(self) -> np.ndarray:
-        """Largest diameter of each segment (mm), shape (m,)."""
-        return 2.0 * np.maximum(self.r_start, self.r_end)
-
-    def lengths_mm(self) -> np.ndarray:
-        """Axis length of each segment (mm), shape (m,)."""
-        return np.linalg.norm(self.end - self.start, axis=1)
-
-    def children(self) -> list[list[int]]:
-        """Children of every segment."""
-        out: list[list[int]] = [[] for _ in range(len(self))]
-        for i, p in enumerate(self.parent):
-            if p >= 0:
-                out[p].append(i)
-        return out
-
-    def branch_angles_deg(self) -> np.ndarray:
-        """Angle (deg) between each non-root segment and its parent, shape (m,)
-        (NaN for roots)."""
-        d = self.end - self.start
-        d = d / np.linalg.norm(d, axis=1, keepdims=True)
-        out = np.full(len(self), np.nan)
-        has = self.parent >= 0
-        cos = np.einsum("ij,ij->i", d[has], d[self.parent[has]])
-        out[has] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        return out
-
-
-class CollisionWorld:
-    """Capsules placed so far (axis segment and largest radius), for clearance checks."""
-
-    def __init__(self, capacity: int = 1024) -> None:
-        self.a = np.empty((capacity, 3))
-        self.b = np.empty((capacity, 3))
-        self.r = np.empty(capacity)
-        self.n = 0
-
-    def add(self, a, b, r: float) -> int:
-        """Add a capsule; returns its id."""
-        if self.n == len(self.r):
-            self.a = np.concatenate([self.a, np.empty_like(self.a)])
-            self.b = np.concatenate([self.b, np.empty_like(self.b)])
-            self.r = np.concatenate([self.r, np.empty_like(self.r)])
-        self.a[self.n], self.b[self.n], self.r[self.n] = a, b, r
-        self.n += 1
-        return self.n - 1
-
-    def add_tree(self, tree: Tree) -> list[int]:
-        """Add every segment of a tree; returns their ids."""
-        return [
-            self.add(a, b, max(r0, r1))
-            for a, b, r0, r1 in zip(tree.start, tree.end, tree.r_start, tree.r_end, strict=True)
-        ]
-
-    def clearance(self, a, b, r: float, exempt=()) -> float:
-        """Smallest surface gap (mm) between the capsule ``(a, b, r)`` and the others
-        (numba; :meth:`clearance_reference` is the numpy oracle)."""
-        ex = np.array(list(exempt), dtype=np.int64)
-        return float(
-            _capsule_clearance(
-                np.asarray(a, float),
-                np.asarray(b, float),
-                float(r),
-                self.a,
-                self.b,
-                self.r,
-                self.n,
-                ex,
-            )
-        )
-
-    def clearance_reference(self, a, b, r: float, exempt=()) -> float:
-        """:meth:`clearance` by :func:`segment_distances` (plain numpy)."""
-        if self.n == 0:
-            return np.inf
-        d = segment_distances(a, b, self.a[: self.n], self.b[: self.n]) - self.r[: self.n] - r
-        if exempt:
-            d[list(exempt)] = np.inf
-        return float(d.min())
 
 
 @dataclass(frozen=True)
@@ -399,65 +108,6 @@ class TreeSpec:
     region_margin_mm: float = 1.5
     gap_mm: float = 1.0
     attempts: int = 8
-
-
-def _samples_along(a, b, skip_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    length = float(np.linalg.norm(b - a))
-    t0 = min(skip_mm / length, 1.0) if length > 0 else 1.0
-    n = max(2, int(np.ceil((1.0 - t0) * length / CHECK_SPACING_MM)) + 1)
-    t = np.linspace(t0, 1.0, n)
-    return a + t[:, None] * (b - a), t
-
-
-def segment_ok(
-    a,
-    b,
-    r0: float,
-    r1: float,
-    *,
-    region,
-    region_margin: float,
-    zones,
-    world: CollisionWorld,
-    gap: float,
-    exempt=(),
-    skip_mm: float = 0.0,
-) -> bool:
-    """Whether the tube ``a-b`` (radii ``r0 -> r1``) fits: inside ``region`` by
-    ``region_margin``, clear of each ``(zone_field, clearance)`` and of the world.
-
-    Parameters
-    ----------
-    a, b : ndarray, shape (3,)
-    r0, r1 : float
-    region : DistanceField or None
-    region_margin : float
-    zones : sequence of (DistanceField, float) or (DistanceField, float, float)
-        Forbidden zones, the clearance to keep from each and, optionally, the least tube
-        radius (mm) the zone concerns (e.g. only main vessels keep far from a tumour).
-    world : CollisionWorld
-    gap : float
-    exempt : iterable of int
-        World ids not checked (parent and siblings).
-    skip_mm : float
-        Length at the start not checked against region and zones (inside the parent).
-
-    Returns
-    -------
-    bool
-    """
-    pts, t = _samples_along(a, b, skip_mm)
-    r = r0 + (r1 - r0) * t
-    half = 0.5 * CHECK_SPACING_MM
-    if region is not None and np.any(region.signed_distance(pts) + half > -(r + region_margin)):
-        return False
-    for zone in zones:
-        field_, clearance = zone[0], zone[1]
-        if len(zone) > 2 and max(r0, r1) < zone[2]:
-            continue  # the zone only concerns thicker tubes
-        if np.any(field_.signed_distance(pts) - half < r + clearance):
-            return False
-    return world.clearance(a, b, max(r0, r1), exempt) >= gap
 
 
 def _split(points: np.ndarray, u: np.ndarray, plane=None):

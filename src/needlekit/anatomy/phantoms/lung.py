@@ -61,8 +61,8 @@ from needlekit.anatomy.phantoms._trees import (
     grow_forest,
     rotate,
     sample_in_region,
-    segment_ok,
 )
+from needlekit.anatomy.phantoms._tubes import segment_ok
 from needlekit.anatomy.scene import Role
 from needlekit.errors import NeedlekitError
 

@@ -15,12 +15,14 @@ direction assumed while choosing is ``-up`` (for a Med-RAD start pose: its z axi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
 from needlekit.errors import InvalidInputError
+from needlekit.planning.interface import Termination
 from needlekit.planning.straight.coverage import (
     AblationZone,
     CoveragePlan,
@@ -31,6 +33,7 @@ from needlekit.planning.straight.coverage import (
     evaluate_coverage,
     fraction_text,
 )
+from needlekit.planning.straight.planner import MultiNeedleProblem
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.planning.straight.sequence import MultiNeedlePlan
 from needlekit.records import field_of
@@ -41,6 +44,7 @@ __all__ = [
     "AblationOutcome",
     "choose_needle_targets",
     "clip_region",
+    "plan_coverage",
     "plan_with_coverage",
     "planned_coverage",
     "voxelise",
@@ -407,3 +411,52 @@ def plan_with_coverage(
             if outcome2.ok or (plan2.solved and planned2.coverage > planned.coverage):
                 return plan2, outcome2
     return plan, outcome
+
+
+def plan_coverage(
+    multi: MultiNeedleProblem,
+    planner,
+    region: TargetRegion,
+    settings: Mapping,
+    *,
+    time_limit_s: float,
+    timings: dict | None = None,
+) -> tuple[MultiNeedlePlan | None, AblationOutcome]:
+    """The coverage pipeline of ``needlekit multi``, the liver study and the straight
+    benchmark: :func:`plan_with_coverage` with ``planner`` solving each round's targets.
+
+    Parameters
+    ----------
+    multi : MultiNeedleProblem
+        Its problem is planned; its targets are replaced by the chosen ones.
+    planner : Planner
+        A straight multi-needle planner (``liu_cfrw``): ``planner.solve(multi,
+        termination) -> MultiNeedlePlan``.
+    region : TargetRegion
+        Tumour plus margin.
+    settings : mapping
+        The scenario's coverage block: ``zone`` (AblationZone), ``max_needles`` (int) and
+        ``coverage_goal`` (float in [0, 1]) are used
+        (:func:`needlekit.io.problems.coverage_region` returns it).
+    time_limit_s : float
+        Budget of each round's planning (s); every round gets a fresh one.
+    timings : dict, optional
+        Filled as :func:`plan_with_coverage` fills it.
+
+    Returns
+    -------
+    plan : MultiNeedlePlan or None
+        None when no target could be chosen.
+    outcome : AblationOutcome
+    """
+    return plan_with_coverage(
+        multi.problem,
+        region,
+        settings["zone"],
+        lambda targets: planner.solve(
+            replace(multi, targets_mm=targets), Termination(time_limit_s)
+        ),
+        max_needles=settings["max_needles"],
+        coverage_goal=settings["coverage_goal"],
+        timings=timings,
+    )
