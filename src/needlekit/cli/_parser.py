@@ -787,6 +787,19 @@ def _build_parser() -> argparse.ArgumentParser:
         folder=True,
         help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)",
     )
+    add_input(
+        bs,
+        "--reference-app",
+        metavar="PATH",
+        help="a built rcs_star of the UNC reference planner: run it beside needlekit's "
+        "rcs_star on every lung case, interleaved (its budget is its stock 1 s)",
+    )
+    bs.add_argument(
+        "--reference-work",
+        type=Path,
+        metavar="DIR",
+        help="folder for the reference app's case files (default: a temporary folder)",
+    )
     ba = bench_sub.add_parser(
         "approach",
         help="approach analysis on Med-RAD liver 4 beside Slicer's PercutaneousApproachAnalysis "

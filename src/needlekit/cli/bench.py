@@ -52,6 +52,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                 time_limit_s=args.time_limit_s,
                 medrad_dir=args.medrad,
                 scenarios=tuple(args.scenario),
+                reference_app=args.reference_app,
+                reference_work=args.reference_work,
                 progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
             )
         for row in record["results"]:
@@ -112,4 +114,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         write_json(args.out, record)
     print(format_record(record))
+    if "reference_app" in record:
+        from needlekit.benchmarks.reference_comparison import format_comparison
+
+        print(format_comparison(record["reference_app"]))
     return EXIT_OK
