@@ -10,12 +10,16 @@ are recorded beside ours.
 from __future__ import annotations
 
 import math
+import tempfile
 import time
 from collections.abc import Sequence
+from contextlib import ExitStack
 from typing import Any
 
 import numpy as np
 
+from needlekit.benchmarks.reference_app import check_reference_app
+from needlekit.benchmarks.reference_comparison import ReferenceComparison
 from needlekit.constants import (
     DEFAULT_GOAL_TOLERANCE_MM,
     DEFAULT_MAX_HEADING_CHANGE_DEG,
@@ -25,6 +29,7 @@ from needlekit.constants import (
     DEFAULT_START_EXCLUSION_MM,
     DEFAULT_TIME_LIMIT_S,
 )
+from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus
 from needlekit.provenance import machine_info
 
@@ -43,6 +48,12 @@ REFERENCE_LUNG1: dict[tuple[int, int], float | str | None] = {
 }  # fmt: skip
 
 
+def _us_per_iteration(stats: dict) -> float | None:
+    """Search time per iteration (microseconds), None without iterations."""
+    wall, iterations = stats.get("planner_wall_s"), stats.get("iterations")
+    return 1e6 * wall / iterations if iterations and wall is not None else None
+
+
 def _row(res, **case) -> dict:
     st = res.stats
     return {
@@ -59,6 +70,7 @@ def _row(res, **case) -> dict:
         "certified": bool(st.get("certified", False)),
         "certified_clearance_mm": st.get("certified_clearance_mm"),
         "iterations": st.get("iterations"),
+        "us_per_iteration": _us_per_iteration(st),
         "reason": st.get("reason"),
         "goal_distance_mm": st.get("goal_distance_mm"),
     }
@@ -120,6 +132,8 @@ def run_steerable_benchmark(
     medrad_dir=None,
     progress=None,
     scenarios: Sequence = (),
+    reference_app=None,
+    reference_work=None,
 ) -> dict[str, Any]:
     """Run the planners on every case and record status, cost and time.
 
@@ -139,6 +153,13 @@ def run_steerable_benchmark(
     scenarios : sequence of path-like
         Scenario files run as further cases, each with its own settings but these
         planners and budget (no Med-RAD grid when ``patients`` is empty).
+    reference_app : path-like, optional
+        A built ``rcs_star`` of the UNC reference planner: every lung case's ``rcs_star``
+        run is interleaved with a run of the app on the same case
+        (:mod:`needlekit.benchmarks.reference_comparison`; needs ``rcs_star`` among ``planners``
+        and the app's 1 s budget). Checked before any work.
+    reference_work : path-like, optional
+        Where the app's case folders go (default: a temporary folder, removed at the end).
 
     Returns
     -------
@@ -148,42 +169,35 @@ def run_steerable_benchmark(
         ``start``, ``r_min_mm`` or ``scenario``, ``planner``, ``status``, ``cost_mm``,
         ``time_s``, ``setup_s``, ``planner_wall_s``, ``overrun_s`` (time beyond the budget),
         ``first_solution_s``, ``cost_history``, ``certified``, ``iterations``,
-        ``reference_cost_mm``) and ``summary`` (median time to a certified plan, worst
-        time of infeasible answers, largest overrun, agreement with the reference).
+        ``reference_cost_mm``, ``us_per_iteration``: ``planner_wall_s`` per iteration in
+        microseconds) and ``summary`` (per planner: median time to a certified plan and
+        median time per iteration, worst time of infeasible answers, largest overrun;
+        agreement with the reference). With ``reference_app`` also ``reference_app``
+        (:meth:`~needlekit.benchmarks.reference_comparison.ReferenceComparison.record`).
     """
     from needlekit.io.medrad import load_medrad
     from needlekit.planning.steerable.solve import solve
     from needlekit.scenario.problems import load_problem
 
-    def run(problem, planner):
-        return solve(problem, planner, time_limit_s=time_limit_s, seed=0)
+    def run(problem, planner, budget_s=time_limit_s):
+        return solve(problem, planner, time_limit_s=budget_s, seed=0)
 
-    rows, fields = [], []
-    for patient in patients:
-        t0 = time.perf_counter()
-        case = load_medrad("lung", patient, medrad_dir)
-        fields.append({"patient": patient, **case.timings_s, "total_s": time.perf_counter() - t0})
-        for s in case.starts:
-            start = int(s.name.removeprefix("start"))
-            for r in radii_mm:
-                problem = medrad_lung_problem(case, s.name, r)
-                for planner in planners:
-                    res = run(problem, planner)
-                    ref = (
-                        REFERENCE_LUNG1.get((start, int(r)))
-                        if patient == 1 and planner == "rcs_star"
-                        else "n/a"
-                    )
-                    rows.append(
-                        _row(res, patient=patient, start=start, r_min_mm=float(r))
-                        | {"collision_model": problem.collision_model}
-                        | {"reference_cost_mm": ref}
-                    )
-                    if progress is not None:
-                        progress(
-                            f"lung {patient} start {start} r {r:g} {planner}: {res.status.value}"
-                        )
-        del case
+    with ExitStack() as stack:
+        reference = None
+        if reference_app is not None:  # checked before any work
+            reference = _reference(reference_app, reference_work, planners, time_limit_s, stack)
+        rows, fields = [], []
+        for patient in patients:
+            t0 = time.perf_counter()
+            case = load_medrad("lung", patient, medrad_dir)
+            fields.append(
+                {"patient": patient, **case.timings_s, "total_s": time.perf_counter() - t0}
+            )
+            if reference is not None:
+                reference.add_patient(patient, case)
+            rows += _patient_rows(case, radii_mm, planners, run, reference, progress)
+            del case
+        comparison = None if reference is None else reference.record()
     for path in scenarios:
         _, problem = load_problem(path)
         for planner in planners:
@@ -211,7 +225,54 @@ def run_steerable_benchmark(
         "fields": fields,
         "results": rows,
         "summary": _summary(rows),
-    }
+    } | ({} if comparison is None else {"reference_app": comparison})
+
+
+def _reference(app, work, planners, time_limit_s, stack: ExitStack):
+    """The app comparison, its settings checked (before any work)."""
+    check_reference_app(app)
+    if "rcs_star" not in planners:
+        raise InvalidInputError(
+            "--reference-app",
+            "compares needlekit's rcs_star with the app: add rcs_star to --planners",
+        )
+    if work is None:
+        work = stack.enter_context(tempfile.TemporaryDirectory(prefix="needlekit-refapp-"))
+    return ReferenceComparison(app, work, BENCH_NEEDLE, time_limit_s)
+
+
+def _patient_rows(case, radii_mm, planners, run, reference, progress) -> list[dict]:
+    """One patient's rows: every start x r_min x planner (``rcs_star`` beside the app when
+    ``reference`` is given)."""
+    rows = []
+    target = np.asarray(case.targets_mm["target"], dtype=float)
+    for s in case.starts:
+        start = int(s.name.removeprefix("start"))
+        for r in radii_mm:
+            problem = medrad_lung_problem(case, s.name, r)
+            for planner in planners:
+                if reference is not None and planner == "rcs_star":
+                    res = reference.compare(
+                        case.patient, start, s.world_T_tip, target, r,
+                        lambda budget, p=problem: run(p, "rcs_star", budget),
+                    )  # fmt: skip
+                else:
+                    res = run(problem, planner)
+                ref = (
+                    REFERENCE_LUNG1.get((start, int(r)))
+                    if case.patient == 1 and planner == "rcs_star"
+                    else "n/a"
+                )
+                rows.append(
+                    _row(res, patient=case.patient, start=start, r_min_mm=float(r))
+                    | {"collision_model": problem.collision_model}
+                    | {"reference_cost_mm": ref}
+                )
+                if progress is not None:
+                    progress(
+                        f"lung {case.patient} start {start} r {r:g} {planner}: {res.status.value}"
+                    )
+    return rows
 
 
 def _summary(rows: list[dict]) -> dict:
@@ -221,12 +282,14 @@ def _summary(rows: list[dict]) -> dict:
         certified = [r["time_s"] for r in mine if r["certified"]]
         infeasible = [r["time_s"] for r in mine if r["status"] == PlanStatus.INFEASIBLE.value]
         overruns = [r["overrun_s"] for r in mine if r.get("overrun_s") is not None]
+        per_it = [r["us_per_iteration"] for r in mine if r["us_per_iteration"] is not None]
         out[planner] = {
             "cases": len(mine),
             "max_overrun_s": max(overruns) if overruns else None,
             "solved": sum(r["status"] == "solved" for r in mine),
             "certified": len(certified),
             "median_time_to_certified_s": float(np.median(certified)) if certified else None,
+            "median_us_per_iteration": float(np.median(per_it)) if per_it else None,
             "max_time_infeasible_s": max(infeasible) if infeasible else None,
         }
     ref_rows = [r for r in rows if r["reference_cost_mm"] != "n/a"]

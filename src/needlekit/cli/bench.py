@@ -7,6 +7,7 @@ from pathlib import Path
 
 from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK, _Parser, _positive, _positive_int, _seed
+from needlekit.cli._paths import add_input
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import NeedlekitError
 
@@ -20,6 +21,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         write_json(args.out, record)
     print(format_record(record))
+    if "reference_app" in record:
+        from needlekit.benchmarks.reference_comparison import format_comparison
+
+        print(format_comparison(record["reference_app"]))
     return EXIT_OK
 
 
@@ -71,6 +76,8 @@ def _steerable(args: argparse.Namespace) -> dict:
             time_limit_s=args.time_limit_s,
             medrad_dir=args.medrad,
             scenarios=tuple(args.scenario),
+            reference_app=args.reference_app,
+            reference_work=args.reference_work,
             progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
         )
     for row in record["results"]:
@@ -245,6 +252,19 @@ def _register_steerable(bench_sub) -> None:
         help=f"budget per case and planner (default {DEFAULT_TIME_LIMIT_S:g} s)",
     )
     _flags.add_medrad(bs)
+    add_input(
+        bs,
+        "--reference-app",
+        metavar="PATH",
+        help="a built rcs_star of the UNC reference planner: run it beside needlekit's "
+        "rcs_star on every lung case, interleaved (its budget is its stock 1 s)",
+    )
+    bs.add_argument(
+        "--reference-work",
+        type=Path,
+        metavar="DIR",
+        help="folder for the reference app's case files (default: a temporary folder)",
+    )
 
 
 def _register_liver_suites(bench_sub) -> None:
