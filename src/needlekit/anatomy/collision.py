@@ -212,7 +212,7 @@ class CollisionChecker(Protocol):
         """
 
 
-class FieldChecker:
+class FieldChecker(CollisionChecker):
     """The ``field`` model: the scene's obstacle field, certified (module notes).
 
     Parameters
@@ -302,7 +302,7 @@ class FieldChecker:
         self.scene.obstacle_field(0.0).signed_distance(p)
 
 
-class VoxelCentresChecker:
+class VoxelCentresChecker(CollisionChecker):
     """The ``voxel_centres`` model: the reference planner's exact voxel-centre test.
 
     Parameters

@@ -64,6 +64,10 @@ def register_collision_checker(name: str, factory: Callable[..., Any], *, replac
     InvalidInputError
         A built-in name, a name already taken (without ``replace``), or a factory that
         is not callable.
+
+    Returns
+    -------
+    None
     """
     if not isinstance(name, str) or not name.isidentifier():
         raise InvalidInputError("name", f"expected an identifier, got {name!r}")
@@ -87,6 +91,10 @@ def unregister_collision_checker(name: str) -> None:
     ------
     InvalidInputError
         No such registered checker.
+
+    Returns
+    -------
+    None
     """
     if name not in _REGISTERED:
         raise InvalidInputError("name", f"no registered collision checker {name!r} to remove")

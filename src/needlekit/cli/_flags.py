@@ -112,7 +112,18 @@ OPTION = Flag(
 
 def add_option(p, **per_command) -> argparse.Action:
     """``--option NAME=VALUE`` (repeatable): a planner option, typed and checked by
-    :func:`needlekit.cli._options.planner_flag_options`."""
+    :func:`needlekit.cli._options.planner_flag_options`.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+    **per_command
+        ``help`` and other keyword arguments of this command's flag.
+
+    Returns
+    -------
+    argparse.Action
+    """
     help_ = per_command.pop(
         "help",
         "a planner option, typed as the planner declares it (repeatable); a field of an "
@@ -123,7 +134,16 @@ def add_option(p, **per_command) -> argparse.Action:
 
 
 def add_cache_options(p) -> None:
-    """``--cache-dir`` and ``--no-cache``: the prepared-anatomy cache of Med-RAD patients."""
+    """``--cache-dir`` and ``--no-cache``: the prepared-anatomy cache of Med-RAD patients.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    None
+    """
     CACHE_DIR.add(
         p,
         help="prepared-anatomy cache of Med-RAD patients (default $NEEDLEKIT_CACHE_DIR, "
@@ -133,14 +153,32 @@ def add_cache_options(p) -> None:
 
 
 def add_medrad(p) -> argparse.Action:
-    """``--medrad DIR``: the Med-RAD folder."""
+    """``--medrad DIR``: the Med-RAD folder.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    argparse.Action
+    """
     return MEDRAD.add(
         p, help="Med-RAD folder (default $NEEDLEKIT_MEDRAD or ../shared/data/med-rad)"
     )
 
 
 def add_record_out(p) -> argparse.Action:
-    """``--out FILE`` of a benchmark: where its record goes."""
+    """``--out FILE`` of a benchmark: where its record goes.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    argparse.Action
+    """
     return OUT.add(p, help="write the record as JSON here")
 
 
@@ -204,7 +242,16 @@ SCHEDULER = Flag("--scheduler", {"metavar": "ADDRESS", "action": _ExecutorChoice
 
 
 def add_executor_options(p) -> None:
-    """``--executor``, ``--workers``, ``--dask-workers``, ``--scheduler``: where tasks run."""
+    """``--executor``, ``--workers``, ``--dask-workers``, ``--scheduler``: where tasks run.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    None
+    """
     EXECUTOR.add(
         p,
         help="where tasks run: this process, a local process pool, or Dask (default serial; "

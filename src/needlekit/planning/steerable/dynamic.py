@@ -294,7 +294,18 @@ def _check_dict(check: Verification | None) -> dict | None:
 
 
 def json_ready(value):
-    """Plain JSON values: numpy numbers as Python ones, non-finite numbers as None."""
+    """Plain JSON values: numpy numbers as Python ones, non-finite numbers as None.
+
+    Parameters
+    ----------
+    value : object
+        Mappings, sequences, arrays and numbers, nested.
+
+    Returns
+    -------
+    object
+        The same structure with plain Python values.
+    """
     if isinstance(value, Mapping):
         return {str(k): json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
