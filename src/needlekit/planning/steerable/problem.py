@@ -472,6 +472,20 @@ class SteerableProblem:
             return replace(self, start_pose=pose, start_point_mm=None)
         return self._derived(start_pose=pose, start_point_mm=pose[:3, 3].copy())
 
+    def with_goal_tolerance(self, goal_tolerance_mm: float) -> SteerableProblem:
+        """The same problem with another goal tolerance (only it is checked).
+
+        Parameters
+        ----------
+        goal_tolerance_mm : float
+            > 0.
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        return self._derived(goal_tolerance_mm=as_positive(goal_tolerance_mm, "goal_tolerance_mm"))
+
     def _derived(self, **checked) -> SteerableProblem:
         """A copy with checked fields changed, nothing else recomputed."""
         import copy

@@ -327,6 +327,38 @@ def solve_rcs(
     return planner.solve(problem, Termination(time_limit_s, max_iterations))
 
 
+class _RankQueue:
+    """Nodes waiting by rank: RCS pops the lowest rank first (in insertion order), RCS*
+    the lowest cost ``f`` among the ranks within :data:`LOOKAHEAD_RANKS` of the lowest."""
+
+    def __init__(self, optimal: bool) -> None:
+        self.optimal = optimal
+        self.buckets: dict[int, list] = {}
+        self.counter = itertools.count()
+
+    def __bool__(self) -> bool:
+        return bool(self.buckets)
+
+    def push(self, rank: int, f: float, idx: int) -> None:
+        key = (f, next(self.counter), idx) if self.optimal else (next(self.counter), idx)
+        heapq.heappush(self.buckets.setdefault(rank, []), key)
+
+    def pop(self) -> int:
+        buckets = self.buckets
+        r0 = min(buckets)
+        if self.optimal:
+            choice = min(
+                (r for r in range(r0, r0 + LOOKAHEAD_RANKS + 1) if r in buckets),
+                key=lambda r: (buckets[r][0][0], r),
+            )
+        else:
+            choice = r0
+        item = heapq.heappop(buckets[choice])
+        if not buckets[choice]:
+            del buckets[choice]
+        return item[-1]
+
+
 def _search(
     problem: SteerableProblem,
     termination: Termination,
@@ -342,7 +374,7 @@ def _search(
     if verdict is not None:
         return search.result(verdict[0], reason=verdict[1])
     h0 = _cost_to_go(start, problem)
-    lengths, length_level, spins, spin_level = _tables(res)
+    _, length_level, _, spin_level = _tables(res)
     length_levels, spin_levels = res.length_levels, res.spin_levels
     kappa = problem.kappa_max_per_mm
     duplicates = _DuplicateIndex()
@@ -352,37 +384,15 @@ def _search(
     scale = 0.0 if bound is None else float(bound)  # no bound: order by g, prune nothing
     prune = optimal and bound is not None
     nodes = [_Node(start, -1, 0.0, h0, 0.0, 0, False, 0, 0, set(), scale * h0)]
-    counter = itertools.count()
-    buckets: dict[int, list] = {}
+    queue = _RankQueue(optimal)
+    push_node, pop = queue.push, queue.pop
     best = math.inf
     best_plan: SteerablePlan | None = None
-
-    def push(idx: int) -> None:
-        n = nodes[idx]
-        key = (n.f, next(counter)) if optimal else (next(counter),)
-        heapq.heappush(buckets.setdefault(n.rank, []), (*key, idx))
-
-    def pop() -> int:
-        r0 = min(buckets)
-        if optimal:
-            choice = min(
-                (r for r in range(r0, r0 + LOOKAHEAD_RANKS + 1) if r in buckets),
-                key=lambda r: (buckets[r][0][0], r),
-            )
-        else:
-            choice = r0
-        item = heapq.heappop(buckets[choice])
-        if not buckets[choice]:
-            del buckets[choice]
-        return item[-1]
 
     goal_c = np.ascontiguousarray(goal, dtype=np.float64)
     r_min, tau = problem.r_min_mm, problem.goal_tolerance_mm
     length_cost = bool(getattr(problem.objective, "exact_length", False))
-    spin_list = [float(v) for v in spins]
-    length_list = [float(v) for v in lengths]
-    length_rank = [int(v) for v in length_level]
-    spin_rank = [int(v) for v in spin_level]
+    spin_list, length_list, spin_rank, length_rank = _table_lists(res)
     dup_cell, dup_tol = duplicates.cell, duplicates.tol
 
     def add_child(parent_idx: int, curved: bool, li: int, si: int) -> None:
@@ -420,7 +430,7 @@ def _search(
                 g + scale * h,
             )
         )
-        push(len(nodes) - 1)
+        push_node(rank, nodes[-1].f, len(nodes) - 1)
 
     def expand(idx: int) -> None:
         for si in range(4):
@@ -440,14 +450,7 @@ def _search(
             add_child(n.parent, True, n.li, 2 * n.si + 1)
 
     def chain(idx: int) -> list:
-        prims = []
-        while nodes[idx].parent >= 0:
-            n = nodes[idx]
-            prims.append(
-                [spins[n.si] if n.curved else 0.0, kappa if n.curved else 0.0, lengths[n.li]]
-            )
-            idx = n.parent
-        return prims[::-1]
+        return _chain(nodes, idx, spin_list, kappa, length_list)
 
     def try_goal(idx: int) -> None:
         nonlocal best, best_plan
@@ -472,7 +475,7 @@ def _search(
     closest = (float(np.linalg.norm(start[:3, 3] - goal)), 0)  # (goal distance, node)
     try_goal(0)
     expand(0)
-    while buckets and run.keep_going():
+    while queue and run.keep_going():
         idx = pop()
         n = nodes[idx]
         parent = nodes[n.parent]
@@ -497,23 +500,50 @@ def _search(
         try_goal(idx)
         expand(idx)
 
-    exhausted = not buckets
-    stats = {
-        "nodes": len(nodes),
-        "certified": bool(exhausted and prune and best_plan is not None),
-        "exhausted": exhausted,
-        "duplicates": n_duplicates,
-    }
-    if optimal and bound is None:
-        stats["not_certified"] = (
-            f"the cost {problem.objective.name!r} declares no lower bound per mm, so the "
-            "search cannot prove its plan optimal"
-        )
+    stats = _stats(problem, optimal, prune, not queue, best_plan, len(nodes), n_duplicates)
     if best_plan is not None:
         return search.result(PlanStatus.SOLVED, best_plan, best, **stats)
-    if exhausted:
+    if stats["exhausted"]:
         return search.result(
             PlanStatus.INFEASIBLE, reason="no plan at the finest resolution", **stats
         )
     # the valid path that got nearest the goal
     return search.approximate(chain(closest[1]), nodes[closest[1]].g, **stats)
+
+
+def _table_lists(res: Resolution) -> tuple[list, list, list, list]:
+    """The primitive tables as Python lists (spins, lengths, their levels): cheaper to
+    index in the search loop than arrays."""
+    lengths, length_level, spins, spin_level = _tables(res)
+    return (
+        [float(v) for v in spins],
+        [float(v) for v in lengths],
+        [int(v) for v in spin_level],
+        [int(v) for v in length_level],
+    )
+
+
+def _chain(nodes: list, idx: int, spins: list, kappa: float, lengths: list) -> list:
+    """The primitives ``[spin, kappa, length]`` from the root to node ``idx``."""
+    prims = []
+    while nodes[idx].parent >= 0:
+        n = nodes[idx]
+        prims.append([spins[n.si] if n.curved else 0.0, kappa if n.curved else 0.0, lengths[n.li]])
+        idx = n.parent
+    return prims[::-1]
+
+
+def _stats(problem, optimal, prune, exhausted, best_plan, n_nodes, n_duplicates) -> dict:
+    """The search's own figures beside those every run records."""
+    stats = {
+        "nodes": n_nodes,
+        "certified": bool(exhausted and prune and best_plan is not None),
+        "exhausted": exhausted,
+        "duplicates": n_duplicates,
+    }
+    if optimal and problem.objective.lower_bound_per_mm is None:
+        stats["not_certified"] = (
+            f"the cost {problem.objective.name!r} declares no lower bound per mm, so the "
+            "search cannot prove its plan optimal"
+        )
+    return stats
