@@ -23,10 +23,10 @@ Examples
 >>> import numpy as np
 >>> from needlekit.anatomy.primitives import Sphere
 >>> from needlekit.anatomy.scene import Role, Scene, Structure
->>> scene = Scene([Structure("vessel", Sphere([0.0, 0.0, 20.0], 5.0), Role.OBSTACLE)])
+>>> scene = Scene([Structure("vessel", Role.OBSTACLE, Sphere([0.0, 0.0, 20.0], 5.0))])
 >>> checker = FieldChecker(scene, needle_radius_mm=0.5, safety_margin_mm=0.0,
 ...                        start_point_mm=np.zeros(3), exclusion_mm=0.0, spacing_mm=0.5)
->>> checker.collides(np.array([[0.0, 0.0, 14.0], [0.0, 0.0, 10.0]]))
+>>> checker.collides(np.array([[0.0, 0.0, 14.7], [0.0, 0.0, 10.0]]))
 True
 >>> checker.collides(np.array([[0.0, 0.0, 10.0]]))
 False
@@ -297,7 +297,9 @@ class FieldChecker(CollisionChecker):
         return None
 
     def warm_up(self) -> None:
-        p = self.start[None] + 1e-3
+        # a motion's worth of samples: more than the few-point lookups, so the kernels
+        # the search calls are the ones compiled (or loaded) here
+        p = self.start[None] + 1e-3 * np.arange(1, 33)[:, None]
         self.grown.signed_distance(p)
         self.scene.obstacle_field(0.0).signed_distance(p)
 

@@ -349,8 +349,8 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     from dataclasses import replace
 
     from needlekit.io.files import write_json, write_text
-    from needlekit.io.problems import multi_problem_from_scenario
-    from needlekit.io.scenario import load_scenario
+    from needlekit.scenario.problems import multi_problem_from_scenario
+    from needlekit.scenario.loading import load_scenario
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.deformation import NeedleDragDeformation
     from needlekit.planning.straight.verify import verify_multi

@@ -126,7 +126,7 @@ def _case_record(p) -> dict:
         "start_point_mm": [float(v) for v in p.start_point_mm],
         "puncture_normal": [float(v) for v in p.puncture_normal],
         "puncture_normal_source": p.metadata.get("puncture_normal_source"),
-        "collision_model": p.collision_model.value,
+        "collision_model": p.collision_model,
         "field_error_bound_mm": float(p.scene.obstacle_field(0.0).error_bound_mm),
         "goal2_offset_mm": list(FENG_GOAL2_OFFSET_MM),
     }

@@ -459,7 +459,7 @@ def _sources_and_problems(docs: dict, out: Path, cache_dir, use_cache: bool):
     """Each goal's scenario source (inline: workers on other machines cannot read files
     written here) and its problem, the patient prepared once in this process for both
     targets, each target checked."""
-    from needlekit.io.problems import ScenarioSource
+    from needlekit.scenario.problems import ScenarioSource
 
     sources = {
         g: ScenarioSource.of_document(
