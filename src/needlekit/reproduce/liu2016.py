@@ -349,12 +349,12 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     from dataclasses import replace
 
     from needlekit.io.files import write_json, write_text
-    from needlekit.scenario.problems import multi_problem_from_scenario
-    from needlekit.scenario.loading import load_scenario
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.deformation import NeedleDragDeformation
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.report.straight_report import plan_maps, straight_sections
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.problems import multi_problem_from_scenario
 
     del executor
     stage = Stages(progress, 5, "liu2016")
