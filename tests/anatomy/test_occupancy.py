@@ -62,3 +62,29 @@ def test_threshold_is_radius_plus_half_voxel_diagonal():
         VoxelObstacles(np.zeros((5, 5, 5), bool), affine, needle_diameter_mm=0.0)
     with pytest.raises(InvalidInputError, match="occupancy"):
         VoxelObstacles(np.zeros((5, 5)), affine, needle_diameter_mm=1.0)
+
+
+def test_the_smallest_distance_over_points_is_the_per_point_minimum():
+    # the plan check's one-number kernel (a shrinking search box) against the per-point
+    # kernel and the KD-tree oracle, exclusion and cap included
+    from needlekit.anatomy.occupancy import nearest_obstacle_distance_reference
+    from needlekit.anatomy.voxel_clearance import (
+        nearest_obstacle_distance,
+        smallest_obstacle_distance,
+    )
+
+    rng = np.random.default_rng(4)
+    occ = rng.random((30, 30, 30)) < 0.01
+    obs = VoxelObstacles(occ, np.diag([0.6, 0.6, 0.8, 1.0]), needle_diameter_mm=1.0)
+    for t in range(60):
+        pts = rng.uniform(1.0, 16.0, size=(int(rng.integers(1, 80)), 3))
+        excl = pts[0] if t % 2 else None
+        kw = {"exclude_near": excl, "exclusion_mm": 2.0 if t % 2 else 0.0}
+        cap = float(rng.uniform(0.5, 6.0))
+        each = nearest_obstacle_distance(obs, pts, cap_mm=cap, **kw)
+        oracle = np.minimum(nearest_obstacle_distance_reference(obs, pts, **kw), cap)
+        got = smallest_obstacle_distance(obs, pts, cap_mm=cap, near_mm=1.0, **kw)
+        assert got == each.min()
+        assert got == pytest.approx(oracle.min(), abs=1e-12)
+    outside = np.array([[5.0, 5.0, 5.0], [-3.0, 5.0, 5.0]])
+    assert smallest_obstacle_distance(obs, outside, cap_mm=3.0) == -np.inf

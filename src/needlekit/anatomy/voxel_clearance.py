@@ -21,39 +21,47 @@ from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_c
 __all__ = ["nearest_obstacle_distance", "smallest_obstacle_distance"]
 
 
+@numba.njit(cache=True, inline="always")
+def _nearest_in_box(occ, inv, affine, x, y, z, cap, excl_point, ex2):  # pragma: no cover
+    """Squared distance from ``(x, y, z)`` to the nearest obstacle centre closer than
+    ``cap`` (outside the exclusion), else ``cap**2``; -1 outside the image."""
+    ni, nj, nk = occ.shape
+    u = inv[0, 0] * x + inv[0, 1] * y + inv[0, 2] * z + inv[0, 3]
+    v = inv[1, 0] * x + inv[1, 1] * y + inv[1, 2] * z + inv[1, 3]
+    w = inv[2, 0] * x + inv[2, 1] * y + inv[2, 2] * z + inv[2, 3]
+    if u < 0.0 or v < 0.0 or w < 0.0 or round(u) >= ni or round(v) >= nj or round(w) >= nk:
+        return -1.0
+    ci, cj, ck = int(round(u)), int(round(v)), int(round(w))
+    r0, r1, r2 = box_half_widths(affine, cap)
+    best = cap * cap
+    for i in range(max(ci - r0, 0), min(ci + r0 + 1, ni)):
+        for j in range(max(cj - r1, 0), min(cj + r1 + 1, nj)):
+            for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
+                if not occ[i, j, k]:
+                    continue
+                cx, cy, cz = voxel_centre(affine, i, j, k)
+                d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
+                if d2 >= best:
+                    continue
+                e2 = (
+                    (cx - excl_point[0]) ** 2
+                    + (cy - excl_point[1]) ** 2
+                    + (cz - excl_point[2]) ** 2
+                )
+                if e2 < ex2:
+                    continue
+                best = d2
+    return best
+
+
 @numba.njit(cache=True)
 def _nearest(occ, inv, affine, cap, excl_point, excl_r, points, out):  # pragma: no cover
-    ni, nj, nk = occ.shape
-    r0, r1, r2 = box_half_widths(affine, cap)
     ex2 = excl_r * excl_r
     for n in range(points.shape[0]):
-        x, y, z = points[n, 0], points[n, 1], points[n, 2]
-        u = inv[0, 0] * x + inv[0, 1] * y + inv[0, 2] * z + inv[0, 3]
-        v = inv[1, 0] * x + inv[1, 1] * y + inv[1, 2] * z + inv[1, 3]
-        w = inv[2, 0] * x + inv[2, 1] * y + inv[2, 2] * z + inv[2, 3]
-        if u < 0.0 or v < 0.0 or w < 0.0 or round(u) >= ni or round(v) >= nj or round(w) >= nk:
-            out[n] = -math.inf  # outside the image: a collision in this model
-            continue
-        ci, cj, ck = int(round(u)), int(round(v)), int(round(w))
-        best = cap * cap
-        for i in range(max(ci - r0, 0), min(ci + r0 + 1, ni)):
-            for j in range(max(cj - r1, 0), min(cj + r1 + 1, nj)):
-                for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
-                    if not occ[i, j, k]:
-                        continue
-                    cx, cy, cz = voxel_centre(affine, i, j, k)
-                    d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
-                    if d2 >= best:
-                        continue
-                    e2 = (
-                        (cx - excl_point[0]) ** 2
-                        + (cy - excl_point[1]) ** 2
-                        + (cz - excl_point[2]) ** 2
-                    )
-                    if e2 < ex2:
-                        continue
-                    best = d2
-        out[n] = math.sqrt(best)
+        d2 = _nearest_in_box(
+            occ, inv, affine, points[n, 0], points[n, 1], points[n, 2], cap, excl_point, ex2
+        )
+        out[n] = -math.inf if d2 < 0.0 else math.sqrt(d2)  # outside the image: a collision
 
 
 @numba.njit(cache=True)
@@ -61,35 +69,17 @@ def _smallest(occ, inv, affine, cap, excl_point, excl_r, points):  # pragma: no 
     # the smallest distance over all points: each point's search box shrinks to the
     # smallest distance found so far, so only the first points near an obstacle pay for
     # a wide box
-    ni, nj, nk = occ.shape
     ex2 = excl_r * excl_r
     best = cap * cap
     for n in range(points.shape[0]):
-        x, y, z = points[n, 0], points[n, 1], points[n, 2]
-        u = inv[0, 0] * x + inv[0, 1] * y + inv[0, 2] * z + inv[0, 3]
-        v = inv[1, 0] * x + inv[1, 1] * y + inv[1, 2] * z + inv[1, 3]
-        w = inv[2, 0] * x + inv[2, 1] * y + inv[2, 2] * z + inv[2, 3]
-        if u < 0.0 or v < 0.0 or w < 0.0 or round(u) >= ni or round(v) >= nj or round(w) >= nk:
+        r = math.sqrt(best)
+        d2 = _nearest_in_box(
+            occ, inv, affine, points[n, 0], points[n, 1], points[n, 2], r, excl_point, ex2
+        )
+        if d2 < 0.0:
             return -math.inf  # outside the image: a collision in this model
-        ci, cj, ck = int(round(u)), int(round(v)), int(round(w))
-        r0, r1, r2 = box_half_widths(affine, math.sqrt(best))
-        for i in range(max(ci - r0, 0), min(ci + r0 + 1, ni)):
-            for j in range(max(cj - r1, 0), min(cj + r1 + 1, nj)):
-                for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
-                    if not occ[i, j, k]:
-                        continue
-                    cx, cy, cz = voxel_centre(affine, i, j, k)
-                    d2 = (cx - x) ** 2 + (cy - y) ** 2 + (cz - z) ** 2
-                    if d2 >= best:
-                        continue
-                    e2 = (
-                        (cx - excl_point[0]) ** 2
-                        + (cy - excl_point[1]) ** 2
-                        + (cz - excl_point[2]) ** 2
-                    )
-                    if e2 < ex2:
-                        continue
-                    best = d2
+        if d2 < best:
+            best = d2
     return math.sqrt(best)
 
 
