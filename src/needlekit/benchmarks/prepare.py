@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -117,7 +118,10 @@ def _run_stages(root: str | None, patient: int, cache_dir: str) -> dict[str, Any
     stages = {}
     for name, a, b in spans:
         peak = sampler.peak_between(a, b)
-        stages[name] = {"s": b - a, "rss_peak_mb": None if peak is None else round(peak, 1)}
+        # rounded down to 0.1 MB: a stage's sampled peak never reads above the process's
+        # exact high-water mark (VmHWM) because of the rounding
+        mb = None if peak is None else math.floor(peak * 10.0) / 10.0
+        stages[name] = {"s": b - a, "rss_peak_mb": mb}
     hwm = _status_kb("VmHWM")
     return {
         "patient": patient,
