@@ -12,7 +12,7 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.cli._flags import SHARED_FLAGS, TIME_LIMIT_S, Flag
-from needlekit.cli._options import merged_options, planner_flag_options
+from needlekit.cli._options import planner_flag_options
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli.puncture import ADAPTATION_DELAY_MS
 from needlekit.errors import InvalidInputError
@@ -23,6 +23,7 @@ from needlekit.planning.registry import (
     register_planner,
     unregister_planner,
 )
+from needlekit.scenario.problems import planner_settings
 
 CLI = Path(__file__).resolve().parents[2] / "src" / "needlekit" / "cli"
 TOY = str(Path(__file__).resolve().parents[2] / "examples" / "toy.yaml")
@@ -135,9 +136,8 @@ def test_options_are_typed_as_declared():
 def test_a_field_replaces_only_that_field_of_the_scenario_s():
     block = {"resolution": {"max_length_mm": 16.0, "length_levels": 5}}
     flags = {"resolution": {"max_length_mm": 8.0}}
-    assert merged_options(block, flags) == {
-        "resolution": {"max_length_mm": 8.0, "length_levels": 5}
-    }
+    got = planner_settings({"name": "rcs_star", "options": block}, options={"rcs_star": flags})
+    assert got.options["rcs_star"] == {"resolution": {"max_length_mm": 8.0, "length_levels": 5}}
     assert block == {"resolution": {"max_length_mm": 16.0, "length_levels": 5}}
 
 
@@ -243,17 +243,15 @@ def test_option_errors_exit_2_on_one_line(capsys, tmp_path, argv, message):
 
 
 def test_the_options_reach_the_planner_settings():
-    from needlekit.cli.planning import _check_planners, _settings
+    from needlekit.cli.planning import _settings
 
     doc = {"planner": {"name": "rcs_star", "options": {"resolution": {"length_levels": 5}}}}
     argv = ["plan", "x.yaml", "--option", "resolution.max_length_mm=8"]
     args = _build_parser().parse_args(argv)
-    names, options = _check_planners(args, doc, args.planner)
-    settings = _settings(args, doc, args.planner, options)
-    assert names == ("rcs_star",)
+    settings = _settings(args, doc)
+    assert settings.names == ("rcs_star",)
     assert settings.options["rcs_star"]["resolution"] == {"length_levels": 5, "max_length_mm": 8.0}
     argv = ["sweep", "x.yaml", "--planner", "rcs", "rrt", "--option", "seed=4"]
     args = _build_parser().parse_args(argv)
-    _, options = _check_planners(args, {}, args.planner)
-    settings = _settings(args, {}, args.planner, options)
+    settings = _settings(args, {})
     assert settings.options["rrt"]["seed"] == 4 and "seed" not in settings.options["rcs"]

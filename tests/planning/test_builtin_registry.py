@@ -57,7 +57,7 @@ def test_the_light_check_says_what_planner_settings_says(name, options, family):
 def test_a_planner_the_light_check_passes_is_built():
     for entry in BUILTIN_PLANNERS:
         check_planner_options(entry.name, {}, family=entry.family)
-        planner_settings({"name": entry.name}, family=entry.family)
+        planner_settings({"name": entry.name}, family=entry.family).build()
 
 
 def test_the_registry_imports_a_builtin_only_when_it_is_needed(monkeypatch):

@@ -125,26 +125,3 @@ def planner_flag_options(
             known = "; ".join(f"{p} takes {', '.join(types[p]) or 'no options'}" for p in planners)
             raise InvalidInputError(f"--option {name}", f"unknown option ({known})")
     return out
-
-
-def merged_options(block: Mapping | None, flags: Mapping) -> dict:
-    """A planner's options: the scenario's block under the flags, a field of a
-    dataclass-typed option replacing only that field.
-
-    Parameters
-    ----------
-    block : mapping or None
-        The scenario's ``planner.options`` (for the planner it names).
-    flags : mapping
-        What the flags give (:func:`planner_flag_options`).
-
-    Returns
-    -------
-    dict
-    """
-    out = dict(block or {})
-    for key, value in flags.items():
-        if isinstance(value, dict) and isinstance(out.get(key), Mapping):
-            value = {**out[key], **value}
-        out[key] = value
-    return out

@@ -48,10 +48,10 @@ def _document(args: argparse.Namespace) -> dict:
     return read_scenario_document(args.scenario)
 
 
-def _flag_options(args: argparse.Namespace, doc: dict, names: tuple[str, ...]) -> dict:
-    """Per planner name, its settings under the flags: ``--option`` (typed and named as the
-    planner declares) and ``--rrt-connection``, over the scenario block's options."""
-    from needlekit.cli._options import merged_options, planner_flag_options
+def _flag_options(args: argparse.Namespace, names: tuple[str, ...]) -> dict:
+    """Per planner name, what the flags give it: ``--option`` (typed and named as the
+    planner declares) and ``--rrt-connection``."""
+    from needlekit.cli._options import planner_flag_options
 
     flags = planner_flag_options(args.option, names)
     if args.rrt_connection is not None:
@@ -60,55 +60,35 @@ def _flag_options(args: argparse.Namespace, doc: dict, names: tuple[str, ...]) -
         flags.setdefault("rrt", {})["connection"] = args.rrt_connection
     if args.seed is not None and any("seed" in o for o in flags.values()):
         raise InvalidInputError("--option seed", "also given as --seed")
-    block = doc.get("planner") or {}
-    return {
-        name: merged_options(block.get("options") if name == block.get("name") else None, opts)
-        for name, opts in flags.items()
-    }
+    return flags
 
 
-def _check_planners(args: argparse.Namespace, doc: dict, names=None):
-    """The planners asked for (the first the main one) and their options, refused by name,
-    family, option name or type before any planner module is imported; :func:`_settings`
-    checks the values."""
-    from needlekit.planning.interface import check_planner_options
-
-    block = doc.get("planner") or {}
-    if names is None:
-        names = [block.get("name") or "rcs_star"]
-    elif isinstance(names, str):
-        names = [names]
-    names = tuple(dict.fromkeys(names))
-    for name in names:  # the name and its family first, then what its options are called
-        check_planner_options(name, None, family="steerable")
-    options = _flag_options(args, doc, names)
-    for name in names:
-        opts = dict(block.get("options") or {}) if name == block.get("name") else {}
-        opts.update(options.get(name) or {})
-        check_planner_options(name, opts, family="steerable")
-    return names, options
-
-
-def _settings(args: argparse.Namespace, doc: dict, names, options: dict):
-    """The scenario's planner block under the flags, checked before the anatomy is read."""
+def _settings(args: argparse.Namespace, doc: dict):
+    """The scenario's planner block under the flags: the planners asked for (the first the
+    main one), their names, families and option names checked once, here, before any
+    planner module is imported (:meth:`PlannerSettings.build` checks the values)."""
     from needlekit.scenario.problems import planner_settings
 
+    block = doc.get("planner") or {}
+    names = args.planner or [block.get("name") or "rcs_star"]
+    names = tuple(dict.fromkeys([names] if isinstance(names, str) else names))
+    flags = _flag_options(args, names)
     return planner_settings(
-        doc.get("planner"),
+        block,
         names=names,
         time_limit_s=args.time_limit_s,
         seed=args.seed,
         max_iterations=args.max_iterations,
-        options=options,
+        options=flags,
     )
 
 
 def _cmd_plan(args: argparse.Namespace) -> int:
     doc = _document(args)
-    names, options = _check_planners(args, doc, args.planner)
-    planner = names[0]
+    settings = _settings(args, doc)
+    planner = settings.name
     if args.dynamic:
-        _check_dynamic(args, doc)
+        dynamic = _check_dynamic(args, doc)
     else:
         _refuse_dynamic_flags(args)
         if args.goals is not None:
@@ -116,23 +96,18 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         elif args.report is not None:
             raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
     # every check on the input done: now the planners (numba)
-    settings = _settings(args, doc, args.planner, options)
     if args.dynamic:
-        return _plan_dynamic(args, settings)
+        return _plan_dynamic(args, doc, settings, dynamic)
+    built = settings.build()  # the values of the options checked, before the anatomy
     if args.goals is not None:
-        return _plan_goals(args, settings)
+        return _plan_goals(args, doc, settings, built[planner])
 
     from needlekit.io.plans import write_plan_json
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
-    _, problem = _source(args).load()
-    res = solve(
-        problem,
-        planner,
-        termination=settings.termination(),
-        options=settings.options[planner],
-    )
+    _, problem = _source(args).load(doc)
+    res = solve(problem, built[planner], termination=settings.termination())
     write_plan_json(args.out, res, scenario=str(args.scenario))
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
@@ -162,31 +137,32 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
             raise InvalidInputError(flag, "only goes with --dynamic")
 
 
-def _check_dynamic(args: argparse.Namespace, doc: dict) -> None:
+def _check_dynamic(args: argparse.Namespace, doc: dict) -> dict:
     """What ``plan --dynamic`` needs from the flags and the document, checked before any
-    planner module is imported (:func:`needlekit.scenario.problems.dynamic_settings` checks the
-    values)."""
+    planner module is imported (:func:`needlekit.scenario.problems.checked_dynamic_settings`
+    checks the values)."""
     if args.goals is not None:
         raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
     from needlekit.scenario.problems import dynamic_block  # light: no planner module
 
-    dynamic_block(doc, args.scenario.name, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
+    return dynamic_block(doc, args.scenario.name, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
 
 
-def _plan_dynamic(args: argparse.Namespace, settings) -> int:
+def _plan_dynamic(args: argparse.Namespace, doc: dict, settings, dynamic: dict) -> int:
     """``needlekit plan --dynamic``: re-plan from the tip among the scenario's moving
-    obstacles, beside the plan made once at t = 0 and executed open-loop."""
+    obstacles, beside the plan made once at t = 0 and executed open-loop (each cycle plans
+    with a seed of its own, so with a planner of its own)."""
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.steerable.dynamic import replan_among_moving
-    from needlekit.scenario.problems import dynamic_settings, moving_case
+    from needlekit.scenario.problems import checked_dynamic_settings, moving_case
 
-    kw = dynamic_settings(args.scenario, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
-    sc, static, moving = moving_case(_source(args))
+    kw = checked_dynamic_settings(dynamic)
     planner = settings.name
-    opts = dict(settings.options[planner])
+    opts = {k: v for k, v in settings.options[planner].items() if k != "seed"}
+    sc, static, moving = moving_case(_source(args), doc)
     res = replan_among_moving(
         static, moving, **kw, planner=planner, time_limit_s=settings.time_limit_s,
-        max_iterations=settings.max_iterations, seed=opts.pop("seed", settings.seed),
+        max_iterations=settings.max_iterations, seed=settings.seed_for(planner),
         options=opts,
     )  # fmt: skip
     record = {"scenario": str(args.scenario), **res.to_dict()}
@@ -236,7 +212,7 @@ def _check_goals(args: argparse.Namespace, planner: str) -> None:
         raise InvalidInputError("--multi", f"one-tree grows an RRT tree; --planner is {planner}")
 
 
-def _plan_goals(args: argparse.Namespace, settings) -> int:
+def _plan_goals(args: argparse.Namespace, doc: dict, settings, planner_instance) -> int:
     """``needlekit plan --goals``: a plan to each target, per target or from one tree."""
     import numpy as np
 
@@ -246,24 +222,12 @@ def _plan_goals(args: argparse.Namespace, settings) -> int:
 
     planner = settings.name
     goals = np.asarray(args.goals, dtype=float)
-    _, problem = _source(args).load()
-    if args.multi == "one-tree":
-        from needlekit.planning.steerable.rrt import solve_rrt_multi
-
-        opts = settings.options[planner]
-        results = solve_rrt_multi(
-            problem, goals, time_limit_s=settings.time_limit_s,
-            seed=opts.get("seed", settings.seed), max_iterations=settings.max_iterations,
-            connection=opts.get("connection", "arc_line"),
-        )  # fmt: skip
+    _, problem = _source(args).load(doc)
+    if args.multi == "one-tree":  # one RRT tree (the flags checked the planner is RRT)
+        results = planner_instance.solve_multi(problem, goals, settings.termination())
     else:  # the lecture's procedure: from the start node again for each target
         results = [
-            solve(
-                problem.with_goal(g),
-                planner,
-                termination=settings.termination(),
-                options=settings.options[planner],
-            )
+            solve(problem.with_goal(g), planner_instance, termination=settings.termination())
             for g in goals
         ]
     record = {
@@ -289,15 +253,15 @@ def _plan_goals(args: argparse.Namespace, settings) -> int:
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     doc = _document(args)
-    _, options = _check_planners(args, doc, args.planner)
+    settings = _settings(args, doc)
     # every check on the input done: now the planners (numba)
     from needlekit.batch import open_executor
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
     from needlekit.studies.sweep_study import run_sweep_study
 
-    settings = _settings(args, doc, args.planner, options)
+    built = settings.build()  # the values of the options checked, before the anatomy
     source = _source(args)
-    source.cached()  # load (and check) the scenario before starting any worker
+    source.cached(doc)  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
         dirs = healpix_directions(args.healpix)
     else:
@@ -311,14 +275,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             args.out,
             plan_path=args.plan,
             report_path=args.report,
-            planners=settings.names,
+            planners=list(built.values()),
             directions=dirs,
             time_limit_s=settings.time_limit_s,
             max_iterations=settings.max_iterations,
             seed=settings.seed,
             executor=None if args.executor == "serial" else ex,
             progress=progress,
-            options=settings.options,
         )
 
     def mm(v):
@@ -350,14 +313,14 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         from needlekit.cli.straight import verify_multi_file
 
         return verify_multi_file(args, doc)
-    _document(args)  # a bad scenario file too, before numba
+    scenario = _document(args)  # a bad scenario file too, before numba
     from needlekit.planning.steerable.verify import verify_plan
     from needlekit.scenario.results import read_plan_json
 
     plan, _, data = read_plan_json(args.plan)
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
-    _, problem = _source(args).load()
+    _, problem = _source(args).load(scenario)
     check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
         print(

@@ -33,6 +33,8 @@ __all__ = [
     "SCENARIO_SCHEMA",
     "SCENARIO_VERSION",
     "SOURCE_KINDS",
+    "ScenarioDocument",
+    "checked_document",
     "read_scenario_document",
     "validate_scenario_document",
 ]
@@ -513,7 +515,53 @@ def validate_scenario_document(data: Any, source: str) -> None:
             raise InvalidInputError(f"{source}: collision_model", exc.reason) from None
 
 
-def read_scenario_document(path: str | os.PathLike) -> dict:
+class ScenarioDocument(dict):
+    """A scenario document that has been checked against the schema (what
+    :func:`read_scenario_document` returns): passed down through a command, it is not read
+    or checked again (:func:`needlekit.scenario.loading.parse_scenario` checks a plain
+    ``dict``, not this). Treat it as read-only: a changed document is a plain ``dict``
+    again (``dict(doc)``) and is checked anew.
+
+    Parameters
+    ----------
+    data : dict
+        A document :func:`validate_scenario_document` accepted.
+    source : str
+        The name it was checked under (the file name).
+    """
+
+    def __init__(self, data: dict, source: str) -> None:
+        super().__init__(data)
+        self.source = source
+
+
+def checked_document(data: Any, source: str) -> ScenarioDocument:
+    """``data`` checked against the schema, once: a :class:`ScenarioDocument` is returned
+    as it is, anything else validated (:func:`validate_scenario_document`).
+
+    Parameters
+    ----------
+    data : object
+        A parsed document.
+    source : str
+        Names it in messages.
+
+    Returns
+    -------
+    ScenarioDocument
+
+    Raises
+    ------
+    InvalidInputError
+        As :func:`validate_scenario_document`.
+    """
+    if isinstance(data, ScenarioDocument):
+        return data
+    validate_scenario_document(data, source)
+    return ScenarioDocument(data, source)
+
+
+def read_scenario_document(path: str | os.PathLike) -> ScenarioDocument:
     """Read and validate a scenario file's document, without building its anatomy (cheap:
     callers check settings such as the planner block before any long computation).
 
@@ -523,7 +571,7 @@ def read_scenario_document(path: str | os.PathLike) -> dict:
 
     Returns
     -------
-    dict
+    ScenarioDocument
         The document, valid against the schema.
 
     Raises
@@ -550,5 +598,4 @@ def read_scenario_document(path: str | os.PathLike) -> dict:
         raise InvalidInputError(
             str(p), f"expected a mapping at the top level, got {type(data).__name__}"
         )
-    validate_scenario_document(data, p.name)
-    return data
+    return checked_document(data, p.name)

@@ -57,9 +57,11 @@ from needlekit.planning.registry import (  # re-exported: the registry is part o
     BuiltinPlanner,
     check_planner_options,
     get_planner,
+    option_names,
     planner_class,
     planner_names,
     register_planner,
+    seeded_options,
     unregister_planner,
 )
 
@@ -72,10 +74,12 @@ __all__ = [
     "Termination",
     "check_planner_options",
     "get_planner",
+    "option_names",
     "options_from_mapping",
     "planner_class",
     "planner_names",
     "register_planner",
+    "seeded_options",
     "unregister_planner",
 ]
 

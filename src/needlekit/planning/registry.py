@@ -26,10 +26,12 @@ __all__ = [
     "BuiltinPlanner",
     "check_planner_options",
     "get_planner",
+    "option_names",
     "option_types",
     "planner_class",
     "planner_names",
     "register_planner",
+    "seeded_options",
     "unregister_planner",
 ]
 
@@ -296,12 +298,73 @@ def check_planner_options(
             f"{name!r} plans {entry.family} needles; {family} planners: "
             f"{', '.join(planner_names(family))}",
         )
-    if isinstance(entry, BuiltinPlanner):
-        fields = entry.option_names
-    else:
-        fields = tuple(f.name for f in dataclasses.fields(entry.options_type))
     if isinstance(options, Mapping):
-        refuse_unknown_options(name, fields, options)
+        refuse_unknown_options(name, option_names(name), options)
+
+
+def option_names(name: str) -> tuple[str, ...]:
+    """The names of a planner's options, without importing a built-in planner.
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    tuple of str
+
+    Raises
+    ------
+    InvalidInputError
+        No planner of that name.
+    """
+    entry = _entry(name)
+    if isinstance(entry, BuiltinPlanner):
+        return entry.option_names
+    return tuple(f.name for f in dataclasses.fields(entry.options_type))
+
+
+def seeded_options(
+    name: str, options: Mapping | Any | None, seed: int | None, *, fallback: int | None = None
+) -> Mapping | Any | None:
+    """The one seed rule: a planner's options with the seed it runs with.
+
+    An explicit ``seed`` (a ``--seed`` flag, ``solve(seed=...)``) wins over a ``seed`` in
+    the options, which wins over ``fallback`` (a scenario block's ``seed``). A planner
+    without a ``seed`` option (a deterministic one) gets its options back as they are.
+
+    Parameters
+    ----------
+    name : str
+        A registered planner (its option names are read without importing it).
+    options : mapping or the planner's options dataclass, optional
+    seed : int, optional
+    fallback : int, optional
+
+    Returns
+    -------
+    mapping or dataclass or None
+        A new mapping (or a replaced dataclass) when the seed was set; else ``options``.
+
+    Raises
+    ------
+    InvalidInputError
+        No planner of that name.
+    """
+    if "seed" not in option_names(name):
+        return options
+    if seed is None:
+        has = (
+            "seed" in options
+            if isinstance(options, Mapping)
+            else options is not None  # a dataclass always carries its seed
+        )
+        if has or fallback is None:
+            return options
+        seed = fallback
+    if options is None or isinstance(options, Mapping):
+        return {**(options or {}), "seed": seed}
+    return dataclasses.replace(options, seed=seed)
 
 
 def option_types(name: str) -> dict[str, Any]:

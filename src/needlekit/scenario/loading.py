@@ -46,8 +46,8 @@ from needlekit.constants import (
 from needlekit.errors import InvalidInputError
 from needlekit.io.scenario_schema import (
     SOURCE_KINDS,
+    checked_document,
     read_scenario_document,
-    validate_scenario_document,
 )
 from needlekit.planning.steerable.moving import Motion
 from needlekit.planning.straight.coverage import AblationZone
@@ -547,7 +547,7 @@ def parse_scenario(
     InvalidInputError
         ``"<source>: <field>: <what was expected>"``.
     """
-    validate_scenario_document(data, source)
+    data = checked_document(data, source)  # a document checked already is not checked again
     ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
     cache = {"cache_dir": cache_dir, "use_cache": use_cache}
     base = _base(data["base"], ctx, cache, share_base) if "base" in data else None

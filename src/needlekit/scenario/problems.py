@@ -324,19 +324,30 @@ class ScenarioSource:
             src, document=text, document_sha256=hashlib.sha256(text.encode()).hexdigest()
         )
 
-    def load(self):
+    def load(self, document=None):
         """Build the problem (no caching; see :meth:`cached`).
+
+        Parameters
+        ----------
+        document : ScenarioDocument, optional
+            The scenario file's document as this process read and checked it already
+            (:func:`needlekit.io.scenario_schema.read_scenario_document`): not read again.
 
         Returns
         -------
         tuple
             ``(scenario, problem)`` as from :func:`load_problem`.
         """
-        return self._load(share_base=False)
+        return self._load(share_base=False, document=document)
 
-    def cached(self):
+    def cached(self, document=None):
         """Build the problem once per process (batch workers reuse it across tasks), and a
         Med-RAD base once per process for every source of that patient.
+
+        Parameters
+        ----------
+        document : ScenarioDocument, optional
+            As for :meth:`load` (workers read the file themselves).
 
         Returns
         -------
@@ -345,20 +356,24 @@ class ScenarioSource:
         """
         from needlekit.batch import worker_cached
 
-        return worker_cached(("ScenarioSource", self), lambda: self._load(share_base=True))
+        return worker_cached(
+            ("ScenarioSource", self), lambda: self._load(share_base=True, document=document)
+        )
 
-    def _load(self, share_base: bool):
+    def _load(self, share_base: bool, document=None):
         import json
 
         from needlekit.scenario.loading import load_scenario
 
         path = Path(self.scenario_path)
         inline = self.document is not None
+        if inline:
+            document = json.loads(self.document)
         sc = load_scenario(
             path,
             cache_dir=self.cache_dir,
             use_cache=self.use_cache,
-            document=json.loads(self.document) if inline else None,
+            document=document,
             share_base=share_base,
         )
         if inline:  # no file stands behind it
@@ -383,7 +398,9 @@ class PlannerSettings:
     seed : int
     max_iterations : int or None
     options : dict
-        Per planner name, its checked options (a mapping of the options dataclass's fields).
+        Per planner name, its options (a mapping of the options dataclass's fields, the
+        seed rule applied: :func:`needlekit.planning.interface.seeded_options`), their
+        names checked; their values are checked when :meth:`build` builds the planners.
     """
 
     names: tuple[str, ...]
@@ -391,6 +408,36 @@ class PlannerSettings:
     seed: int
     max_iterations: int | None
     options: dict
+
+    def seed_for(self, name: str) -> int:
+        """The seed planner ``name`` runs with (its options' ``seed``, else the run's).
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        int
+        """
+        return int(self.options[name].get("seed", self.seed))
+
+    def build(self) -> dict:
+        """Every planner of the run, built once (the values of their options checked).
+
+        Returns
+        -------
+        dict
+            Planner name -> planner, in the order of :attr:`names`.
+
+        Raises
+        ------
+        InvalidInputError
+            An option's value out of range (naming the option).
+        """
+        from needlekit.planning.interface import get_planner
+
+        return {name: get_planner(name, self.options[name]) for name in self.names}
 
     @property
     def name(self) -> str:
@@ -419,7 +466,9 @@ def planner_settings(
     options: dict | None = None,
     family: str = "steerable",
 ) -> PlannerSettings:
-    """Merge a scenario's ``planner`` block with overrides, and check every option.
+    """Merge a scenario's ``planner`` block with overrides, and check the planners' names,
+    families and option names once, without importing a planner (the values are checked
+    when :meth:`PlannerSettings.build` builds them).
 
     Parameters
     ----------
@@ -432,7 +481,8 @@ def planner_settings(
         Override the block's values.
     options : dict, optional
         Per planner name, settings that override the block's (e.g.
-        ``{"rrt": {"connection": "arc"}}``).
+        ``{"rrt": {"connection": "arc"}}``); a dict given for a dataclass-typed option
+        (RCS's ``resolution``) replaces only the fields it names.
     family : str
         The planners' family (``steerable`` or ``straight``): others are refused.
 
@@ -443,12 +493,11 @@ def planner_settings(
     Raises
     ------
     InvalidInputError
-        Unknown planner or option (naming it), before any work.
+        Unknown planner, one of another family, or an unknown option (naming it), before
+        any work.
     """
-    import dataclasses
-
     from needlekit.constants import DEFAULT_TIME_LIMIT_S
-    from needlekit.planning.interface import check_planner_options, get_planner, planner_class
+    from needlekit.planning.interface import check_planner_options, seeded_options
 
     block = dict(block or {})
     if names is None:
@@ -458,19 +507,16 @@ def planner_settings(
     names = tuple(dict.fromkeys(names))
     if not names:
         raise InvalidInputError("planner", "expected at least one planner")
-    seed_given = seed is not None
-    seed = seed if seed_given else block.get("seed", 0)
+    fallback = block.get("seed", 0)
     checked = {}
     for name in names:
-        opts = dict(block.get("options") or {}) if name == block.get("name") else {}
-        opts.update((options or {}).get(name) or {})
-        check_planner_options(name, None, family=family)  # the name and its family
-        factory = planner_class(name)
-        fields = {f.name for f in dataclasses.fields(factory.options_type)}
-        if "seed" in fields:  # the flag wins over the block's options, which win over its seed
-            opts["seed"] = seed if seed_given else opts.get("seed", seed)
-        get_planner(name, opts)  # raises on unknown options or bad values
-        checked[name] = opts
+        opts = _merged(
+            block.get("options") if name == block.get("name") else None,
+            (options or {}).get(name),
+        )
+        check_planner_options(name, opts, family=family)  # name, family, option names
+        # the flag wins over the options (block's, then --option), which win over the block's seed
+        checked[name] = dict(seeded_options(name, opts, seed, fallback=fallback))
     return PlannerSettings(
         names,
         float(
@@ -478,10 +524,21 @@ def planner_settings(
             if time_limit_s is not None
             else block.get("time_limit_s", DEFAULT_TIME_LIMIT_S)
         ),
-        int(seed),
+        int(seed if seed is not None else fallback),
         max_iterations if max_iterations is not None else block.get("max_iterations"),
         checked,
     )
+
+
+def _merged(block, overrides) -> dict:
+    """A planner's options: the block's under the overrides, a field of a dataclass-typed
+    option replacing only that field."""
+    out = dict(block or {})
+    for key, value in (overrides or {}).items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            value = {**out[key], **value}
+        out[key] = value
+    return out
 
 
 def multi_problem_from_scenario(scenario, *, targets_mm=None):
@@ -688,25 +745,49 @@ def dynamic_settings(scenario_path: str | os.PathLike, given: dict | None = None
     """
     from needlekit.io.scenario_schema import read_scenario_document
 
-    kw = dynamic_block(read_scenario_document(scenario_path), Path(scenario_path).name, given)
+    doc = read_scenario_document(scenario_path)
+    return checked_dynamic_settings(dynamic_block(doc, Path(scenario_path).name, given))
+
+
+def checked_dynamic_settings(given: dict) -> dict:
+    """What :func:`dynamic_block` gave, with the defaults, every value checked.
+
+    Parameters
+    ----------
+    given : dict
+        From :func:`dynamic_block`.
+
+    Returns
+    -------
+    dict
+        As :func:`dynamic_settings`.
+
+    Raises
+    ------
+    InvalidInputError
+        A bad setting.
+    """
     from needlekit.planning.steerable.dynamic import (
         DEFAULT_STEP_MM,
         PREDICTIONS,
         check_settings,
     )
 
+    kw = dict(given)
     kw.setdefault("step_mm", DEFAULT_STEP_MM)
     kw.setdefault("predict", PREDICTIONS[0])
     check_settings(**kw)
     return kw
 
 
-def moving_case(source: ScenarioSource):
+def moving_case(source: ScenarioSource, document=None):
     """A scenario with moving obstacles, split for re-planning.
 
     Parameters
     ----------
     source : ScenarioSource
+    document : ScenarioDocument, optional
+        The file's document, read and checked already (:meth:`ScenarioSource.load`).
 
     Returns
     -------
@@ -719,7 +800,7 @@ def moving_case(source: ScenarioSource):
     """
     from needlekit.planning.steerable.moving import Motion, MovingObstacle
 
-    sc, problem = source.load()
+    sc, problem = source.load(document)
     static = replace(problem, scene=sc.static_scene)
     moving = [
         MovingObstacle(name, sc.scene[name].field, Motion(**m), sc.scene[name].color)

@@ -359,7 +359,7 @@ def run_feng_lungs(
     """
     from needlekit.batch import executor_workers
     from needlekit.io.files import staged_outputs, write_json
-    from needlekit.planning.interface import get_planner
+    from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions
     from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
     from needlekit.provenance import machine_info
@@ -369,15 +369,15 @@ def run_feng_lungs(
     load_before = os.getloadavg()
     settings = _settings(time_limit_s, directions, max_iterations, quick)
     options = {"rrt": {"connection": rrt_connection}}
-    for name in FENG_PLANNERS:  # unknown options fail before any anatomy is read
-        get_planner(name, options.get(name))
+    # each planner built once, before any anatomy is read (a bad option fails here)
+    planners = {name: build_planner(name, options.get(name), seed=seed) for name in FENG_PLANNERS}
     out = Path(out_dir)
     docs = {g: feng_lung_scenario(i, medrad_dir=medrad_dir) for i, g in enumerate(_GOALS, 1)}
     dirs = sphere_directions(int(settings["directions"]))
     sources, problems = _sources_and_problems(docs, out, cache_dir, use_cache)
     main_prep_s = time.perf_counter() - t0
     jobs = [  # RCS* first: its part ends first, and its time is measured
-        SweepJob(problems[g], name, sources[g], options.get(name), rank=int(name != "rcs_star"))
+        SweepJob(problems[g], planners[name], sources[g], rank=int(name != "rcs_star"))
         for g in _GOALS
         for name in FENG_PLANNERS
     ]
@@ -386,7 +386,6 @@ def run_feng_lungs(
         directions=dirs,
         time_limit_s=float(settings["time_limit_s"]),
         executor=executor,
-        seed=seed,
         max_iterations=settings["max_iterations"],
         progress=None
         if progress is None

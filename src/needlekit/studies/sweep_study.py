@@ -60,7 +60,7 @@ def run_sweep_study(
     directions=None,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     max_iterations: int | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     executor=None,
     progress: Callable[[str], Callable] | None = None,
     title: str | None = None,
@@ -76,16 +76,18 @@ def run_sweep_study(
         Where to write the sweep table (``sweep.json``).
     plan_path, report_path : str or path, optional
         Where to write the best plan (``plan.json``) and the report (``report.html``).
-    planners : sequence of str
-        Planners to compare; the first one gives the best plan.
+    planners : sequence of str or Planner
+        Planners to compare, by name (built here, once, with ``options`` and ``seed``) or
+        built already (:func:`~needlekit.planning.steerable.solve.build_planner`); the
+        first one gives the best plan.
     directions : array_like, shape (n, 3), optional
         Candidate directions (default: Feng's 544 on a Fibonacci sphere).
     time_limit_s : float
         Budget per direction and planner.
     max_iterations : int, optional
         Iteration budget per direction besides the time limit (reproducible results).
-    seed : int
-        Seed of randomised planners.
+    seed : int, optional
+        Seed of the randomised planners given by name (it wins over their options').
     executor : concurrent.futures.Executor, optional
         Runs the directions (:func:`needlekit.batch.open_executor`); default: this process.
     progress : callable, optional
@@ -94,7 +96,9 @@ def run_sweep_study(
     title : str, optional
         Report title.
     options : dict, optional
-        Per planner name, its settings (e.g. ``{"rrt": {"connection": "arc"}}``).
+        Per planner name, its settings (e.g. ``{"rrt": {"connection": "arc"}}``), for
+        the planners given by name. ``sweep.json`` records every planner's options as it
+        ran (``options``), and the seed given (``seed``).
 
     Returns
     -------
@@ -107,33 +111,35 @@ def run_sweep_study(
     """
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.io.plans import write_plan_json
+    from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
     from needlekit.planning.steerable.verify import verify_plan
 
-    planners = list(dict.fromkeys(planners))
-    if not planners:
+    given = list(dict.fromkeys(planners))
+    if not given:
         raise InvalidInputError("planners", "expected at least one planner")
-    from needlekit.planning.interface import get_planner
-
-    for name in planners:  # unknown planners and options fail before any work
-        get_planner(name, (options or {}).get(name))
+    built = {}  # once each, before any work: unknown planners and options fail here
+    for p in given:
+        if isinstance(p, str):
+            built[p] = build_planner(p, (options or {}).get(p), seed=seed)
+        else:
+            built[p.name] = p
     sc, problem = source.cached()
     dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
     sweeps = {}
-    for name in planners:
+    for name, planner in built.items():
         sweeps[name] = sweep(
             problem,
-            name,
+            planner,
             directions=dirs,
             time_limit_s=time_limit_s,
-            seed=seed,
             max_iterations=max_iterations,
             executor=executor,
             source=source,
             progress=None if progress is None else progress(name),
-            options=(options or {}).get(name),
         )
-    best = sweeps[planners[0]].best
+    options = {name: _options_of(planner) for name, planner in built.items()}
+    best = sweeps[next(iter(built))].best
     check = None
     files = {}
     record = {
@@ -141,7 +147,7 @@ def run_sweep_study(
         "time_limit_s": time_limit_s,
         "max_iterations": max_iterations,
         "seed": seed,
-        "options": options or {},
+        "options": options,
         **sweeps_to_dict(sweeps),
     }
     if best is not None:
@@ -165,9 +171,19 @@ def run_sweep_study(
                 best,
                 check,
                 problem,
-                options or {},
+                options,
             )
     return SweepStudy(sweeps, best, check, files)
+
+
+def _options_of(planner) -> dict:
+    """A built planner's options as it runs with them (JSON-ready)."""
+    import dataclasses
+
+    opts = getattr(planner, "options", None)
+    if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
+        return dataclasses.asdict(opts)
+    return {}
 
 
 def _write_report(path, title: str, sweeps: dict, best, check, problem, options):

@@ -44,14 +44,14 @@ __all__ = [
 
 def sweep(
     problem: SteerableProblem,
-    planner: str = "rcs_star",
+    planner="rcs_star",
     *,
     directions=None,
     normal=None,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     executor: Executor | None = None,
     source=None,
-    seed: int = 0,
+    seed: int | None = None,
     max_iterations: int | None = None,
     progress=None,
     options: dict | None = None,
@@ -62,8 +62,10 @@ def sweep(
     ----------
     problem : SteerableProblem
         Start point, goal and limits (its start direction, if any, is ignored).
-    planner : str
-        A registered steerable planner (``"rcs_star"``, ``"rcs"``, ``"rrt"``, ...).
+    planner : str or Planner
+        A registered steerable planner's name (``"rcs_star"``, ``"rcs"``, ``"rrt"``,
+        ...), built once for the whole sweep; or a planner built already
+        (:func:`~needlekit.planning.steerable.solve.build_planner`).
     directions : array_like, shape (n, 3), optional
         Candidates (default: :func:`sphere_directions` with :data:`DEFAULT_DIRECTIONS`).
     normal : array_like, shape (3,), optional
@@ -78,15 +80,17 @@ def sweep(
         How workers rebuild ``problem``: tasks then carry this small
         recipe instead of the scene, and each worker builds it once. Without it, tasks
         carry ``problem`` itself (fine for small analytic scenes).
-    seed : int
-        Seed of randomised planners (the same for every direction).
+    seed : int, optional
+        Seed of randomised planners (the same for every direction; it wins over a
+        ``seed`` in ``options``). Only with a planner's name.
     max_iterations : int, optional
         Iteration budget per direction, beside the time limit (reproducible sweeps).
     progress : callable, optional
         Called once per finished direction (with its result); if it has
         ``set_total(n)``, that is called first with the number of directions to plan.
     options : dict, optional
-        Planner settings (see :func:`~needlekit.planning.steerable.solve.solve`).
+        Planner settings (see :func:`~needlekit.planning.steerable.solve.solve`); only
+        with a planner's name.
 
     Returns
     -------

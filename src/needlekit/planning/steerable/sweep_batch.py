@@ -58,23 +58,14 @@ def _plan_tasks(tasks: list) -> tuple:
     from needlekit.planning.steerable.solve import solve
 
     n_built, prep_s, results = len(worker_builds()), 0.0, []
-    for problem, source, direction, planner, time_limit_s, seed, max_iterations, opts in tasks:
+    for problem, source, direction, planner, time_limit_s, max_iterations in tasks:
         if source is not None:  # built once per worker, reused for its other directions
             t0, n0 = time.perf_counter(), len(worker_builds())
             _, problem = source.cached()
             if len(worker_builds()) > n0:
                 prep_s += time.perf_counter() - t0
         p = problem.with_start_pose(pose_from_direction(problem.start_point_mm, direction))
-        results.append(
-            solve(
-                p,
-                planner,
-                time_limit_s=time_limit_s,
-                seed=seed,
-                max_iterations=max_iterations,
-                options=opts,
-            )
-        )
+        results.append(solve(p, planner, time_limit_s=time_limit_s, max_iterations=max_iterations))
     built = tuple(kind for kind, _ in worker_builds()[n_built:])
     return worker_name(), prep_s, built, results
 
@@ -144,11 +135,15 @@ class SweepJob:
     ----------
     problem : SteerableProblem
         Start point, goal and limits.
-    planner : str
+    planner : str or Planner
+        A registered steerable planner's name (built once for the whole sweep, with
+        ``options`` and the batch's seed) or a planner built already
+        (:func:`~needlekit.planning.steerable.solve.build_planner`), which carries its
+        options and seed.
     source : ScenarioSource, optional
         How workers rebuild ``problem`` (see :func:`sweep`).
     options : dict, optional
-        Planner settings.
+        Planner settings (with a planner's name only).
     normal : array_like, shape (3,), optional
         Normal of the punctured surface (default: the problem's).
     rank : int
@@ -157,7 +152,7 @@ class SweepJob:
     """
 
     problem: SteerableProblem
-    planner: str = "rcs_star"
+    planner: object = "rcs_star"
     source: object = None
     options: dict | None = None
     normal: object = None
@@ -192,13 +187,26 @@ def _effective(job: SweepJob, dirs: np.ndarray) -> np.ndarray:
     return np.ones(len(dirs), dtype=bool)
 
 
+def _built(job: SweepJob, seed: int | None):
+    """The job's planner, built once (a name) or as given (a planner built already)."""
+    from needlekit.planning.steerable.solve import build_planner
+
+    if isinstance(job.planner, str):
+        return build_planner(job.planner, job.options, seed=seed)
+    if job.options is not None:
+        raise InvalidInputError(
+            "options", "a built planner carries its options; give its name to set them"
+        )
+    return job.planner
+
+
 def sweep_many(
     jobs,
     *,
     directions=None,
     time_limit_s: float = DEFAULT_TIME_LIMIT_S,
     executor: Executor | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     max_iterations: int | None = None,
     progress=None,
 ) -> SweepBatch:
@@ -214,8 +222,11 @@ def sweep_many(
     jobs : sequence of SweepJob
     directions : array_like, shape (n, 3), optional
         Candidates, the same for every job (default :func:`sphere_directions`).
-    time_limit_s, seed, max_iterations
-        Budget and seed per direction (see :func:`sweep`).
+    time_limit_s, max_iterations
+        Budget per direction (see :func:`sweep`).
+    seed : int, optional
+        Seed of the randomised planners given by name (it wins over a ``seed`` in their
+        options); a planner built already carries its own.
     executor : concurrent.futures.Executor, optional
         Runs the tasks (default: one after the other in this process).
     progress : callable, optional
@@ -239,6 +250,7 @@ def sweep_many(
     jobs = list(jobs)
     if not jobs:
         raise InvalidInputError("jobs", "expected at least one sweep")
+    planners = [_built(job, seed) for job in jobs]  # once per sweep, not per direction
     t0 = time.perf_counter()
     dirs = (
         sphere_directions()
@@ -265,7 +277,7 @@ def sweep_many(
             job = jobs[j]
             ship = remote and job.source is not None
             carry = (None, job.source) if ship else (job.problem, None)
-            args = (*carry, dirs[i], job.planner, time_limit_s, seed, max_iterations, job.options)
+            args = (*carry, dirs[i], planners[j], time_limit_s, max_iterations)
             if refused:
                 batch.append(((j, i), args))
             else:
@@ -304,8 +316,10 @@ def sweep_many(
             for fut in pending:
                 fut.cancel()
     sweeps = [
-        SweepResult(dirs, effs[j], results[j], job.planner, _stats(dirs, effs[j], results[j], t))
-        for j, (job, t) in enumerate(zip(jobs, last_s, strict=True))
+        SweepResult(
+            dirs, effs[j], results[j], planners[j].name, _stats(dirs, effs[j], results[j], t)
+        )
+        for j, t in enumerate(last_s)
     ]
     if not remote:  # this process planned from the problems it was given
         workers = {}
