@@ -95,7 +95,7 @@ def _case(name: str, path: Path, repeat: int) -> dict:
         structure_mesh,
     )
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.problems import multi_problem_from_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
 
     sc = load_scenario(path)
     multi, _ = multi_problem_from_scenario(sc)

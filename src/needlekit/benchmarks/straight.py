@@ -7,7 +7,7 @@ excluded and reported apart.
 Cases: the built-in liver phantom through ``examples/liver_phantom_multi.yaml`` (three
 needles, gamma 1.5 mm), and Med-RAD livers through ``examples/medrad_liverN.yaml`` when
 both the data and the file are there (otherwise the case is recorded as skipped, saying
-why). Each case is built by :func:`needlekit.scenario.problems.multi_problem_from_scenario` on
+why). Each case is built by :func:`needlekit.scenario.straight.multi_problem_from_scenario` on
 the file, as ``needlekit multi`` builds it, and each stage is timed on its own with
 ``time.perf_counter`` over ``repeat`` runs (median and min):
 
@@ -134,7 +134,7 @@ def _prepare(path: Path, medrad_dir):
     """Load the scenario as ``needlekit multi`` does and build every field the plan reads
     (lazy voxel fields included), so that the stages after it time planning alone."""
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.problems import multi_problem_from_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
 
     with _medrad_env(medrad_dir):
         sc = load_scenario(path)
@@ -225,7 +225,7 @@ def _plan(sc, multi, options: dict, resolution_deg: float):
     if not _uses_coverage(sc):
         return solve(multi.targets_mm), None, steps
     from needlekit.planning.straight.ablation import plan_coverage
-    from needlekit.scenario.problems import coverage_region
+    from needlekit.scenario.straight import coverage_region
 
     region, settings = step("coverage_region_s", lambda: coverage_region(sc, multi.problem))
     plan, outcome = plan_coverage(
@@ -269,7 +269,7 @@ def _first_target(sc, multi) -> tuple[np.ndarray, str]:
     if not _uses_coverage(sc):
         return multi.targets_mm[0], "the scenario's first target"
     from needlekit.planning.straight.ablation import choose_needle_targets
-    from needlekit.scenario.problems import coverage_region
+    from needlekit.scenario.straight import coverage_region
 
     region, st = coverage_region(sc, multi.problem)
     chosen = choose_needle_targets(

@@ -67,7 +67,7 @@ def _settings(args: argparse.Namespace, doc: dict):
     """The scenario's planner block under the flags: the planners asked for (the first the
     main one), their names, families and option names checked once, here, before any
     planner module is imported (:meth:`PlannerSettings.build` checks the values)."""
-    from needlekit.scenario.problems import planner_settings
+    from needlekit.scenario.planners import planner_settings
 
     block = doc.get("planner") or {}
     names = args.planner or [block.get("name") or "rcs_star"]
@@ -139,11 +139,11 @@ def _refuse_dynamic_flags(args: argparse.Namespace) -> None:
 
 def _check_dynamic(args: argparse.Namespace, doc: dict) -> dict:
     """What ``plan --dynamic`` needs from the flags and the document, checked before any
-    planner module is imported (:func:`needlekit.scenario.problems.checked_dynamic_settings`
+    planner module is imported (:func:`needlekit.scenario.dynamic.checked_dynamic_settings`
     checks the values)."""
     if args.goals is not None:
         raise InvalidInputError("--dynamic", "plans to the scenario's goal; drop --goals")
-    from needlekit.scenario.problems import dynamic_block  # light: no planner module
+    from needlekit.scenario.dynamic import dynamic_block  # light: no planner module
 
     return dynamic_block(doc, args.scenario.name, {d: getattr(args, d) for d in _DYNAMIC_FLAGS})
 
@@ -154,7 +154,7 @@ def _plan_dynamic(args: argparse.Namespace, doc: dict, settings, dynamic: dict) 
     with a seed of its own, so with a planner of its own)."""
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.steerable.dynamic import replan_among_moving
-    from needlekit.scenario.problems import checked_dynamic_settings, moving_case
+    from needlekit.scenario.dynamic import checked_dynamic_settings, moving_case
 
     kw = checked_dynamic_settings(dynamic)
     planner = settings.name

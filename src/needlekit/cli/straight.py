@@ -24,7 +24,7 @@ def _document(args: argparse.Namespace) -> dict:
 def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
     doc = _document(args) if doc is None else doc
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.problems import multi_problem_from_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
 
     sc = load_scenario(args.scenario, document=doc)
     return sc, *multi_problem_from_scenario(sc)
@@ -160,7 +160,7 @@ def _plan_coverage(sc, multi, planner, args):
     """Choose targets covering the tumour plus margin, plan them, re-check the coverage."""
     from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.planning.straight.sequence import MultiNeedlePlan
-    from needlekit.scenario.problems import coverage_region
+    from needlekit.scenario.straight import coverage_region
 
     region, settings = coverage_region(sc, multi.problem)
     plan, outcome = plan_coverage(multi, planner, region, settings, time_limit_s=args.time_limit_s)

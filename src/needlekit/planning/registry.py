@@ -289,7 +289,7 @@ def check_planner_options(
     ------
     InvalidInputError
         Unknown planner, another family, or an unknown option; the same messages as
-        :func:`get_planner` and :func:`needlekit.scenario.problems.planner_settings`.
+        :func:`get_planner` and :func:`needlekit.scenario.planners.planner_settings`.
     """
     entry = _entry(name)
     if family is not None and entry.family != family:

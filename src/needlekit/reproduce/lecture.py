@@ -213,13 +213,10 @@ def _dynamic(case: Path):
     from needlekit.io.files import write_json, write_text
     from needlekit.planning.steerable.dynamic import replan_among_moving
     from needlekit.report.dynamic_report import dynamic_sections
+    from needlekit.scenario.dynamic import dynamic_settings, moving_case
     from needlekit.scenario.loading import read_scenario_document
-    from needlekit.scenario.problems import (
-        ScenarioSource,
-        dynamic_settings,
-        moving_case,
-        planner_settings,
-    )
+    from needlekit.scenario.planners import planner_settings
+    from needlekit.scenario.problems import ScenarioSource
 
     src = resources.files("needlekit") / "data" / MOVING_SCENARIO
     with resources.as_file(src) as path:

@@ -354,7 +354,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.report.straight_report import plan_maps, straight_sections
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.problems import multi_problem_from_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
 
     del executor
     stage = Stages(progress, 5, "liu2016")

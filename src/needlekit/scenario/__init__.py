@@ -4,9 +4,11 @@ A scenario file (``docs/scenarios.md``) is read and schema-checked by
 :mod:`needlekit.io.scenario_schema` (file handling: no planner involved); here it becomes a
 :class:`~needlekit.scenario.loading.Scenario` (:mod:`needlekit.scenario.loading`: the
 anatomy, needle, start, goal and planner settings built), then problems
-(:mod:`needlekit.scenario.problems`: steerable, straight multi-needle, coverage, moving
-obstacles, and the picklable :class:`~needlekit.scenario.problems.ScenarioSource` of batch
-workers), and result files are read back against their scenarios
+(:mod:`needlekit.scenario.problems`: steerable, and the picklable
+:class:`~needlekit.scenario.problems.ScenarioSource` of batch workers;
+:mod:`needlekit.scenario.straight`: straight multi-needle and coverage;
+:mod:`needlekit.scenario.dynamic`: moving obstacles), the planner settings
+(:mod:`needlekit.scenario.planners`), and result files are read back against their scenarios
 (:mod:`needlekit.scenario.results`).
 
 The main names are importable from the package itself; each is loaded on first use, so
@@ -33,11 +35,11 @@ _WHERE = {
     "Scenario": "loading",
     "load_scenario": "loading",
     "parse_scenario": "loading",
-    "PlannerSettings": "problems",
+    "PlannerSettings": "planners",
     "ScenarioSource": "problems",
     "load_problem": "problems",
-    "multi_problem_from_scenario": "problems",
-    "planner_settings": "problems",
+    "multi_problem_from_scenario": "straight",
+    "planner_settings": "planners",
     "problem_from_scenario": "problems",
 }
 

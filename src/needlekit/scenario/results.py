@@ -220,7 +220,7 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
 def _check_dynamic_scenario(data: dict, p: Path, located: Path, doc: dict, where: str) -> None:
     """The scenario of a run among moving obstacles has moving structures, and its
     ``dynamic`` block goes with the run's settings (cheap: no anatomy is read)."""
-    from needlekit.scenario.problems import DYNAMIC_SETTINGS, dynamic_settings
+    from needlekit.scenario.dynamic import DYNAMIC_SETTINGS, dynamic_settings
 
     if not any(isinstance(s, dict) and "moving" in s for s in doc.get("structures", [])):
         msg = f"{located} has no moving structure; {p.name} was made from another scenario"
@@ -379,7 +379,7 @@ class ResultScenarios:
         return problem_from_scenario(scenario, **overrides)
 
     def multi_problem(self, scenario):
-        """:func:`~needlekit.scenario.problems.multi_problem_from_scenario`.
+        """:func:`~needlekit.scenario.straight.multi_problem_from_scenario`.
 
         Parameters
         ----------
@@ -390,12 +390,12 @@ class ResultScenarios:
         tuple
             ``(MultiNeedleProblem, options)``.
         """
-        from needlekit.scenario.problems import multi_problem_from_scenario
+        from needlekit.scenario.straight import multi_problem_from_scenario
 
         return multi_problem_from_scenario(scenario)
 
     def moving_case(self, scenario, problem):
-        """The scenario's moving case (:func:`~needlekit.scenario.problems.moving_case`)
+        """The scenario's moving case (:func:`~needlekit.scenario.dynamic.moving_case`)
         from a scenario and problem already built.
 
         Parameters
@@ -409,7 +409,7 @@ class ResultScenarios:
         tuple
             ``(scenario, static problem, moving obstacles)``.
         """
-        from needlekit.scenario.problems import moving_case
+        from needlekit.scenario.dynamic import moving_case
 
         return moving_case(_Loaded(scenario, problem))
 
@@ -421,5 +421,5 @@ class _Loaded:
     def __init__(self, scenario, problem) -> None:
         self.scenario, self.problem = scenario, problem
 
-    def load(self):
+    def load(self, document=None):  # loaded already: the document is not needed
         return self.scenario, self.problem

@@ -163,7 +163,7 @@ def run_liver_case(
     from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.scenario.loading import parse_scenario
-    from needlekit.scenario.problems import coverage_region, multi_problem_from_scenario
+    from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
 
     t0 = time.perf_counter()
     doc = liver_scenario(case, gamma_mm, medrad_dir=medrad_dir, resolution_deg=resolution_deg)

@@ -437,7 +437,7 @@ def plan_coverage(
     settings : mapping
         The scenario's coverage block: ``zone`` (AblationZone), ``max_needles`` (int) and
         ``coverage_goal`` (float in [0, 1]) are used
-        (:func:`needlekit.scenario.problems.coverage_region` returns it).
+        (:func:`needlekit.scenario.straight.coverage_region` returns it).
     time_limit_s : float
         Budget of each round's planning (s); every round gets a fresh one.
     timings : dict, optional
