@@ -18,7 +18,7 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["Status", "enum_of", "field_of", "number_or_inf"]
+__all__ = ["Status", "enum_of", "field_of", "number_or_inf", "trial_solved"]
 
 
 class Status(enum.Enum):
@@ -178,3 +178,19 @@ def enum_of(kind: type[enum.Enum], value, where: str):
     except ValueError:
         known = ", ".join(dict.fromkeys(s.value for s in kind))
         raise InvalidInputError(where, f"expected one of {known}, got {value!r:.40}") from None
+
+
+def trial_solved(status: str) -> bool:
+    """Whether a controller trial's written status says it reached its target:
+    ``"solved"``, or ``"completed"`` in records written before the one status vocabulary
+    (issue 20).
+
+    Parameters
+    ----------
+    status : str
+
+    Returns
+    -------
+    bool
+    """
+    return status in (Status.SOLVED.value, "completed")

@@ -39,6 +39,7 @@ from needlekit.control.procedure import (
 )
 from needlekit.control.qp import QPStatus
 from needlekit.geometry.se3 import pose_from_direction
+from needlekit.records import Status
 
 
 def legacy_run_trial(
@@ -101,7 +102,7 @@ def legacy_run_trial(
     )
     events: list[tuple[float, str]] = []  # (time, what): the robot stopped or resumed
     stopped = False
-    status, reason = "completed", "target reached"
+    status, reason = Status.SOLVED, "target reached"
     puncture_from = None
     log: dict[str, list] = {k: [] for k in _LOG_KEYS}
     true_base_r, true_needle_r = truth.world_T_base[:3, :3], truth.flange_T_tip[:3, :3]
@@ -162,7 +163,7 @@ def legacy_run_trial(
         # measurement loss
         age = t - (0.0 if needle.latest is None else needle.latest.arrives_s)
         if age > ps.abort_after_s:
-            phase, status, reason = Phase.ABORTED, "aborted", "needle sensor lost"
+            phase, status, reason = Phase.ABORTED, Status.TIMEOUT, "needle sensor lost"
             break
         state = est.state(q)
         q_dot = np.zeros(7)
@@ -210,7 +211,7 @@ def legacy_run_trial(
             if phase is not Phase.DONE:
                 times.setdefault(phase.value, t)
         if phase not in (Phase.PUNCTURE, Phase.DONE) and t - phase_start > ps.phase_timeout_s:
-            phase, status, reason = Phase.ABORTED, "aborted", f"{phase.value} timed out"
+            phase, status, reason = Phase.ABORTED, Status.TIMEOUT, f"{phase.value} timed out"
             break
         if timings is not None:
             timings.append((tick_phase.value, sample is not None, perf_counter() - tick_start))
@@ -265,12 +266,15 @@ def legacy_run_trial(
     counts["needle_lost"] = needle.n_lost
     miss = float(np.linalg.norm(final[:3, 3] - true_guide.target_mm))
     reached_estimated = reached = False
-    if status == "completed":
+    if status is Status.SOLVED:
         short = float(np.linalg.norm(est.state(q).tip_mm - guide.target_mm))
         reached_estimated = short <= ps.target_tolerance_mm
         reached = miss <= ps.target_tolerance_mm
         if not reached_estimated:  # by the robot's own estimate
-            status, reason = "aborted", f"the puncture stopped {short:.1f} mm short of the target"
+            status, reason = (
+                Status.APPROXIMATE,
+                f"the puncture stopped {short:.1f} mm short of the target",
+            )
         elif not reached:  # the robot believes it is there; the real tip is not
             reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"
 

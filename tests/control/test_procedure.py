@@ -9,6 +9,7 @@ from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.control.panda import PandaModel
 from needlekit.control.procedure import TrialSetup, quintic, run_trial
 from needlekit.errors import InvalidInputError
+from needlekit.records import Status
 
 NOMINAL = np.array([-650.0, 0.0, -450.0, 0.0, 0.0, 0.0, 0.0, 0.0, 100.0, 0.0, 0.0, 0.0])
 SPREAD = np.array([200.0] * 3 + [np.radians(10)] * 3 + [10.0] * 3 + [np.radians(5)] * 3)
@@ -52,7 +53,7 @@ def test_a_noise_free_puncture_with_a_known_arm_reaches_the_target_inside_every_
         needle_sensor=exact,
         scope_sensor=exact,
     )
-    assert r.status == "completed"
+    assert r.status is Status.SOLVED
     assert r.position_error_mm < 0.1 and r.angle_error_deg < 0.05  # measured 0.035 mm
     # from the start of the puncture: never farther than where it started or the bounds
     assert r.max_guide_distance_mm <= max(1.5, r.start_guide_distance_mm) + 1e-3
@@ -91,7 +92,7 @@ def test_a_lost_needle_sensor_stops_the_robot_which_resumes_when_it_returns(capl
     spec = EMSensorSpec(position_sigma_mm=0.0, orientation_sigma_deg=0.0, outages=[(20.0, 20.5)])
     with caplog.at_level("INFO", logger="needlekit.control.procedure"):
         r = _known_arm_trial(spec)
-    assert r.status == "completed" and r.position_error_mm < 0.1
+    assert r.status is Status.SOLVED and r.position_error_mm < 0.1
     assert r.counts["needle_lost"] == 50
     (t_stop, what_stop), (t_go, what_go) = r.events
     assert what_stop.startswith("stopped") and what_go == "resumed"
@@ -109,7 +110,7 @@ def test_a_lost_needle_sensor_stops_the_robot_which_resumes_when_it_returns(capl
 def test_a_needle_sensor_lost_for_good_aborts_the_trial_with_the_reason():
     spec = EMSensorSpec(position_sigma_mm=0.0, orientation_sigma_deg=0.0, outages=[(20.0, 1e9)])
     r = _known_arm_trial(spec)
-    assert r.status == "aborted" and r.reason == "needle sensor lost"
+    assert r.status is Status.TIMEOUT and r.reason == "needle sensor lost"
     assert r.log["t_s"][-1] == pytest.approx(19.995 + 2.0, abs=0.02)  # after abort_after_s
     assert r.events[0][1].startswith("stopped") and len(r.events) == 1
     with pytest.raises(InvalidInputError, match="outages"):

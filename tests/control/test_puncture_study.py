@@ -80,12 +80,14 @@ def test_summary_statistics_and_violation_counting():
         trial(3, max_cone_angle_deg=0.75),
         trial(4, min_plane_distance_mm=-1.2),
         trial(5, min_patient_distance_mm=150.0),
-        trial(6, status="aborted", max_guide_distance_mm=50.0),  # counted as aborted
+        trial(6, status="timeout", max_guide_distance_mm=50.0),  # not solved: not counted
+        trial(7, status="solved", max_guide_distance_mm=2.6),  # today's word for completed
+        trial(8, status="aborted", max_guide_distance_mm=50.0),  # a record from before
     ]
     v = _violations(trials, _Bounds(1.5, 0.5, 200.0, 1.0, 0.2))
-    assert v["guide_cylinder"]["trials"] == [2] and v["cone"]["trials"] == [3]
+    assert v["guide_cylinder"]["trials"] == [2, 7] and v["cone"]["trials"] == [3]
     assert v["plane"]["trials"] == [4] and v["patient_cylinder"]["trials"] == [5]
-    assert v["total"] == 4
+    assert v["total"] == 5
 
 
 def test_puncture_command_rejects_bad_options_in_one_line(capsys, tmp_path):
@@ -118,7 +120,7 @@ def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
         assert set(doc[key]) >= {"mean", "sd", "min", "max"}
     assert doc["paper"] == PAPER_RESULTS and doc["constraint_violations"]["total"] == 0
     (t,) = doc["per_trial"]
-    assert t["status"] == "completed" and doc["position_error_mm"]["mean"] == t["position_error_mm"]
+    assert t["status"] == "solved" and doc["position_error_mm"]["mean"] == t["position_error_mm"]
     # the paper's problem: the guide line from one noisy measurement of the target (1 mm
     # per axis), noisy needle sensor, uncertain arm; this trial's fixed outcome (measured),
     # the real tip within the target tolerance, judged on the estimate and the real tip
@@ -167,7 +169,7 @@ def test_control_benchmark_times_every_step(capsys, tmp_path):
     assert {"align", "approach", "wait", "puncture"} <= set(rec["step_us_by_phase"])
     kin = next(r for r in rec["results"] if r["name"] == "kinematics")
     assert kin["max_abs_diff"] < 1e-9
-    assert rec["machine"]["versions"]["dqrobotics"] and rec["trial_status"] == ["completed"]
+    assert rec["machine"]["versions"]["dqrobotics"] and rec["trial_status"] == ["solved"]
     assert "every tick (1 kHz loop)" in capsys.readouterr().out
 
 
@@ -422,7 +424,7 @@ def test_without_redraws_the_study_counts_the_trials_that_kept_a_refused_line(tm
     assert t["first_guide_verdict"] == _filter_oracle(PunctureScenario(), target, lg)
     assert t["first_guide_verdict"] == "wrist_too_far" and t["guide_draws"] == 1
     # and its approach times out (measured; as in the ablation's rows without redraws)
-    assert (t["status"], t["reason"]) == ("aborted", "approach timed out")
+    assert (t["status"], t["reason"]) == ("timeout", "approach timed out")
     g = doc["guide_redraws"]
     assert not g["enabled"] and g["first_line_refused"]["trials"] == [0]
     assert g["kept_refused_line"] == {

@@ -46,6 +46,7 @@ from needlekit.control.schedule import AdaptationJob, AdaptationMailbox, Adaptat
 from needlekit.control.trial import TrialResult, TrialSetup
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
+from needlekit.records import Status
 
 __all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
 
@@ -286,7 +287,7 @@ class _TrialRun:
         )
         self.events: list[tuple[float, str]] = []  # (time, what): the robot stopped or resumed
         self.stopped = False
-        self.status, self.reason = "completed", "target reached"
+        self.status, self.reason = Status.SOLVED, "target reached"
         self.puncture_from = None
         self.p_d = None  # the desired tip position of the latest control step
         self.log: dict[str, list] = {k: [] for k in _LOG_KEYS}
@@ -320,14 +321,14 @@ class _TrialRun:
             age = t - (0.0 if latest is None else latest.arrives_s)
             if age > ps.abort_after_s:
                 self.phase, self.status, self.reason = (
-                    Phase.ABORTED, "aborted", "needle sensor lost"
+                    Phase.ABORTED, Status.TIMEOUT, "needle sensor lost"
                 )  # fmt: skip
                 break
             state, q_dot = self._control(t, age)
             if self.phase not in (Phase.PUNCTURE, Phase.DONE) and (
                 t - self.phase_start > ps.phase_timeout_s
             ):
-                self.status, self.reason = "aborted", f"{self.phase.value} timed out"
+                self.status, self.reason = Status.TIMEOUT, f"{self.phase.value} timed out"
                 self.phase = Phase.ABORTED
                 break
             if timings is not None:
@@ -497,12 +498,12 @@ class _TrialRun:
             counts["adaptation_replaced"] = self.mailbox.replaced
         miss = float(np.linalg.norm(final[:3, 3] - self.true_guide.target_mm))
         reached_estimated = reached = False
-        if status == "completed":
+        if status is Status.SOLVED:
             short = float(np.linalg.norm(self.est.state(self.q).tip_mm - self.guide.target_mm))
             reached_estimated = short <= ps.target_tolerance_mm
             reached = miss <= ps.target_tolerance_mm
             if not reached_estimated:  # by the robot's own estimate
-                status = "aborted"
+                status = Status.APPROXIMATE
                 reason = f"the puncture stopped {short:.1f} mm short of the target"
             elif not reached:  # the robot believes it is there; the real tip is not
                 reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"

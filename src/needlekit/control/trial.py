@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit.control.panda import PandaModel
+from needlekit.records import Status
 
 __all__ = ["TrialResult", "TrialSetup"]
 
@@ -43,8 +44,11 @@ class TrialResult:
 
     Attributes
     ----------
-    status : str
-        ``"completed"`` or ``"aborted"``.
+    status : Status
+        The one status vocabulary (:class:`needlekit.records.Status`): ``SOLVED`` (the
+        target reached, by the robot's estimate), ``APPROXIMATE`` (the puncture stopped
+        short of it), ``TIMEOUT`` (a phase ran past its time limit, or the needle sensor
+        fell silent past ``abort_after_s``); ``reason`` says which.
     reason : str
     position_error_mm : float
         Final distance from the real tip to the real target.
@@ -85,7 +89,7 @@ class TrialResult:
         When the robot stopped because the needle sensor fell silent, and when it resumed.
     """
 
-    status: str
+    status: Status
     reason: str
     position_error_mm: float
     angle_error_deg: float

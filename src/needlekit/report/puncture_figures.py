@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from needlekit.records import trial_solved
 from needlekit.report._style import _PALETTE
 
 __all__ = [
@@ -270,7 +271,7 @@ def error_histograms_figure(trials: list[dict], paper: dict):
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    done = [t for t in trials if t["status"] == "completed"]
+    done = [t for t in trials if trial_solved(t["status"])]
     keys = (("position_error_mm", "final tip-to-target error (mm)"),
             ("angle_error_deg", "final needle-to-guide-line angle (deg)"))  # fmt: skip
     fig = make_subplots(rows=1, cols=2, subplot_titles=[k[1] for k in keys])

@@ -25,7 +25,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.files import read_json_object
 from needlekit.io.results import ResultFile, ResultKind, result_kind
 from needlekit.io.scenario_schema import read_scenario_document
-from needlekit.records import field_of
+from needlekit.records import field_of, trial_solved
 
 __all__ = ["ResultScenarios", "read_plan_json", "read_result", "read_results"]
 
@@ -126,7 +126,7 @@ def _check_puncture(data: dict, where: str) -> None:
     for i, t in enumerate(field_of(data, "per_trial", where, "list")):
         at = f"{where}: per_trial[{i}]"
         field_of(t, "trial", at, "int")
-        done = field_of(t, "status", at, "str") == "completed"
+        done = trial_solved(field_of(t, "status", at, "str"))
         phases = field_of(t, "phase_times_s", at, "dict")
         for key in ("position_error_mm", "angle_error_deg"):
             field_of(t, key, at, optional=not done)

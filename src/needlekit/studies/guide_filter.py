@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.records import trial_solved
 
 __all__ = [
     "ACCEPTABLE",
@@ -273,7 +274,7 @@ def redraw_filter_rates(
 
 
 def _outcome(trials: list[dict]) -> dict:
-    aborted = [t for t in trials if t.get("status") != "completed"]
+    aborted = [t for t in trials if not trial_solved(t.get("status", ""))]
     return {
         "count": len(trials),
         "completed": len(trials) - len(aborted),

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.records import trial_solved
 
 __all__ = [
     "PAPER_RESULTS",
@@ -307,7 +308,7 @@ def run_puncture_trial(
     out = {
         "trial": index,
         "octant": index % 4,
-        "status": r.status,
+        "status": r.status.value,
         "reason": r.reason,
         "position_error_mm": r.position_error_mm,
         "angle_error_deg": r.angle_error_deg,
@@ -428,7 +429,7 @@ def _violations(trials: list[dict], b: _Bounds) -> dict:
     }
     out = {}
     for name, bad in checks.items():
-        hit = [t["trial"] for t in trials if t["status"] == "completed" and bad(t)]
+        hit = [t["trial"] for t in trials if trial_solved(t["status"]) and bad(t)]
         out[name] = {"count": len(hit), "trials": hit}
     out["total"] = sum(v["count"] for v in out.values())
     out["tolerance"] = {"position_mm": b.noise_mm, "angle_deg": b.noise_deg}
@@ -509,7 +510,7 @@ def run_puncture_study(
             progress(results[i])
     wall = time.perf_counter() - t0
     done = [r for r in results if r is not None]
-    completed = [r for r in done if r["status"] == "completed"]
+    completed = [r for r in done if trial_solved(r["status"])]
     cs, spec = ControllerSettings(), EMSensorSpec()
     bounds = _Bounds(
         cs.guide_radius_mm,
@@ -528,7 +529,7 @@ def run_puncture_study(
             "trials": [
                 {"trial": r["trial"], "reason": r["reason"]}
                 for r in done
-                if r["status"] != "completed"
+                if not trial_solved(r["status"])
             ],
         },
         "position_error_mm": summary_stats(r["position_error_mm"] for r in completed),
