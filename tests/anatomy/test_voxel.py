@@ -519,7 +519,7 @@ def test_wrappers_ask_for_the_grids_lipschitz_bound_only_when_needed(lung_like_s
 
 
 def test_padding_changes_no_value_on_the_smaller_grid():
-    """The free space's field keeps no margin (io.medrad.FREE_SPACE_PADDING_MM): its values
+    """The free space's field keeps no margin (io.medrad_prepare.FREE_SPACE_PADDING_MM): its values
     are the padded field's, voxel for voxel, and points beyond its grid stay outside."""
     rng = np.random.default_rng(3)
     mask = np.zeros((40, 36, 30), bool)

@@ -17,7 +17,7 @@ import pytest
 
 import needlekit
 from needlekit.anatomy.voxel import VoxelSDF
-from needlekit.io import anatomy_cache, medrad
+from needlekit.io import anatomy_cache, medrad, medrad_cache
 from needlekit.io.anatomy_cache import (
     CACHE_DIR_ENV,
     cache_root,
@@ -149,13 +149,13 @@ def test_the_key_follows_every_setting(patient, monkeypatch):
     specs = [(name, medrad.Role.OBSTACLE, "", {}, name) for name in paths]
 
     def key():
-        return entry_key(medrad._cache_inputs("lung", paths, specs, "pleuralBoundary"))
+        return entry_key(medrad_cache._cache_inputs("lung", paths, specs, "pleuralBoundary"))
 
     base = key()
     assert key() == base
-    monkeypatch.setattr(medrad, "DEFAULT_MASK_PADDING_MM", 12.0)
+    monkeypatch.setattr(medrad_cache, "DEFAULT_MASK_PADDING_MM", 12.0)
     padded = key()
-    monkeypatch.setattr(medrad, "MASK_OFFSET_MAX_FRACTION", 0.5)
+    monkeypatch.setattr(medrad_cache, "MASK_OFFSET_MAX_FRACTION", 0.5)
     offset = key()
     monkeypatch.setattr(needlekit, "__version__", "0.0.0+other")
     version = key()
@@ -163,7 +163,7 @@ def test_the_key_follows_every_setting(patient, monkeypatch):
     fmt = key()
     assert len({base, padded, offset, version, fmt}) == 5
     # roles count: the same files with another region give another entry
-    assert entry_key(medrad._cache_inputs("lung", paths, specs, "vessels")) != fmt
+    assert entry_key(medrad_cache._cache_inputs("lung", paths, specs, "vessels")) != fmt
 
 
 # ----------------------------------------------------------------------------------------

@@ -131,7 +131,7 @@ def _world_points(mask):
 
 @pytest.mark.parametrize("kind", ["shift", "resample"])
 def test_masks_on_other_grids_are_aligned_through_their_affines(kind):
-    from needlekit.io.medrad import _align
+    from needlekit.io.medrad_prepare import _align
     from needlekit.io.volumes import Mask
 
     ref = Mask(np.zeros((40, 30, 20), bool), np.diag([0.5, 0.5, 0.7, 1.0]))

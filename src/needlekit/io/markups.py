@@ -24,6 +24,10 @@ back in place. :func:`write_markups_lines` can also write one combined file hold
 trajectory in its ``markups`` list; Slicer loads each entry of the list as a node of its
 own (all named after that one file).
 
+This module writes the files; the format's shared pieces (:data:`MARKUPS_SCHEMA`,
+:class:`Markup`, the LPS flip) are in :mod:`needlekit.io._markups_format` and the reader
+in :mod:`needlekit.io.markups_read`, whose public names this module re-exports.
+
 Examples
 --------
 >>> import json, tempfile
@@ -40,16 +44,17 @@ from __future__ import annotations
 
 import math
 import os
-import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from needlekit._validation import as_batch, as_points
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import read_json_object, staged_outputs, write_json
+from needlekit.io._markups_format import MARKUPS_SCHEMA, Markup, _flip_xy, _stem
+from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.markups_read import read_markups  # re-exported (it lived here)
 
 __all__ = [
     "DEFAULT_CURVE_SPACING_MM",
@@ -65,21 +70,6 @@ __all__ = [
     "write_plan_curve",
 ]
 
-#: The ``@schema`` Slicer writes (5.x). Its URL points at the "master" branch, which no
-#: longer resolves; Slicer keeps it for compatibility with Slicer < 5.1 and accepts any
-#: ``markups-schema-v1.<minor>.<patch>.json`` when reading.
-MARKUPS_SCHEMA = (
-    "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/"
-    "Resources/Schema/markups-schema-v1.0.3.json#"
-)
-
-#: How Slicer's reader recognises a markups file (compared without regard to case).
-_SCHEMA_PATTERN = re.compile(r"markups-schema-v1\.[0-9]+\.[0-9]+\.json#*$", re.IGNORECASE)
-
-#: The markup types of schema 1.0.x.
-_TYPES = ("Fiducial", "Line", "Angle", "Curve", "ClosedCurve", "Plane", "ROI")
-_POSITION_STATUS = ("undefined", "preview", "defined")
-
 #: Spacing of a curve's control points along a tip path. Slicer draws a spline through
 #: them; a polyline through points 2 mm apart on an arc of radius 50 mm (a tight needle)
 #: already stays within s^2 / (8 r) = 0.01 mm of the arc, and a 100 mm path needs ~50
@@ -89,33 +79,6 @@ DEFAULT_CURVE_SPACING_MM = 2.0
 #: A control point's orientation: the identity in RAS, written in LPS (first two rows
 #: negated, as Slicer does).
 _IDENTITY_LPS = [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0]
-
-
-class Markup(NamedTuple):
-    """One markup read from a file.
-
-    Attributes
-    ----------
-    type : str
-        ``"Line"``, ``"Curve"``, ``"Fiducial"``, ...
-    name : str
-        The markup's ``name``, else the file's name without ``.mrk.json`` (as Slicer
-        names the node).
-    points_ras : ndarray, shape (n, 3)
-        Control point positions in RAS mm, in file order (points without a position,
-        ``positionStatus: "undefined"``, are left out).
-    """
-
-    type: str
-    name: str
-    points_ras: np.ndarray
-
-
-def _flip_xy(points: np.ndarray) -> np.ndarray:
-    """RAS <-> LPS (self-inverse): negate x and y; ``0.0 - v`` writes no ``-0.0``."""
-    out = np.array(points, dtype=np.float64)
-    out[..., :2] = 0.0 - out[..., :2]
-    return out
 
 
 def _color(color: Any, field: str) -> list[float] | None:
@@ -305,15 +268,6 @@ def markups_document(markups: Sequence[dict]) -> dict:
     return {"@schema": MARKUPS_SCHEMA, "markups": items}
 
 
-def _stem(path: str | os.PathLike) -> str:
-    """A file's name without ``.mrk.json`` (or its last suffix), as Slicer names nodes."""
-    name = Path(path).name
-    for suffix in (".mrk.json", ".json"):
-        if name.lower().endswith(suffix) and len(name) > len(suffix):
-            return name[: -len(suffix)]
-    return Path(path).stem or name
-
-
 def write_markups_line(
     path: str | os.PathLike,
     entry_mm,
@@ -500,114 +454,3 @@ def write_plan_curve(
     if len(points) < 2:
         raise InvalidInputError("plan", "has zero length: no path to export")
     return write_markups_curve(path, points, name=name, color=color, description=description)
-
-
-# --------------------------------------------------------------------------- reading
-
-
-def _position(value: Any, field: str, count: int = 3) -> np.ndarray:
-    ok = (
-        isinstance(value, list)
-        and len(value) == count
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-    )
-    if not ok:
-        raise InvalidInputError(field, f"expected {count} numbers, got {value!r}")
-    arr = np.asarray(value, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
-        bad = "NaN" if np.any(np.isnan(arr)) else "infinity"
-        raise InvalidInputError(field, f"must be finite, got {bad}")
-    return arr
-
-
-def _units_ok(units: Any) -> bool:
-    if isinstance(units, list) and units:
-        units = units[0]
-    return units == "mm"
-
-
-def _read_markup(m: Any, where: str, default_name: str) -> Markup:
-    if not isinstance(m, dict):
-        raise InvalidInputError(where, f"expected an object, got {type(m).__name__}")
-    kind = m.get("type")
-    if kind not in _TYPES:
-        raise InvalidInputError(
-            f"{where}.type", f"expected one of {', '.join(_TYPES)}, got {kind!r}"
-        )
-    system = m.get("coordinateSystem", "LPS")
-    if system not in ("LPS", "RAS"):
-        raise InvalidInputError(f"{where}.coordinateSystem", f"expected LPS or RAS, got {system!r}")
-    if "coordinateUnits" in m and not _units_ok(m["coordinateUnits"]):
-        raise InvalidInputError(
-            f"{where}.coordinateUnits", f"only mm is supported, got {m['coordinateUnits']!r}"
-        )
-    name = m.get("name") or default_name
-    if not isinstance(name, str):
-        raise InvalidInputError(f"{where}.name", f"expected a string, got {name!r}")
-    cps = m.get("controlPoints", [])
-    if not isinstance(cps, list):
-        raise InvalidInputError(f"{where}.controlPoints", "expected a list of control points")
-    points = []
-    for j, cp in enumerate(cps):
-        at = f"{where}.controlPoints[{j}]"
-        if not isinstance(cp, dict):
-            raise InvalidInputError(at, f"expected an object, got {type(cp).__name__}")
-        status = cp.get("positionStatus", "defined")
-        if status not in _POSITION_STATUS:
-            raise InvalidInputError(
-                f"{at}.positionStatus",
-                f"expected one of {', '.join(_POSITION_STATUS)}, got {status!r}",
-            )
-        if "orientation" in cp:
-            _position(cp["orientation"], f"{at}.orientation", 9)
-        if status == "undefined" or "position" not in cp:
-            continue  # a point not placed yet (Slicer writes "position": "")
-        points.append(_position(cp["position"], f"{at}.position"))
-    pts = np.array(points, dtype=np.float64).reshape(-1, 3)
-    if system == "LPS":
-        pts = _flip_xy(pts)
-    return Markup(kind, name, pts)
-
-
-def read_markups(path: str | os.PathLike) -> list[Markup]:
-    """Read a Slicer Markups file (``.mrk.json``), written by Slicer or by needlekit.
-
-    Parameters
-    ----------
-    path : path-like
-
-    Returns
-    -------
-    list of Markup
-        One per item of the file's ``markups`` list, in order: ``(type, name,
-        points_ras)`` with ``points_ras`` of shape (n, 3) in RAS mm, whether the file is
-        in LPS (the default) or RAS.
-
-    Raises
-    ------
-    InvalidInputError
-        One line naming the file and the field: not JSON, no ``@schema`` or not a markups
-        schema 1.x, no ``markups`` list (or an empty one), an unknown ``type`` or
-        ``coordinateSystem``, units other than mm, a position that is not 3 finite
-        numbers (NaN included), an orientation that is not 9 numbers.
-    """
-    p = Path(path)
-    data = read_json_object(p, "markups")
-    schema = data.get("@schema")
-    if schema is None:
-        raise InvalidInputError(f"{p.name}: @schema", f"missing; expected {MARKUPS_SCHEMA}")
-    if not isinstance(schema, str) or not _SCHEMA_PATTERN.search(schema):
-        raise InvalidInputError(
-            f"{p.name}: @schema",
-            f"expected a Slicer markups schema (...markups-schema-v1.x.y.json), got {schema!r}",
-        )
-    markups = data.get("markups")
-    if markups is None:
-        raise InvalidInputError(f"{p.name}: markups", "missing; expected a list of markups")
-    if not isinstance(markups, list) or not markups:
-        raise InvalidInputError(f"{p.name}: markups", "expected a non-empty list of markups")
-    stem = _stem(p)
-    try:
-        return [_read_markup(m, f"markups[{i}]", stem) for i, m in enumerate(markups)]
-    except InvalidInputError as exc:
-        raise InvalidInputError(f"{p.name}: {exc.field}", exc.reason) from None
