@@ -19,8 +19,7 @@ from needlekit.anatomy.fields import ComplementField, DistanceField, Transformed
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.errors import InvalidInputError
 from needlekit.io.scenario_schema import SOURCE_KINDS
-from needlekit.planning.steerable.moving import Motion
-from needlekit.planning.straight.coverage import AblationZone
+from needlekit.planning.steerable.moving_obstacles import Motion
 
 #: RAS <- LPS (and back): a rotation by pi about z.
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -278,6 +277,9 @@ def _coverage(spec: dict, ctx: _Ctx, base, structures) -> dict:
                 f"the zone is longest along the needle: length_mm {lengths[0]:g} < "
                 f"diameter_mm {lengths[1]:g}",
             )
+    # the coverage package (its planners) only when a scenario has a coverage block
+    from needlekit.planning.straight.coverage import AblationZone
+
     zone = AblationZone(kind, *lengths, z.get("tip_offset_mm", 0.0))
     targets = [s.name for s in structures if s.role is Role.TARGET]
     name = spec.get("structure")
