@@ -157,14 +157,8 @@ def _plan_dynamic(args: argparse.Namespace, doc: dict, settings, dynamic: dict) 
     from needlekit.scenario.dynamic import checked_dynamic_settings, moving_case
 
     kw = checked_dynamic_settings(dynamic)
-    planner = settings.name
-    opts = {k: v for k, v in settings.options[planner].items() if k != "seed"}
     sc, static, moving = moving_case(_source(args), doc)
-    res = replan_among_moving(
-        static, moving, **kw, planner=planner, time_limit_s=settings.time_limit_s,
-        max_iterations=settings.max_iterations, seed=settings.seed_for(planner),
-        options=opts,
-    )  # fmt: skip
+    res = replan_among_moving(static, moving, **kw, **settings.replanning())
     record = {"scenario": str(args.scenario), **res.to_dict()}
     with staged_outputs():
         write_json(args.out, record)

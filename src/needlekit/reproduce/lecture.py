@@ -225,12 +225,7 @@ def _dynamic(case: Path):
         settings = planner_settings(read_scenario_document(path).get("planner"))
         sc, static, moving = moving_case(ScenarioSource.of(path))
     scenario = write_text(case / "moving.yaml", text)
-    opts = {k: v for k, v in settings.options[settings.name].items() if k != "seed"}
-    res = replan_among_moving(
-        static, moving, **kw, planner=settings.name, time_limit_s=settings.time_limit_s,
-        max_iterations=settings.max_iterations, seed=settings.seed_for(settings.name),
-        options=opts,
-    )  # fmt: skip
+    res = replan_among_moving(static, moving, **kw, **settings.replanning())
     record = {"scenario": str(scenario), **res.to_dict()}
     write_json(case / "dynamic.json", record)
     plan0, check0 = res.static

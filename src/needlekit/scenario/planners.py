@@ -53,6 +53,25 @@ class PlannerSettings:
         """
         return int(self.options[name].get("seed", self.seed))
 
+    def replanning(self) -> dict:
+        """The main planner's settings as re-planning among moving obstacles takes them
+        (:func:`needlekit.planning.steerable.dynamic.replan_among_moving`: its seed apart,
+        since each cycle plans with a seed of its own).
+
+        Returns
+        -------
+        dict
+            ``planner``, ``time_limit_s``, ``max_iterations``, ``seed``, ``options``.
+        """
+        name = self.name
+        return {
+            "planner": name,
+            "time_limit_s": self.time_limit_s,
+            "max_iterations": self.max_iterations,
+            "seed": self.seed_for(name),
+            "options": {k: v for k, v in self.options[name].items() if k != "seed"},
+        }
+
     def build(self) -> dict:
         """Every planner of the run, built once (the values of their options checked).
 
