@@ -42,7 +42,7 @@ def test_local_equals_the_full_field_where_the_distance_is_within_the_radius(see
     rng = np.random.default_rng(100 + seed)
     lo, hi = full.bounds()
     checked = beyond = 0
-    for _ in range(60):
+    for _ in range(160):  # far points mostly answer None now: enough are left beyond
         p = rng.uniform(lo, hi)
         radius = float(rng.choice([0.0, 1.0, 3.0, 6.0]))
         local = local_mask_sdf(mask, AFFINE, p, radius)

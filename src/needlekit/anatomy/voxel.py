@@ -80,6 +80,7 @@ __all__ = [
     "VoxelSDF",
     "crop_mask",
     "downsample_mask",
+    "grid_error_bounds",
     "grid_for_bounds",
     "mask_surface_offset",
     "trilinear_reference",
@@ -102,6 +103,31 @@ def _index_box_to_world(affine: np.ndarray, lo, hi) -> np.ndarray:
                         for z in (lo[2], hi[2])])  # fmt: skip
     world = corners @ affine[:3, :3].T + affine[:3, 3]
     return np.stack([world.min(axis=0), world.max(axis=0)])
+
+
+def grid_error_bounds(values: np.ndarray, spacing, defect: float, value_error_mm: float):
+    """The value error (with float32 rounding) and the whole error bound of a grid of
+    signed distances (module notes).
+
+    Parameters
+    ----------
+    values : ndarray of float32, shape (i, j, k)
+    spacing : ndarray, shape (3,)
+        Voxel spacings (mm).
+    defect : float
+        The affine's orthogonality defect.
+    value_error_mm : float
+        Largest ``|values - D|`` at the voxel centres before rounding.
+
+    Returns
+    -------
+    value_error_mm, error_bound_mm : float
+    """
+    vmax = max(float(values.max()), -float(values.min()))  # max |v| without a temporary
+    extent = float(np.linalg.norm(spacing * (np.array(values.shape) - 1)))
+    value_error = value_error_mm + vmax * FLOAT32_REL_ROUNDING
+    interpolation = 0.5 * float(np.linalg.norm(spacing))
+    return value_error, value_error + interpolation + defect * (extent + vmax)
 
 
 class VoxelSDF(DistanceField):
@@ -163,13 +189,8 @@ class VoxelSDF(DistanceField):
         #: Interpolation error of a 1-Lipschitz function on this grid: the half voxel
         #: diagonal (module notes).
         self.interpolation_error_mm = 0.5 * float(np.linalg.norm(spacing))
-        vmax = max(float(vals.max()), -float(vals.min()))  # max |v| without a temporary
-        extent = float(np.linalg.norm(spacing * (np.array(vals.shape) - 1)))
         #: Largest |stored value - true distance| at voxel centres (incl. float32 rounding).
-        self.value_error_mm = e + vmax * FLOAT32_REL_ROUNDING
-        self.error_bound_mm = (
-            self.value_error_mm + self.interpolation_error_mm + defect * (extent + vmax)
-        )
+        self.value_error_mm, self.error_bound_mm = grid_error_bounds(vals, spacing, defect, e)
         self._check_structure_inside()
         self._box = self._structure_box() if _box is None else _box
 

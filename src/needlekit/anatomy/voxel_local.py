@@ -26,14 +26,30 @@ full field's answer.
 
 from __future__ import annotations
 
+import edt
 import numpy as np
 
 from needlekit._validation import as_points, as_scalar
-from needlekit.anatomy.grids import _orthogonal_affine
-from needlekit.anatomy.voxel import VoxelSDF
+from needlekit.anatomy.fields import GRADIENT_STEP_MM, DistanceField
+from needlekit.anatomy.grids import _bbox, _orthogonal_affine, mask_surface_offset
+from needlekit.anatomy.voxel import VoxelSDF, _index_box_to_world, grid_error_bounds
 from needlekit.errors import InvalidInputError
 
-__all__ = ["local_mask_sdf", "preview_mask_sdf", "window_around"]
+__all__ = [
+    "LOCAL_REACH_DIAGONALS",
+    "LocalMaskField",
+    "local_mask_sdf",
+    "preview_mask_sdf",
+    "window_around",
+]
+
+#: How far from its point (voxel diagonals) a one-point local field answers. The window
+#: reaches 5 diagonals beyond the point, so a point ``q`` up to 3 diagonals away still
+#: interpolates centres whose values are the full field's where ``|d(q)| <= radius``: the
+#: centres lie within ``|q - point| + h`` of the point, their window reaches
+#: ``radius + 5h - |q - point| - h >= radius + h`` beyond them, and they need
+#: ``|d| <= radius + h`` (module notes). Two diagonals keep a diagonal of that slack.
+LOCAL_REACH_DIAGONALS: float = 2.0
 
 
 def window_around(affine, point_mm, radius_mm: float, half_size_mm=None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
@@ -90,14 +106,17 @@ def local_mask_sdf(mask, affine, point_mm, radius_mm: float, half_size_mm=None) 
 
     Returns
     -------
-    VoxelSDF or None
-        None when no voxel of the window is set: the structure lies farther than
-        ``radius_mm`` from the point (the box). Otherwise a field whose value and gradient
-        at points within one voxel diagonal of ``point_mm`` (of the box) are the full
-        field's where ``|d| <= radius_mm`` (the window reaches as far beyond every point of
-        the box as beyond a single point). Where the full field has ``|d| > radius_mm`` at the point,
-        the local value there keeps its sign and exceeds ``radius_mm`` in magnitude
-        (module notes).
+    LocalMaskField, VoxelSDF or None
+        None when no voxel of the window is set, or, for a point, when its nearest set
+        voxel lies farther than ``radius_mm`` + a voxel diagonal + the surface offset: the
+        structure lies farther than ``radius_mm`` from the point (the box). For a point, a :class:`LocalMaskField`
+        whose value and gradient at points within :data:`LOCAL_REACH_DIAGONALS` voxel
+        diagonals of ``point_mm`` are the full field's where ``|d| <= radius_mm`` (it
+        refuses farther points); for a box, a :class:`VoxelSDF` of the window, the same
+        within one voxel diagonal of every point of the box (the window reaches as far
+        beyond every point of the box as beyond a single point). Where the full field has
+        ``|d| > radius_mm`` at the point, the local value there keeps its sign and exceeds
+        ``radius_mm`` in magnitude (module notes).
     """
     m = np.asarray(mask)
     if m.ndim != 3:
@@ -117,7 +136,123 @@ def local_mask_sdf(mask, affine, point_mm, radius_mm: float, half_size_mm=None) 
     part[tuple(slice(a, a + n) for a, n in zip(dst_lo, src.shape, strict=True))] = src
     a = np.asarray(affine, dtype=np.float64).copy()
     a[:3, 3] = a[:3, :3] @ lo + a[:3, 3]
-    return VoxelSDF.from_mask(part, a, crop=False, padding_mm=0.0, n_threads=1)
+    if half_size_mm is not None:  # a box (a figure's view): the window's whole field
+        return VoxelSDF.from_mask(part, a, crop=False, padding_mm=0.0, n_threads=1)
+    point = np.asarray(point_mm, dtype=np.float64).reshape(3)
+    if _set_voxels_beyond(part, a, point, float(radius_mm)):
+        return None
+    return _point_field(part, a, point)
+
+
+def _set_voxels_beyond(part: np.ndarray, affine: np.ndarray, point: np.ndarray, radius: float) -> bool:  # fmt: skip
+    """Whether every set centre of the window lies farther than ``radius`` + a voxel
+    diagonal + the surface offset from the point: then the 8 centres the point
+    interpolates (within a diagonal of it, unset) hold more than ``radius``, and so does
+    the full field at the point (a set voxel beyond the window is farther still)."""
+    a, spacing, _ = _orthogonal_affine(affine, "affine")
+    offset, _ = mask_surface_offset(spacing)
+    centres = np.argwhere(part) @ a[:3, :3].T + a[:3, 3]
+    nearest = float(np.sqrt(np.min(np.sum((centres - point) ** 2, axis=1))))
+    return nearest > radius + float(np.linalg.norm(spacing)) + offset
+
+
+def _point_field(part: np.ndarray, affine: np.ndarray, point: np.ndarray) -> LocalMaskField:
+    """The field of a window near its point: the window's distance transforms, as
+    :meth:`VoxelSDF.from_mask` computes them, kept only at the centres that queries within
+    :data:`LOCAL_REACH_DIAGONALS` voxel diagonals of the point interpolate.
+
+    ``from_mask`` would pad the window with a few unset layers (its grid must hold the
+    whole structure) and keep every value; one unset layer gives the same values (the
+    nearest unset voxel beyond a box lies in its first outer layer, and the outer layers
+    hold no set voxel), and the inner transform is skipped where the kept centres are all
+    unset (their values come from the outer transform alone)."""
+    a, spacing, defect = _orthogonal_affine(affine, "affine")
+    diag = float(np.linalg.norm(spacing))
+    reach = LOCAL_REACH_DIAGONALS * diag
+    u = np.linalg.solve(a[:3, :3], point - a[:3, 3]) + 1.0  # index in the padded window
+    half = np.ceil((reach + 2.0 * GRADIENT_STEP_MM) / spacing).astype(np.int64) + 1
+    padded = np.pad(part, 1)
+    b_lo = np.maximum(np.floor(u).astype(np.int64) - half, 0)
+    b_hi = np.minimum(np.ceil(u).astype(np.int64) + half, np.array(padded.shape) - 1)
+    block = tuple(slice(int(x), int(y) + 1) for x, y in zip(b_lo, b_hi, strict=True))
+    offset, value_error = mask_surface_offset(spacing)
+    aniso = tuple(float(v) for v in spacing)
+    values = edt.edt(~padded, anisotropy=aniso, black_border=False, parallel=1)[block]
+    values -= np.float32(offset)
+    inside_block = padded[block]
+    if inside_block.any():
+        inside = edt.edt(padded, anisotropy=aniso, black_border=False, parallel=1)[block]
+        np.subtract(np.float32(offset), inside, out=values, where=inside_block)
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    origin = a.copy()
+    origin[:3, 3] = a[:3, :3] @ (b_lo - 1.0) + a[:3, 3]
+    value_err, bound = grid_error_bounds(values, spacing, defect, value_error)
+    box = _bbox(values <= 0.5 * diag + value_err)
+    world_box = (
+        np.full((2, 3), np.nan) if box is None
+        else _index_box_to_world(origin, box[0] - 0.5, box[1] + 0.5)
+    )  # fmt: skip
+    state = {"affine": origin.tolist(), "value_error_mm": value_err,
+             "error_bound_mm": bound, "box": world_box.tolist()}  # fmt: skip
+    return LocalMaskField(VoxelSDF.from_prepared_state(values, state), point, reach)
+
+
+class LocalMaskField(DistanceField):
+    """A mask's signed distance near one point (:func:`local_mask_sdf`): the full field's
+    value and gradient at points within ``reach_mm`` of the point wherever the full field
+    has ``|d| <= radius``; farther points are refused.
+
+    Parameters
+    ----------
+    grid : VoxelSDF
+        The distances at the voxel centres those points interpolate (the full field's
+        centres, the same values).
+    point_mm : ndarray, shape (3,)
+    reach_mm : float
+
+    Raises
+    ------
+    InvalidInputError
+        From the queries, for a point farther than ``reach_mm`` from ``point_mm``.
+    """
+
+    def __init__(self, grid: VoxelSDF, point_mm: np.ndarray, reach_mm: float) -> None:
+        self.grid = grid
+        self.point_mm = np.array(point_mm, dtype=np.float64).reshape(3)
+        self.reach_mm = float(reach_mm)
+        self.error_bound_mm = grid.error_bound_mm
+        self.shape = grid.shape
+
+    def _within_reach(self, points: np.ndarray) -> None:
+        far = float(np.max(np.linalg.norm(points - self.point_mm, axis=1), initial=0.0))
+        if far > self.reach_mm + 2.0 * GRADIENT_STEP_MM:
+            raise InvalidInputError(
+                "points",
+                f"this local field answers within {self.reach_mm:.3g} mm of "
+                f"{np.round(self.point_mm, 3).tolist()}, got a point {far:.3g} mm away; "
+                "use the structure's whole field",
+            )
+
+    @property  # type: ignore[override]
+    def lipschitz_bound(self) -> float:
+        return self.grid.lipschitz_bound
+
+    def _signed_distance(self, points: np.ndarray) -> np.ndarray:
+        self._within_reach(points)
+        return self.grid._signed_distance(points)
+
+    def _gradient(self, points: np.ndarray) -> np.ndarray:
+        self._within_reach(points)
+        return self.grid._gradient(points)
+
+    def bounds(self) -> np.ndarray:
+        """World box (RAS, mm) of the part of the structure near the point.
+
+        Returns
+        -------
+        ndarray, shape (2, 3)
+        """
+        return self.grid.bounds()
 
 
 def preview_mask_sdf(mask, affine, max_cells: int) -> VoxelSDF:

@@ -383,7 +383,7 @@ class SteerableProblem:
         p = np.asarray(point_mm, dtype=float).reshape(1, 3)
         # a field exact near the point (a window of a large voxel grid, not all of it)
         # where the start lies within its exclusion of the surface; the whole field beyond
-        reach = self.start_exclusion_mm + 1.0  # the differences' points lie 1e-4 mm away
+        reach = self._start_window_mm()
         field = s.field.near(p[0], reach) or s.field
         if abs(float(field.signed_distance(p[0]))) > reach - 0.5:
             field = s.field
@@ -400,6 +400,12 @@ class SteerableProblem:
             f"{'inward' if inward else 'outward'} normal of {self.entry_surface}"
         )
 
+    def _start_window_mm(self) -> float:
+        """The radius of the one-point questions about the start (which surface it lies on,
+        its normal): the start exclusion and a millimetre (the normal's differences take
+        points 1e-4 mm away), one radius so that both questions share a window."""
+        return self.start_exclusion_mm + 1.0
+
     def _default_entry_surface(self) -> str | None:
         """The scene's entry surface; else the obstacle the start lies on (within the start
         exclusion), e.g. the airway a transbronchial needle leaves through its wall."""
@@ -412,7 +418,8 @@ class SteerableProblem:
         within = max(self.start_exclusion_mm, 1e-9)
         best: tuple[float, str] | None = None
         for s in obstacles:  # one-point questions: fields near the start, not whole grids
-            field = s.field.near(self.start_point_mm, within)
+            # the radius the normal asks with, so that its window is this one, kept
+            field = s.field.near(self.start_point_mm, self._start_window_mm())
             if field is None:  # the structure lies farther than the exclusion
                 continue
             dist = abs(float(field.signed_distance(self.start_point_mm)))
