@@ -241,3 +241,29 @@ def test_a_preview_draws_the_whole_structure_without_building_it():
     coarse_diag = float(np.linalg.norm(np.linalg.norm(lazy.preview(40).affine[:3, :3], axis=0)))
     assert np.abs(full.signed_distance(verts)).max() <= coarse_diag + full.error_bound_mm
     assert lazy.preview(40) is lazy.preview(40)  # kept
+
+
+def test_a_point_field_refuses_points_beyond_its_reach():
+    """A one-point field keeps only the centres near its point: a farther query is an
+    error naming the argument, never a value from centres it does not hold."""
+    from needlekit.anatomy.voxel_local import LOCAL_REACH_DIAGONALS, LocalMaskField
+
+    mask = _blobs(3)
+    full = VoxelSDF.from_mask(mask, AFFINE)
+    rng = np.random.default_rng(5)
+    lo, hi = full.bounds()
+    pts = rng.uniform(lo, hi, size=(4000, 3))
+    p = pts[np.abs(full.signed_distance(pts)) <= 1.0][0]
+    local = local_mask_sdf(mask, AFFINE, p, 6.0)  # |d| <= 1 + reach < 6 wherever it answers
+    assert isinstance(local, LocalMaskField)
+    assert local.reach_mm == pytest.approx(LOCAL_REACH_DIAGONALS * DIAG)
+    assert max(local.shape) < min(full.shape)  # the centres near the point, not the window
+    direction = np.array([0.6, -0.48, 0.64])
+    inside = p + 0.99 * local.reach_mm * direction
+    assert float(local.signed_distance(inside)) == pytest.approx(
+        float(full.signed_distance(inside)), abs=1e-6
+    )
+    with pytest.raises(InvalidInputError, match="points"):
+        local.signed_distance(p + 1.01 * local.reach_mm * direction)
+    with pytest.raises(InvalidInputError, match="points"):
+        local.gradient(p + 1.5 * local.reach_mm * direction)
