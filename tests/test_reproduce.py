@@ -55,18 +55,23 @@ def test_statistics_are_each_judged_on_their_own():
 
 def test_tang_rows_are_eq3_then_each_change_alone_then_together():
     assert [r.key for r in ROWS] == [
-        "eq3", "history", "ball", "clamp", "redraw", "defaults", "guide100", "guidemean",
+        "eq3", "history", "ball", "clamp", "redraw", "offtick", "defaults", "guide100",
+        "guidemean",
     ]  # fmt: skip
     eq3 = ROWS[0]
-    assert eq3.flags == "--history 0 --stability-radius-mm 0 --no-vfi-clamp --no-redraw"
-    alone = {r.key: r.flags for r in ROWS[1:5]}
+    assert eq3.flags == (
+        "--history 0 --stability-radius-mm 0 --no-vfi-clamp --no-redraw --adaptation-delay-ms 0"
+    )
+    bare = "--adaptation-delay-ms 0"
+    alone = {r.key: r.flags for r in ROWS[1:6]}
     assert alone == {
-        "history": "--stability-radius-mm 0 --no-vfi-clamp --no-redraw",
-        "ball": "--history 0 --no-vfi-clamp --no-redraw",
-        "clamp": "--history 0 --stability-radius-mm 0 --no-redraw",
-        "redraw": "--history 0 --stability-radius-mm 0 --no-vfi-clamp",
+        "history": f"--stability-radius-mm 0 --no-vfi-clamp --no-redraw {bare}",
+        "ball": f"--history 0 --no-vfi-clamp --no-redraw {bare}",
+        "clamp": f"--history 0 --stability-radius-mm 0 --no-redraw {bare}",
+        "redraw": f"--history 0 --stability-radius-mm 0 --no-vfi-clamp {bare}",
+        "offtick": "--history 0 --stability-radius-mm 0 --no-vfi-clamp --no-redraw",
     }
-    assert ROWS[5].flags == "" and ROWS[6].flags == "--guide-samples 100"
+    assert ROWS[6].flags == "" and ROWS[7].flags == "--guide-samples 100"
 
 
 def _page(tmp_path, paper):

@@ -36,9 +36,10 @@ def test_a_delay_that_is_not_whole_control_periods_is_one_error_line(
 
 
 @pytest.mark.parametrize("command", [["puncture"], ["bench", "control"]])
-def test_whole_periods_are_accepted_and_the_default_is_inline(command):
+def test_whole_periods_are_accepted_and_the_default_is_off_the_tick(command):
     parser = _build_parser()
-    assert parser.parse_args(command).adaptation_delay_ms == 0.0
+    assert parser.parse_args(command).adaptation_delay_ms == 2.0
+    assert parser.parse_args([*command, "--adaptation-delay-ms", "0"]).adaptation_delay_ms == 0.0
     assert parser.parse_args([*command, "--adaptation-delay-ms", "2"]).adaptation_delay_ms == 2.0
     assert parser.parse_args([*command, "--adaptation-delay-ms", "5.0"]).adaptation_delay_ms == 5.0
 

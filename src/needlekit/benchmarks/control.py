@@ -9,9 +9,9 @@ step gets its own statistics (n, median, p90, p99, p99.9, max in us):
 
 - ``control``: a tick without adaptation work;
 - ``control+adaptation``: a needle sample's tick with the adaptation inline
-  (``--adaptation-delay-ms 0``, the default);
-- ``control+apply``: with the adaptation off the tick (``--adaptation-delay-ms D``, D > 0),
-  the tick that takes a job's update;
+  (``--adaptation-delay-ms 0``);
+- ``control+apply``: with the adaptation off the tick (``--adaptation-delay-ms D``, D > 0;
+  the default D = 2), the tick that takes a job's update;
 - ``adaptation_job``: that job, which another thread or process would run; held against its
   budget of D control periods (overruns counted);
 - ``ticks``: every tick the 1 kHz loop runs (all but the jobs), the figure the robot sees.
@@ -168,7 +168,7 @@ def run_control_benchmark(
     trials: int = 1,
     seed: int = 0,
     kinematics_calls: int = 2000,
-    adaptation_delay_ms: float = 0.0,
+    adaptation_delay_ms: float = 2.0,
     tro2022: bool = True,
     qp_solver: str = "daqp",
 ) -> dict[str, Any]:
@@ -183,7 +183,7 @@ def run_control_benchmark(
         Configurations for the kinematics reference.
     adaptation_delay_ms : float
         The adaptation off the tick, applied this long after its job starts (a whole number
-        of control periods; 0: inline, in the sample's tick).
+        of control periods; default 2, as the study; 0: inline, in the sample's tick).
     tro2022 : bool
         Run the TRO 2022 yardstick (when its package imports).
     qp_solver : str

@@ -200,8 +200,8 @@ def _register_control(bench_sub) -> None:
     _flags.SEED.add(bc, default=0, help="study seed of the trials (default 0)")
     ADAPTATION_DELAY_MS.add(
         bc,
-        help="time the adaptation as a job off the tick, applied MS ms after it starts "
-        "(whole control periods; default 0: inline, in the sample's tick)",
+        help="the adaptation as a job off the tick, applied MS ms after it starts (whole "
+        "control periods; default 2; 0: inline, in the sample's tick)",
     )
     QP_SOLVER.add(
         bc,

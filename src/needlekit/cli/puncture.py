@@ -15,6 +15,9 @@ PUNCTURE_FILES = ("puncture.json", "puncture.html")
 #: The puncture controller's period (ms): ``ProcedureSettings.dt_s`` (a test keeps them
 #: equal), here so that the parser checks ``--adaptation-delay-ms`` without loading numpy.
 CONTROL_PERIOD_MS = 1.0
+#: The default ``--adaptation-delay-ms``: ``DEFAULT_ADAPTATION_DELAY_STEPS`` control
+#: periods (:mod:`needlekit.control.schedule`; a test keeps them equal).
+DEFAULT_ADAPTATION_DELAY_MS = 2.0
 
 
 def adaptation_delay_ms(text: str) -> float:
@@ -48,7 +51,8 @@ def adaptation_delay_ms(text: str) -> float:
 
 #: ``--adaptation-delay-ms`` of ``puncture`` and ``bench control``.
 ADAPTATION_DELAY_MS = _flags.Flag(
-    "--adaptation-delay-ms", {"type": adaptation_delay_ms, "default": 0.0, "metavar": "MS"}
+    "--adaptation-delay-ms",
+    {"type": adaptation_delay_ms, "default": DEFAULT_ADAPTATION_DELAY_MS, "metavar": "MS"},
 )
 
 
@@ -203,7 +207,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     ADAPTATION_DELAY_MS.add(
         pu,
         help="run the adaptation off the 1 kHz control step, its update applied MS ms after "
-        "its job starts (whole control periods; default 0: inline, in the sample's step)",
+        "its job starts (whole control periods; default 2; 0: inline, in the sample's step)",
     )
     QP_SOLVER.add(
         pu,

@@ -16,9 +16,9 @@ mean estimated-minus-measured position is within ``converged_mm`` and the mean r
 between them within ``converged_deg`` (averaging keeps the sensor noise out of the test).
 The guide line is the running mean of the bronchoscope sensor's samples (the target does
 not move). The needle sensor feeds the adaptation law at its own rate, each sample paired
-with the joint angles of the moment it was taken: inline, in the tick of the sample, or off
-the tick, its update applied ``adaptation_delay_steps`` ticks after its job starts (as
-another process would run it; :mod:`needlekit.control.schedule`).
+with the joint angles of the moment it was taken: off the tick (the default), its update
+applied ``adaptation_delay_steps`` ticks after its job starts (as another process would
+run it; :mod:`needlekit.control.schedule`), or inline, in the tick of the sample.
 
 When no needle sample has arrived for ``stop_after_s`` the robot stops (zero joint
 velocities) and resumes when samples return; after ``abort_after_s`` the trial aborts with
@@ -42,7 +42,12 @@ from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.control.parameters import model_from_parameters
 from needlekit.control.qp import QPStatus
 from needlekit.control.qp_registry import get_qp_solver
-from needlekit.control.schedule import AdaptationJob, AdaptationMailbox, AdaptationWorker
+from needlekit.control.schedule import (
+    DEFAULT_ADAPTATION_DELAY_STEPS,
+    AdaptationJob,
+    AdaptationMailbox,
+    AdaptationWorker,
+)
 from needlekit.control.trial import TrialResult, TrialSetup
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
@@ -128,9 +133,11 @@ class ProcedureSettings:
         measurement of the target; 100 is the 1 s at 100 Hz of its mannequin experiments;
         0 the running mean of every sample of the trial (the target does not move).
     adaptation_delay_steps : int
-        ``D``: 0 runs the adaptation inline, in the tick of each needle sample; D > 0 runs
-        it off the tick (:mod:`needlekit.control.schedule`): the tick posts the job, and its
-        update is applied D control periods after the job starts.
+        ``D``: D > 0 runs the adaptation off the tick (:mod:`needlekit.control.schedule`):
+        the tick posts the job, and its update is applied D control periods after the job
+        starts (default :data:`~needlekit.control.schedule.DEFAULT_ADAPTATION_DELAY_STEPS`,
+        2 ms: every tick kind inside Franka's 1 kHz budget); 0 runs it inline, in the tick
+        of each needle sample (the law as first written here, bit for bit).
     qp_solver : str or QPSolver
         The QP solver of the controller and the adaptation: a registered name
         (:func:`~needlekit.control.qp_registry.get_qp_solver`: ``"daqp"``, the default, or
@@ -155,7 +162,7 @@ class ProcedureSettings:
     vfi_share: float = 0.5
     guide_samples: int = 1
     history_keyframes: int = 40
-    adaptation_delay_steps: int = 0
+    adaptation_delay_steps: int = DEFAULT_ADAPTATION_DELAY_STEPS
     qp_solver: Any = "daqp"
 
 

@@ -142,9 +142,9 @@ class TrialOptions:
     clamp_vfi_rows : bool
         :attr:`needlekit.control.adaptation.AdaptationSettings.clamp_vfi_rows`.
     adaptation_delay_steps : int
-        :attr:`needlekit.control.procedure.ProcedureSettings.adaptation_delay_steps` (0: the
-        adaptation inline in the sample's control step; D > 0: off the step, applied D
-        control periods later).
+        :attr:`needlekit.control.procedure.ProcedureSettings.adaptation_delay_steps` (D > 0:
+        off the step, applied D control periods later, default 2; 0: the adaptation inline
+        in the sample's control step).
     qp_solver : str
         :attr:`needlekit.control.procedure.ProcedureSettings.qp_solver`: the registered
         name of the controller's and the adaptation's QP solver.
@@ -155,7 +155,9 @@ class TrialOptions:
     history_keyframes: int = 40
     guide_samples: int = 1
     clamp_vfi_rows: bool = True
-    adaptation_delay_steps: int = 0
+    # control.schedule.DEFAULT_ADAPTATION_DELAY_STEPS, without importing the controller
+    # here (a test keeps them equal)
+    adaptation_delay_steps: int = 2
     qp_solver: str = "daqp"
 
 
