@@ -212,19 +212,36 @@ def _scale_record() -> dict:
     return record | {"results": summary_lines(record)}
 
 
+#: After the page's plots report a layout and every 3D view has drawn: the time given to
+#: messages the last drawing may still log (the pages load nothing from the network).
+SETTLE_S = 0.5
+
+
 def _render(browser, path: Path) -> tuple[int, list[dict]]:
     browser.get(path.as_uri())
     count = "return document.querySelectorAll('.js-plotly-plot').length"
     ready = (
         "return Array.from(document.querySelectorAll('.js-plotly-plot')).every(p => p._fullLayout)"
     )
-    for _ in range(120):  # up to 60 s for the page's plots to be drawn
+    for _ in range(600):  # up to 60 s for the page's plots to be laid out
         if browser.execute_script(count) and browser.execute_script(ready):
             break
-        time.sleep(0.5)
+        time.sleep(0.1)
     browser.execute_script("window.scrollTo(0, document.body.scrollHeight)")
-    time.sleep(2.0)
+    # up to 20 s for every 3D view to draw (the test then checks each one itself)
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline:
+        canvases = browser.find_elements("css selector", ".gl-container canvas")
+        if all(_drawn(browser, c) for c in canvases):
+            break
+        time.sleep(0.2)
+    time.sleep(SETTLE_S)
     return browser.execute_script(count), browser.get_log("browser")
+
+
+def _drawn(browser, canvas) -> bool:
+    browser.execute_script("arguments[0].scrollIntoView()", canvas)
+    return _not_blank(canvas.screenshot_as_png)
 
 
 def _not_blank(png: bytes) -> bool:
