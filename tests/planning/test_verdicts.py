@@ -290,11 +290,16 @@ def test_a_pocket_open_only_away_from_the_start_is_proved_sealed(planner):
     assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
     assert res.stats["reason"].startswith("reachable workspace is not connected to the goal")
     assert _connected(p) is True
-    # a heading limit beyond 90 deg makes the cones no proof: back to the ellipsoid
+    # a heading limit beyond 90 deg makes the cones no proof: back to the ellipsoid (r 20:
+    # the goal, 50 mm away, is past the diameter, so Schur's bound on the length is off)
     wide = _pocket_problem("far", max_heading_change_deg=120.0)
-    limits = {"start_direction": wide.start_pose[:3, 2], "r_min_mm": wide.r_min_mm}
+    limits = {"start_direction": wide.start_pose[:3, 2], "r_min_mm": 20.0}
     assert _connected(wide, max_heading_change_deg=120.0, **limits) is True
     assert _connected(wide, max_heading_change_deg=90.0, **limits) is False
+    # with the problem's r 50, no valid path is longer than 100 asin(0.51) = 53.5 mm, too
+    # short to go round the shell: sealed whatever the heading limit
+    limits["r_min_mm"] = wide.r_min_mm
+    assert _connected(wide, max_heading_change_deg=120.0, **limits) is False
 
 
 def test_a_pocket_open_toward_the_start_stays_connected():
@@ -305,6 +310,26 @@ def test_a_pocket_open_toward_the_start_stays_connected():
     assert _connected(_pocket_problem("none"), **limits) is False
     res = solve(p, "rcs_star", time_limit_s=60.0, max_iterations=400)
     assert res.status is PlanStatus.SOLVED and res.cost_mm == pytest.approx(49.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("opening", ["near", "far", "none"])
+def test_the_reached_set_kinds_agree(opening):
+    # the fills keep a hash set while small and a flag per voxel after DENSE_AFTER: the
+    # verdict and the count of reached voxels do not depend on when (or whether) they
+    # switch (the sealed pockets fill past the first cap, so 500 switches between rounds)
+    from needlekit.anatomy.voxel_connectivity import FIRST_CAP, goal_connected
+
+    p = _pocket_problem(opening)
+    kw = {"max_length_mm": p.max_length_mm, "goal_tolerance_mm": p.goal_tolerance_mm,
+          "exclusion_mm": p.start_exclusion_mm, "spacing_mm": 0.5,
+          "start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
+          "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
+    args = (p.voxel_obstacles, p.start_point_mm, p.goal_mm)
+    answers = {goal_connected(*args, dense_after=n, **kw) for n in (-1, 0, 500, 10**9)}
+    assert len(answers) == 1
+    verdict, reached = answers.pop()
+    assert verdict is (opening == "near")
+    assert (reached < FIRST_CAP) if opening == "near" else (reached > FIRST_CAP)
 
 
 def _random_path(rng, r_min, step=0.02, length=120.0):
@@ -349,6 +374,56 @@ def test_every_point_of_a_valid_path_lies_in_the_region():
             # and the points themselves keep r_min from the torus's circle of centres
             a, b = pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])
             assert np.all(np.hypot(a, b - r_min) >= r_min - 1e-6)
+
+
+@pytest.mark.parametrize(("r_min", "l_max"), [(35.0, 100.0), (50.0, 150.0), (100.0, 150.0)])
+def test_no_valid_path_is_longer_than_schurs_arc(r_min, l_max):
+    # Schur's bound (module notes) on random curvature-bounded paths of every length up to
+    # l_max, no heading limit on the region: each path is no longer than the bound for its
+    # goal (within tau of its end), and every point within h of it lies in the region
+    from needlekit.anatomy.voxel_connectivity import _in_region, _region, longest_path
+
+    rng = np.random.default_rng(11)
+    h, tau = 0.6, 1.0
+    d = np.array([0.0, 0.0, 1.0])
+    shorter = 0
+    for _ in range(40):
+        pts = _random_path(rng, r_min, length=float(rng.uniform(20.0, l_max)))
+        goal = pts[-1] + rng.uniform(-1.0, 1.0, 3) * tau / np.sqrt(3.0)
+        bound = longest_path(l_max, r_min, float(np.linalg.norm(goal)), tau)
+        length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        assert length <= bound + 1e-9
+        shorter += bound < l_max
+        geo = _region(d, r_min, 180.0, l_max, tau, h, 0.0, chord_mm=np.linalg.norm(goal))
+        step = rng.normal(size=pts.shape)
+        moved = pts + step / np.linalg.norm(step, axis=1)[:, None] * h
+        inside = [_in_region(c[0], c[1], c[2], np.zeros(3), d, goal, geo) for c in moved]
+        assert all(inside), (r_min, int(np.argmin(inside)))
+    assert shorter >= 20  # the bound took part (it needs |g - s| + tau < 2 r, l_max short)
+
+
+def test_schurs_arc_bounds_the_region_to_a_thin_ellipsoid():
+    # a goal 60 mm ahead, r 50: no valid path is longer than the arc of radius 50 over the
+    # chord, 100 asin(0.6) = 64.35 mm (the arc itself is one), so the region is the
+    # ellipsoid of that focal sum: 11.6 mm wide at its middle where l_max = 150 mm allows 70
+    from needlekit.anatomy.voxel_connectivity import _in_region, _region, longest_path
+
+    goal, d = np.array([0.0, 0.0, 60.0]), np.array([0.0, 0.0, 1.0])
+    arc = 100.0 * np.arcsin(0.6)
+    assert longest_path(150.0, 50.0, 60.0, 0.0) == pytest.approx(arc, abs=1e-3)  # slacks
+    geo = _region(d, 50.0, 180.0, 150.0, 0.0, 0.0, 0.0, chord_mm=60.0)
+    half = np.sqrt((arc / 2) ** 2 - 30.0**2)
+    assert _in_region(half - 1e-3, 0.0, 30.0, np.zeros(3), d, goal, geo)
+    assert not _in_region(0.0, half + 1e-3, 30.0, np.zeros(3), d, goal, geo)
+    # points of the arc itself lie inside
+    for phi in np.linspace(0.0, 2 * np.arcsin(0.6), 9):
+        x = 50.0 * np.cos(np.arcsin(0.6)) - 50.0 * np.cos(np.arcsin(0.6) - phi)
+        z = 30.0 - 50.0 * np.sin(np.arcsin(0.6) - phi)
+        assert _in_region(x, 0.0, z, np.zeros(3), d, goal, geo), phi
+    # no bound: a goal past the diameter (r 25), or l_max long enough for a loop past pi r
+    assert longest_path(150.0, 25.0, 60.0, 0.0) == 150.0
+    assert longest_path(150.0, 30.0, 50.0, 0.0) == 150.0
+    assert longest_path(60.0, 30.0, 50.0, 0.0) == pytest.approx(60.0 * np.arcsin(50 / 60), abs=1e-3)
 
 
 # Lung 1 targets for which the UNC reference prints "Reachable workspace is not connected to

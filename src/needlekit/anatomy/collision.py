@@ -396,17 +396,12 @@ class VoxelCentresChecker(CollisionChecker):
         return connected
 
     def warm_up(self) -> None:
+        from needlekit.anatomy.voxel_connectivity import warm_up
+
         p = self.start[None].copy()
         self.collides(p)
         self.certify(p, self.spacing_mm)
-        self.connected(
-            self.start,
-            max_length_mm=0.0,
-            goal_tolerance_mm=0.0,
-            start_direction=np.array([0.0, 0.0, 1.0]),
-            r_min_mm=1.0,
-            max_heading_change_deg=90.0,
-        )
+        warm_up(self.obstacles, self.start, self.exclusion, self.spacing_mm)
 
 
 # -- the built-in factories (the registry is needlekit.anatomy.collision_registry) --------

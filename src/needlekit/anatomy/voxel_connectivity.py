@@ -19,8 +19,16 @@ samples by chords: a polyline from the start ``s`` to near the goal ``g``.
 - Region: every point of a path (and of its chords) lies in each of these sets, so the
   voxel centres of the chain lie in them grown by ``h``:
 
-  - the ellipsoid ``|x - s| + |x - g| <= l_max + tau`` (a path through ``x`` is at least
-    that long; convex, so it holds the chords) -- the centre in the one grown by ``2 h``;
+  - the ellipsoid ``|x - s| + |x - g| <= L + tau`` (a path through ``x`` is at least
+    that long; convex, so it holds the chords) -- the centre in the one grown by ``2 h``.
+    ``L`` bounds the path's length: ``l_max``, or shorter by Schur's comparison theorem.
+    A curve of length ``l <= 2 pi r`` whose curvature never exceeds ``1 / r`` has a chord
+    at least ``2 r sin(l / (2 r))``, that of the arc of radius ``r`` as long (space curves
+    included). The path's chord is at most ``D = |g - s| + tau``; so with ``D < 2 r`` its
+    length is at most ``A = 2 r asin(D / (2 r))`` or at least ``2 pi r - A``, and when
+    ``l_max < 2 pi r - A`` only the first is left: ``L = min(l_max, A)``
+    (:func:`longest_path`). For a lung target 60 mm ahead at ``r = 50`` that is 64.4 mm
+    instead of 150: the region shrinks from an ellipsoid 70 mm wide to one 12 mm wide;
   - with ``H <= 90`` deg, the cone ``K`` of half-angle ``H`` about ``d``: ``x - s`` is an
     integral of directions inside ``K``, so it lies in ``K``; likewise the path's end minus
     ``x``, so ``g - x`` lies within ``tau`` of ``K``. Both sets are convex;
@@ -43,7 +51,11 @@ Two greedy best-first fills search for the chain: one from the start toward the 
 from the goal's voxels toward the start. They take turns, each resuming where it stopped,
 with a cap on the voxels each may queue that grows fourfold a round, so a connected goal is
 found as fast as the start's fill heads there and a sealed pocket is closed as soon as the
-smaller side is exhausted.
+smaller side is exhausted. The voxels the fills have reached sit in a hash set while they
+are few (a connected goal is usually found within a few hundred); past ``DENSE_AFTER`` they
+move to a flag per voxel of the grid, whose untouched pages the system never zeroes: a
+sealed lung pocket (a few hundred thousand voxels) is proved in about half the hash set's
+time. The verdict and the count do not depend on when the fills switch.
 """
 
 from __future__ import annotations
@@ -52,10 +64,11 @@ import math
 
 import numba
 import numpy as np
+from numba.extending import overload
 
 from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_centre
 
-__all__ = ["goal_connected"]
+__all__ = ["goal_connected", "warm_up"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -83,6 +96,11 @@ def _grow(keys):  # pragma: no cover - compiled
 
 #: The fills' first cap on reached voxels; each round multiplies it by four.
 FIRST_CAP: int = 4096
+
+#: Reached voxels (both fills) beyond which the fills keep a flag per voxel of the grid
+#: instead of a hash set: a small fill touches few of the flags' pages (each first touch
+#: of a page costs the system a fault), a large one probes the hash far more than that.
+DENSE_AFTER: int = 8192
 
 #: Slack (mm) on the region's tests: more than the plan check's angle and curvature
 #: tolerances move a point within any l_max, far less than a voxel.
@@ -175,6 +193,40 @@ def _push(state, x, y, z, a, target, step):  # pragma: no cover - compiled
     counts[1] += 1
     counts[2] = min(counts[2], b)
     return first, keys, queued, nxt, counts
+
+
+@numba.njit(cache=True, inline="always")
+def _mark_dense(state, a):  # pragma: no cover - compiled
+    """Flag ``a`` as reached (the state's set is a flag per voxel); False when it was."""
+    seen = state[1]
+    if seen[a]:
+        return False, state
+    seen[a] = 1
+    state[4][0] += 1
+    return True, state
+
+
+@numba.njit(cache=True)
+def _to_dense(state, seen):  # pragma: no cover - compiled
+    """The state with its reached set moved from the hash set into the flags ``seen``."""
+    first, keys, queued, nxt, counts = state
+    for key in keys:
+        if key != -1:
+            seen[key] = 1
+    return first, seen, queued, nxt, counts
+
+
+def _mark_any(state, a):  # pragma: no cover - typed by _mark_any_overload
+    """:func:`_mark` or :func:`_mark_dense`, chosen by the state's type when compiling
+    (one kernel for each kind of reached set, no branch per voxel)."""
+    raise NotImplementedError("compiled only")
+
+
+@overload(_mark_any, inline="always")
+def _mark_any_overload(state, a):
+    if state.types[1].dtype == numba.types.uint8:
+        return lambda state, a: _mark_dense(state, a)
+    return lambda state, a: _mark(state, a)
 
 
 @numba.njit(cache=True, inline="always")
@@ -284,7 +336,7 @@ def _fill(
             if ci < 0 or cj < 0 or ck < 0 or ci >= ni or cj >= nj or ck >= nk:
                 continue
             a = (ci * nj + cj) * nk + ck
-            new, state = _mark(state, a)
+            new, state = _mark_any(state, a)
             if not new:
                 continue
             cx, cy, cz = voxel_centre(affine, ci, cj, ck)
@@ -309,6 +361,7 @@ def goal_connected(
     start_direction: np.ndarray | None = None,
     r_min_mm: float | None = None,
     max_heading_change_deg: float | None = None,
+    dense_after: int = DENSE_AFTER,
 ) -> tuple[bool | None, int]:
     """Whether free voxels connect the start to the goal (module notes).
 
@@ -328,6 +381,9 @@ def goal_connected(
         The smallest radius of curvature.
     max_heading_change_deg : float, optional
         The heading limit H.
+    dense_after : int
+        Reached voxels after which the fills flag voxels in an array over the grid instead
+        of a hash set (:data:`DENSE_AFTER`; -1: from the start, as the warm-up runs it).
 
     Returns
     -------
@@ -350,15 +406,21 @@ def goal_connected(
     half_gap2 = 0.25 * float(spacing_mm) ** 2
     free_r = math.sqrt(max(m * m - half_gap2, 0.0)) - h
     geo = _region(
-        start_direction, r_min_mm, max_heading_change_deg, max_length_mm, tau, h, half_gap2
-    )
+        start_direction, r_min_mm, max_heading_change_deg, max_length_mm, tau, h, half_gap2,
+        chord_mm=float(np.linalg.norm(goal - start)),
+    )  # fmt: skip
     d = np.zeros(3) if start_direction is None else np.asarray(start_direction, dtype=np.float64)
     d = np.ascontiguousarray(d / max(float(np.linalg.norm(d)), 1e-300))
     occ, affine = obstacles.occupancy, obstacles.affine
     args = (start, d, goal, s_key, float(exclusion_mm), float(free_r), float(tau + h), geo)
     states = [_seed(occ, affine, obstacles.inv_affine, *args, side) for side in (False, True)]
     cap = FIRST_CAP
+    dense = False
     while True:
+        if not dense and states[0][4][0] + states[1][4][0] > dense_after:
+            # numpy's zeros are the system's zeroed pages: only the touched ones cost
+            states = [_to_dense(st, np.zeros(occ.size, np.uint8)) for st in states]
+            dense = True
         for side in (0, 1):
             status, states[side] = _fill(occ, affine, *args, bool(side), states[side], cap)
             if status != _CAPPED:
@@ -366,11 +428,93 @@ def goal_connected(
         cap *= 4
 
 
-def _region(direction, r_min, heading_deg, max_length_mm, tau, h, half_gap2) -> np.ndarray:
+#: The array types (occupancy, affine, inverse) whose flag-array kernels have been run in
+#: this process (:func:`warm_up`).
+_DENSE_WARMED: set = set()
+
+
+def warm_up(obstacles: VoxelObstacles, start_mm: np.ndarray, exclusion_mm: float,
+            spacing_mm: float) -> None:  # fmt: skip
+    """Run the fills' kernels once on these obstacles' array types, so that numba loads
+    (or compiles) them before a planner's clock starts: the hash-set kernels on every
+    call (a tiny fill), the flag-array ones once per process and array types (their flags
+    over the whole grid cost a fraction of a millisecond, which a solve should not pay
+    each time).
+
+    Parameters
+    ----------
+    obstacles : VoxelObstacles
+    start_mm : ndarray, shape (3,)
+    exclusion_mm, spacing_mm : float
+
+    Returns
+    -------
+    None
+    """
+    key = tuple(
+        str(numba.typeof(a)) for a in (obstacles.occupancy, obstacles.affine, obstacles.inv_affine)
+    )
+    for dense_after in (DENSE_AFTER, -1) if key not in _DENSE_WARMED else (DENSE_AFTER,):
+        goal_connected(
+            obstacles, start_mm, start_mm, max_length_mm=0.0, goal_tolerance_mm=0.0,
+            exclusion_mm=exclusion_mm, spacing_mm=spacing_mm,
+            start_direction=np.array([0.0, 0.0, 1.0]), r_min_mm=1.0,
+            max_heading_change_deg=90.0, dense_after=dense_after,
+        )  # fmt: skip
+    _DENSE_WARMED.add(key)
+
+
+def longest_path(
+    max_length_mm: float, r_min_mm: float | None, chord_mm: float | None, tau_mm: float
+) -> float:
+    """The longest a valid path can be (module notes): ``l_max``, or Schur's arc over the
+    chord when that is shorter and applies.
+
+    Parameters
+    ----------
+    max_length_mm : float
+        ``l_max``.
+    r_min_mm : float or None
+        The smallest radius of curvature (None or 0: no bound from it).
+    chord_mm : float or None
+        ``|g - s|`` (None: no bound from it).
+    tau_mm : float
+        The goal tolerance.
+
+    Returns
+    -------
+    float
+        At least the length of every path the plan check accepts (its curvature and length
+        slacks included).
+
+    Examples
+    --------
+    >>> round(longest_path(150.0, 50.0, 60.0, 0.0), 2)  # 100 asin(0.6), and the slacks
+    64.35
+    >>> longest_path(150.0, 25.0, 60.0, 0.0)  # the goal is past the diameter: no bound
+    150.0
+    """
+    l_max = float(max_length_mm)
+    if not r_min_mm or r_min_mm <= 0.0 or chord_mm is None:
+        return l_max
+    # the check accepts curvature up to (1 + 1e-9) / r + 1e-9: a diameter a little shorter
+    diameter = 2.0 * float(r_min_mm) / (1.0 + 1e-6 * (1.0 + float(r_min_mm)))
+    reach = float(chord_mm) + float(tau_mm) + REGION_SLACK_MM
+    if reach >= diameter:
+        return l_max
+    arc = diameter * math.asin(reach / diameter)
+    if l_max + REGION_SLACK_MM >= math.pi * diameter - arc:
+        return l_max  # a path could be a loop longer than pi r
+    return min(l_max, arc + REGION_SLACK_MM)
+
+
+def _region(
+    direction, r_min, heading_deg, max_length_mm, tau, h, half_gap2, chord_mm=None
+) -> np.ndarray:
     """The region's figures for the kernel (its ``geo``; module notes)."""
     slack = REGION_SLACK_MM
     geo = np.zeros(8)
-    geo[0] = float(max_length_mm) + tau + 2.0 * h + slack
+    geo[0] = longest_path(max_length_mm, r_min, chord_mm, tau) + tau + 2.0 * h + slack
     if direction is None or heading_deg is None or heading_deg > 90.0:
         return geo
     hr = math.radians(float(heading_deg))
