@@ -453,6 +453,7 @@ def test_lung_sizes_are_realistic(lung_any):
     assert ph.info["rib_count"] >= 4
 
 
+@pytest.mark.slow
 def test_lung_nodule_is_inside_the_pleura_clear_of_vessels_and_far_from_airways(lung_any):
     ph = lung_any
     c, r = balls(ph.exact_fields["nodule"])

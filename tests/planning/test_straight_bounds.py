@@ -56,6 +56,7 @@ def test_capsule_bound_is_the_exact_segment_distance():
     assert np.all(want - got <= _slack(L))  # ... equal to the oracle to its sampling
 
 
+@pytest.mark.slow
 def test_convex_bound_is_certified_and_within_tolerance_of_the_exact_minimum():
     rng = np.random.default_rng(2)
     head = NeedleBody([0.0, 0.0, 0.0], [0.0, 0.0, 30.0], radius_mm=1.0).head_field
@@ -87,6 +88,7 @@ def test_convex_bound_of_monotone_and_flat_segments():
     assert np.all(got <= [5.0, 15.0, 3.0])
 
 
+@pytest.mark.slow
 def test_needle_body_bound_is_the_lower_of_tube_and_head():
     rng = np.random.default_rng(3)
     body = NeedleBody([0.0, 0.0, 0.0], [0.0, 0.0, 30.0], radius_mm=1.0)

@@ -40,6 +40,7 @@ def _ball_mask(voxel_mm):
     return (x * x + y * y + z * z) <= R * R, affine
 
 
+@pytest.mark.slow
 def test_mesh_and_mask_surfaces_give_the_sphere_map_within_their_bounds():
     exact = _map(Sphere([0.0, 0.0, 0.0], R))
     mesh = trimesh.creation.icosphere(subdivisions=4, radius=R)
