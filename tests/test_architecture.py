@@ -199,3 +199,138 @@ def test_the_walk_sees_imports_inside_functions(tmp_path):
     mod.write_text("def f():\n    from needlekit.errors import InvalidInputError\n")
     known = {"needlekit.errors": SRC / "errors.py"}
     assert _imports("needlekit.m", mod, known) == [("needlekit.errors", 2)]
+
+
+# -- function-level imports: only to defer something heavy or optional --------------------
+
+#: Third-party packages whose loading a function-level import may defer: slow to import
+#: (numba compiles or loads its kernels; scipy, plotly, matplotlib, trimesh ...) or an
+#: optional extra (dask, vtk, quadprog, the TRO 2022 wheel, selenium). numpy is loaded by
+#: every module.
+DEFERRABLE = {
+    "numba", "scipy", "plotly", "matplotlib", "nibabel", "nrrd", "isal", "edt", "trimesh",
+    "rtree", "skimage", "yaml", "jsonschema", "tqdm", "dqrobotics", "daqp", "dask",
+    "distributed", "vtk", "marinholab", "quadprog", "selenium",
+}  # fmt: skip
+
+#: The command line and its start-up helpers defer what they like (a command loads only
+#: what it runs).
+DEFERRING_FREELY = ("needlekit.cli", "needlekit._warmup", "needlekit.__main__")
+
+
+def _split_imports(mod: str, path: Path, known: dict[str, Path]):
+    """(module-level names, [(line, names)] of function-level imports) of one module:
+    needlekit modules resolved, other packages by their top name; imports under ``if
+    TYPE_CHECKING`` left out."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    is_pkg = path.name == "__init__.py"
+    top: set[str] = set()
+    inner: list[tuple[int, set[str]]] = []
+
+    def names_of(node) -> set[str]:
+        if isinstance(node, ast.Import):
+            raw = [a.name for a in node.names]
+        else:
+            if node.level:
+                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                prefix = ".".join(base + ([node.module] if node.module else []))
+            else:
+                prefix = node.module or ""
+            raw = [prefix] + [f"{prefix}.{a.name}" for a in node.names if a.name != "*"]
+        out = set()
+        for name in raw:
+            if name.split(".")[0] == "needlekit":
+                target = _resolve(name, known)
+                if target is not None and target != mod:
+                    out.add(target)
+            else:
+                out.add(name.split(".")[0])
+        return out
+
+    def visit(node, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                continue
+            if isinstance(child, ast.Import | ast.ImportFrom):
+                if in_function:
+                    inner.append((child.lineno, names_of(child)))
+                else:
+                    top.update(names_of(child))
+            inner_fn = in_function or isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef)
+            visit(child, inner_fn)
+
+    visit(tree, False)
+    parts = mod.split(".")
+    top.update(".".join(parts[:i]) for i in range(1, len(parts)) if ".".join(parts[:i]) in known)
+    return top, inner
+
+
+def _third_party_loaded(start: set[str], top: dict[str, set[str]]) -> set[str]:
+    """The third-party packages that importing ``start`` loads, through module-level imports."""
+    seen: set[str] = set()
+    loaded: set[str] = set()
+    stack = list(start)
+    while stack:
+        name = stack.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        if name in top:
+            stack.extend(top[name])
+            parts = name.split(".")
+            stack.extend(".".join(parts[:i]) for i in range(1, len(parts)))
+        elif not name.startswith("needlekit"):
+            loaded.add(name)
+    return loaded
+
+
+def _needless_function_imports(known: dict[str, Path]) -> list[str]:
+    split = {mod: _split_imports(mod, path, known) for mod, path in known.items()}
+    top = {mod: names for mod, (names, _) in split.items()}
+    bad = []
+    for mod, (_, inner) in split.items():
+        if mod.startswith(DEFERRING_FREELY):
+            continue
+        already = _third_party_loaded({mod}, top)
+        for line, names in inner:
+            deferred = (_third_party_loaded(names, top) - already) & DEFERRABLE
+            if not deferred:
+                bad.append(f"{mod}:{line} imports {', '.join(sorted(names))} inside a function")
+    return bad
+
+
+def test_function_level_imports_only_defer_heavy_or_optional_packages():
+    """Outside the command line, an import inside a function must put off loading a heavy
+    or optional package (:data:`DEFERRABLE`) that the module itself does not load; any
+    other belongs at the top of the module (the layers keep that free of cycles)."""
+    bad = _needless_function_imports(_modules())
+    assert not bad, "move these to the top of their modules:\n" + "\n".join(bad)
+
+
+def test_the_function_import_rule_tells_deferring_from_needless(tmp_path):
+    """The checker itself, on a small package: deferring plotly passes, a light module or
+    the standard library inside a function fails, the command line may defer anything."""
+    pkg = tmp_path / "needlekit"
+    (pkg / "cli").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "light.py").write_text("import json\n")
+    (pkg / "figures.py").write_text("import plotly\n")
+    (pkg / "cli" / "__init__.py").write_text("def main():\n    import needlekit.light\n")
+    (pkg / "user.py").write_text(
+        "def draw():\n    import needlekit.figures\n"
+        "def parse():\n    import needlekit.light\n"
+        "def now():\n    import time\n"
+    )
+    known = {
+        "needlekit": pkg / "__init__.py",
+        "needlekit.light": pkg / "light.py",
+        "needlekit.figures": pkg / "figures.py",
+        "needlekit.cli": pkg / "cli" / "__init__.py",
+        "needlekit.user": pkg / "user.py",
+    }
+    bad = _needless_function_imports(known)
+    assert bad == [
+        "needlekit.user:4 imports needlekit.light inside a function",
+        "needlekit.user:6 imports time inside a function",
+    ]

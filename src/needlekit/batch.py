@@ -26,10 +26,13 @@ Examples
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import os
+import socket
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Executor, Future, as_completed
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any
 
@@ -123,9 +126,6 @@ def open_executor(
     if kind == "serial":
         yield SerialExecutor()
     elif kind == "process":
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         with ProcessPoolExecutor(
             max_workers=workers or os.cpu_count() or 1,
             mp_context=multiprocessing.get_context("spawn"),
@@ -253,8 +253,6 @@ def worker_cached(key, build: Callable[[], Any]) -> Any:
     -------
     object
     """
-    import time
-
     with _CACHE_LOCK:
         if key in _CACHE:
             return _CACHE[key]
@@ -288,8 +286,6 @@ def worker_name() -> str:
     -------
     str
     """
-    import socket
-
     return f"{socket.gethostname()}:{os.getpid()}"
 
 

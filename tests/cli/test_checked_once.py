@@ -5,7 +5,9 @@ then plans."""
 
 from __future__ import annotations
 
+import importlib
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,7 +15,7 @@ import yaml
 
 from needlekit.cli import main
 from needlekit.io import scenario_schema
-from needlekit.planning import interface, registry
+from needlekit.planning import registry
 from needlekit.planning.steerable.rcs import RCSStarPlanner
 from needlekit.planning.steerable.rrt import RRTPlanner
 
@@ -49,8 +51,13 @@ def counts(monkeypatch):
         n["check"] += 1
         return check(*a, **k)
 
-    for module in (registry, interface):  # the interface re-exports the registry's
-        monkeypatch.setattr(module, "check_planner_options", counting_check)
+    # every module that holds the function by name (the registry, the interface that
+    # re-exports it, the scenario layer that calls it), each loaded before it is patched
+    importlib.import_module("needlekit.planning.interface")
+    importlib.import_module("needlekit.scenario.planners")
+    for module in [m for name, m in list(sys.modules.items()) if name.startswith("needlekit")]:
+        if getattr(module, "check_planner_options", None) is check:
+            monkeypatch.setattr(module, "check_planner_options", counting_check)
     for cls in (RCSStarPlanner, RRTPlanner):  # RCS inherits RCS*'s __init__
         init = cls.__init__
 

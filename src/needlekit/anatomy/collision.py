@@ -49,6 +49,7 @@ from needlekit.anatomy.collision_registry import (
 from needlekit.anatomy.occupancy import VoxelObstacles, any_collides_unchecked
 from needlekit.anatomy.scene import Scene
 from needlekit.anatomy.voxel_clearance import smallest_obstacle_distance
+from needlekit.anatomy.voxel_connectivity import goal_connected, warm_up
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -379,8 +380,6 @@ class VoxelCentresChecker(CollisionChecker):
         r_min_mm=None,
         max_heading_change_deg=None,
     ) -> bool | None:
-        from needlekit.anatomy.voxel_connectivity import goal_connected
-
         connected, _ = goal_connected(
             self.obstacles,
             self.start,
@@ -396,8 +395,6 @@ class VoxelCentresChecker(CollisionChecker):
         return connected
 
     def warm_up(self) -> None:
-        from needlekit.anatomy.voxel_connectivity import warm_up
-
         p = self.start[None].copy()
         self.collides(p)
         self.certify(p, self.spacing_mm)

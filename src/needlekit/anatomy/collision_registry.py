@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from importlib import metadata
 from typing import Any
 
 from needlekit.errors import InvalidInputError
@@ -42,9 +43,9 @@ _entry_points: dict[str, Any] | None = None
 def _from_entry_points() -> dict[str, Any]:
     global _entry_points
     if _entry_points is None:
-        from importlib.metadata import entry_points
-
-        _entry_points = {ep.name: ep for ep in entry_points(group="needlekit.collision_checkers")}
+        _entry_points = {
+            ep.name: ep for ep in metadata.entry_points(group="needlekit.collision_checkers")
+        }
     return _entry_points
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from needlekit._validation import as_points, as_scalar
 from needlekit.anatomy.fields import GRADIENT_STEP_MM, DistanceField
-from needlekit.anatomy.grids import _bbox, _orthogonal_affine, mask_surface_offset
+from needlekit.anatomy.grids import _bbox, _orthogonal_affine, downsample_mask, mask_surface_offset
 from needlekit.anatomy.voxel import VoxelSDF, _index_box_to_world, grid_error_bounds
 from needlekit.errors import InvalidInputError
 
@@ -273,8 +273,6 @@ def preview_mask_sdf(mask, affine, max_cells: int) -> VoxelSDF:
         voxel thicker than they are; transforming the coarse grid takes a few hundredths of
         the whole mask's time.
     """
-    from needlekit.anatomy.grids import _bbox, downsample_mask
-
     m = np.asarray(mask)
     box = _bbox(m)
     if box is None:

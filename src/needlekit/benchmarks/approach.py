@@ -22,14 +22,23 @@ apart. Speed is measured, never asserted.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from needlekit.benchmarks.straight import _timed
+from needlekit.benchmarks.straight import _examples_dir, _medrad_env, _timed
+from needlekit.errors import NeedlekitError
+from needlekit.planning.straight.approach import (
+    _obstacle_intersector,
+    approach_analysis,
+    approach_scores,
+    structure_mesh,
+)
 from needlekit.provenance import machine_info
+from needlekit.scenario.straight import multi_problem_from_scenario
 
 __all__ = ["run_approach_benchmark"]
 
@@ -89,13 +98,7 @@ def _reference_available() -> str | None:
 
 def _case(name: str, path: Path, repeat: int) -> dict:
     from needlekit.anatomy.scene import Role
-    from needlekit.planning.straight.approach import (
-        approach_analysis,
-        approach_scores,
-        structure_mesh,
-    )
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.straight import multi_problem_from_scenario
 
     sc = load_scenario(path)
     multi, _ = multi_problem_from_scenario(sc)
@@ -105,7 +108,6 @@ def _case(name: str, path: Path, repeat: int) -> dict:
     skin = structure_mesh(pr.scene[pr.entry_surface])
     obstacles = [structure_mesh(s) for s in pr.scene.by_role(Role.OBSTACLE)]
     mesh_s = time.perf_counter() - t0
-    from needlekit.planning.straight.approach import _obstacle_intersector
 
     lines = approach_analysis(target, skin, obstacles)  # untimed: numba kernels load
     centres = lines.centres_mm
@@ -266,16 +268,12 @@ def run_approach_benchmark(*, repeat: int = 3, medrad_dir=None) -> dict:
     dict
         ``benchmark``, ``machine``, ``inputs`` and ``cases``.
     """
-    from needlekit.benchmarks.straight import _examples_dir, _medrad_env
-
     examples = _examples_dir()
     path = examples / "medrad_liver4.yaml"
-    import os
 
     load_before = list(os.getloadavg())
     cases = []
     with _medrad_env(medrad_dir):
-        from needlekit.errors import NeedlekitError
         from needlekit.io.medrad import list_patients, medrad_root
 
         try:

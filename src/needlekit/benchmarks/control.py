@@ -35,6 +35,7 @@ import gc
 import os
 import time
 from array import array
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -42,6 +43,15 @@ import numpy as np
 from needlekit.benchmarks import tro2022 as _tro
 from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.timing import TICK_TARGET_US, step_statistics, tick_verdict
+from needlekit.control.qp_registry import get_qp_solver
+from needlekit.errors import InvalidInputError
+from needlekit.studies.puncture_study import (
+    PunctureScenario,
+    TrialOptions,
+    run_puncture_trial,
+    sample_trial,
+    trial_settings,
+)
 
 __all__ = [
     "STEP_KINDS",
@@ -198,19 +208,8 @@ def run_control_benchmark(
         ``adaptation_job`` (budget and overruns, when off the tick), ``step_us_by_phase``, ``gc``, ``load_average`` (before and after),
         ``trial_status``, ``wall_s``, ``tro2022`` and ``results`` (rows for the summary).
     """
-    from dataclasses import replace
-
     from needlekit.control.procedure import run_trial
-    from needlekit.control.qp_registry import get_qp_solver
     from needlekit.control.schedule import delay_steps_from_ms
-    from needlekit.errors import InvalidInputError
-    from needlekit.studies.puncture_study import (
-        PunctureScenario,
-        TrialOptions,
-        run_puncture_trial,
-        sample_trial,
-        trial_settings,
-    )
 
     if not isinstance(trials, int) or trials < 1:
         raise InvalidInputError("trials", f"expected a whole number >= 1, got {trials!r}")

@@ -19,7 +19,14 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.benchmarks.prepare import (
+    COLD_TARGET_S,
+    PEAK_TARGET_MB,
+    WARM_TARGET_S,
+    prepare_in_subprocess,
+)
 from needlekit.benchmarks.record import best_time, machine_info
+from needlekit.errors import InvalidInputError
 
 __all__ = ["run_fields_benchmark"]
 
@@ -117,13 +124,6 @@ def _medrad_rows(medrad_dir, patients) -> list[dict]:
     """Prepare Med-RAD lung patients for a first plan, each in a fresh process, cold (into
     an empty temporary prepared-anatomy cache) and warm (from it), stage by stage with the
     memory (:mod:`needlekit.benchmarks.prepare`)."""
-    from needlekit.benchmarks.prepare import (
-        COLD_TARGET_S,
-        PEAK_TARGET_MB,
-        WARM_TARGET_S,
-        prepare_in_subprocess,
-    )
-    from needlekit.errors import InvalidInputError
     from needlekit.io.medrad import medrad_root
 
     try:

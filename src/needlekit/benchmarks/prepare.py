@@ -30,6 +30,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from needlekit.errors import NeedlekitError
+
 __all__ = ["COLD_TARGET_S", "PEAK_TARGET_MB", "WARM_TARGET_S", "prepare_in_subprocess"]
 
 #: The issue's goals for one lung on 2 cores: cold (empty cache), warm (from the cache),
@@ -90,7 +94,6 @@ def _run_stages(root: str | None, patient: int, cache_dir: str) -> dict[str, Any
     sampler.start()
     spans: list[tuple[str, float, float]] = []
     t = time.perf_counter()
-    import numpy as np
 
     from needlekit.benchmarks.steerable import medrad_lung_problem
     from needlekit.io.medrad import load_medrad
@@ -176,7 +179,6 @@ def _main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", type=Path, required=True)
     ap.add_argument("--medrad", type=Path, default=None)
     args = ap.parse_args(argv)
-    from needlekit.errors import NeedlekitError
 
     try:
         record = _run_stages(args.medrad, args.patient, str(args.cache_dir))

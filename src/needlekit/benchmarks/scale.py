@@ -26,6 +26,7 @@ Four series, each recorded with the machine's load average when it started and e
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,6 +47,10 @@ from needlekit.benchmarks.scale_series import (
     sweep_series,
 )
 from needlekit.errors import InvalidInputError
+from needlekit.planning.interface import planner_class
+from needlekit.provenance import machine_info
+from needlekit.scenario.problems import ScenarioSource
+from needlekit.studies.feng_lungs import feng_lung_scenario
 
 __all__ = [
     "DEFAULTS",
@@ -165,8 +170,6 @@ def scale_settings(
     if s["patients"] or s["directions"]:
         s["medrad"] = _check_lungs(s["patients"], bool(s["directions"]), medrad_dir)
     if s["directions"] and s["dask_workers"]:
-        import importlib.util
-
         if importlib.util.find_spec("distributed") is None:
             raise InvalidInputError(
                 "--dask-workers", "needs Dask distributed: pip install 'needlekit[dask]' "
@@ -176,8 +179,6 @@ def scale_settings(
 
 
 def _check_planners(names) -> None:
-    from needlekit.planning.interface import planner_class
-
     if not names:
         raise InvalidInputError("--planners", "expected at least one planner")
     for name in names:
@@ -232,8 +233,6 @@ def run_scale_benchmark(settings: dict | None = None, *, progress: Progress = No
         None), ``planning``, ``sweep``, ``study`` (each None when not run), ``wall_s``
         and ``results`` (one line per series for the terminal).
     """
-    from needlekit.provenance import machine_info
-
     s = scale_settings() if settings is None else settings
     t0, load = time.perf_counter(), {"start": _load()}
     root = s.get("medrad")
@@ -274,9 +273,6 @@ def run_scale_benchmark(settings: dict | None = None, *, progress: Progress = No
 
 
 def _feng_source(root):
-    from needlekit.scenario.problems import ScenarioSource
-    from needlekit.studies.feng_lungs import feng_lung_scenario
-
     doc = feng_lung_scenario(1, medrad_dir=root)
     return ScenarioSource.of_document(doc, Path.cwd(), name="feng-goal1.yaml")
 

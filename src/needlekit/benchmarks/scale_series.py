@@ -17,12 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.batch import executor_workers, open_executor
+from needlekit.benchmarks.prepare import prepare_in_subprocess
 from needlekit.benchmarks.scale_math import (
     CAPSULE_RADIUS_MM,
     capsule_obstacle_fraction,
     linear_fit,
     loglog_fit,
 )
+from needlekit.studies.puncture_study import run_puncture_study
 
 __all__ = [
     "MAX_ITERATIONS",
@@ -78,8 +81,6 @@ def preparation_point(patient: int, medrad_dir=None) -> dict:
         ``cold_process_s``, ``warm_process_s``, ``peak_rss_mb`` and ``load_average`` (at the
         start and the end).
     """
-    from needlekit.benchmarks.prepare import prepare_in_subprocess
-
     load = {"start": _load()}
     with tempfile.TemporaryDirectory(prefix="needlekit-bench-scale-") as cache:
         cold = prepare_in_subprocess(medrad_dir, patient, cache)
@@ -250,7 +251,6 @@ def sweep_series(
         and ``load_average``), ``fits`` (per executor: a line and a power law of the wall
         time against directions), ``main_prep_s`` and ``cpu_count``.
     """
-    from needlekit.batch import executor_workers, open_executor
     from needlekit.planning.steerable.sweep import sphere_directions
     from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
 
@@ -361,9 +361,6 @@ def study_series(
         this process) and ``load_average``), ``fits`` (per worker count: the line of
         ``wall_s`` against trials, read at ``target_trials``).
     """
-    from needlekit.batch import open_executor
-    from needlekit.studies.puncture_study import run_puncture_study
-
     points, serial = [], {}
     for w in workers:
         for n in trials:

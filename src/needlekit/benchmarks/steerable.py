@@ -32,6 +32,7 @@ from needlekit.constants import (
 from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus
 from needlekit.provenance import machine_info
+from needlekit.scenario.problems import load_problem, problem_from_scenario
 
 __all__ = [
     "BENCH_NEEDLE",
@@ -92,7 +93,6 @@ def medrad_lung_problem(case, start: str, r_min_mm: float):
     SteerableProblem
     """
     from needlekit.scenario.loading import GoalSpec, NeedleSpec, Scenario, StartSpec
-    from needlekit.scenario.problems import problem_from_scenario
 
     s = case.start(start)
     scenario = Scenario(
@@ -177,7 +177,6 @@ def run_steerable_benchmark(
     """
     from needlekit.io.medrad import load_medrad
     from needlekit.planning.steerable.solve import solve
-    from needlekit.scenario.problems import load_problem
 
     def run(problem, planner, budget_s=time_limit_s):
         return solve(problem, planner, time_limit_s=budget_s, seed=0)

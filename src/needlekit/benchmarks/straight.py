@@ -40,12 +40,16 @@ import pstats
 import statistics
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from needlekit.errors import InvalidInputError
+from needlekit.planning.interface import Termination, get_planner
 from needlekit.provenance import machine_info
+from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
 
 __all__ = ["TARGETS_S", "run_straight_benchmark"]
 
@@ -134,7 +138,6 @@ def _prepare(path: Path, medrad_dir):
     """Load the scenario as ``needlekit multi`` does and build every field the plan reads
     (lazy voxel fields included), so that the stages after it time planning alone."""
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.straight import multi_problem_from_scenario
 
     with _medrad_env(medrad_dir):
         sc = load_scenario(path)
@@ -201,10 +204,6 @@ def _plan(sc, multi, options: dict, resolution_deg: float):
     lost it, one more round of targets chosen along them and planned (as the command
     does). Otherwise the scenario's targets are planned.
     """
-    from dataclasses import replace
-
-    from needlekit.planning.interface import Termination, get_planner
-
     planner = get_planner("liu_cfrw", {**options, "resolution_deg": resolution_deg})
     steps: dict[str, float] = {"rounds": 1}
 
@@ -225,7 +224,6 @@ def _plan(sc, multi, options: dict, resolution_deg: float):
     if not _uses_coverage(sc):
         return solve(multi.targets_mm), None, steps
     from needlekit.planning.straight.ablation import plan_coverage
-    from needlekit.scenario.straight import coverage_region
 
     region, settings = step("coverage_region_s", lambda: coverage_region(sc, multi.problem))
     plan, outcome = plan_coverage(
@@ -269,7 +267,6 @@ def _first_target(sc, multi) -> tuple[np.ndarray, str]:
     if not _uses_coverage(sc):
         return multi.targets_mm[0], "the scenario's first target"
     from needlekit.planning.straight.ablation import choose_needle_targets
-    from needlekit.scenario.straight import coverage_region
 
     region, st = coverage_region(sc, multi.problem)
     chosen = choose_needle_targets(
@@ -368,7 +365,6 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
 
 def _case_paths(livers: Sequence[int], medrad_dir, examples: Path) -> list[tuple[str, Any]]:
     """(name, scenario path or the reason it is skipped) per case."""
-    from needlekit.errors import InvalidInputError
     from needlekit.io.medrad import medrad_root
 
     phantom = examples / PHANTOM_SCENARIO
@@ -512,8 +508,6 @@ def run_straight_benchmark(
         ``skipped`` with the reason), ``results`` (summary lines) and ``wall_s``.
     """
     if int(repeat) < 1:
-        from needlekit.errors import InvalidInputError
-
         raise InvalidInputError("repeat", f"expected a whole number >= 1, got {repeat!r}")
     examples = Path(examples_dir) if examples_dir is not None else _examples_dir()
     load_before = list(os.getloadavg())

@@ -24,6 +24,7 @@ import importlib
 import logging
 import threading
 from collections.abc import Callable
+from importlib import metadata
 
 from needlekit.control.qp import DEFAULT_SOLVER, QPSolver
 from needlekit.errors import InvalidInputError
@@ -114,9 +115,8 @@ def _load_entry_points() -> None:
     if _ENTRY_POINTS_LOADED:
         return
     _ENTRY_POINTS_LOADED = True
-    from importlib.metadata import entry_points
 
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in _REGISTRY:
             continue
         try:

@@ -57,6 +57,8 @@ from typing import Any
 
 import numpy as np
 
+import needlekit
+
 __all__ = [
     "CACHE_DIR_ENV",
     "CACHE_FORMAT_VERSION",
@@ -187,10 +189,10 @@ def entry_key(inputs: dict) -> str:
     >>> entry_key({"a": 1}) == entry_key({"a": 2})
     False
     """
-    from needlekit import __version__
-
     h = _blake2b()
-    h.update(_canonical({"format": CACHE_FORMAT_VERSION, "needlekit": __version__, **inputs}))
+    h.update(
+        _canonical({"format": CACHE_FORMAT_VERSION, "needlekit": needlekit.__version__, **inputs})
+    )
     return h.hexdigest()
 
 
@@ -546,9 +548,7 @@ def write_entry(
 
 
 def _version() -> str:
-    from needlekit import __version__
-
-    return __version__
+    return needlekit.__version__  # read when called (tests change it)
 
 
 def clear_cache(cache_dir: str | os.PathLike | None = None) -> int:

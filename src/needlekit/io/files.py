@@ -21,6 +21,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from needlekit.errors import InvalidInputError
+
 __all__ = [
     "atomic_write",
     "read_json_object",
@@ -358,8 +360,6 @@ def read_json_object(path: str | os.PathLike, what: str) -> dict:
     InvalidInputError
         Missing file, not JSON, or not an object at the top level.
     """
-    from needlekit.errors import InvalidInputError
-
     p = Path(path)
     if not p.is_file():
         raise InvalidInputError(str(p), f"{what} file not found")

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.anatomy.fields import ComplementField
+from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.anatomy.scene import Role, Scene, Structure
 from needlekit.errors import InvalidInputError
 from needlekit.io.medrad_cache import _prepare_cached
@@ -165,8 +166,6 @@ class MedradCase:
         -------
         needlekit.anatomy.occupancy.VoxelObstacles
         """
-        from needlekit.anatomy.occupancy import VoxelObstacles
-
         if self.free_space is None:
             raise InvalidInputError("free_space", "this case was built without its free-space mask")
         occupancy = ~self.free_space.data if self.occupancy is None else self.occupancy

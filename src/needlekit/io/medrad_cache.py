@@ -13,6 +13,7 @@ import logging
 import time
 from pathlib import Path
 
+import edt
 import numpy as np
 
 from needlekit.anatomy.fields import LazyField
@@ -31,8 +32,6 @@ log = logging.getLogger("needlekit.io.medrad")
 def _cache_inputs(organ: str, paths: dict[str, Path], specs: list[_Spec], region: str) -> dict:
     """Everything that changes the stored arrays: the masks' content and roles, and the
     settings of the transforms (the EDT library's version among them)."""
-    import edt
-
     return {
         "kind": "medrad",
         "organ": organ,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from needlekit.anatomy.fields import LazyField
 from needlekit.anatomy.scene import Role
@@ -61,8 +62,6 @@ def _align(mask: Mask, ref: Mask, name: str) -> Mask:
                 lo[2] + off[2] : hi[2] + off[2],
             ]
     else:
-        from scipy.ndimage import map_coordinates
-
         out = np.zeros(ref.shape, dtype=bool)
         ii = np.arange(ref.shape[0])
         for k0 in range(0, ref.shape[2], 32):  # slabs keep the index arrays small

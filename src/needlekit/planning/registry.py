@@ -14,7 +14,9 @@ import dataclasses
 import importlib
 import logging
 import threading
+import typing
 from collections.abc import Callable, Mapping
+from importlib import metadata
 from typing import Any
 
 from needlekit.errors import InvalidInputError
@@ -214,9 +216,8 @@ def _load_entry_points() -> None:
     if _ENTRY_POINTS_LOADED:
         return
     _ENTRY_POINTS_LOADED = True
-    from importlib.metadata import entry_points
 
-    for ep in entry_points(group=ENTRY_POINT_GROUP):
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in _REGISTRY:
             continue
         try:
@@ -394,8 +395,6 @@ def option_types(name: str) -> dict[str, Any]:
 
 
 def _dataclass_types(cls: type) -> dict[str, Any]:
-    import typing
-
     hints = typing.get_type_hints(cls)
     out: dict[str, Any] = {}
     for f in dataclasses.fields(cls):

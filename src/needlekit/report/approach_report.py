@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.report.html_page import FigureSection, TableSection, write_report_html
+
 __all__ = ["approach_figure", "write_approach_report"]
 
 _BLOCKED = "#4d4d4d"  # an obstacle on the line
@@ -119,12 +121,6 @@ def write_approach_report(
     -------
     Path
     """
-    from needlekit.report.html_page import (
-        FigureSection,
-        TableSection,
-        write_report_html,
-    )
-
     a = analysis
     s = a.settings
     rows = []

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.report.html_page import FigureSection, ListSection, TableSection, write_report_html
+
 __all__ = ["dynamic_figure", "dynamic_sections", "write_dynamic_report"]
 
 #: Colours of the paths: executed, cycle plans, the plan made once at t = 0.
@@ -231,8 +233,6 @@ def dynamic_sections(problem, result, *, title: str = "") -> list:
     list
         Sections for :func:`needlekit.report.html_page.write_report_html`.
     """
-    from needlekit.report.html_page import FigureSection, ListSection, TableSection
-
     motions = [
         f"{m.name}: drift {np.round(m.motion.velocity_mm_s, 3).tolist()} mm/s"
         + (
@@ -279,8 +279,6 @@ def write_dynamic_report(path: str | os.PathLike, problem, result, *, title: str
     -------
     Path
     """
-    from needlekit.report.html_page import write_report_html
-
     heading = f"Re-planning among moving obstacles{': ' + title if title else ''}"
     return write_report_html(
         path, title=heading, sections=dynamic_sections(problem, result, title=title)

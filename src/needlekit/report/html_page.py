@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
 
@@ -218,8 +219,6 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
     Path
         The destination.
     """
-    from needlekit import __version__
-
     if not isinstance(title, str):
         raise InvalidInputError("title", f"expected text (str), got {type(title).__name__}")
     items, esc = _check_sections(sections), html.escape

@@ -25,6 +25,7 @@ Figures, in the order they are returned:
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 from typing import Any
@@ -126,8 +127,6 @@ def kinematics_figures(*, dpi: int = DEFAULT_DPI) -> tuple[dict[str, bytes], dic
     InvalidInputError
         ``dpi`` is not an integer in [30, 600].
     """
-    import io
-
     if isinstance(dpi, bool) or not isinstance(dpi, (int, np.integer)) or not 30 <= dpi <= 600:
         raise InvalidInputError("dpi", f"expected an integer in [30, 600], got {dpi!r}")
     builders = (

@@ -11,6 +11,8 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile
+from needlekit.planning.result import PlanStatus
+from needlekit.report.dynamic_report import dynamic_sections
 from needlekit.report.html_page import TableSection
 from needlekit.report.result_parts import ReportPart, _steerable_problem
 
@@ -38,7 +40,6 @@ def _same_motions(rf: ResultFile, recorded: dict, moving) -> None:
 
 def _dynamic_checks(rf: ResultFile, rec, static, moving):
     """The checks of the executed path and of the plan made at t = 0, run again."""
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.dynamic import DynamicStatus
     from needlekit.planning.steerable.moving import certify_execution
 
@@ -96,7 +97,6 @@ def _recheck_rows(rec, check, base) -> tuple[list, list]:
 def _dynamic_part(rf: ResultFile, load) -> ReportPart:
     from needlekit.planning.steerable.dynamic import DynamicResult
     from needlekit.planning.steerable.dynamic_record import DynamicRecord
-    from needlekit.report.dynamic_report import dynamic_sections
 
     rec = DynamicRecord.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)

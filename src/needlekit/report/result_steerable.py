@@ -10,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.io.results import ResultFile
+from needlekit.planning.result import PlanStatus
 from needlekit.report.html_page import TableSection
 from needlekit.report.result_parts import ReportPart, _steerable_problem
+from needlekit.report.steerable_report import goals_sections, plan_rows, plan_sections
 
 __all__: list[str] = []
 
@@ -19,7 +21,6 @@ __all__: list[str] = []
 def _check(problem, result):
     """The independent check of a result's plan (None without one); a path that stops short
     of the goal is checked as such."""
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
     if result.plan is None:
@@ -41,7 +42,6 @@ def _verdict(checks) -> tuple[bool | None, str]:
 
 def _plan_part(rf: ResultFile, load) -> ReportPart:
     from needlekit.planning.steerable.result import PlanResult
-    from needlekit.report.steerable_report import plan_sections
 
     result = PlanResult.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
@@ -60,7 +60,6 @@ def _plan_part(rf: ResultFile, load) -> ReportPart:
 
 def _goals_part(rf: ResultFile, load) -> ReportPart:
     from needlekit.planning.steerable.result import goals_from_dict
-    from needlekit.report.steerable_report import goals_sections, plan_rows
 
     results = goals_from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)

@@ -16,6 +16,8 @@ from __future__ import annotations
 import io
 
 import numpy as np
+from matplotlib import rc_context
+from matplotlib.ticker import FuncFormatter
 
 from needlekit.report._style import _PALETTE, DEFAULT_DPI, _new_figure, _style
 from needlekit.report.html_page import FigureSection, TableSection, TextSection
@@ -265,7 +267,6 @@ def scale_sections(record: dict) -> list:
 
 def _plain_log_ticks(ax) -> None:
     """Log axes labelled 40, 60, 2, 0.01 rather than 4 x 10^1."""
-    from matplotlib.ticker import FuncFormatter
 
     def minor(v, _):  # 2 and 5 of each decade only
         lead = round(v / 10 ** np.floor(np.log10(v))) if v > 0 else 0
@@ -290,8 +291,6 @@ def scale_png(record: dict, *, dpi: int = DEFAULT_DPI) -> bytes:
     -------
     bytes
     """
-    from matplotlib import rc_context
-
     with rc_context(_style()):
         fig = _new_figure(12.0, 8.0)
         axes = fig.subplots(2, 2)

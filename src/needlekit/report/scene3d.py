@@ -7,6 +7,7 @@ their insertion axis, targets as markers, paths as lines.
 
 from __future__ import annotations
 
+import html as _html
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 from needlekit.anatomy.scene import Role, Scene
 from needlekit.anatomy.summary import surface_mesh
 from needlekit.io.files import atomic_write
+from needlekit.report.html_page import CANVAS_READBACK_HINT
 
 __all__ = ["scene_figure", "write_scene_html", "write_scenes_html", "zoom_onto"]
 
@@ -174,8 +176,6 @@ def write_scene_html(fig, path: str | os.PathLike) -> Path:
     -------
     Path
     """
-    from needlekit.report.html_page import CANVAS_READBACK_HINT
-
     html = fig.to_html(include_plotlyjs=True, full_html=True)
     html = html.replace("<head>", f"<head>{CANVAS_READBACK_HINT}", 1)
     return atomic_write(path, lambda p: p.write_text(html, encoding="utf-8"))
@@ -196,10 +196,6 @@ def write_scenes_html(figures, path: str | os.PathLike, *, title: str = "needlek
     -------
     Path
     """
-    import html as _html
-
-    from needlekit.report.html_page import CANVAS_READBACK_HINT
-
     parts = []
     for i, (heading, fig) in enumerate(figures):
         body = fig.to_html(include_plotlyjs=(i == 0), full_html=False, default_height="720px")

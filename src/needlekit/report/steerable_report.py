@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
+
 __all__ = [
     "check_rows",
     "check_text",
@@ -185,8 +187,6 @@ def plan_sections(problem, result, check, *, max_cells: int = 96) -> list:
     list of FigureSection, TableSection and TextSection
         For :func:`~needlekit.report.html_page.write_report_html`.
     """
-    from needlekit.report.html_page import FigureSection, TableSection, TextSection
-
     goal = ", ".join(f"{c:.2f}" for c in result.goal_mm)
     text = f"{result.planner}: {result.status.value}"
     if result.plan is None:
@@ -241,8 +241,6 @@ def goals_sections(problem, results, *, planner: str, mode: str, checks=None) ->
     -------
     list of FigureSection and TableSection
     """
-    from needlekit.report.html_page import FigureSection, TableSection
-
     rows = []
     for i, r in enumerate(results, start=1):
         row = {
@@ -289,7 +287,5 @@ def write_goals_report(
     -------
     Path
     """
-    from needlekit.report.html_page import write_report_html
-
     sections = goals_sections(problem, results, planner=planner, mode=mode)
     return write_report_html(path, title=f"Plans to {len(results)} targets", sections=sections)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.cfrw import (
     CLEARANCE_CAP_ABOVE_GAMMA_MM,
@@ -34,6 +35,7 @@ from needlekit.planning.straight.cfrw import (
     CFRWMap,
     cfrw_map,
 )
+from needlekit.planning.straight.coverage import fraction_text
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.planning.straight.sequence import MultiNeedlePlan
 from needlekit.report._style import _ORANGE, _PALETTE, _PURPLE
@@ -183,8 +185,6 @@ def scene_figure(
     """
     import plotly.graph_objects as go
 
-    from needlekit.anatomy.needle_body import LIU_HEAD
-
     if not isinstance(plan, MultiNeedlePlan):
         raise InvalidInputError("plan", f"expected a MultiNeedlePlan, got {type(plan).__name__}")
     head = LIU_HEAD if head is None else (None if head is False else head)
@@ -281,8 +281,6 @@ def plan_maps(problem: StraightProblem, plan: MultiNeedlePlan, *, resolution_deg
     if not isinstance(plan, MultiNeedlePlan):
         raise InvalidInputError("plan", f"expected a MultiNeedlePlan, got {type(plan).__name__}")
     if body_factory is None:
-        from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
-
         chosen = LIU_HEAD if head is None else head
 
         def body_factory(tip, entry, r):
@@ -369,8 +367,6 @@ def _check_maps(plan: MultiNeedlePlan, maps) -> list:
 
 def _coverage_section(outcome) -> TableSection:
     """The ablation coverage of the plan, as measured along the planned needles."""
-    from needlekit.planning.straight.coverage import fraction_text
-
     rep = outcome.planned or outcome.chosen.report
     z = outcome.chosen.zone
     zone = (

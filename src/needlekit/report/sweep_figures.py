@@ -16,7 +16,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.planning.steerable.sweep import SweepResult
 from needlekit.report._style import _GREEN, _ORANGE, _PALETTE, _PURPLE, _SKY
-from needlekit.report.scene3d import scene_figure
+from needlekit.report.scene3d import scene_figure, zoom_onto
 
 __all__ = [
     "FIG9_OFFSET",
@@ -384,8 +384,6 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
     """
     import plotly.graph_objects as go
     from plotly.colors import sample_colorscale
-
-    from needlekit.report.scene3d import scene_figure, zoom_onto
 
     solved = [
         (i, r) for i, r in enumerate(sweep.results)

@@ -24,6 +24,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.planning.steerable.sweep import SweepResult
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
+from needlekit.report.steerable_report import check_text, plan_rows
 from needlekit.report.sweep_figures import (
     FIG9_OFFSET,
     _check_sweeps,
@@ -236,8 +237,6 @@ def best_plan_sections(planner: str, best, check) -> list:
     -------
     list of TableSection and TextSection
     """
-    from needlekit.report.steerable_report import check_text, plan_rows
-
     m = check.metrics
     cert = " and certified optimal at the finest resolution" if best.stats.get("certified") else ""
     angle = m.get("puncture_angle_deg")

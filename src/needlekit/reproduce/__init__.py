@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import time
 from collections.abc import Callable
 
 from needlekit.errors import InvalidInputError
@@ -69,8 +70,6 @@ def reproduce(
     Reproduction
         What was measured; ``files`` holds the paths written.
     """
-    import time
-
     if paper not in PAPERS:
         raise InvalidInputError("paper", f"expected one of {', '.join(PAPERS)}, got {paper!r}")
     module = importlib.import_module(PAPERS[paper])

@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
+
+from needlekit import __version__
+from needlekit.io.files import staged_outputs, write_json
+from needlekit.provenance import machine_info
+from needlekit.report.html_page import ListSection, TableSection, TextSection, write_report_html
 
 __all__ = ["Reproduction", "Stages", "write_reproduction"]
 
@@ -65,8 +71,6 @@ class Stages:
     """Numbered progress lines: ``[k/n] label`` with the time since the first stage."""
 
     def __init__(self, progress: Callable[[str], None], total: int, name: str) -> None:
-        import time
-
         self._progress, self._total, self._name = progress, total, name
         self._k, self._t0, self._clock = 0, time.perf_counter(), time.perf_counter
 
@@ -115,9 +119,6 @@ class Stages:
 def _machine() -> dict:
     """The benchmark records' machine description (:func:`~needlekit.provenance.machine_info`)
     with needlekit's version and the load average at the end of the run."""
-    from needlekit import __version__
-    from needlekit.provenance import machine_info
-
     info = machine_info()
     info["needlekit"] = __version__
     info["load_average"] = ", ".join(f"{x:.2f}" for x in os.getloadavg())
@@ -143,14 +144,6 @@ def write_reproduction(rep: Reproduction, out_dir: str | os.PathLike) -> dict:
     dict
         ``rep.files`` with ``page`` and ``json`` added.
     """
-    from needlekit.io.files import staged_outputs, write_json
-    from needlekit.report.html_page import (
-        ListSection,
-        TableSection,
-        TextSection,
-        write_report_html,
-    )
-
     out = Path(out_dir)
     when = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     machine = _machine()

@@ -15,7 +15,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from needlekit.report.html_page import TextSection
 from needlekit.reproduce._page import Reproduction, Stages
+from needlekit.studies.feng_lungs import run_feng_lungs
+from needlekit.studies.feng_timing import timing_verdict
 
 __all__ = ["run"]
 
@@ -135,9 +138,6 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     Reproduction
     """
     from needlekit.report.feng_lungs_report import differences_from_feng, feng_lungs_sections
-    from needlekit.report.html_page import TextSection
-    from needlekit.studies.feng_lungs import run_feng_lungs
-    from needlekit.studies.feng_timing import timing_verdict
 
     stage = Stages(progress, 1, "feng2023")
 

@@ -24,7 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.io.files import write_bytes, write_json, write_text
+from needlekit.planning.result import PlanStatus
+from needlekit.report.dynamic_report import dynamic_sections
+from needlekit.report.html_page import FigureSection, ImageSection, PartSection, TableSection
+from needlekit.report.steerable_report import goals_figure
 from needlekit.reproduce._page import Reproduction, Stages
+from needlekit.scenario.dynamic import dynamic_settings, moving_case
+from needlekit.scenario.planners import planner_settings
+from needlekit.scenario.problems import ScenarioSource
 
 __all__ = ["GOALS_MM", "run"]
 
@@ -47,8 +55,6 @@ MOVING_SCENARIO = "lung_phantom_moving.yaml"
 
 def _kinematics(case: Path, quick: bool):
     """Part 1: the kinematics figures (PNG) and the numbers behind them."""
-    from needlekit.io.files import write_bytes, write_json
-    from needlekit.report.html_page import ImageSection
     from needlekit.report.kinematics import FIGURE_NAMES, kinematics_figures
 
     folder = case / "kinematics"
@@ -125,13 +131,8 @@ def _kinematics(case: Path, quick: bool):
 
 def _multi_target(case: Path, quick: bool):
     """Part 2: the lecture's per-target RRT beside one shared tree."""
-    from needlekit.io.files import write_json, write_text
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.rrt import solve_rrt_multi, solve_rrt_per_target
     from needlekit.planning.steerable.verify import verify_plan
-    from needlekit.report.html_page import FigureSection, TableSection
-    from needlekit.report.steerable_report import goals_figure
-    from needlekit.scenario.problems import ScenarioSource
 
     src = resources.files("needlekit") / "data" / TARGETS_SCENARIO
     with resources.as_file(src) as path:
@@ -210,13 +211,8 @@ def _multi_target(case: Path, quick: bool):
 
 def _dynamic(case: Path):
     """Part 3: the plan made at t = 0 against re-planning from the tip, a vessel drifting."""
-    from needlekit.io.files import write_json, write_text
     from needlekit.planning.steerable.dynamic import replan_among_moving
-    from needlekit.report.dynamic_report import dynamic_sections
-    from needlekit.scenario.dynamic import dynamic_settings, moving_case
     from needlekit.scenario.loading import read_scenario_document
-    from needlekit.scenario.planners import planner_settings
-    from needlekit.scenario.problems import ScenarioSource
 
     src = resources.files("needlekit") / "data" / MOVING_SCENARIO
     with resources.as_file(src) as path:
@@ -276,8 +272,6 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     -------
     Reproduction
     """
-    from needlekit.report.html_page import PartSection
-
     del executor
     case = Path(out_dir) / "lecture"
     stage = Stages(progress, 3, "lecture")

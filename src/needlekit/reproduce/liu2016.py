@@ -17,12 +17,17 @@ step; needlekit's default needle-drag model, whose parameters are assumptions).
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
+from needlekit.io.files import write_json, write_text
+from needlekit.planning.interface import Termination, get_planner
+from needlekit.report.html_page import FigureSection, TableSection, TextSection
 from needlekit.reproduce._page import Reproduction, Stages
+from needlekit.scenario.straight import multi_problem_from_scenario
 
 __all__ = ["SCENARIO", "boundary_clearance", "run"]
 
@@ -167,8 +172,6 @@ def _needle_rows(plan, world_T_sigma, check) -> list[dict]:
 
 
 def _plan(multi, options, resolution_deg):
-    from needlekit.planning.interface import Termination, get_planner
-
     opts = dict(options, resolution_deg=resolution_deg)
     return get_planner("liu_cfrw", opts).solve(multi, Termination(3600.0))
 
@@ -290,7 +293,6 @@ def _deviations(res: float) -> list[str]:
 
 def _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
     """The page's own sections (the map, Figs 11 and 12, the two plans), then ``straight``."""
-    from needlekit.report.html_page import FigureSection, TableSection, TextSection
     from needlekit.report.straight_figures import LIU_HEIGHTS_MM, cfrw_layers_figure
 
     return [
@@ -346,15 +348,11 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     -------
     Reproduction
     """
-    from dataclasses import replace
-
-    from needlekit.io.files import write_json, write_text
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.deformation import NeedleDragDeformation
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.report.straight_report import plan_maps, straight_sections
     from needlekit.scenario.loading import load_scenario
-    from needlekit.scenario.straight import multi_problem_from_scenario
 
     del executor
     stage = Stages(progress, 5, "liu2016")

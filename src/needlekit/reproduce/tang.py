@@ -26,7 +26,14 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from needlekit.report.html_page import TableSection, TextSection
 from needlekit.reproduce._page import Reproduction, Stages
+from needlekit.studies.puncture_study import (
+    PAPER_RESULTS,
+    PunctureScenario,
+    TrialOptions,
+    run_puncture_study,
+)
 
 __all__ = ["ROWS", "Row", "run"]
 
@@ -192,7 +199,6 @@ def _run_rows(rows, quick: bool, case: Path, stage, executor) -> dict:
     """Each row's puncture study (only the defaults' row writes its page), by row key."""
     from needlekit.control.procedure import ProcedureSettings
     from needlekit.control.schedule import delay_steps_from_ms
-    from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, run_puncture_study
 
     period_s = ProcedureSettings().dt_s
     studies = {}
@@ -344,9 +350,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     -------
     Reproduction
     """
-    from needlekit.report.html_page import TableSection, TextSection
     from needlekit.report.puncture_report import puncture_sections
-    from needlekit.studies.puncture_study import PAPER_RESULTS
 
     rows = [r for r in ROWS if not quick or r.key in QUICK_ROWS]
     stage = Stages(progress, len(rows), "tang")

@@ -15,11 +15,15 @@ from pathlib import Path
 import numpy as np
 
 from needlekit._validation import as_poses
+from needlekit.anatomy import primitives as P
 from needlekit.anatomy.fields import ComplementField, DistanceField, TransformedField, union
 from needlekit.anatomy.scene import Role, Scene, Structure
+from needlekit.batch import worker_cached
 from needlekit.errors import InvalidInputError
+from needlekit.io.medrad_paths import patient_folder
 from needlekit.io.scenario_schema import SOURCE_KINDS
 from needlekit.planning.steerable.moving_obstacles import Motion
+from needlekit.planning.straight.coverage import AblationZone
 
 #: RAS <- LPS (and back): a rotation by pi about z.
 _LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -63,8 +67,6 @@ class _Ctx:
 
 
 def _primitive(kind: str, spec: dict, ctx: _Ctx, where: str) -> DistanceField:
-    from needlekit.anatomy import primitives as P
-
     # parameters and pose stay in the file's frame; placed() moves the shape to RAS
     pose = ctx.raw_pose(spec["pose"], f"{where}.pose") if "pose" in spec else None
     try:
@@ -147,7 +149,6 @@ def _base(spec: dict, ctx: _Ctx, cache: dict | None = None, share: bool = False)
     key = _medrad_key(m["organ"], m["patient"], root, cache) if share else None
     if key is None:
         return load_medrad(m["organ"], m["patient"], root, **cache)
-    from needlekit.batch import worker_cached
 
     return worker_cached(key, lambda: load_medrad(m["organ"], m["patient"], root, **cache))
 
@@ -156,8 +157,6 @@ def _medrad_key(organ, patient, root, cache: dict) -> tuple | None:
     """What identifies a loaded Med-RAD case in this process: organ, patient, the patient's
     folder and its files (names, sizes, times), the cache settings; None when the folder is
     not there (loading then says why)."""
-    from needlekit.io.medrad_paths import patient_folder
-
     try:
         folder = patient_folder(organ, patient, root)
     except InvalidInputError:
@@ -278,8 +277,6 @@ def _coverage(spec: dict, ctx: _Ctx, base, structures) -> dict:
                 f"diameter_mm {lengths[1]:g}",
             )
     # the coverage package (its planners) only when a scenario has a coverage block
-    from needlekit.planning.straight.coverage import AblationZone
-
     zone = AblationZone(kind, *lengths, z.get("tip_offset_mm", 0.0))
     targets = [s.name for s in structures if s.role is Role.TARGET]
     name = spec.get("structure")

@@ -13,6 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from needlekit.errors import InvalidInputError
+from needlekit.io.scenario_schema import read_scenario_document
 
 __all__ = [
     "DYNAMIC_SETTINGS",
@@ -87,8 +88,6 @@ def dynamic_settings(scenario_path: str | os.PathLike, given: dict | None = None
     InvalidInputError
         No structure moves, no insertion speed anywhere, or a bad setting.
     """
-    from needlekit.io.scenario_schema import read_scenario_document
-
     doc = read_scenario_document(scenario_path)
     return checked_dynamic_settings(dynamic_block(doc, Path(scenario_path).name, given))
 

@@ -38,6 +38,8 @@ from needlekit.constants import (
     MM_WARNING_MIN_EXTENT_MM,
     MM_WARNING_MIN_R_MIN_MM,
 )
+from needlekit.geometry.se3 import pose_from_direction
+from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.scenario_schema import (
     checked_document,
     read_scenario_document,
@@ -195,8 +197,6 @@ def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
         g = ctx.pose(spec["pose"], "start.pose")
         return StartSpec(g[:3, 3].copy(), g, "pose")
     if k == "pose_file":
-        from needlekit.io.poses import read_pose_txt
-
         path = ctx.file(spec["pose_file"], "start.pose_file")
         g = read_pose_txt(path)
         g = _LPS_TO_RAS @ g if ctx.lps else g
@@ -207,7 +207,6 @@ def _start(spec: dict, ctx: _Ctx, base) -> StartSpec:
     point = ctx.point(spec["point_mm"])
     if "direction" not in spec:
         return StartSpec(point, None, "point")
-    from needlekit.geometry.se3 import pose_from_direction
 
     d = ctx.point(spec["direction"])
     big = float(np.max(np.abs(d)))
@@ -228,8 +227,6 @@ def _goal(spec: dict, ctx: _Ctx, base) -> GoalSpec:
     if k == "point_mm":
         return GoalSpec(ctx.point(spec["point_mm"]), tol, "point")
     if k == "point_file":
-        from needlekit.io.poses import read_point_txt
-
         path = ctx.file(spec["point_file"], "goal.point_file")
         return GoalSpec(ctx.point(read_point_txt(path)), tol, path.name)
     name, p = _pick(_case_targets(base), spec["case_target"], "target", ctx, "goal.case_target")

@@ -10,7 +10,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
+from needlekit.planning.interface import (
+    Termination,
+    check_planner_options,
+    get_planner,
+    seeded_options,
+)
 
 __all__ = ["PlannerSettings", "planner_settings"]
 
@@ -85,8 +92,6 @@ class PlannerSettings:
         InvalidInputError
             An option's value out of range (naming the option).
         """
-        from needlekit.planning.interface import get_planner
-
         return {name: get_planner(name, self.options[name]) for name in self.names}
 
     @property
@@ -101,8 +106,6 @@ class PlannerSettings:
         -------
         needlekit.planning.interface.Termination
         """
-        from needlekit.planning.interface import Termination
-
         return Termination(self.time_limit_s, self.max_iterations)
 
 
@@ -146,9 +149,6 @@ def planner_settings(
         Unknown planner, one of another family, or an unknown option (naming it), before
         any work.
     """
-    from needlekit.constants import DEFAULT_TIME_LIMIT_S
-    from needlekit.planning.interface import check_planner_options, seeded_options
-
     block = dict(block or {})
     if names is None:
         names = [block.get("name") or "rcs_star"]

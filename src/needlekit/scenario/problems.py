@@ -15,12 +15,15 @@ module re-exports.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from needlekit.batch import worker_cached
 from needlekit.constants import DEFAULT_GOAL_TOLERANCE_MM
 from needlekit.errors import InvalidInputError
 from needlekit.scenario.dynamic import (  # re-exported (they lived here)
@@ -322,9 +325,6 @@ class ScenarioSource:
         >>> a == ScenarioSource.of_document(dict(reversed(doc.items())), "/tmp")
         True
         """
-        import hashlib
-        import json
-
         if not isinstance(document, dict):
             raise InvalidInputError(
                 "document", f"expected a mapping, got {type(document).__name__}"
@@ -369,15 +369,11 @@ class ScenarioSource:
         tuple
             ``(scenario, problem)``.
         """
-        from needlekit.batch import worker_cached
-
         return worker_cached(
             ("ScenarioSource", self), lambda: self._load(share_base=True, document=document)
         )
 
     def _load(self, share_base: bool, document=None):
-        import json
-
         from needlekit.scenario.loading import load_scenario
 
         path = Path(self.scenario_path)

@@ -26,6 +26,9 @@ from needlekit.io.files import read_json_object
 from needlekit.io.results import ResultFile, ResultKind, result_kind
 from needlekit.io.scenario_schema import read_scenario_document
 from needlekit.records import field_of, trial_solved
+from needlekit.scenario.dynamic import DYNAMIC_SETTINGS, dynamic_settings, moving_case
+from needlekit.scenario.problems import problem_from_scenario
+from needlekit.scenario.straight import multi_problem_from_scenario
 
 __all__ = ["ResultScenarios", "read_plan_json", "read_result", "read_results"]
 
@@ -220,8 +223,6 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
 def _check_dynamic_scenario(data: dict, p: Path, located: Path, doc: dict, where: str) -> None:
     """The scenario of a run among moving obstacles has moving structures, and its
     ``dynamic`` block goes with the run's settings (cheap: no anatomy is read)."""
-    from needlekit.scenario.dynamic import DYNAMIC_SETTINGS, dynamic_settings
-
     if not any(isinstance(s, dict) and "moving" in s for s in doc.get("structures", [])):
         msg = f"{located} has no moving structure; {p.name} was made from another scenario"
         raise InvalidInputError(where, msg)
@@ -374,8 +375,6 @@ class ResultScenarios:
         -------
         SteerableProblem
         """
-        from needlekit.scenario.problems import problem_from_scenario
-
         return problem_from_scenario(scenario, **overrides)
 
     def multi_problem(self, scenario):
@@ -390,8 +389,6 @@ class ResultScenarios:
         tuple
             ``(MultiNeedleProblem, options)``.
         """
-        from needlekit.scenario.straight import multi_problem_from_scenario
-
         return multi_problem_from_scenario(scenario)
 
     def moving_case(self, scenario, problem):
@@ -409,8 +406,6 @@ class ResultScenarios:
         tuple
             ``(scenario, static problem, moving obstacles)``.
         """
-        from needlekit.scenario.dynamic import moving_case
-
         return moving_case(_Loaded(scenario, problem))
 
 

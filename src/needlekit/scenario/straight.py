@@ -3,10 +3,12 @@ block describes (Liu et al. 2016)."""
 
 from __future__ import annotations
 
+from dataclasses import replace as _replace
 from pathlib import Path
 
 import numpy as np
 
+from needlekit.anatomy.fields import union
 from needlekit.errors import InvalidInputError
 
 __all__ = ["coverage_region", "multi_problem_from_scenario"]
@@ -91,9 +93,6 @@ def _body_with_targets(sc, entry_surface: str):
     inside a nodule, so a target there would lie outside the body. The body is the organ
     together with its targets (their union); its outer surface is still the capsule.
     """
-    from dataclasses import replace as _replace
-
-    from needlekit.anatomy.fields import union
     from needlekit.anatomy.scene import Role, Scene
     from needlekit.io.medrad import MedradCase
 

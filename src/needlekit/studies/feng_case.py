@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import write_text
+from needlekit.io.medrad_paths import patient_folder
 
 __all__ = ["FENG_GOAL2_OFFSET_MM", "FENG_SCENARIO", "feng_lung_scenario", "feng_patient_folder"]
 
@@ -56,8 +58,6 @@ def feng_patient_folder(medrad_dir=None) -> Path:
     InvalidInputError
         Named ``--medrad``: no Med-RAD folder, or no lung 5 in it.
     """
-    from needlekit.io.medrad_paths import patient_folder
-
     return patient_folder("lung", FENG_SCENARIO["base"]["medrad"]["patient"], medrad_dir)
 
 
@@ -104,8 +104,6 @@ def feng_lung_scenario(goal: int, *, medrad_dir=None) -> dict:
 
 def _write_scenario(path, doc: dict, goal: str) -> Path:
     import yaml
-
-    from needlekit.io.files import write_text
 
     how = (
         "Med-RAD's target (in the nodule)"

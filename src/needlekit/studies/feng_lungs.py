@@ -44,7 +44,13 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.batch import executor_workers
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.plans import write_plan_json
+from needlekit.planning.result import PlanStatus
+from needlekit.provenance import machine_info
+from needlekit.scenario.problems import ScenarioSource
 from needlekit.studies.feng_case import (
     FENG_GOAL2_OFFSET_MM,
     FENG_SCENARIO,
@@ -54,6 +60,7 @@ from needlekit.studies.feng_case import (
     feng_lung_scenario,
     feng_patient_folder,
 )
+from needlekit.studies.feng_timing import timing_record
 
 __all__ = [
     "FENG_GOAL2_OFFSET_MM",
@@ -219,7 +226,6 @@ def _settings(time_limit_s, directions, max_iterations, quick: bool) -> dict:
 
 def _checks(problem, sw) -> dict:
     """Every solved plan of a sweep through the independent check (0.25 mm samples)."""
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.verify import verify_plan
 
     passed, failures, best = 0, [], None
@@ -357,13 +363,9 @@ def run_feng_lungs(
         A bad setting, missing data, or a goal not in free space or out of reach (before
         any sweep).
     """
-    from needlekit.batch import executor_workers
-    from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions
     from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
-    from needlekit.provenance import machine_info
-    from needlekit.studies.feng_timing import timing_record
 
     t0 = time.perf_counter()
     load_before = os.getloadavg()
@@ -458,8 +460,6 @@ def _sources_and_problems(docs: dict, out: Path, cache_dir, use_cache: bool):
     """Each goal's scenario source (inline: workers on other machines cannot read files
     written here) and its problem, the patient prepared once in this process for both
     targets, each target checked."""
-    from needlekit.scenario.problems import ScenarioSource
-
     sources = {
         g: ScenarioSource.of_document(
             doc, out, name=f"{g}/scenario.yaml", cache_dir=cache_dir, use_cache=use_cache
@@ -477,8 +477,6 @@ def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settin
                 seed: int, options: dict) -> dict:  # fmt: skip
     """One goal's ``scenario.yaml``, ``sweep.json`` and (when RCS* found one) ``plan.json``
     with its check; returns them by name."""
-    from needlekit.io.files import write_json
-    from needlekit.io.plans import write_plan_json
     from needlekit.planning.steerable.sweep import sweeps_to_dict
 
     files = {f"{g}/scenario.yaml": _write_scenario(out / g / "scenario.yaml", doc, g)}

@@ -37,6 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import write_json
+from needlekit.io.medrad_paths import chosen_patients, patient_folder
+from needlekit.planning.interface import get_planner
+from needlekit.provenance import machine_info
+from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
 
 __all__ = ["LIVER_SETTINGS", "liver_cases", "liver_scenario", "run_liver_case", "run_liver_study"]
 
@@ -83,7 +88,6 @@ def liver_cases(medrad_dir=None, livers: Sequence[int] | None = None) -> list[di
         No Med-RAD liver folder, or a patient that is not there.
     """
     from needlekit.io.medrad import _files, _starts_and_targets
-    from needlekit.io.medrad_paths import chosen_patients, patient_folder
 
     root, chosen = chosen_patients("liver", medrad_dir, livers, patients_flag="--livers")
     out = []
@@ -159,11 +163,9 @@ def run_liver_case(
         counts, or None), ``verified`` (every planned needle passes the independent
         check; None when none was planned), ``violations``, ``prepare_s`` and ``plan_s``.
     """
-    from needlekit.planning.interface import get_planner
     from needlekit.planning.straight.ablation import plan_coverage
     from needlekit.planning.straight.verify import verify_multi
     from needlekit.scenario.loading import parse_scenario
-    from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
 
     t0 = time.perf_counter()
     doc = liver_scenario(case, gamma_mm, medrad_dir=medrad_dir, resolution_deg=resolution_deg)
@@ -261,9 +263,6 @@ def run_liver_study(
     dict
         The record written: ``settings``, ``machine``, ``summary`` and ``rows``.
     """
-    from needlekit.io.files import write_json
-    from needlekit.provenance import machine_info
-
     for g in gammas_mm:
         if not (np.isfinite(g) and g >= 0):
             raise InvalidInputError("--gamma", f"expected numbers >= 0 (mm), got {g}")

@@ -32,14 +32,26 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from needlekit import __version__
+from needlekit.batch import SerialExecutor, as_completed_indexed
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import staged_outputs, write_text
 from needlekit.records import trial_solved
+from needlekit.studies.guide_filter import (
+    ACCEPTABLE,
+    OCTANT_SIGNS,
+    REFUSAL_REASONS,
+    GuideFilter,
+    redraw_filter_rates,
+    redraw_summary,
+)
 
 __all__ = [
     "PAPER_RESULTS",
@@ -195,7 +207,6 @@ def sample_trial(
     """
     from needlekit.control.panda import PandaModel
     from needlekit.control.procedure import TrialSetup
-    from needlekit.studies.guide_filter import ACCEPTABLE, OCTANT_SIGNS, GuideFilter
 
     nominal, spread = scenario.nominal_parameters, scenario.spread
     initial = nominal + rng.uniform(-1.0, 1.0, 12) * spread
@@ -290,7 +301,6 @@ def run_puncture_trial(
     dict
     """
     from needlekit.control.procedure import run_trial
-    from needlekit.studies.guide_filter import ACCEPTABLE, REFUSAL_REASONS
 
     draw_seed, sensor_seed = seed_sequence.spawn(2)
     verdicts: list[str] = []
@@ -482,15 +492,9 @@ def run_puncture_study(
     -------
     PunctureStudy
     """
-    import time
-
-    from needlekit import __version__
-    from needlekit.batch import SerialExecutor, as_completed_indexed
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.em import EMSensorSpec
     from needlekit.control.procedure import ProcedureSettings
-    from needlekit.io.files import staged_outputs, write_text
-    from needlekit.studies.guide_filter import redraw_filter_rates, redraw_summary
 
     if not isinstance(trials, int) or trials < 1:
         raise InvalidInputError("trials", f"expected a whole number >= 1, got {trials!r}")

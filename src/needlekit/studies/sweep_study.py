@@ -16,6 +16,7 @@ writes:
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -24,6 +25,8 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.plans import write_plan_json
 
 __all__ = ["SweepStudy", "run_sweep_study"]
 
@@ -109,8 +112,6 @@ def run_sweep_study(
     InvalidInputError
         No planners, or an unknown one.
     """
-    from needlekit.io.files import staged_outputs, write_json
-    from needlekit.io.plans import write_plan_json
     from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
     from needlekit.planning.steerable.verify import verify_plan
@@ -178,8 +179,6 @@ def run_sweep_study(
 
 def _options_of(planner) -> dict:
     """A built planner's options as it runs with them (JSON-ready)."""
-    import dataclasses
-
     opts = getattr(planner, "options", None)
     if dataclasses.is_dataclass(opts) and not isinstance(opts, type):
         return dataclasses.asdict(opts)

@@ -4,12 +4,13 @@ numpy references, and baking a phantom's structures onto voxel grids."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping
 
 import numpy as np
 
 from needlekit._validation import as_positive
-from needlekit.anatomy.fields import DistanceField
+from needlekit.anatomy.fields import ComplementField, DistanceField
 from needlekit.anatomy.phantoms._atom_kernels import (
     ATOM_ERROR_BOUND_MM,
     BAKE_PADDING_MM,
@@ -399,10 +400,6 @@ def bake_structures(
     timings : dict of str to float
         Seconds per step.
     """
-    import time
-
-    from needlekit.anatomy.fields import ComplementField
-
     names = list(bake) + ([region] if region else []) + list(obstacles)
     affine, shape = grid_for_bounds(
         _union_box(exact[n].bounds() for n in names), voxel_size_mm, padding_mm

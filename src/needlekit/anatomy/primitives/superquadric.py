@@ -26,6 +26,7 @@ from needlekit.anatomy.primitives._base import (
     _Primitive,
     _snap,
 )
+from needlekit.anatomy.primitives.closed_forms import Capsule
 from needlekit.errors import InvalidInputError
 
 __all__ = ["Superquadric", "superquadric_distance"]
@@ -431,8 +432,6 @@ class Superquadric(_Primitive):
         the box of the other two semi-axes (every term of the sum is at most 1, so the
         shape lies in the box of its semi-axes)."""
         if self._enclosing is None:
-            from needlekit.anatomy.primitives.closed_forms import Capsule
-
             a = self.semi_axes_mm
             k = int(np.argmax(a))
             others = np.delete(a, k)

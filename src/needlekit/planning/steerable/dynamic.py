@@ -59,6 +59,7 @@ from needlekit.planning.steerable.moving import (
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
+from needlekit.planning.steerable.solve import solve
 from needlekit.planning.steerable.verify import verify_plan
 
 __all__ = [
@@ -336,8 +337,6 @@ def _split(plan: SteerablePlan, length_mm: float) -> tuple[SteerablePlan, Steera
 
 
 def _solve(problem, planner, budget) -> PlanResult:
-    from needlekit.planning.steerable.solve import solve
-
     return solve(problem, planner, **budget)
 
 

@@ -8,8 +8,9 @@ checks their plans against it independently.
 
 from __future__ import annotations
 
+import copy
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -474,8 +475,6 @@ class SteerableProblem:
             raise InvalidInputError("start_pose", "expected one 4x4 pose")
         pose = g[0]
         if not np.array_equal(pose[:3, 3], self.start_point_mm):
-            from dataclasses import replace
-
             return replace(self, start_pose=pose, start_point_mm=None)
         return self._derived(start_pose=pose, start_point_mm=pose[:3, 3].copy())
 
@@ -495,8 +494,6 @@ class SteerableProblem:
 
     def _derived(self, **checked) -> SteerableProblem:
         """A copy with checked fields changed, nothing else recomputed."""
-        import copy
-
         out = copy.copy(self)
         for name, value in checked.items():
             object.__setattr__(out, name, value)

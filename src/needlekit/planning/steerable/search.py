@@ -31,9 +31,19 @@ import time
 
 import numpy as np
 
+from needlekit._validation_kernels import rotation_errors
+from needlekit.errors import InvalidInputError
+from needlekit.geometry.arcs import propagate_arcs
+from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
 from needlekit.planning.interface import SearchRun, Termination
 from needlekit.planning.result import PlanStatus
-from needlekit.planning.steerable.goal import goal_connection
+from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
+from needlekit.planning.steerable.cost import chain_cost
+from needlekit.planning.steerable.goal import (
+    connection_length_unchecked,
+    goal_connection,
+    single_arc_connection,
+)
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
@@ -161,21 +171,12 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
         With a start pose.
     validator : MotionValidator
     """
-    from needlekit.geometry.arcs import propagate_arcs
-    from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
-    from needlekit.planning.steerable.cost import chain_cost
-    from needlekit.planning.steerable.goal import (
-        connection_length_unchecked,
-        single_arc_connection,
-    )
-
     validator.warm_up()  # the checker's kernels, the connectivity proof's included
     start, goal = problem.start_pose, problem.goal_mm
     kappa, r, tau = problem.kappa_max_per_mm, problem.r_min_mm, problem.goal_tolerance_mm
     goal_connection(start, goal, r, tau)
     connection_length_unchecked(np.ascontiguousarray(start), np.ascontiguousarray(goal), r, tau)
     single_arc_connection(start, goal, r, tau)
-    from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
 
     se3_gap(start, start)
 
@@ -193,8 +194,6 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     verify_approximate(problem, tiny, spacing_mm=validator.spacing_mm)
     # long plans check their poses' rotations in the numba kernel (a tiny plan's few poses
     # go through numpy): load it here too
-    from needlekit._validation_kernels import rotation_errors
-
     rotation_errors(np.ascontiguousarray(start[None, :3, :3]))
 
 
@@ -211,8 +210,6 @@ class SteerableSearch:
     """
 
     def __init__(self, problem: SteerableProblem, termination: Termination, planner: str):
-        from needlekit.errors import InvalidInputError
-
         if problem.start_pose is None:
             raise InvalidInputError(
                 "start_pose", f"{planner} needs a start pose (sweep directions for a start point)"

@@ -16,15 +16,20 @@ worker ran them and how long it spent preparing problems
 
 from __future__ import annotations
 
-from concurrent.futures import Executor
+import pickle
+import time
+from concurrent.futures import Executor, as_completed
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from needlekit.batch import worker_builds, worker_name
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.steerable.problem import SteerableProblem
+from needlekit.planning.steerable.search import geometric_refusal
+from needlekit.planning.steerable.solve import build_planner, solve
 from needlekit.planning.steerable.sweep_result import (
     SweepResult,
     effective_directions,
@@ -52,11 +57,6 @@ def _plan_tasks(tasks: list) -> tuple:
         task spent building problems from their sources (0 when its worker had them), the
         kinds it built (``"ScenarioSource"``, ``"MedradCase"``) and the PlanResults.
     """
-    import time
-
-    from needlekit.batch import worker_builds, worker_name
-    from needlekit.planning.steerable.solve import solve
-
     n_built, prep_s, results = len(worker_builds()), 0.0, []
     for problem, source, direction, planner, time_limit_s, max_iterations in tasks:
         if source is not None:  # built once per worker, reused for its other directions
@@ -79,8 +79,6 @@ REFUSED_PER_TASK: int = 16
 
 
 def _check_task_size(problem) -> None:
-    import pickle
-
     try:
         size = len(pickle.dumps(problem, protocol=pickle.HIGHEST_PROTOCOL))
     except Exception as exc:
@@ -117,8 +115,6 @@ def refused_before_search(problem: SteerableProblem, directions) -> np.ndarray:
     -------
     ndarray of bool, shape (n,)
     """
-    from needlekit.planning.steerable.search import geometric_refusal
-
     dirs = np.asarray(directions, dtype=float).reshape(-1, 3)
     p0, goal = np.asarray(problem.start_point_mm, dtype=float), problem.goal_mm
     return np.array(
@@ -189,8 +185,6 @@ def _effective(job: SweepJob, dirs: np.ndarray) -> np.ndarray:
 
 def _built(job: SweepJob, seed: int | None):
     """The job's planner, built once (a name) or as given (a planner built already)."""
-    from needlekit.planning.steerable.solve import build_planner
-
     if isinstance(job.planner, str):
         return build_planner(job.planner, job.options, seed=seed)
     if job.options is not None:
@@ -244,9 +238,6 @@ def sweep_many(
     InvalidInputError
         No jobs, or a problem too heavy to send to workers without a source.
     """
-    import time
-    from concurrent.futures import as_completed
-
     jobs = list(jobs)
     if not jobs:
         raise InvalidInputError("jobs", "expected at least one sweep")

@@ -15,6 +15,7 @@ made, and validate nothing again.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -146,8 +147,6 @@ class MotionValidator:
         float
             Seconds it took.
         """
-        import time
-
         t0 = time.perf_counter()
         pose = np.eye(4) if self.start is None else np.ascontiguousarray(self.start)
         self.motion_valid(pose, 0.0, self.problem.kappa_max_per_mm, self.spacing_mm)

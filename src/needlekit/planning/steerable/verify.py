@@ -28,6 +28,8 @@ the start) counts as broken.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
@@ -114,8 +116,6 @@ def verify_plan(
     # the problem's collision checker, bound to the plan's own start (its exclusion)
     checker = problem.collision_checker(spacing_mm)
     if not np.array_equal(start[:3, 3], problem.start_point_mm):
-        from dataclasses import replace
-
         checker = replace(problem, start_pose=start, start_point_mm=None).collision_checker(
             spacing_mm
         )

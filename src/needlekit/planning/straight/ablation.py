@@ -15,6 +15,7 @@ direction assumed while choosing is ``-up`` (for a Med-RAD start pose: its z axi
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
@@ -376,8 +377,6 @@ def plan_with_coverage(
         None when no target could be chosen.
     outcome : AblationOutcome
     """
-    import time
-
     steps = {} if timings is None else timings
     steps["rounds"] = 1
 

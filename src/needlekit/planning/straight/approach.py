@@ -36,9 +36,11 @@ as the skin, its obstacles as the obstacle models).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from needlekit._validation import as_points
 from needlekit.errors import InvalidInputError
 
 __all__ = ["ApproachAnalysis", "approach_analysis", "approach_scores", "structure_mesh"]
@@ -251,7 +253,6 @@ def approach_analysis(
     -------
     ApproachAnalysis
     """
-    from needlekit._validation import as_points
     from needlekit.geometry.segment_mesh import SegmentMeshIntersector
 
     p, single = as_points(target_mm, "target_mm")
@@ -314,8 +315,6 @@ def approach_scores(targets_mm, skin, obstacles) -> np.ndarray:
     -------
     ndarray, shape (k,)
     """
-    from needlekit._validation import as_points
-
     pts, _ = as_points(targets_mm, "targets_mm")
     _, _, centres, areas, _ = _skin_faces(skin)
     hits = _obstacle_intersector(obstacles)
@@ -341,8 +340,6 @@ def structure_mesh(structure, *, max_cells: int = 200):
     -------
     trimesh.Trimesh
     """
-    from pathlib import Path
-
     import trimesh
 
     from needlekit.anatomy.summary import surface_mesh

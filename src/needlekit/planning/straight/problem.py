@@ -14,7 +14,7 @@ A :class:`StraightProblem` says what a trajectory must satisfy; the CFRW map
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -273,8 +273,6 @@ class StraightProblem:
         -------
         StraightProblem
         """
-        from dataclasses import replace
-
         return replace(self, target_mm=np.asarray(target_mm, dtype=float))
 
     def with_obstacles(self, *fields: DistanceField) -> StraightProblem:
@@ -288,6 +286,4 @@ class StraightProblem:
         -------
         StraightProblem
         """
-        from dataclasses import replace
-
         return replace(self, extra_obstacles=self.extra_obstacles + tuple(fields))

@@ -17,10 +17,11 @@ has the fewest directions left (the most constrained first).
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.segments import segment_distances
 from needlekit.planning.straight.cfrw import (
@@ -292,8 +293,6 @@ def _clear_of_placed(m: CFRWMap, placed, radius: float, gamma: float) -> np.ndar
 
 
 def _masked(m: CFRWMap, ok: np.ndarray) -> CFRWMap:
-    from dataclasses import replace
-
     blocked = np.where(ok | (m.blocked != Blocked.FREE), m.blocked, Blocked.PLACED_NEEDLE)
     return replace(m, blocked=blocked)
 
@@ -348,8 +347,6 @@ def plan_needles(
     obj = Objective(objective)
     radius, gamma = problem.needle.radius_mm, problem.gamma_mm
     if body_factory is None:
-        from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
-
         chosen_head = LIU_HEAD if head is None else head
 
         def body_factory(tip, entry, r):

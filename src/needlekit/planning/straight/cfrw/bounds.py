@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
+from needlekit.anatomy.needle_body import NeedleBody
+from needlekit.anatomy.primitives import Capsule
 from needlekit.geometry.segments import segment_distances
 from needlekit.planning.straight.problem import StraightProblem
 
@@ -235,9 +237,6 @@ def obstacle_segment_bound(
         ``min(cap, lower bound of the distance over the segment) - error_bound`` (the
         closed forms state no error).
     """
-    from needlekit.anatomy.needle_body import NeedleBody
-    from needlekit.anatomy.primitives import Capsule
-
     o = np.asarray(origins, dtype=float).reshape(-1, 3)
     u = np.asarray(directions, dtype=float).reshape(-1, 3)
     L = np.asarray(lengths, dtype=float).reshape(-1)
