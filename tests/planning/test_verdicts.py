@@ -362,10 +362,12 @@ def test_every_point_of_a_valid_path_lies_in_the_region():
     h = 0.5 * float(np.linalg.norm(spacing))
     d = np.array([0.0, 0.0, 1.0])
     for r_min in (20.0, 50.0, 100.0):
-        geo = _region(d, r_min, 90.0, 150.0, 1.0, h, 0.25 * 0.5**2)
-        for _ in range(30):
-            pts = _random_path(rng, r_min)
+        for n in range(30):
+            pts = _random_path(rng, r_min, length=120.0 if n % 2 else rng.uniform(20.0, 150.0))
             end = pts[-1] + rng.uniform(-0.5, 0.5, 3)  # a goal within tau of the end
+            # every part of the region at once: Schur's bound for this goal (where it
+            # applies), the cones, the torus and the turn-then-straight bound
+            geo = _region(d, r_min, 90.0, 150.0, 1.0, h, 0.25 * 0.5**2, float(np.linalg.norm(end)))
             offset = rng.uniform(-0.5, 0.5, 3) * spacing  # where the grid's centres sit
             cells = np.rint((pts - offset) / spacing) * spacing + offset
             assert np.all(np.linalg.norm(cells - pts, axis=1) <= h + 1e-12)
@@ -424,6 +426,35 @@ def test_schurs_arc_bounds_the_region_to_a_thin_ellipsoid():
     assert longest_path(150.0, 25.0, 60.0, 0.0) == 150.0
     assert longest_path(150.0, 30.0, 50.0, 0.0) == 150.0
     assert longest_path(60.0, 30.0, 50.0, 0.0) == pytest.approx(60.0 * np.arcsin(50 / 60), abs=1e-3)
+
+
+def test_the_turn_then_straight_bound_keeps_the_shortest_path_and_cuts_the_ellipsoid():
+    # a goal 80 mm away, 47 deg off the start direction (r 50): every point of its own
+    # shortest path (turn on the r circle, then straight) stays in the region, while
+    # points of the ellipsoid that no short path passes are cut: a path through them must
+    # first turn to them, then reach the goal, longer than Schur's bound allows
+    from needlekit.anatomy.voxel_connectivity import _in_region, _region
+    from needlekit.needle.reachability import shortest_arc_line
+
+    d, r = np.array([0.0, 0.0, 1.0]), 50.0
+    goal = 80.0 * np.array([np.sin(np.radians(47.0)), 0.0, np.cos(np.radians(47.0))])
+    geo = _region(d, r, 90.0, 150.0, 1.0, 0.6, 0.25 * 0.5**2, chord_mm=80.0)
+    path = shortest_arc_line(np.eye(4), goal[None], r)  # its circle's centre at +x r
+    beta, s = float(path.turn_rad[0]), np.linspace(0.0, float(path.length_mm[0]), 200)
+    arc, line = s[s <= r * beta] / r, s[s > r * beta] - r * beta
+    end = np.array([r - r * np.cos(beta), 0.0, r * np.sin(beta)])
+    tangent = np.array([np.sin(beta), 0.0, np.cos(beta)])
+    pts = np.vstack([np.stack([r - r * np.cos(arc), 0 * arc, r * np.sin(arc)], 1),
+                     end + line[:, None] * tangent])  # fmt: skip
+    assert np.linalg.norm(pts[-1] - goal) < 1e-6
+    assert all(_in_region(*p, np.zeros(3), d, goal, geo) for p in pts)
+    no_bound = geo.copy()
+    no_bound[8] = 0.0
+    rng = np.random.default_rng(3)
+    cand = rng.uniform([-10.0, -30.0, 0.0], [70.0, 30.0, 80.0], (20000, 3))
+    kept = np.array([_in_region(*c, np.zeros(3), d, goal, no_bound) for c in cand])
+    cut = np.array([not _in_region(*c, np.zeros(3), d, goal, geo) for c in cand[kept]])
+    assert kept.sum() > 500 and 0.05 < cut.mean() < 0.95
 
 
 # Lung 1 targets for which the UNC reference prints "Reachable workspace is not connected to

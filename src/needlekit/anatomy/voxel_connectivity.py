@@ -39,7 +39,15 @@ samples by chords: a polyline from the start ``s`` to near the goal ``g``.
     the angle stays below the circle's, ``db/da <= tan phi`` stays below its slope, ``b``
     below its height, and ``x`` outside its disc. Over every ``n``: the distance from
     ``x`` to the circle of centres ``s + r n`` is at least ``r``. A chord dips at most
-    ``r - sqrt(r^2 - delta^2 / 4)`` below that.
+    ``r - sqrt(r^2 - delta^2 / 4)`` below that;
+  - with ``H <= 90`` deg, a turn then straight: the part of the path up to a sample ``x``
+    (outside the torus) is no shorter than the shortest curvature-bounded path from the
+    start pose to ``x``, the turn on the circle of radius ``r`` then the tangent line
+    (``needle.reachability``), and the rest no shorter than ``|x - g| - tau``; their sum is
+    at most ``L``. A voxel centre lies within ``e = h + delta / 2`` of a sample, and where
+    its ``e``-ball lies outside the torus the turn-then-straight length is 1-Lipschitz
+    there (its gradient is the end's unit tangent): the centre's length minus ``e`` bounds
+    the sample's.
 
 So when no 6-connected chain of free voxels inside the grown region leads from the start's
 voxel to a free voxel within ``tau + h`` of the goal, no valid path exists:
@@ -124,9 +132,26 @@ def _cone_distance(vx, vy, vz, d, cos_h, sin_h):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
+def _turn_then_straight(a, b, r, reach):  # pragma: no cover - compiled
+    """A lower bound on how far a path from the start must go to pass within ``reach`` of
+    the point at axial ``a`` and radial ``b`` (module notes): the turn on the circle of
+    radius ``r`` then straight, minus ``reach``, where the ball of that radius lies outside
+    the horn torus; 0 elsewhere."""
+    dc2 = a * a + (b - r) ** 2
+    if r <= 0.0 or dc2 < (r + reach) ** 2:
+        return 0.0
+    ell = math.sqrt(dc2 - r * r)
+    beta = math.atan2(b - r, a) + math.atan2(r, ell)
+    if beta < 0.0:
+        beta += 2.0 * math.pi
+    return r * beta + ell - reach
+
+
+@numba.njit(cache=True, inline="always")
 def _in_region(x, y, z, start, d, goal, geo):  # pragma: no cover - compiled
     """Whether a voxel centre lies in the grown region (module notes). ``geo``: budget,
-    use_cone, cos H, sin H, slack from s, slack from g, r (0: no torus), torus floor."""
+    use_cone, cos H, sin H, slack from s, slack from g, r (0: no torus), torus floor, the
+    bound's r, its budget, its reach from a path point."""
     ds = math.sqrt((x - start[0]) ** 2 + (y - start[1]) ** 2 + (z - start[2]) ** 2)
     dg = math.sqrt((x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2)
     if ds + dg > geo[0]:
@@ -143,6 +168,8 @@ def _in_region(x, y, z, start, d, goal, geo):  # pragma: no cover - compiled
         a = vx * d[0] + vy * d[1] + vz * d[2]
         b = math.sqrt(max(vx * vx + vy * vy + vz * vz - a * a, 0.0))
         if a * a + (b - r) ** 2 < geo[7] * geo[7] and geo[7] > 0.0:
+            return False
+        if _turn_then_straight(a, b, geo[8], geo[10]) + dg > geo[9]:
             return False
     return True
 
@@ -513,8 +540,9 @@ def _region(
 ) -> np.ndarray:
     """The region's figures for the kernel (its ``geo``; module notes)."""
     slack = REGION_SLACK_MM
-    geo = np.zeros(8)
-    geo[0] = longest_path(max_length_mm, r_min, chord_mm, tau) + tau + 2.0 * h + slack
+    geo = np.zeros(11)
+    longest = longest_path(max_length_mm, r_min, chord_mm, tau)
+    geo[0] = longest + tau + 2.0 * h + slack
     if direction is None or heading_deg is None or heading_deg > 90.0:
         return geo
     hr = math.radians(float(heading_deg))
@@ -523,4 +551,8 @@ def _region(
         r = float(r_min)
         dip = r - math.sqrt(max(r * r - half_gap2, 0.0))  # a chord's dip into the torus
         geo[6], geo[7] = r, r - dip - h - slack
+        # the turn-then-straight bound: a centre lies within h + delta / 2 of a path point
+        reach = h + 0.5 * math.sqrt(4.0 * half_gap2) + slack
+        geo[8] = r / (1.0 + 1e-6 * (1.0 + r))  # the check's curvature slack
+        geo[9], geo[10] = longest + tau + reach + slack, reach
     return geo
