@@ -207,17 +207,7 @@ def run_steerable_benchmark(
     def run(problem, planner, budget_s=time_limit_s):
         return solve(problem, planner, time_limit_s=budget_s, seed=0)
 
-    if isinstance(sample_targets, bool) or int(sample_targets) != sample_targets or (
-        sample_targets < 0
-    ):
-        raise InvalidInputError(
-            "--sample-targets", f"expected a whole number >= 0, got {sample_targets!r}"
-        )
-    if sample_targets and reference_app is None:
-        raise InvalidInputError(
-            "--sample-targets",
-            "screens sampled targets beside the reference app: give --reference-app too",
-        )
+    _check_sampling(sample_targets, reference_app)
     with ExitStack() as stack:
         reference = None
         if reference_app is not None:  # checked before any work
@@ -278,6 +268,23 @@ def run_steerable_benchmark(
         "results": rows,
         "summary": _summary(rows),
     } | ({} if comparison is None else {"reference_app": comparison})
+
+
+def _check_sampling(sample_targets, reference_app) -> None:
+    """``--sample-targets``: a whole number >= 0, and only beside the reference app."""
+    if (
+        not isinstance(sample_targets, (int, np.integer))
+        or isinstance(sample_targets, bool)
+        or sample_targets < 0
+    ):
+        raise InvalidInputError(
+            "--sample-targets", f"expected a whole number >= 0, got {sample_targets!r}"
+        )
+    if sample_targets and reference_app is None:
+        raise InvalidInputError(
+            "--sample-targets",
+            "screens sampled targets beside the reference app: give --reference-app too",
+        )
 
 
 def _reference(app, work, planners, time_limit_s, stack: ExitStack):
