@@ -2,10 +2,13 @@
 
 Most tests run a fake app (a Python script written into tmp_path that reads the case
 folder's input files as the real app does and prints what the real app prints for a known
-case). The test with the real app and Med-RAD takes the app's path from
-``$NEEDLEKIT_REFERENCE_APP`` and skips when it is unset.
+case). The tests with the real app and Med-RAD take the app's path from
+``$NEEDLEKIT_REFERENCE_APP`` and skip when it is unset. The last part is the screening of
+sampled targets (``--sample-targets``): the sampling on a synthetic case and on lung 1,
+the summary on fabricated rows, the flags.
 """
 
+import math
 import os
 import stat
 import sys
@@ -19,8 +22,10 @@ import needlekit.io.medrad as medrad
 from needlekit.anatomy.occupancy import VoxelObstacles
 from needlekit.benchmarks import reference_app as ra
 from needlekit.benchmarks import reference_comparison as rc
-from needlekit.benchmarks.steerable import BENCH_NEEDLE, _row, _summary
+from needlekit.benchmarks import target_screening as ts
+from needlekit.benchmarks.steerable import BENCH_NEEDLE, _row, _summary, run_steerable_benchmark
 from needlekit.cli import main
+from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.result import PlanResult
 
@@ -400,3 +405,209 @@ def test_the_real_app_and_needlekit_agree_on_lung_1(tmp_path, medrad_dir):
         assert abs(by_start[s]["cost_difference_mm"]) <= ra.COST_AGREEMENT_MM
     assert by_start[2]["app"]["cost_mm"] is None and by_start[2]["needlekit"]["cost_mm"] is None
     assert cmp["summary"]["ratio_time_to_certified"]["n"] == 4
+
+
+# -- sampled targets (--sample-targets) ---------------------------------------------------
+
+
+def _pose(position, direction):
+    """A start pose at ``position`` whose z axis (insertion direction) is ``direction``."""
+    z = np.asarray(direction, float) / np.linalg.norm(direction)
+    x = np.cross(z, [0.0, 0.0, 1.0] if abs(z[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    pose[:3, 3] = position
+    return pose
+
+
+def _synthetic_lung():
+    """A 100^3 grid of 2 mm voxels (origin -100 mm): a free box 160 mm wide with an
+    obstacle slab across it at x = 30-40 mm and two starts at the box's centre, one
+    pointing +x, one +y."""
+    free = np.zeros((100, 100, 100), bool)
+    free[10:90, 10:90, 10:90] = True
+    free[65:70, :, :] = False  # the slab: x = 30..38 mm (voxel centres)
+    affine = np.diag([2.0, 2.0, 2.0, 1.0])
+    affine[:3, 3] = -100.0
+    starts = (
+        types.SimpleNamespace(name="start1", world_T_tip=_pose([0.0, 0.0, 0.0], [1, 0, 0])),
+        types.SimpleNamespace(name="start2", world_T_tip=_pose([0.0, 0.0, 0.0], [0, 1, 0])),
+    )
+    case = types.SimpleNamespace(
+        free_space=types.SimpleNamespace(data=free, affine=affine),
+        voxel_obstacles=lambda needle_diameter_mm: VoxelObstacles(
+            ~free, affine, needle_diameter_mm=needle_diameter_mm
+        ),
+        starts=starts,
+    )
+    return case
+
+
+def _check_drawn(case, drawn, needle_diameter_mm=1.0):
+    free, affine = np.asarray(case.free_space.data), np.asarray(case.free_space.affine)
+    obstacles = case.voxel_obstacles(needle_diameter_mm=needle_diameter_mm)
+    by_name = {s.name: np.asarray(s.world_T_tip) for s in case.starts}
+    for k, d in enumerate(drawn):
+        assert d["sample"] == k
+        pose = by_name[d["start_name"]]
+        assert d["start"] == int(d["start_name"].removeprefix("start"))
+        np.testing.assert_allclose(d["start_mm"], pose[:3, 3])
+        t = np.asarray(d["target_mm"])
+        ijk = np.linalg.solve(affine[:3, :3], t - affine[:3, 3])
+        np.testing.assert_allclose(ijk, np.round(ijk), atol=1e-6)  # a voxel centre
+        assert free[tuple(np.round(ijk).astype(int))]  # a free voxel
+        v = t - pose[:3, 3]
+        dist = np.linalg.norm(v)
+        assert 35.0 <= dist <= 90.0 and d["distance_mm"] == pytest.approx(dist)
+        angle = math.degrees(math.acos(np.clip(v @ pose[:3, 2] / dist, -1, 1)))
+        assert angle <= 90.0 + 1e-9 and d["angle_deg"] == pytest.approx(angle, abs=1e-6)
+        assert not obstacles.collides(t)  # clear for the needle
+
+
+def test_sampled_targets_are_reproducible_and_meet_every_condition():
+    case = _synthetic_lung()
+    drawn = ts.sample_targets(case, 40, seed=3)
+    assert drawn == ts.sample_targets(case, 40, seed=3)  # same seed, same targets
+    assert drawn[:10] == ts.sample_targets(case, 10, seed=3)  # a prefix of a longer draw
+    assert drawn != ts.sample_targets(case, 40, seed=4)
+    _check_drawn(case, drawn)
+    assert {d["start"] for d in drawn} == {1, 2}  # both starts drawn
+    # nothing in the slab or within the needle's clearance of it (x 30-38 mm +- 1.2 mm)
+    assert not any(28.8 < d["target_mm"][0] < 39.2 for d in drawn)
+
+
+def test_a_start_without_room_ahead_is_one_error_naming_the_flag():
+    case = _synthetic_lung()
+    free = np.zeros_like(case.free_space.data)
+    free[45:56, 45:56, 45:56] = True  # a 22 mm box around the starts: nothing 35 mm away
+    case.free_space.data = free
+    with pytest.raises(InvalidInputError, match=r"^--sample-targets: start\d: no free voxel"):
+        ts.sample_targets(case, 1)
+    with pytest.raises(InvalidInputError, match="--sample-targets"):
+        ts.sample_targets(_synthetic_lung(), 0)
+
+
+@pytest.mark.realdata
+def test_targets_sampled_in_lung_1_are_free_and_ahead_of_their_start(medrad_lung1):
+    drawn = ts.sample_targets(medrad_lung1, 12, seed=0)
+    assert drawn == ts.sample_targets(medrad_lung1, 12, seed=0)
+    _check_drawn(medrad_lung1, drawn)
+    pleura = next(s for s in medrad_lung1.scene.structures if s.name == "pleuralBoundary")
+    assert np.all(pleura.field.signed_distance(np.array([d["target_mm"] for d in drawn])) <= 0.0)
+
+
+# -- the comparison with sampled targets --------------------------------------------------
+
+
+def test_the_crop_covers_the_sampled_targets_and_each_case_is_named_by_its_sample(
+    tmp_path, monkeypatch
+):
+    app, trace = _fake_app(tmp_path, monkeypatch)
+    # a 2 mm margin: the stock 30 mm already covers the whole 40 mm grid
+    monkeypatch.setattr(
+        rc, "write_obstacle_file",
+        lambda *a, **k: ra.write_obstacle_file(*a, **k, margin_mm=2.0),
+    )  # fmt: skip
+    case, _, _ = _block_case()
+    plain = rc.ReferenceComparison(app, tmp_path / "plain", BENCH_NEEDLE)
+    plain.add_patient(1, case)
+    cmp = rc.ReferenceComparison(app, tmp_path / "work", BENCH_NEEDLE)
+    far = np.array([[-15.0, 15.0, 115.0]])  # beyond the starts' and target's crop
+    cmp.add_patient(1, case, far)
+    # starts and target: x -7..6, y -5..5, z 95..103 (+-2 mm) -> i 11..28, j 13..27, k 13..25
+    assert plain.patients[0]["crop_lo"] == [11, 13, 13]
+    assert plain.patients[0]["crop_hi"] == [29, 28, 26]
+    # with (-15, 15, 115), voxel (5, 35, 35): the crop reaches it, +- 2 mm
+    assert cmp.patients[0]["crop_lo"] == [3, 13, 13]
+    assert cmp.patients[0]["crop_hi"] == [29, 38, 38]
+    s = case.starts[0]
+    cmp.compare(1, 1, s.world_T_tip, far[0], 50.0, _fake_solve(trace, 1, 50.0), sample=7)
+    row = cmp.rows[0]
+    assert row["sample"] == 7 and row["target_mm"] == far[0].tolist()
+    assert (tmp_path / "work" / "P1_s1_t7_r50" / "data" / "input").is_dir()
+    assert rc._case_name(row) == "P1 s1 t7 r50"
+    assert cmp.record()["summary"]["cases"] == 1
+
+
+def _screen_row(sample, app_status, app_verdict, nk_verdict, nk_time_s, app_reason=None):
+    return {
+        "patient": 1, "start": 2, "sample": sample, "r_min_mm": 50.0,
+        "target_mm": [1.0, 2.0, float(sample)],
+        "app": {"status": app_status, "verdict": app_verdict, "reason": app_reason},
+        "needlekit": {"verdict": nk_verdict, "time_s": nk_time_s,
+                      "reason": "goal not connected" if nk_verdict == "infeasible" else None},
+    }  # fmt: skip
+
+
+def test_the_screening_summary_counts_not_connected_cases_and_unsound_answers():
+    nc = ts.NOT_CONNECTED
+    rows = [
+        _screen_row(0, "refused", "infeasible", "infeasible", 0.002, nc),
+        _screen_row(1, "refused", "infeasible", "infeasible", 0.15, nc),  # too slow
+        _screen_row(2, "refused", "infeasible", "no plan", 1.0, nc),  # missed
+        _screen_row(3, "refused", "infeasible", "infeasible", 0.0003, "Goal point not in FRS"),
+        _screen_row(4, "certified", "certified", "infeasible", 0.01),  # unsound
+        _screen_row(5, "no plan (budget)", "no plan", "infeasible", 0.01),  # stronger, not unsound
+        _screen_row(6, "certified", "certified", "certified", 0.02),
+    ]
+    s = ts.screening_summary(rows)
+    assert s["cases"] == 7 and s["app_not_connected"] == 3
+    assert s["needlekit_infeasible_of_those"] == 2
+    assert s["needlekit_infeasible_within_0_1_s_of_those"] == 1
+    assert s["max_needlekit_time_s_of_those"] == 1.0
+    assert [c["case"] for c in s["not_connected_cases"]] == [
+        "P1 s2 t0 r50", "P1 s2 t1 r50", "P1 s2 t2 r50"]  # fmt: skip
+    first = s["not_connected_cases"][0]
+    assert first["target_mm"] == [1.0, 2.0, 0.0] and first["needlekit_time_s"] == 0.002
+    assert first["needlekit_reason"] == "goal not connected"
+    assert [c["case"] for c in s["unsound"]] == ["P1 s2 t4 r50"]
+    assert [c["case"] for c in s["disagreements"]] == ["P1 s2 t2 r50", "P1 s2 t5 r50"]
+    assert s["app_statuses"]["refused"] == 4 and s["needlekit_verdicts"]["infeasible"] == 5
+    text = ts.format_screening(s).splitlines()
+    assert text[0].startswith("SOUNDNESS BUG: needlekit says infeasible, the app finds a plan: "
+                              "P1 s2 t4 r50")  # fmt: skip
+    assert text[1].startswith("screening: 7 cases; the app says not connected in 3, needlekit "
+                              "infeasible in 2 of them (1 within 0.1 s), largest needlekit "
+                              "time 1000.0 ms")  # fmt: skip
+    empty = ts.screening_summary([])
+    assert empty["app_not_connected"] == 0 and empty["max_needlekit_time_s_of_those"] is None
+    assert not ts.format_screening(empty).startswith("SOUNDNESS")
+
+
+def test_sampled_targets_need_the_reference_app(capsys, tmp_path, monkeypatch, no_loading):
+    bench = ["bench", "steerable", "--patients", "1", "--planners", "rcs_star"]
+    assert _one_error_line(capsys, [*bench, "--sample-targets", "5"]) == (
+        "error: --sample-targets: screens sampled targets beside the reference app: give "
+        "--reference-app too"
+    )
+    assert _one_error_line(capsys, [*bench, "--target-seed", "3"]) == (
+        "error: --target-seed: seeds --sample-targets: give that too"
+    )
+    assert _one_error_line(capsys, [*bench, "--sample-targets", "0"]).startswith(
+        "error: argument --sample-targets: expected a whole number > 0"
+    )
+    with pytest.raises(InvalidInputError, match=r"^--sample-targets: screens sampled"):
+        run_steerable_benchmark(patients=(1,), planners=("rcs_star",), sample_targets=3)
+    with pytest.raises(InvalidInputError, match=r"^--sample-targets: expected a whole number"):
+        run_steerable_benchmark(patients=(1,), planners=("rcs_star",), sample_targets=-1)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_real_app_screens_sampled_targets_in_lung_1(tmp_path, medrad_dir):
+    app = os.environ.get(REFERENCE_APP_ENV)
+    if not app:
+        pytest.skip(f"set {REFERENCE_APP_ENV} to a built UNC rcs_star to compare with it")
+    record = run_steerable_benchmark(
+        patients=(1,), radii_mm=(50.0,), planners=("rcs_star",), medrad_dir=medrad_dir,
+        reference_app=app, reference_work=tmp_path, sample_targets=2, target_seed=0,
+    )  # fmt: skip
+    cmp = record["reference_app"]
+    drawn = cmp["samples"]["1"]["targets"]
+    assert [r["target_mm"] for r in cmp["rows"]] == [d["target_mm"] for d in drawn]
+    assert [r["sample"] for r in record["results"]] == [0, 1]
+    assert all(r["reference_cost_mm"] == "n/a" for r in record["results"])
+    # no sampled target lies outside the app's crop: the app never calls a goal out of range
+    assert all(r["app"]["reason"] != "Goal point is outside image range" for r in cmp["rows"])
+    assert cmp["screening"]["cases"] == 2 and cmp["screening"]["unsound"] == []

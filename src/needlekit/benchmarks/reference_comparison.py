@@ -155,7 +155,7 @@ class ReferenceComparison:
         self.rows: list[dict[str, Any]] = []
         self.warm_up: dict[str, Any] | None = None
 
-    def add_patient(self, patient: int, case) -> None:
+    def add_patient(self, patient: int, case, extra_points_mm=None) -> None:
         """Write one patient's obstacle file (once; every case folder links to it).
 
         Parameters
@@ -163,6 +163,9 @@ class ReferenceComparison:
         patient : int
         case : needlekit.io.medrad.MedradCase
             Its ``voxel_obstacles``, ``starts`` and ``targets_mm["target"]`` are used.
+        extra_points_mm : array_like, shape (n, 3), optional
+            Further points the crop must cover (sampled targets: the app counts a point
+            outside its crop as a collision).
 
         Returns
         -------
@@ -171,6 +174,8 @@ class ReferenceComparison:
         t0 = time.perf_counter()
         obstacles = case.voxel_obstacles(needle_diameter_mm=self.needle["needle_diameter_mm"])
         points = [s.world_T_tip[:3, 3] for s in case.starts] + [case.targets_mm["target"]]
+        if extra_points_mm is not None:
+            points += list(np.asarray(extra_points_mm, dtype=float).reshape(-1, 3))
         path = self.work_dir / f"P{patient}_obstacles.txt"
         info = write_obstacle_file(path, obstacles.occupancy, obstacles.affine, np.array(points))
         self.obstacle_files[patient] = path
@@ -184,7 +189,7 @@ class ReferenceComparison:
         )
 
     def compare(self, patient: int, start: int, world_T_tip, target_mm, r_min_mm: float,
-                solve: Callable[[float], Any]):  # fmt: skip
+                solve: Callable[[float], Any], sample: int | None = None):  # fmt: skip
         """Run one case with both planners, in this case's order, and record it.
 
         Parameters
@@ -196,14 +201,17 @@ class ReferenceComparison:
         solve : callable
             ``solve(time_limit_s) -> PlanResult``: needlekit's ``rcs_star`` on this case.
             The first call of a session is a warm-up (:data:`WARM_UP_S`, not recorded).
+        sample : int, optional
+            The number of a sampled target (in the case's folder name and its row).
 
         Returns
         -------
         PlanResult
             needlekit's result of the recorded run.
         """
+        tag = "" if sample is None else f"_t{sample}"
         folder = write_case_folder(
-            self.work_dir / f"P{patient}_s{start}_r{r_min_mm:g}",
+            self.work_dir / f"P{patient}_s{start}{tag}_r{r_min_mm:g}",
             self.obstacle_files[patient],
             world_T_tip,
             target_mm,
@@ -215,7 +223,10 @@ class ReferenceComparison:
             self.warm_up = {"wall_s": time.perf_counter() - t0, "loadavg": _load()}
         order = ("app", "needlekit") if len(self.rows) % 2 == 0 else ("needlekit", "app")
         row: dict[str, Any] = {"patient": patient, "start": start, "r_min_mm": float(r_min_mm),
+                               "target_mm": [float(v) for v in np.asarray(target_mm).reshape(3)],
                                "order": "+".join(order)}  # fmt: skip
+        if sample is not None:
+            row["sample"] = int(sample)
         result = None
         for who in order:
             load = _load()
@@ -236,7 +247,8 @@ class ReferenceComparison:
         dict
             ``inputs`` (app, arguments, work folder, budget, crop and shell), ``patients``
             (each obstacle file: crop, voxel counts, time to write), ``warm_up``, ``rows``
-            (one per case: ``order``, ``app`` and ``needlekit`` figures with ``loadavg``,
+            (one per case: ``target_mm``, ``sample`` for a sampled target, ``order``,
+            ``app`` and ``needlekit`` figures with ``loadavg``,
             ``verdicts_agree``, ``cost_difference_mm`` and the ``ratio_*`` figures) and
             ``summary`` (:func:`comparison_summary`).
         """
@@ -266,7 +278,8 @@ def _median(values: list[float]) -> dict[str, Any] | None:
 
 
 def _case_name(row: dict[str, Any]) -> str:
-    return f"P{row['patient']} s{row['start']} r{row['r_min_mm']:g}"
+    sample = f" t{row['sample']}" if row.get("sample") is not None else ""
+    return f"P{row['patient']} s{row['start']}{sample} r{row['r_min_mm']:g}"
 
 
 def comparison_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:

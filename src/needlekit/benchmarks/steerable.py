@@ -20,6 +20,12 @@ import numpy as np
 
 from needlekit.benchmarks.reference_app import check_reference_app
 from needlekit.benchmarks.reference_comparison import ReferenceComparison
+from needlekit.benchmarks.target_screening import (
+    SAMPLE_CONE_DEG,
+    SAMPLE_DISTANCE_MM,
+    screening_summary,
+)
+from needlekit.benchmarks.target_screening import sample_targets as draw_targets
 from needlekit.constants import (
     DEFAULT_GOAL_TOLERANCE_MM,
     DEFAULT_MAX_HEADING_CHANGE_DEG,
@@ -77,7 +83,7 @@ def _row(res, **case) -> dict:
     }
 
 
-def medrad_lung_problem(case, start: str, r_min_mm: float):
+def medrad_lung_problem(case, start: str, r_min_mm: float, target_mm=None):
     """The benchmark's problem for one Med-RAD lung start, built the way a scenario file
     with that case, start, target and needle is (:func:`needlekit.scenario.problems.problem_from_scenario`).
 
@@ -87,6 +93,8 @@ def medrad_lung_problem(case, start: str, r_min_mm: float):
     start : str
         ``"start1"`` ...
     r_min_mm : float
+    target_mm : array_like, shape (3,), optional
+        The goal (RAS mm; default: the case's own ``target``).
 
     Returns
     -------
@@ -107,7 +115,11 @@ def medrad_lung_problem(case, start: str, r_min_mm: float):
             start_exclusion_mm=BENCH_NEEDLE["start_exclusion_mm"],
         ),
         start=StartSpec(s.world_T_tip[:3, 3].copy(), s.world_T_tip, start),
-        goal=GoalSpec(case.targets_mm["target"], BENCH_NEEDLE["goal_tolerance_mm"], "target"),
+        goal=GoalSpec(
+            case.targets_mm["target"] if target_mm is None else np.asarray(target_mm, float),
+            BENCH_NEEDLE["goal_tolerance_mm"],
+            "target",
+        ),
         base=case,
         collision_model="voxel_centres",
     )
@@ -134,6 +146,8 @@ def run_steerable_benchmark(
     scenarios: Sequence = (),
     reference_app=None,
     reference_work=None,
+    sample_targets: int = 0,
+    target_seed: int = 0,
 ) -> dict[str, Any]:
     """Run the planners on every case and record status, cost and time.
 
@@ -160,6 +174,13 @@ def run_steerable_benchmark(
         and the app's 1 s budget). Checked before any work.
     reference_work : path-like, optional
         Where the app's case folders go (default: a temporary folder, removed at the end).
+    sample_targets : int
+        With ``reference_app``: instead of each patient's own target, this many targets
+        drawn in its lung ahead of its starts
+        (:func:`needlekit.benchmarks.target_screening.sample_targets`, seed ``target_seed``),
+        each a case per r_min; the obstacle file's crop covers them. 0: the own target.
+    target_seed : int
+        Seed of the sampled targets.
 
     Returns
     -------
@@ -173,7 +194,11 @@ def run_steerable_benchmark(
         microseconds) and ``summary`` (per planner: median time to a certified plan and
         median time per iteration, worst time of infeasible answers, largest overrun;
         agreement with the reference). With ``reference_app`` also ``reference_app``
-        (:meth:`~needlekit.benchmarks.reference_comparison.ReferenceComparison.record`).
+        (:meth:`~needlekit.benchmarks.reference_comparison.ReferenceComparison.record`);
+        with ``sample_targets`` the rows also carry ``sample`` and ``target_mm``, and
+        ``reference_app`` also holds ``samples`` (per patient, what
+        :func:`~needlekit.benchmarks.target_screening.sample_targets` drew) and
+        ``screening`` (:func:`~needlekit.benchmarks.target_screening.screening_summary`).
     """
     from needlekit.io.medrad import load_medrad
     from needlekit.planning.steerable.solve import solve
@@ -181,22 +206,35 @@ def run_steerable_benchmark(
     def run(problem, planner, budget_s=time_limit_s):
         return solve(problem, planner, time_limit_s=budget_s, seed=0)
 
+    _check_sampling(sample_targets, reference_app)
     with ExitStack() as stack:
         reference = None
         if reference_app is not None:  # checked before any work
             reference = _reference(reference_app, reference_work, planners, time_limit_s, stack)
-        rows, fields = [], []
+        rows, fields, samples = [], [], {}
         for patient in patients:
             t0 = time.perf_counter()
             case = load_medrad("lung", patient, medrad_dir)
             fields.append(
                 {"patient": patient, **case.timings_s, "total_s": time.perf_counter() - t0}
             )
+            drawn = None
+            if sample_targets:
+                t0 = time.perf_counter()
+                drawn = draw_targets(
+                    case, sample_targets, target_seed,
+                    needle_diameter_mm=BENCH_NEEDLE["needle_diameter_mm"],
+                )  # fmt: skip
+                samples[str(patient)] = {"sample_s": time.perf_counter() - t0, "targets": drawn}
             if reference is not None:
-                reference.add_patient(patient, case)
-            rows += _patient_rows(case, radii_mm, planners, run, reference, progress)
+                extra = None if drawn is None else [d["target_mm"] for d in drawn]
+                reference.add_patient(patient, case, extra)
+            rows += _patient_rows(case, radii_mm, planners, run, reference, progress, drawn)
             del case
         comparison = None if reference is None else reference.record()
+        if comparison is not None and sample_targets:
+            comparison["samples"] = samples
+            comparison["screening"] = screening_summary(comparison["rows"])
     for path in scenarios:
         _, problem = load_problem(path)
         for planner in planners:
@@ -218,6 +256,10 @@ def run_steerable_benchmark(
             "scenarios": [str(p) for p in scenarios],
             "time_limit_s": time_limit_s,
             **BENCH_NEEDLE,
+            "sample_targets": int(sample_targets),
+            "target_seed": int(target_seed) if sample_targets else None,
+            "sample_distance_mm": list(SAMPLE_DISTANCE_MM) if sample_targets else None,
+            "sample_cone_deg": SAMPLE_CONE_DEG if sample_targets else None,
             "medrad_collision_model": "voxel_centres: exact distance to obstacle voxel "
             "centres (radius + half voxel diagonal); scenario cases use their own",
         },
@@ -225,6 +267,23 @@ def run_steerable_benchmark(
         "results": rows,
         "summary": _summary(rows),
     } | ({} if comparison is None else {"reference_app": comparison})
+
+
+def _check_sampling(sample_targets, reference_app) -> None:
+    """``--sample-targets``: a whole number >= 0, and only beside the reference app."""
+    if (
+        not isinstance(sample_targets, (int, np.integer))
+        or isinstance(sample_targets, bool)
+        or sample_targets < 0
+    ):
+        raise InvalidInputError(
+            "--sample-targets", f"expected a whole number >= 0, got {sample_targets!r}"
+        )
+    if sample_targets and reference_app is None:
+        raise InvalidInputError(
+            "--sample-targets",
+            "screens sampled targets beside the reference app: give --reference-app too",
+        )
 
 
 def _reference(app, work, planners, time_limit_s, stack: ExitStack):
@@ -240,36 +299,49 @@ def _reference(app, work, planners, time_limit_s, stack: ExitStack):
     return ReferenceComparison(app, work, BENCH_NEEDLE, time_limit_s)
 
 
-def _patient_rows(case, radii_mm, planners, run, reference, progress) -> list[dict]:
-    """One patient's rows: every start x r_min x planner (``rcs_star`` beside the app when
-    ``reference`` is given)."""
-    rows = []
+def _cases(case, drawn) -> list[tuple[str, int, np.ndarray, int | None]]:
+    """(start name, start number, target, sample) of a patient's cases: every start against
+    its own target, or the sampled targets each with its start."""
+    if drawn is not None:
+        return [(d["start_name"], d["start"], np.asarray(d["target_mm"], float), d["sample"])
+                for d in drawn]  # fmt: skip
     target = np.asarray(case.targets_mm["target"], dtype=float)
-    for s in case.starts:
-        start = int(s.name.removeprefix("start"))
+    return [(s.name, int(s.name.removeprefix("start")), target, None) for s in case.starts]
+
+
+def _patient_rows(case, radii_mm, planners, run, reference, progress, drawn=None) -> list[dict]:
+    """One patient's rows: every case x r_min x planner (``rcs_star`` beside the app when
+    ``reference`` is given); the cases are the starts against the patient's target, or
+    the ``drawn`` targets (:func:`~needlekit.benchmarks.target_screening.sample_targets`)."""
+    rows = []
+    for name, start, target, sample in _cases(case, drawn):
+        pose = case.start(name).world_T_tip
         for r in radii_mm:
-            problem = medrad_lung_problem(case, s.name, r)
+            problem = medrad_lung_problem(case, name, r, target)
             for planner in planners:
                 if reference is not None and planner == "rcs_star":
                     res = reference.compare(
-                        case.patient, start, s.world_T_tip, target, r,
-                        lambda budget, p=problem: run(p, "rcs_star", budget),
+                        case.patient, start, pose, target, r,
+                        lambda budget, p=problem: run(p, "rcs_star", budget), sample,
                     )  # fmt: skip
                 else:
                     res = run(problem, planner)
                 ref = (
                     REFERENCE_LUNG1.get((start, int(r)))
-                    if case.patient == 1 and planner == "rcs_star"
+                    if case.patient == 1 and planner == "rcs_star" and sample is None
                     else "n/a"
                 )
+                extra = {} if sample is None else {"sample": sample, "target_mm": target.tolist()}
                 rows.append(
-                    _row(res, patient=case.patient, start=start, r_min_mm=float(r))
+                    _row(res, patient=case.patient, start=start, r_min_mm=float(r), **extra)
                     | {"collision_model": problem.collision_model}
                     | {"reference_cost_mm": ref}
                 )
                 if progress is not None:
+                    tag = "" if sample is None else f" target {sample}"
                     progress(
-                        f"lung {case.patient} start {start} r {r:g} {planner}: {res.status.value}"
+                        f"lung {case.patient} start {start}{tag} r {r:g} {planner}: "
+                        f"{res.status.value}"
                     )
     return rows
 

@@ -9,7 +9,7 @@ from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK, _Parser, _positive, _positive_int, _seed
 from needlekit.cli._paths import add_input
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
-from needlekit.errors import NeedlekitError
+from needlekit.errors import InvalidInputError, NeedlekitError
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -25,6 +25,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from needlekit.benchmarks.reference_comparison import format_comparison
 
         print(format_comparison(record["reference_app"]))
+        if "screening" in record["reference_app"]:
+            import sys
+
+            from needlekit.benchmarks.target_screening import format_screening
+
+            screening = record["reference_app"]["screening"]
+            print(format_screening(screening))
+            for case in screening["unsound"]:  # loudly, on stderr too
+                print(f"SOUNDNESS BUG: {case['case']} target {case['target_mm']}: needlekit "
+                      f"infeasible, the app {case['app_status']}", file=sys.stderr)  # fmt: skip
     return EXIT_OK
 
 
@@ -67,7 +77,17 @@ def _steerable(args: argparse.Namespace) -> dict:
     from needlekit.benchmarks.steerable import run_steerable_benchmark
 
     patients = tuple(p for p in args.patients if p != 0)
-    total = (len(patients) * 5 * len(args.radii) + len(args.scenario)) * len(args.planners)
+    if args.sample_targets is None and args.target_seed is not None:
+        raise InvalidInputError("--target-seed", "seeds --sample-targets: give that too")
+    if args.sample_targets is not None and args.reference_app is None:
+        raise InvalidInputError(
+            "--sample-targets",
+            "screens sampled targets beside the reference app: give --reference-app too",
+        )
+    per_patient = args.sample_targets or 5
+    total = (len(patients) * per_patient * len(args.radii) + len(args.scenario)) * len(
+        args.planners
+    )
     with tqdm(total=total, desc="bench steerable", unit="case", disable=None) as bar:
         record = run_steerable_benchmark(
             patients=patients,
@@ -78,14 +98,18 @@ def _steerable(args: argparse.Namespace) -> dict:
             scenarios=tuple(args.scenario),
             reference_app=args.reference_app,
             reference_work=args.reference_work,
+            sample_targets=args.sample_targets or 0,
+            target_seed=args.target_seed or 0,
             progress=lambda msg: (bar.set_postfix_str(msg, refresh=False), bar.update(1)),
         )
     for row in record["results"]:
         cost = "-" if row["cost_mm"] is None else f"{row['cost_mm']:.4f}"
+        sample = f" t{row['sample']}" if "sample" in row else ""
         row["name"] = (
             f"{row['scenario']} {row['planner']}"
             if "scenario" in row
-            else f"lung{row['patient']} s{row['start']} r{row['r_min_mm']:g} {row['planner']}"
+            else f"lung{row['patient']} s{row['start']}{sample} r{row['r_min_mm']:g} "
+            f"{row['planner']}"
         )
         row["summary"] = (
             f"{row['status']:<10} {cost:>9} mm {1000 * row['time_s']:8.1f} ms"
@@ -264,6 +288,21 @@ def _register_steerable(bench_sub) -> None:
         type=Path,
         metavar="DIR",
         help="folder for the reference app's case files (default: a temporary folder)",
+    )
+    bs.add_argument(
+        "--sample-targets",
+        type=_positive_int,
+        metavar="N",
+        help="with --reference-app: instead of each patient's own target, N targets drawn "
+        "in its lung (free voxels 35-90 mm ahead of a random start, within 90 deg of its "
+        "direction, clear for the 1 mm needle), each run by both beside each other; the "
+        "summary counts the app's 'not connected' refusals and needlekit's answers to them",
+    )
+    bs.add_argument(
+        "--target-seed",
+        type=_seed,
+        metavar="S",
+        help="seed of the sampled targets (numpy default_rng; default 0)",
     )
 
 
