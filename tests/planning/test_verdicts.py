@@ -463,8 +463,9 @@ _LUNG1_SEALED = [
     (2, [115.2144716035016, 151.41531942429202, 1181.6688017578572]),
     (3, [90.63070592903479, 173.79176685473982, 1167.069244538841]),
     (5, [48.254392417071614, 209.70823312612774, 1232.7625326090133]),
-    # from `needlekit bench steerable --patients 1 --radii 50 --reference-app ...
-    # --sample-targets 120 --target-seed 0` (docs/steerable.md): targets 11, 15, 16, 105, 117
+    # from `needlekit bench steerable --patients 1 --radii 50 --planners rcs_star
+    # --reference-app PATH --sample-targets 120` (docs/steerable.md): targets 11, 15, 16,
+    # 105, 117 (target 37 the reference also refuses; no proof here, nor any plan found)
     (4, [66.86444091796875, 208.0142059326172, 1287.3471043109894]),
     (1, [87.24334716796875, 184.8813934326172, 1285.947065114975]),
     (1, [113.68084716796875, 150.1821746826172, 1194.9445173740387]),
