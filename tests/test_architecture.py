@@ -78,6 +78,16 @@ def _resolve(name: str, known: dict[str, Path]) -> str | None:
     return None
 
 
+def _from_module(mod: str, is_pkg: bool, node: ast.ImportFrom) -> str:
+    """The absolute module a ``from ... import`` of module ``mod`` names (relative ones
+    resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def _imports(mod: str, path: Path, known: dict[str, Path]) -> list[tuple[str, int]]:
     """(module imported, line) for every needlekit import of a module, at any depth."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
@@ -87,12 +97,7 @@ def _imports(mod: str, path: Path, known: dict[str, Path]) -> list[tuple[str, in
         if isinstance(node, ast.Import):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                prefix = ".".join(base + ([node.module] if node.module else []))
-            else:
-                prefix = node.module or ""
+            prefix = _from_module(mod, is_pkg, node)
             names = [f"{prefix}.{a.name}" if a.name != "*" else prefix for a in node.names]
         else:
             continue
@@ -231,12 +236,7 @@ def _split_imports(mod: str, path: Path, known: dict[str, Path]):
         if isinstance(node, ast.Import):
             raw = [a.name for a in node.names]
         else:
-            if node.level:
-                base = mod.split(".") if is_pkg else mod.split(".")[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                prefix = ".".join(base + ([node.module] if node.module else []))
-            else:
-                prefix = node.module or ""
+            prefix = _from_module(mod, is_pkg, node)
             raw = [prefix] + [f"{prefix}.{a.name}" for a in node.names if a.name != "*"]
         out = set()
         for name in raw:
