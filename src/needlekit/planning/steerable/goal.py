@@ -23,13 +23,15 @@ import numpy as np
 from needlekit._validation import as_points, as_poses, as_positive
 from needlekit.constants import ON_AXIS_TOL_MM
 from needlekit.errors import InvalidInputError
-from needlekit.needle.reachability import shortest_arc_line
+from needlekit.needle.reachability import shortest_arc_line_unchecked
 
 __all__ = [
     "GoalConnection",
     "connection_length_unchecked",
     "goal_connection",
+    "goal_connection_unchecked",
     "single_arc_connection",
+    "single_arc_connection_unchecked",
 ]
 
 
@@ -90,7 +92,27 @@ def goal_connection(
     tau = float(tolerance_mm)
     if not (np.isfinite(tau) and tau >= 0):
         raise InvalidInputError("tolerance_mm", f"must be a finite number >= 0, got {tolerance_mm}")
-    path = shortest_arc_line(g[0], p[0], r)
+    return goal_connection_unchecked(g[0], p[0], r, tau)
+
+
+def goal_connection_unchecked(
+    pose: np.ndarray, goal: np.ndarray, r: float, tau: float
+) -> GoalConnection | None:
+    """:func:`goal_connection` without its checks, for a search's inner loop: ``pose`` a
+    valid (4, 4) float64 pose, ``goal`` float64 of shape (3,), ``r`` > 0, ``tau`` >= 0.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4)
+    goal : ndarray, shape (3,)
+    r, tau : float
+
+    Returns
+    -------
+    GoalConnection or None
+    """
+    g, p = pose[None], goal[None]
+    path = shortest_arc_line_unchecked(pose, p, r)
     kappa = 1.0 / r
     spin = float(path.spin_rad[0])
     if path.reachable[0]:
@@ -175,8 +197,26 @@ def single_arc_connection(
     g, _ = as_poses(world_T_tip, "world_T_tip")
     p, _ = as_points(goal_mm, "goal_mm")
     r = as_positive(r_min_mm, "r_min_mm")
-    tau = float(tolerance_mm)
-    local = (p[0] - g[0, :3, 3]) @ g[0, :3, :3]
+    return single_arc_connection_unchecked(g[0], p[0], r, float(tolerance_mm))
+
+
+def single_arc_connection_unchecked(
+    pose: np.ndarray, goal: np.ndarray, r: float, tau: float
+) -> GoalConnection | None:
+    """:func:`single_arc_connection` without its checks, for a search's inner loop (the
+    arguments as :func:`goal_connection_unchecked` takes them).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (4, 4)
+    goal : ndarray, shape (3,)
+    r, tau : float
+
+    Returns
+    -------
+    GoalConnection or None
+    """
+    local = (goal - pose[:3, 3]) @ pose[:3, :3]
     axial = float(local[2])
     radial = float(np.hypot(local[0], local[1]))
     if axial < 0.0 and radial <= 1e-12:

@@ -53,8 +53,8 @@ from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import (
     connection_length_unchecked,
-    goal_connection,
-    single_arc_connection,
+    goal_connection_unchecked,
+    single_arc_connection_unchecked,
 )
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
@@ -379,7 +379,7 @@ def _search(
     kappa = problem.kappa_max_per_mm
     duplicates = _DuplicateIndex()
     n_duplicates = 0
-    connect = goal_connection if optimal else single_arc_connection
+    connect = goal_connection_unchecked if optimal else single_arc_connection_unchecked
     bound = problem.objective.lower_bound_per_mm
     scale = 0.0 if bound is None else float(bound)  # no bound: order by g, prune nothing
     prune = optimal and bound is not None

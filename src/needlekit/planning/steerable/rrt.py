@@ -28,7 +28,11 @@ from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
 from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
-from needlekit.planning.steerable.goal import goal_connection, single_arc_connection
+from needlekit.planning.steerable.goal import (
+    goal_connection_unchecked,
+    single_arc_connection,
+    single_arc_connection_unchecked,
+)
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
@@ -246,7 +250,9 @@ def _grow(
     if len(goals) == 0 or not np.all(np.isfinite(goals)):
         raise InvalidInputError("goals_mm", "expected one or more finite points (k, 3)")
     connection = options.connection
-    connect = goal_connection if connection == "arc_line" else single_arc_connection
+    connect = (
+        goal_connection_unchecked if connection == "arc_line" else single_arc_connection_unchecked
+    )
     rng = np.random.default_rng(options.seed)
     search = SteerableSearch(problem, termination, "rrt")
     run = search.run
