@@ -8,7 +8,10 @@ from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.geometry.se3 import se3_exp
 from needlekit.needle.reachability import (
+    arc_line_lengths_from,
+    arc_line_lengths_from_unchecked,
     is_reachable,
+    is_reachable_unchecked,
     lecture_reachability_condition,
     shortest_arc_line,
     single_arc_to,
@@ -148,6 +151,42 @@ def test_shortest_arc_line_path_reaches_the_point_from_any_pose():
         axial, radial = tip_coordinates(g, pts)
         inside = axial**2 + radial**2 < 2 * R_MIN * radial
         assert np.array_equal(~ok, inside)
+
+
+def test_unchecked_reachability_answers_as_the_checked_one():
+    """RRT's sampler calls the unchecked test: the same verdict as :func:`is_reachable` on
+    random points around random poses, on the boundary's exact cases (the normal plane, the
+    axis ahead and behind, the r_min circle) and on the lecture's example."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        g = _random_pose(rng)
+        pts = g[:3, 3] + rng.normal(0, 60, (50, 3))
+        want = is_reachable(g, pts, R_MIN)
+        got = [is_reachable_unchecked(g[:3, 3], g[:3, 2], p, R_MIN) for p in pts]
+        assert list(want) == got
+    eye = np.eye(4)
+    cases = {
+        (0.0, 0.0, 5.0): True,  # straight ahead
+        (0.0, 0.0, -5.0): False,  # straight behind
+        (0.0, 0.0, 0.0): True,  # the tip itself (zero-length arc)
+        (100.0, 0.0, 0.0): True,  # in the normal plane, at the half turn of r = 50
+        (99.0, 0.0, 0.0): False,  # ... and inside the circle
+        (10.0, 0.0, 30.0): True,  # on the r_min circle: radius exactly 50
+        (30.0, 0.0, 40.0): False,  # inside it (radius 41.7)
+        (0.0, 10.0, -1e-9): False,  # a hair behind the normal plane
+    }
+    for p, want in cases.items():
+        assert bool(is_reachable(eye, p, R_MIN)) is want, p
+        assert is_reachable_unchecked((0, 0, 0), (0, 0, 1), p, R_MIN) is want, p
+
+
+def test_unchecked_arc_line_lengths_equal_the_checked_ones_to_the_bit():
+    rng = np.random.default_rng(8)
+    poses = np.array([_random_pose(rng) for _ in range(40)])
+    for _ in range(20):
+        q = rng.normal(0, 80, 3)
+        want = arc_line_lengths_from(poses, q, R_MIN)
+        assert np.array_equal(arc_line_lengths_from_unchecked(poses, q, R_MIN), want)
 
 
 def test_bad_input():

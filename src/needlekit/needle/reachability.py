@@ -27,6 +27,7 @@ Arc then straight line
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ __all__ = [
     "ArcLinePath",
     "SingleArc",
     "is_reachable",
+    "is_reachable_unchecked",
     "lecture_reachability_condition",
     "shortest_arc_line",
     "shortest_arc_line_unchecked",
@@ -159,6 +161,43 @@ def is_reachable(world_T_tip, points, r_min_mm, *, max_turn_rad: float = np.pi):
     with np.errstate(invalid="ignore"):
         ok = (arc.radius_mm >= r_min) & (arc.turn_rad <= max_turn_rad)
     return ok[0] if np.ndim(axial) == 0 else ok
+
+
+def is_reachable_unchecked(origin, axis, point, r_min_mm: float) -> bool:
+    """:func:`is_reachable` for one point with the default ``max_turn_rad = pi``, without
+    input checks (the samplers' inner loops; checked entry points call it).
+
+    A single arc turning at most pi reaches points on or ahead of the tip's normal plane
+    (axial ``a >= 0``) whose arc radius ``(a^2 + rho^2) / (2 rho)`` is at least
+    ``r_min``, and every point straight ahead.
+
+    Parameters
+    ----------
+    origin, axis : sequence of float, length 3
+        The tip's position (mm) and unit insertion direction.
+    point : sequence of float, length 3
+    r_min_mm : float
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> is_reachable_unchecked((0, 0, 0), (0, 0, 1), (0, 10, 100), 50.0)
+    True
+    >>> is_reachable_unchecked((0, 0, 0), (0, 0, 1), (0, 40, 10), 50.0)
+    False
+    """
+    dx, dy, dz = point[0] - origin[0], point[1] - origin[1], point[2] - origin[2]
+    a = dx * axis[0] + dy * axis[1] + dz * axis[2]
+    if a < 0.0:  # behind the normal plane: the arc would turn more than pi
+        return False
+    rx, ry, rz = dx - a * axis[0], dy - a * axis[1], dz - a * axis[2]
+    rho = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if rho <= ON_AXIS_TOL_MM:
+        return True
+    return (a * a + rho * rho) / (2.0 * rho) >= r_min_mm
 
 
 def lecture_reachability_condition(points_tip, r_min_mm):
@@ -304,5 +343,23 @@ def arc_line_lengths_from(poses, point, r_min_mm) -> np.ndarray:
     r = as_positive(r_min_mm, "r_min_mm")
     g, _ = as_poses(poses, "poses")
     q, _ = as_points(point, "point")
-    local = np.einsum("nji,nj->ni", g[:, :3, :3], q[0] - g[:, :3, 3])
+    return arc_line_lengths_from_unchecked(g, q[0], r)
+
+
+def arc_line_lengths_from_unchecked(poses: np.ndarray, point: np.ndarray, r: float) -> np.ndarray:
+    """:func:`arc_line_lengths_from` without its checks, for a search's inner loop (RRT's
+    nearest node): ``poses`` valid float64 poses of shape (n, 4, 4), ``point`` float64 of
+    shape (3,), ``r`` > 0. The same arithmetic, so the same lengths to the bit.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (n, 4, 4)
+    point : ndarray, shape (3,)
+    r : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    local = np.einsum("nji,nj->ni", poses[:, :3, :3], point - poses[:, :3, 3])
     return _arc_line(local, r).length_mm

@@ -23,14 +23,16 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.arcs import propagate_arcs
-from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
+from needlekit.geometry.arcs import arc_end_unchecked
+from needlekit.needle.reachability import (
+    arc_line_lengths_from_unchecked,
+    is_reachable_unchecked,
+)
 from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import (
     goal_connection_unchecked,
-    single_arc_connection,
     single_arc_connection_unchecked,
 )
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -265,6 +267,7 @@ def _grow(
     open_goals = [i for i in range(k) if verdicts[i] is None]
     # the sampling region: the ball spanned by the start and the targets
     centre = 0.5 * (start[:3, 3] + goals.mean(axis=0))
+    origin, axis = start[:3, 3].tolist(), start[:3, 2].tolist()
     radius = (
         0.5 * np.linalg.norm(goals.mean(axis=0) - start[:3, 3])
         + np.linalg.norm(goals - goals.mean(axis=0), axis=1).max()
@@ -272,6 +275,8 @@ def _grow(
     )
 
     poses = [start]
+    tree = np.empty((64, 4, 4))
+    tree[0] = start
     parents = [-1]
     prims = [np.zeros(3)]
     costs = [0.0]
@@ -317,7 +322,7 @@ def _grow(
         for _ in range(MAX_SAMPLE_TRIES):
             d = rng.normal(size=3)
             p = centre + radius * rng.random() ** (1 / 3) * d / np.linalg.norm(d)
-            if is_reachable(start, p, r):
+            if is_reachable_unchecked(origin, axis, p.tolist(), r):
                 return p
         return None
 
@@ -328,8 +333,8 @@ def _grow(
         q = sample()
         if q is None:
             continue
-        near = int(np.argmin(arc_line_lengths_from(np.array(poses), q, r)))
-        ext = single_arc_connection(poses[near], q, r, math.inf)
+        near = int(np.argmin(arc_line_lengths_from_unchecked(tree[: len(poses)], q, r)))
+        ext = single_arc_connection_unchecked(poses[near], q, r, math.inf)
         if ext is None:
             continue
         spin, kap, length = ext.primitives[0]
@@ -337,7 +342,10 @@ def _grow(
             continue
         if not validator.motion_valid(poses[near], spin, kap, length):
             continue
-        new_pose = propagate_arcs(poses[near], spin, kap, length)
+        new_pose = arc_end_unchecked(poses[near], spin, kap, length)
+        if len(poses) == tree.shape[0]:  # the poses as one array, grown by doubling
+            tree = np.concatenate([tree, np.empty_like(tree)])
+        tree[len(poses)] = new_pose
         poses.append(new_pose)
         parents.append(near)
         prims.append(np.array([spin, kap, length]))
