@@ -1,8 +1,11 @@
 """Budgets hold on a fresh machine: no numba compilation happens inside a planner's clock.
 
-In a fresh process with an empty numba cache, every kernel a search calls must already be
-compiled (or loaded) by the warm-up that runs before the clock starts: the dispatchers'
-signatures are counted when the clock starts and when the search ends.
+In a fresh process, every kernel a search calls must already be compiled (or loaded) by the
+warm-up that runs before the clock starts: the dispatchers' signatures are counted when the
+clock starts and when the search ends. A kernel first called inside the clock adds a
+signature whether numba compiles it there or loads it from its on-disk cache, so the probe
+uses the cache the suite already has (`make install` fills it): with an empty cache each
+probe spent 10-25 s compiling every kernel again, for the same verdict.
 """
 
 import json
@@ -82,7 +85,6 @@ print(json.dumps(report))
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario", ["toy.yaml", "lung_phantom.yaml", "voxels"])
 def test_a_fresh_process_compiles_nothing_inside_the_planner_clock(scenario, tmp_path):
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}  # an empty cache
     proc = subprocess.run(
         [
             sys.executable,
@@ -90,7 +92,6 @@ def test_a_fresh_process_compiles_nothing_inside_the_planner_clock(scenario, tmp
             PROBE,
             scenario if scenario == "voxels" else str(EXAMPLES / scenario),
         ],
-        env=env,
         capture_output=True,
         text=True,
         timeout=600,
