@@ -312,6 +312,78 @@ def test_a_pocket_open_toward_the_start_stays_connected():
     assert res.status is PlanStatus.SOLVED and res.cost_mm == pytest.approx(49.0, abs=1e-9)
 
 
+def _pinhole_problem(hole_voxels: int, needle_diameter_mm: float = 1.5):
+    """The pocket of :func:`_pocket_problem` opened toward the start by a square tunnel
+    ``hole_voxels`` wide (1 mm voxels). A 1.5 mm needle keeps 0.75 mm plus the voxels'
+    half-diagonal, 1.62 mm, from every obstacle centre: a tunnel one voxel wide leaves
+    1 mm, so no valid path enters; one five voxels wide leaves 2 mm."""
+    from needlekit.anatomy.occupancy import VoxelObstacles
+
+    idx = np.arange(-40, 41)
+    g = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).astype(float)
+    r = np.linalg.norm(g - [0.0, 0.0, 20.0], axis=-1)
+    occ = (r >= 8.0) & (r <= 10.0)
+    half = hole_voxels // 2
+    tunnel = (np.abs(g[..., 0]) <= half) & (np.abs(g[..., 1]) <= half) & (g[..., 2] < 20.0)
+    occ &= ~tunnel
+    affine = np.eye(4)
+    affine[:3, 3] = -40.0
+    scene = Scene([Structure("body", Role.ALLOWED_REGION, Sphere([0, 0, 0], 100.0))])
+    start = np.eye(4)
+    start[:3, 3] = [0.0, 0.0, -30.0]
+    obstacles = VoxelObstacles(occ, affine, needle_diameter_mm=needle_diameter_mm)
+    return SteerableProblem(scene, goal_mm=[0.0, 0.0, 20.0], start_pose=start,
+                            collision_model="voxel_centres", voxel_obstacles=obstacles,
+                            needle_diameter_mm=needle_diameter_mm)  # fmt: skip
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_a_pinhole_the_needle_cannot_pass_is_sealed_by_the_finer_cells(planner):
+    # the voxels' own fill passes the one-voxel tunnel (its centres keep 1 mm, more than
+    # the 0.73 mm a voxel centre must keep); cells half a voxel wide must keep 1.16 mm and
+    # close it. The search runs the finer proof once it has found nothing for a while.
+    p = _pinhole_problem(1)
+    limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
+              "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
+    assert _connected(p, **limits) is True
+    assert _connected(p, subdivide=2, **limits) is False
+    res = solve(p, planner, time_limit_s=60.0)
+    assert res.status is PlanStatus.INFEASIBLE, (res.status, res.stats.get("reason"))
+    assert "cells half a voxel wide" in res.stats["reason"]
+    assert res.stats["iterations"] > 0  # found during the search, not before it
+
+
+def test_a_tunnel_the_needle_can_pass_stays_connected_at_every_cell_size():
+    p = _pinhole_problem(5)
+    limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
+              "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
+    assert [_connected(p, subdivide=f, **limits) for f in (1, 2, 3)] == [True] * 3
+    res = solve(p, "rcs_star", time_limit_s=60.0, max_iterations=2000)
+    assert res.status is PlanStatus.SOLVED and res.cost_mm == pytest.approx(49.0, abs=1e-9)
+
+
+def test_finer_cells_are_free_exactly_where_brute_force_says():
+    # _free at a finer cell's index coordinates (between voxel centres) against the
+    # distances to every obstacle centre outside the start exclusion
+    from needlekit.anatomy.occupancy import voxel_centre
+    from needlekit.anatomy.voxel_connectivity import _free
+
+    rng = np.random.default_rng(5)
+    occ = rng.random((12, 11, 10)) < 0.08
+    affine = np.diag([0.55, 0.6, 0.7, 1.0])
+    affine[:3, 3] = [3.0, -2.0, 1.0]
+    centres = np.argwhere(occ) @ affine[:3, :3].T + affine[:3, 3]
+    start, excl = centres[0] + 0.1, 0.8
+    kept = centres[np.linalg.norm(centres - start, axis=1) >= excl]
+    for f in (2, 3):
+        for _ in range(400):
+            ijk = rng.integers(0, (np.array(occ.shape) - 1) * f + 1) / f
+            x = np.array(voxel_centre(affine, *ijk))
+            free_r = rng.uniform(0.2, 1.5)
+            want = bool(np.all(np.linalg.norm(kept - x, axis=1) >= free_r))
+            assert _free(occ, affine, *ijk, start, excl, free_r) is want
+
+
 @pytest.mark.parametrize("opening", ["near", "far", "none"])
 def test_the_reached_set_kinds_agree(opening):
     # the fills keep a hash set while small and a flag per voxel after DENSE_AFTER: the
@@ -354,11 +426,14 @@ def _random_path(rng, r_min, step=0.02, length=120.0):
     return np.array(pts)
 
 
-def test_every_point_of_a_valid_path_lies_in_the_region():
+@pytest.mark.parametrize("subdivide", [1, 2])
+def test_every_point_of_a_valid_path_lies_in_the_region(subdivide):
+    # subdivide 2: the finer proof's cells, half a voxel wide, whose half-diagonal h the
+    # region is grown by
     from needlekit.anatomy.voxel_connectivity import _in_region, _region
 
     rng = np.random.default_rng(7)
-    spacing = np.array([0.55, 0.55, 0.7])
+    spacing = np.array([0.55, 0.55, 0.7]) / subdivide
     h = 0.5 * float(np.linalg.norm(spacing))
     d = np.array([0.0, 0.0, 1.0])
     for r_min in (20.0, 50.0, 100.0):
@@ -465,7 +540,7 @@ _LUNG1_SEALED = [
     (5, [48.254392417071614, 209.70823312612774, 1232.7625326090133]),
     # from `needlekit bench steerable --patients 1 --radii 50 --planners rcs_star
     # --reference-app PATH --sample-targets 120` (docs/steerable.md): targets 11, 15, 16,
-    # 105, 117 (target 37 the reference also refuses; no proof here, nor any plan found)
+    # 105, 117 (target 37 the reference also refuses: the search's finer proof, below)
     (4, [66.86444091796875, 208.0142059326172, 1287.3471043109894]),
     (1, [87.24334716796875, 184.8813934326172, 1285.947065114975]),
     (1, [113.68084716796875, 150.1821746826172, 1194.9445173740387]),
@@ -491,3 +566,25 @@ def test_lung_targets_the_reference_finds_sealed_are_proved_infeasible(medrad_lu
     res = solve(p, "rcs_star", time_limit_s=30.0, max_iterations=1)
     assert res.status is PlanStatus.INFEASIBLE and res.stats["iterations"] == 0
     assert res.stats["reason"].startswith("reachable workspace is not connected to the goal")
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("planner", PLANNERS)
+def test_the_lung_target_only_finer_cells_seal_is_proved_infeasible(medrad_lung1, planner):
+    # target 37 of the screening (start 2, 80 mm ahead, 47 deg off the axis): the voxels'
+    # fill connects it (the start sits in gaps a voxel wide); cells half a voxel wide close
+    # the start in a few hundred cells
+    case = medrad_lung1
+    p = SteerableProblem(
+        case.scene, goal_mm=[48.69, 183.78, 1153.64], start_pose=case.start(2).world_T_tip,
+        r_min_mm=50.0, needle_diameter_mm=1.0, goal_tolerance_mm=1.0, max_length_mm=150.0,
+        max_heading_change_deg=90.0, start_exclusion_mm=3.0, collision_model="voxel_centres",
+        voxel_obstacles=case.voxel_obstacles(needle_diameter_mm=1.0),
+    )  # fmt: skip
+    limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
+              "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
+    assert _connected(p, **limits) is True
+    assert _connected(p, subdivide=2, **limits) is False
+    res = solve(p, planner, time_limit_s=30.0)
+    assert res.status is PlanStatus.INFEASIBLE, (res.status, res.stats.get("reason"))
+    assert "cells half a voxel wide" in res.stats["reason"]

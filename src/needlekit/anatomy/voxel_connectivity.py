@@ -51,7 +51,15 @@ samples by chords: a polyline from the start ``s`` to near the goal ``g``.
 
 So when no 6-connected chain of free voxels inside the grown region leads from the start's
 voxel to a free voxel within ``tau + h`` of the goal, no valid path exists:
-``INFEASIBLE``, proved. The reference's own region (the start's trumpet and a spindle toward
+``INFEASIBLE``, proved.
+
+Finer cells: nothing above needs the cells to be the voxels. With ``subdivide = f`` the
+cells are ``f`` times narrower along each axis, their centres at index coordinates
+``(I / f, J / f, K / f)`` (so cell ``(f i, f j, f k)`` is centred on voxel ``(i, j, k)``),
+and ``h`` is their half-diagonal, ``f`` times smaller: a free cell keeps ``m' - h / f``
+from the obstacle centres, which are still the voxels'. A gap one voxel wide, which a voxel
+centre passes with ``m' - h`` (0.47 mm for the 1 mm needle on a Med-RAD lung) although the
+needle needs ``m`` (1.02 mm), closes at ``f = 2`` (0.73 mm). The reference's own region (the start's trumpet and a spindle toward
 the goal) and its 6-connected fill over the obstacle-free voxels with no start exclusion are
 not such a proof; this module does not copy them.
 
@@ -75,6 +83,7 @@ import numpy as np
 from numba.extending import overload
 
 from needlekit.anatomy.occupancy import VoxelObstacles, box_half_widths, voxel_centre
+from needlekit.errors import InvalidInputError
 
 __all__ = ["goal_connected", "warm_up"]
 
@@ -186,13 +195,16 @@ def _inner_half_widths(affine, radius):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, inline="always")
 def _free(occ, affine, i, j, k, start, excl_r, free_r):  # pragma: no cover - compiled
-    """No obstacle centre (outside the start exclusion) closer than ``free_r``."""
+    """No obstacle centre (outside the start exclusion) closer than ``free_r`` to the point
+    at index coordinates ``(i, j, k)`` (a voxel centre, or a finer cell's between them)."""
     ni, nj, nk = occ.shape
     r0, r1, r2 = _inner_half_widths(affine, free_r)
     x, y, z = voxel_centre(affine, i, j, k)
-    for a in range(max(i - r0, 0), min(i + r0 + 1, ni)):
-        for b in range(max(j - r1, 0), min(j + r1 + 1, nj)):
-            for c in range(max(k - r2, 0), min(k + r2 + 1, nk)):
+    i0, j0, k0 = int(math.floor(i)) - r0, int(math.floor(j)) - r1, int(math.floor(k)) - r2
+    i1, j1, k1 = int(math.ceil(i)) + r0 + 1, int(math.ceil(j)) + r1 + 1, int(math.ceil(k)) + r2 + 1
+    for a in range(max(i0, 0), min(i1, ni)):
+        for b in range(max(j0, 0), min(j1, nj)):
+            for c in range(max(k0, 0), min(k1, nk)):
                 if not occ[a, b, c]:
                     continue
                 cx, cy, cz = voxel_centre(affine, a, b, c)
@@ -271,6 +283,14 @@ def _mark(state, a):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
+def _cells(occ, f):  # pragma: no cover - compiled
+    """The cell grid's shape: the voxels, or ``f`` cells to a voxel spacing along each axis
+    with the voxel centres among the cell centres."""
+    ni, nj, nk = occ.shape
+    return (ni - 1) * f + 1, (nj - 1) * f + 1, (nk - 1) * f + 1
+
+
+@numba.njit(cache=True, inline="always")
 def _step(affine):  # pragma: no cover - compiled
     return min(
         math.sqrt(affine[0, 0] ** 2 + affine[1, 0] ** 2 + affine[2, 0] ** 2),
@@ -281,14 +301,15 @@ def _step(affine):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _seed(
-    occ, affine, inv, start, d, goal, s_key, excl_r, free_r, reach, geo, from_goal
+    occ, affine, inv, start, d, goal, s_key, excl_r, free_r, reach, geo, f, from_goal
 ):  # pragma: no cover
-    """A fill's initial state: the start's voxel, or the free voxels of the region within
+    """A fill's initial state: the start's cell, or the free cells of the region within
     ``reach`` of the goal. The state: buckets (a list per step of distance to the fill's
-    target), the reached voxels (a hash set of linear indices), the queued voxels and the
-    next entry of their bucket, and (reached, queued, lowest bucket)."""
-    ni, nj, nk = occ.shape
-    step = _step(affine)
+    target), the reached cells (a hash set of linear indices), the queued cells and the
+    next entry of their bucket, and (reached, queued, lowest bucket). Cells: ``f`` to a
+    voxel spacing (:func:`_cells`)."""
+    ni, nj, nk = _cells(occ, f)
+    step = _step(affine) / f
     n_buckets = int(math.ceil(geo[0] / step)) + 2
     state = (
         np.full(n_buckets, -1, dtype=np.int64),
@@ -301,22 +322,24 @@ def _seed(
     if not from_goal:
         i, j, k = s_key // (nj * nk), (s_key // nk) % nj, s_key % nk
         _, state = _mark(state, s_key)
-        x, y, z = voxel_centre(affine, i, j, k)
+        x, y, z = voxel_centre(affine, i / f, j / f, k / f)
         return _push(state, x, y, z, s_key, target, step)
-    gi = int(round(inv[0, 0] * goal[0] + inv[0, 1] * goal[1] + inv[0, 2] * goal[2] + inv[0, 3]))
-    gj = int(round(inv[1, 0] * goal[0] + inv[1, 1] * goal[1] + inv[1, 2] * goal[2] + inv[1, 3]))
-    gk = int(round(inv[2, 0] * goal[0] + inv[2, 1] * goal[1] + inv[2, 2] * goal[2] + inv[2, 3]))
+    g0, g1, g2 = goal[0], goal[1], goal[2]
+    gi = int(round(f * (inv[0, 0] * g0 + inv[0, 1] * g1 + inv[0, 2] * g2 + inv[0, 3])))
+    gj = int(round(f * (inv[1, 0] * g0 + inv[1, 1] * g1 + inv[1, 2] * g2 + inv[1, 3])))
+    gk = int(round(f * (inv[2, 0] * g0 + inv[2, 1] * g1 + inv[2, 2] * g2 + inv[2, 3])))
     r0, r1, r2 = box_half_widths(affine, reach)
+    r0, r1, r2 = (r0 + 1) * f, (r1 + 1) * f, (r2 + 1) * f
     for i in range(max(gi - r0, 0), min(gi + r0 + 1, ni)):
         for j in range(max(gj - r1, 0), min(gj + r1 + 1, nj)):
             for k in range(max(gk - r2, 0), min(gk + r2 + 1, nk)):
                 a = (i * nj + j) * nk + k
-                x, y, z = voxel_centre(affine, i, j, k)
+                x, y, z = voxel_centre(affine, i / f, j / f, k / f)
                 if (x - goal[0]) ** 2 + (y - goal[1]) ** 2 + (z - goal[2]) ** 2 > reach * reach:
                     continue
                 if a != s_key and not (
                     _in_region(x, y, z, start, d, goal, geo)
-                    and _free(occ, affine, i, j, k, start, excl_r, free_r)
+                    and _free(occ, affine, i / f, j / f, k / f, start, excl_r, free_r)
                 ):
                     continue
                 _, state = _mark(state, a)
@@ -326,14 +349,14 @@ def _seed(
 
 @numba.njit(cache=True)
 def _fill(
-    occ, affine, start, d, goal, s_key, excl_r, free_r, reach, geo, from_goal, state, cap
+    occ, affine, start, d, goal, s_key, excl_r, free_r, reach, geo, f, from_goal, state, cap
 ):  # pragma: no cover
-    """Run one greedy best-first fill (6-connected, free voxels of the region) from its
-    state until it is done or has queued ``cap`` voxels: from the start it is done when it
-    pops a voxel within ``reach`` of the goal, from the goal when it pops the start's
-    voxel. Returns (connected / sealed / capped, state)."""
-    ni, nj, nk = occ.shape
-    step = _step(affine)
+    """Run one greedy best-first fill (6-connected, free cells of the region) from its
+    state until it is done or has queued ``cap`` cells: from the start it is done when it
+    pops a cell within ``reach`` of the goal, from the goal when it pops the start's
+    cell. Returns (connected / sealed / capped, state)."""
+    ni, nj, nk = _cells(occ, f)
+    step = _step(affine) / f
     target = start if from_goal else goal
     while state[4][2] < state[0].shape[0]:
         first, counts = state[0], state[4]
@@ -345,7 +368,7 @@ def _fill(
         first[low] = state[3][e]
         q = state[2][e]
         qi, qj, qk = q // (nj * nk), (q // nk) % nj, q % nk
-        x, y, z = voxel_centre(affine, qi, qj, qk)
+        x, y, z = voxel_centre(affine, qi / f, qj / f, qk / f)
         if from_goal and q == s_key:
             return _CONNECTED, state
         if (
@@ -358,18 +381,18 @@ def _fill(
             state[3][e] = first[low]
             first[low] = e
             return _CAPPED, state
-        for f in range(6):
-            ci, cj, ck = qi + _FACES[f, 0], qj + _FACES[f, 1], qk + _FACES[f, 2]
+        for face in range(6):
+            ci, cj, ck = qi + _FACES[face, 0], qj + _FACES[face, 1], qk + _FACES[face, 2]
             if ci < 0 or cj < 0 or ck < 0 or ci >= ni or cj >= nj or ck >= nk:
                 continue
             a = (ci * nj + cj) * nk + ck
             new, state = _mark_any(state, a)
             if not new:
                 continue
-            cx, cy, cz = voxel_centre(affine, ci, cj, ck)
+            cx, cy, cz = voxel_centre(affine, ci / f, cj / f, ck / f)
             if a != s_key and not (
                 _in_region(cx, cy, cz, start, d, goal, geo)
-                and _free(occ, affine, ci, cj, ck, start, excl_r, free_r)
+                and _free(occ, affine, ci / f, cj / f, ck / f, start, excl_r, free_r)
             ):
                 continue
             state = _push(state, cx, cy, cz, a, target, step)
@@ -389,6 +412,8 @@ def goal_connected(
     r_min_mm: float | None = None,
     max_heading_change_deg: float | None = None,
     dense_after: int = DENSE_AFTER,
+    subdivide: int = 1,
+    max_cells: int | None = None,
 ) -> tuple[bool | None, int]:
     """Whether free voxels connect the start to the goal (module notes).
 
@@ -411,25 +436,36 @@ def goal_connected(
     dense_after : int
         Reached voxels after which the fills flag voxels in an array over the grid instead
         of a hash set (:data:`DENSE_AFTER`; -1: from the start, as the warm-up runs it).
+        Finer cells always keep the hash set.
+    subdivide : int
+        Cells to a voxel spacing along each axis (module notes, finer cells): 1, the
+        voxels; 2, cells half as wide, whose smaller half-diagonal leaves more room for the
+        needle's clearance to seal narrow gaps.
+    max_cells : int, optional
+        Cells the two fills may queue before the answer is None (no limit by default).
 
     Returns
     -------
     connected : bool or None
         False proves that no valid path exists; None when the argument does not apply
-        (samples as far apart as the voxels, or a start outside the image).
+        (samples as far apart as the voxels, or a start outside the image) or the fills
+        reached ``max_cells``.
     visited : int
-        Voxels the two fills queued.
+        Cells the two fills queued.
     """
     if spacing_mm >= float(np.min(obstacles.spacing_mm)):
         return None, 0
     start = np.ascontiguousarray(start_mm, dtype=np.float64).reshape(3)
     goal = np.ascontiguousarray(goal_mm, dtype=np.float64).reshape(3)
-    shape = np.array(obstacles.occupancy.shape)
-    s_ijk = np.rint(obstacles.inv_affine[:3, :3] @ start + obstacles.inv_affine[:3, 3])
+    f = int(subdivide)
+    if f < 1:
+        raise InvalidInputError("subdivide", f"must be a whole number >= 1, got {subdivide}")
+    shape = (np.array(obstacles.occupancy.shape) - 1) * f + 1
+    s_ijk = np.rint(f * (obstacles.inv_affine[:3, :3] @ start + obstacles.inv_affine[:3, 3]))
     if np.any(s_ijk < 0) or np.any(s_ijk > shape - 1):
         return None, 0
     s_key = int((s_ijk[0] * shape[1] + s_ijk[1]) * shape[2] + s_ijk[2])
-    h, tau, m = obstacles.voxel_radius_mm, float(goal_tolerance_mm), obstacles.min_distance_mm
+    h, tau, m = obstacles.voxel_radius_mm / f, float(goal_tolerance_mm), obstacles.min_distance_mm
     half_gap2 = 0.25 * float(spacing_mm) ** 2
     free_r = math.sqrt(max(m * m - half_gap2, 0.0)) - h
     geo = _region(
@@ -439,17 +475,22 @@ def goal_connected(
     d = np.zeros(3) if start_direction is None else np.asarray(start_direction, dtype=np.float64)
     d = np.ascontiguousarray(d / max(float(np.linalg.norm(d)), 1e-300))
     occ, affine = obstacles.occupancy, obstacles.affine
-    args = (start, d, goal, s_key, float(exclusion_mm), float(free_r), float(tau + h), geo)
+    args = (start, d, goal, s_key, float(exclusion_mm), float(free_r), float(tau + h), geo, f)
     states = [_seed(occ, affine, obstacles.inv_affine, *args, side) for side in (False, True)]
     cap = FIRST_CAP
-    dense = False
+    dense = f > 1  # finer cells keep the hash set: a flag per cell would be f^3 the grid
+    limit = math.inf if max_cells is None else int(max_cells)
     while True:
+        if states[0][4][1] + states[1][4][1] > limit:
+            return None, int(states[0][4][1] + states[1][4][1])
         if not dense and states[0][4][0] + states[1][4][0] > dense_after:
             # numpy's zeros are the system's zeroed pages: only the touched ones cost
             states = [_to_dense(st, np.zeros(occ.size, np.uint8)) for st in states]
             dense = True
         for side in (0, 1):
-            status, states[side] = _fill(occ, affine, *args, bool(side), states[side], cap)
+            status, states[side] = _fill(
+                occ, affine, *args, bool(side), states[side], min(cap, limit)
+            )
             if status != _CAPPED:
                 return status == _CONNECTED, int(states[0][4][1] + states[1][4][1])
         cap *= 4

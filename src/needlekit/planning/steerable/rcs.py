@@ -415,22 +415,11 @@ def _search(
         g = parent.g + (
             length if length_cost else motion_cost(problem, parent.pose, spin, k, length)
         )
+        f = g + scale * h
         nodes.append(
-            _Node(
-                pose,
-                parent_idx,
-                g,
-                h,
-                parent.s + length,
-                rank,
-                curved,
-                li,
-                si,
-                set(),
-                g + scale * h,
-            )
+            _Node(pose, parent_idx, g, h, parent.s + length, rank, curved, li, si, set(), f)
         )
-        push_node(rank, nodes[-1].f, len(nodes) - 1)
+        push_node(rank, f, len(nodes) - 1)
 
     def expand(idx: int) -> None:
         for si in range(4):
@@ -476,6 +465,9 @@ def _search(
     try_goal(0)
     expand(0)
     while queue and run.keep_going():
+        if best_plan is None and search.late_due() and (late := search.late_verdict()):
+            stats = _stats(problem, optimal, prune, False, None, len(nodes), n_duplicates)
+            return search.result(late[0], reason=late[1], **stats)
         idx = pop()
         n = nodes[idx]
         parent = nodes[n.parent]

@@ -330,6 +330,12 @@ def _grow(
     try_goals(0)
     run.reason = "time limit"  # RRT never exhausts its space: it stops on its budget
     while open_goals and run.keep_going():
+        if search.late_due():  # the finer proof of sealed goals, once, if still unsolved
+            for i in [i for i in open_goals if best_plans[i] is None]:
+                verdicts[i] = search.late_verdict(None if single else goals[i])
+            open_goals[:] = [i for i in open_goals if verdicts[i] is None]
+            if not open_goals:
+                break
         q = sample()
         if q is None:
             continue

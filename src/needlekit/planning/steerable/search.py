@@ -21,6 +21,13 @@ Pre-checks, in order (each answers at once, before any search):
    within the region a path of length l_max can visit (``voxel_centres``:
    :func:`~needlekit.anatomy.voxel_connectivity.goal_connected`; the reference's
    "reachable workspace is not connected"): ``INFEASIBLE``.
+
+And once during the search:
+
+9. a search with no plan after :data:`LATE_PROOF_AFTER_S` asks the checker for its finer
+   proof (``voxel_centres``: the same fill over cells half a voxel wide, which seals gaps
+   of one voxel that the needle cannot pass; costlier on an open goal, so easy problems
+   never run it): ``INFEASIBLE``.
 """
 
 from __future__ import annotations
@@ -50,12 +57,16 @@ from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.validity import MotionValidator
 from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
-__all__ = ["SteerableSearch", "precheck"]
+__all__ = ["LATE_PROOF_AFTER_S", "SteerableSearch", "precheck"]
 
 log = logging.getLogger(__name__)
 
 #: Heading limits up to this (deg) make the set of reachable displacements a convex cone.
 CONVEX_HEADING_DEG: float = 90.0
+#: A search that has found no plan after this long (s) runs the collision checker's finer
+#: proof once (:meth:`SteerableSearch.late_verdict`): easy problems, solved sooner, never
+#: pay for it.
+LATE_PROOF_AFTER_S: float = 0.005
 
 
 def geometric_refusal(
@@ -226,8 +237,55 @@ class SteerableSearch:
         warm_up(problem, self.validator)  # compiling kernels is set-up, not search
         self.refused = 0
         self._last_check: tuple | None = None  # (plan, Verification) of the last candidate
+        self._late_done = False  # the finer proof has been asked for (late_due)
         self.setup_s = time.perf_counter() - t0
         self.run: SearchRun = termination.start()
+
+    def late_due(self) -> bool:
+        """True once, the first time it is asked after :data:`LATE_PROOF_AFTER_S` of
+        search: then the search calls :meth:`late_verdict` (for each goal it has not
+        solved).
+
+        Returns
+        -------
+        bool
+        """
+        if self._late_done or self.run.elapsed_s < LATE_PROOF_AFTER_S:
+            return False
+        self._late_done = True
+        return True
+
+    def late_verdict(self, goal_mm: np.ndarray | None = None) -> tuple[PlanStatus, str] | None:
+        """The collision checker's finer proof of a sealed goal (module notes, check 9),
+        which a search calls when :meth:`late_due` says so and it has found no plan.
+
+        Parameters
+        ----------
+        goal_mm : ndarray, shape (3,), optional
+            Another goal than the problem's (multi-target searches).
+
+        Returns
+        -------
+        (PlanStatus, str) or None
+            ``INFEASIBLE`` and the reason, or None.
+        """
+        p = self.problem
+        goal = p.goal_mm if goal_mm is None else goal_mm
+        connected = self.validator.checker.connected_finer(
+            goal,
+            max_length_mm=p.max_length_mm,
+            goal_tolerance_mm=p.goal_tolerance_mm,
+            start_direction=self.start[:3, 2],
+            r_min_mm=p.r_min_mm,
+            max_heading_change_deg=p.max_heading_change_deg,
+        )
+        if connected is False:
+            return (
+                PlanStatus.INFEASIBLE,
+                "reachable workspace is not connected to the goal: no chain of free cells "
+                "half a voxel wide leads there within the region a valid path can visit",
+            )
+        return None
 
     def check(self, plan: SteerablePlan, goal_mm: np.ndarray | None = None) -> bool:
         """Whether a candidate passes the independent check (counted and logged when not).
