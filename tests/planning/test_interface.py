@@ -250,3 +250,34 @@ def test_an_unknown_planner_is_refused_before_the_anatomy_loads(tmp_path, capsys
         err
         == "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt"
     )
+
+
+@pytest.mark.parametrize("planner", ["rcs_star", "rcs", "rrt"])
+def test_searches_pause_the_cyclic_collector_and_restore_it(planner):
+    # a full collection walks every live object: the search pauses the collector (its
+    # callback sees it off) and gives it back as it was, also when the search fails
+    import gc
+
+    _, problem = load_problem(EXAMPLES / "toy.yaml")
+    seen = []
+
+    def record(run):
+        seen.append(gc.isenabled())
+        return len(seen) >= 5
+
+    assert gc.isenabled()
+    solve(problem, planner, termination=Termination(60.0, 1000, callback=record))
+    assert seen and not any(seen) and gc.isenabled()
+    gc.disable()
+    try:
+        solve(problem, planner, termination=Termination(60.0, 1000, callback=record))
+        assert not gc.isenabled()  # left as the caller had it
+    finally:
+        gc.enable()
+
+    def fail(run):
+        raise RuntimeError("stop")
+
+    with pytest.raises(RuntimeError, match="stop"):
+        solve(problem, planner, termination=Termination(60.0, 1000, callback=fail))
+    assert gc.isenabled()

@@ -42,6 +42,8 @@ Example: a planner written outside needlekit
 
 from __future__ import annotations
 
+import functools
+import gc
 import logging
 import math
 import time
@@ -73,6 +75,7 @@ __all__ = [
     "SearchRun",
     "Termination",
     "check_planner_options",
+    "cyclic_gc_paused",
     "get_planner",
     "option_names",
     "options_from_mapping",
@@ -191,6 +194,38 @@ class Termination:
             f"Termination(time_limit_s={self.time_limit_s:g}, max_iterations={self.max_iterations}, "
             f"stop_at_first_solution={self.stop_at_first_solution})"
         )
+
+
+def cyclic_gc_paused(search: Callable) -> Callable:
+    r"""Run ``search`` with Python's cyclic garbage collector paused, then restore it.
+
+    A search allocates nodes by the hundred thousand, none in reference cycles (reference
+    counting frees them), yet each allocation counts toward the collector's next full pass,
+    which walks every live object: on a Med-RAD lung, RCS* for 1 s ran two to four such
+    passes of 90-120 ms each, and one begun near the deadline overran the budget by as much.
+    Garbage in cycles made during the search waits until it returns.
+
+    Parameters
+    ----------
+    search : callable
+
+    Returns
+    -------
+    callable
+        The same function, wrapped.
+    """
+
+    @functools.wraps(search)
+    def paused(*args, **kwargs):
+        enabled = gc.isenabled()
+        gc.disable()
+        try:
+            return search(*args, **kwargs)
+        finally:
+            if enabled:
+                gc.enable()
+
+    return paused
 
 
 class SearchRun:

@@ -47,7 +47,7 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
-from needlekit.planning.interface import Termination
+from needlekit.planning.interface import Termination, cyclic_gc_paused
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable._rcs_kernels import child_motion, se3_gap
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
@@ -359,6 +359,7 @@ class _RankQueue:
         return item[-1]
 
 
+@cyclic_gc_paused
 def _search(
     problem: SteerableProblem,
     termination: Termination,

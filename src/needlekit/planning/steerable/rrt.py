@@ -28,7 +28,7 @@ from needlekit.needle.reachability import (
     arc_line_lengths_from_unchecked,
     is_reachable_unchecked,
 )
-from needlekit.planning.interface import Termination
+from needlekit.planning.interface import Termination, cyclic_gc_paused
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.cost import chain_cost, motion_cost
 from needlekit.planning.steerable.goal import (
@@ -245,6 +245,7 @@ def solve_rrt_per_target(
     ]
 
 
+@cyclic_gc_paused
 def _grow(
     problem: SteerableProblem, goals_mm, termination: Termination, options: RRTOptions
 ) -> list[PlanResult]:
