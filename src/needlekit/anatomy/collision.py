@@ -127,6 +127,11 @@ class CollisionSetup:
 class CollisionChecker(Protocol):
     """What planners, the plan check and the moving-obstacle code ask of a collision model.
 
+    A checker may also define ``connected_finer(goal_mm, **limits) -> bool | None``, a
+    costlier proof than :meth:`connected` (the same arguments) which a search runs once
+    when it has found no plan after a few milliseconds; checkers without it are asked
+    nothing more (``voxel_centres`` fills cells half a voxel wide there).
+
     Attributes
     ----------
     name : str
@@ -206,24 +211,6 @@ class CollisionChecker(Protocol):
             False only with a proof that no valid path reaches the goal; None when the
             checker has no such argument.
         """
-
-    def connected_finer(self, goal_mm: np.ndarray, **limits) -> bool | None:
-        """A costlier proof that no free space connects the start to the goal, which a
-        search runs once when it has found nothing for a while (:meth:`connected`'s
-        arguments). By default the checker has none.
-
-        Parameters
-        ----------
-        goal_mm : ndarray, shape (3,)
-        **limits
-            As :meth:`connected` takes them.
-
-        Returns
-        -------
-        bool or None
-            False only with a proof that no valid path reaches the goal.
-        """
-        return None
 
     def warm_up(self) -> None:
         """Compile or load every kernel the checker's calls use.
@@ -417,7 +404,20 @@ class VoxelCentresChecker(CollisionChecker):
 
     def connected_finer(self, goal_mm, **limits) -> bool | None:
         """The same proof over cells half a voxel wide (``subdivide=2``), which seal gaps
-        one voxel wide that the needle cannot pass, up to :data:`FINER_MAX_CELLS` cells."""
+        one voxel wide that the needle cannot pass, up to :data:`FINER_MAX_CELLS` cells.
+
+        Parameters
+        ----------
+        goal_mm : ndarray, shape (3,)
+        **limits
+            As :meth:`connected` takes them.
+
+        Returns
+        -------
+        bool or None
+            False only with a proof that no valid path reaches the goal; None when the
+            fill could not tell within its cells.
+        """
         connected, _ = goal_connected(
             self.obstacles,
             self.start,

@@ -269,9 +269,12 @@ class SteerableSearch:
         (PlanStatus, str) or None
             ``INFEASIBLE`` and the reason, or None.
         """
+        finer = getattr(self.validator.checker, "connected_finer", None)
+        if finer is None:  # an optional method of the checker
+            return None
         p = self.problem
         goal = p.goal_mm if goal_mm is None else goal_mm
-        connected = self.validator.checker.connected_finer(
+        connected = finer(
             goal,
             max_length_mm=p.max_length_mm,
             goal_tolerance_mm=p.goal_tolerance_mm,
