@@ -9,7 +9,6 @@ probe spent 10-25 s compiling every kernel again, for the same verdict.
 """
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
