@@ -150,3 +150,95 @@ def exact_clearance():
     """:func:`check_exact_clearance`, for tests on phantoms (conftest modules are not
     importable under ``--import-mode=importlib``)."""
     return check_exact_clearance
+
+
+# -- pages in a real browser (headless Chromium; tests/test_browser.py and the study pages)
+
+CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
+#: The one console message allowed, and why: with software GL, Chromium's GPU process
+#: reports its own readback stalls (plotly.js reads pixels back to pick what is under the
+#: mouse); a real GPU does not, and no line of the page caused it.
+SOFTWARE_GL_NOTE = "GL Driver Message (OpenGL, Performance"
+#: After the page's plots report a layout and every 3D view has drawn: the time given to
+#: messages the last drawing may still log (the pages load nothing from the network).
+SETTLE_S = 0.5
+
+
+def _chromium():
+    if shutil.which(CHROMIUM) is None or shutil.which(CHROMEDRIVER) is None:
+        pytest.skip(f"no {CHROMIUM} and {CHROMEDRIVER}: `make browser` installs Debian's packages")
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium: pip install -e .[test]")
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    o = Options()
+    o.binary_location = CHROMIUM
+    for a in (
+        "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=1400,1000",
+    ):  # fmt: skip
+        o.add_argument(a)
+    o.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=o)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Chromium with software WebGL (SwiftShader), one per test module; skips,
+    saying why, where Chromium or its driver is missing (tests marked ``browser``)."""
+    d = _chromium()
+    yield d
+    d.quit()
+
+
+def _not_blank(png: bytes) -> bool:
+    import io
+
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(io.BytesIO(png), format="png")[..., :3]
+    colours = np.unique((img.reshape(-1, 3) * 255).astype(np.uint8), axis=0)
+    return len(colours) > 50 and float(img.std()) > 0.02
+
+
+def _shot(browser, canvas) -> bytes:
+    browser.execute_script("arguments[0].scrollIntoView()", canvas)
+    return canvas.screenshot_as_png
+
+
+@pytest.fixture
+def rendered(browser):
+    """``rendered(path, flat=False) -> (plots, pngs)``: open the page, wait up to 60 s for
+    its plots to be laid out and up to 20 s for every 3D view to draw, then check that it
+    has a 3D view (unless ``flat``), that each view is drawn (not blank) and that the
+    console logged nothing but the software-GL note. ``pngs``: each view's screenshot."""
+    import json
+    import time
+
+    def render(path, flat=False):
+        browser.get(path.as_uri())
+        count = "return document.querySelectorAll('.js-plotly-plot').length"
+        ready = "return Array.from(document.querySelectorAll('.js-plotly-plot')).every(p => p._fullLayout)"
+        for _ in range(600):
+            if browser.execute_script(count) and browser.execute_script(ready):
+                break
+            time.sleep(0.1)
+        browser.execute_script("window.scrollTo(0, document.body.scrollHeight)")
+        deadline = time.monotonic() + 20.0
+        while True:  # every 3D view's screenshot, until all are drawn (or 20 s)
+            canvases = browser.find_elements("css selector", ".gl-container canvas")
+            pngs = [_shot(browser, c) for c in canvases]
+            if all(_not_blank(p) for p in pngs) or time.monotonic() >= deadline:
+                break
+            time.sleep(0.2)
+        time.sleep(SETTLE_S)
+        plots, logs = browser.execute_script(count), browser.get_log("browser")
+        assert canvases or flat, f"{path.name}: no 3D view"
+        for i, png in enumerate(pngs):
+            assert _not_blank(png), f"{path.name}: 3D view {i} is blank"
+        bad = [e for e in logs if SOFTWARE_GL_NOTE not in e["message"]]
+        assert bad == [], json.dumps(bad, indent=1)
+        return plots, pngs
+
+    return render

@@ -3,56 +3,22 @@ and logs no warning or error (issue 12, point 6).
 
 Chromium and its driver come from Debian's packages (``make browser``, run by ``make
 test``); the test skips, saying why, where they are missing. WebGL runs on Chromium's
-software renderer (SwiftShader), the only GL a machine without a GPU has.
+software renderer (SwiftShader), the only GL a machine without a GPU has. The browser and
+the page check are fixtures of tests/conftest.py (``browser``, ``rendered``); the Feng
+lungs study's page is checked where that study runs (tests/studies/test_feng_lungs.py).
 """
 
-import io
-import json
-import shutil
-import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from needlekit.cli import main
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
-CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-#: The one console message allowed, and why: with software GL, Chromium's GPU process
-#: reports its own readback stalls (plotly.js reads pixels back to pick what is under the
-#: mouse); a real GPU does not, and no line of the page caused it.
-SOFTWARE_GL_NOTE = "GL Driver Message (OpenGL, Performance"
 #: Pages of 2D figures only (no 3D view to screenshot).
 FLAT_KINDS = ("report-scale",)
-
-
-def _driver():
-    if shutil.which(CHROMIUM) is None or shutil.which(DRIVER) is None:
-        pytest.skip(f"no {CHROMIUM} and {DRIVER}: `make browser` installs Debian's packages")
-    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium: pip install -e .[test]")
-    from selenium.webdriver.chrome.options import Options
-    from selenium.webdriver.chrome.service import Service
-
-    o = Options()
-    o.binary_location = CHROMIUM
-    for a in (
-        "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=1400,1000",
-    ):  # fmt: skip
-        o.add_argument(a)
-    o.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(DRIVER), options=o)
-
-
-@pytest.fixture(scope="module")
-def browser():
-    d = _driver()
-    yield d
-    d.quit()
 
 
 @pytest.fixture(scope="module")
@@ -212,46 +178,6 @@ def _scale_record() -> dict:
     return record | {"results": summary_lines(record)}
 
 
-#: After the page's plots report a layout and every 3D view has drawn: the time given to
-#: messages the last drawing may still log (the pages load nothing from the network).
-SETTLE_S = 0.5
-
-
-def _render(browser, path: Path) -> tuple[int, list[dict]]:
-    browser.get(path.as_uri())
-    count = "return document.querySelectorAll('.js-plotly-plot').length"
-    ready = (
-        "return Array.from(document.querySelectorAll('.js-plotly-plot')).every(p => p._fullLayout)"
-    )
-    for _ in range(600):  # up to 60 s for the page's plots to be laid out
-        if browser.execute_script(count) and browser.execute_script(ready):
-            break
-        time.sleep(0.1)
-    browser.execute_script("window.scrollTo(0, document.body.scrollHeight)")
-    # up to 20 s for every 3D view to draw (the test then checks each one itself)
-    deadline = time.monotonic() + 20.0
-    while time.monotonic() < deadline:
-        canvases = browser.find_elements("css selector", ".gl-container canvas")
-        if all(_drawn(browser, c) for c in canvases):
-            break
-        time.sleep(0.2)
-    time.sleep(SETTLE_S)
-    return browser.execute_script(count), browser.get_log("browser")
-
-
-def _drawn(browser, canvas) -> bool:
-    browser.execute_script("arguments[0].scrollIntoView()", canvas)
-    return _not_blank(canvas.screenshot_as_png)
-
-
-def _not_blank(png: bytes) -> bool:
-    import matplotlib.image as mpimg
-
-    img = mpimg.imread(io.BytesIO(png), format="png")[..., :3]
-    colours = np.unique((img.reshape(-1, 3) * 255).astype(np.uint8), axis=0)
-    return len(colours) > 50 and float(img.std()) > 0.02
-
-
 @pytest.mark.parametrize(
     "kind",
     [
@@ -281,36 +207,13 @@ def _not_blank(png: bytes) -> bool:
     ],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
-    browser, reports, kind, tmp_path
+    browser, rendered, reports, kind, tmp_path
 ):
-    plots, logs = _render(browser, Path(reports[kind]))
+    # `rendered` (tests/conftest.py) checks each 3D view drew and the console is clean
+    plots, pngs = rendered(Path(reports[kind]), flat=kind in FLAT_KINDS)
     assert plots >= 1
-    canvases = browser.find_elements("css selector", ".gl-container canvas")
-    assert canvases or kind in FLAT_KINDS, f"{kind}: no 3D view"
     if kind in FLAT_KINDS:
         assert plots >= 3, f"{kind}: {plots} figures"
-    for i, c in enumerate(canvases):
-        browser.execute_script("arguments[0].scrollIntoView()", c)
-        png = c.screenshot_as_png
+    for i, png in enumerate(pngs):
         (tmp_path / f"{kind}-{i}.png").write_bytes(png)
-        assert _not_blank(png), f"{kind}: 3D view {i} is blank"
     browser.save_screenshot(str(tmp_path / f"{kind}.png"))
-    bad = [e for e in logs if SOFTWARE_GL_NOTE not in e["message"]]
-    assert bad == [], json.dumps(bad, indent=1)
-
-
-@pytest.mark.realdata
-def test_the_feng_lungs_study_page_renders(browser, tmp_path):
-    """The page of `needlekit study feng-lungs` (Med-RAD lung 5): tables, parts per target,
-    Figs. 7-9 and the anatomy around the paths."""
-    out = tmp_path / "feng"
-    assert main(["study", "feng-lungs", "--quick", "--out", str(out)]) in (0, 1)
-    plots, logs = _render(browser, out / "report.html")
-    assert plots >= 4
-    canvases = browser.find_elements("css selector", ".gl-container canvas")
-    assert canvases, "no 3D view"
-    for i, c in enumerate(canvases):
-        browser.execute_script("arguments[0].scrollIntoView()", c)
-        assert _not_blank(c.screenshot_as_png), f"3D view {i} is blank"
-    bad = [e for e in logs if SOFTWARE_GL_NOTE not in e["message"]]
-    assert bad == [], json.dumps(bad, indent=1)

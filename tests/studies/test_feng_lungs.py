@@ -226,3 +226,15 @@ def test_the_second_target_is_free_tissue_within_reach_at_another_depth(quick, m
     g2 = record["goals"]["goal2"]
     assert g2["straight_distance_mm"] == pytest.approx(d2)
     assert not g2["in_nodule"] and record["goals"]["goal1"]["in_nodule"]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+@pytest.mark.browser
+def test_the_study_page_renders_in_a_browser(quick, rendered):
+    """The page of the quick run (Med-RAD lung 5) in headless Chromium: tables, parts per
+    target, Figs. 7-9 and the anatomy around the paths; every 3D view drawn, no console
+    warning (``rendered``, tests/conftest.py)."""
+    out, _, _ = quick
+    plots, pngs = rendered(out / "report.html")
+    assert plots >= 4 and pngs
