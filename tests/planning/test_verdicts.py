@@ -342,7 +342,13 @@ def test_a_pinhole_the_needle_cannot_pass_is_sealed_by_the_finer_cells(planner):
     # the voxels' own fill passes the one-voxel tunnel (its centres keep 1 mm, more than
     # the 0.73 mm a voxel centre must keep); cells half a voxel wide must keep 1.16 mm and
     # close it. The search runs the finer proof once it has found nothing for a while.
-    p = _pinhole_problem(1)
+    res = _sealed_only_by_finer_cells(_pinhole_problem(1), planner)
+    assert res.stats["iterations"] > 0  # found during the search, not before it
+
+
+def _sealed_only_by_finer_cells(p, planner):
+    """Assert that the voxels' fill connects the goal, cells half a voxel wide do not, and
+    the planner answers infeasible with that reason; return its result."""
     limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
               "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
     assert _connected(p, **limits) is True
@@ -350,7 +356,7 @@ def test_a_pinhole_the_needle_cannot_pass_is_sealed_by_the_finer_cells(planner):
     res = solve(p, planner, time_limit_s=60.0)
     assert res.status is PlanStatus.INFEASIBLE, (res.status, res.stats.get("reason"))
     assert "cells half a voxel wide" in res.stats["reason"]
-    assert res.stats["iterations"] > 0  # found during the search, not before it
+    return res
 
 
 def test_a_tunnel_the_needle_can_pass_stays_connected_at_every_cell_size():
@@ -581,10 +587,4 @@ def test_the_lung_target_only_finer_cells_seal_is_proved_infeasible(medrad_lung1
         max_heading_change_deg=90.0, start_exclusion_mm=3.0, collision_model="voxel_centres",
         voxel_obstacles=case.voxel_obstacles(needle_diameter_mm=1.0),
     )  # fmt: skip
-    limits = {"start_direction": p.start_pose[:3, 2], "r_min_mm": p.r_min_mm,
-              "max_heading_change_deg": p.max_heading_change_deg}  # fmt: skip
-    assert _connected(p, **limits) is True
-    assert _connected(p, subdivide=2, **limits) is False
-    res = solve(p, planner, time_limit_s=30.0)
-    assert res.status is PlanStatus.INFEASIBLE, (res.status, res.stats.get("reason"))
-    assert "cells half a voxel wide" in res.stats["reason"]
+    _sealed_only_by_finer_cells(p, planner)

@@ -120,6 +120,17 @@ def geometric_refusal(
     return None
 
 
+def _path_limits(problem: SteerableProblem, start_pose: np.ndarray) -> dict:
+    """The limits a checker's connectivity proofs take (where a valid path can go)."""
+    return {
+        "max_length_mm": problem.max_length_mm,
+        "goal_tolerance_mm": problem.goal_tolerance_mm,
+        "start_direction": start_pose[:3, 2],
+        "r_min_mm": problem.r_min_mm,
+        "max_heading_change_deg": problem.max_heading_change_deg,
+    }
+
+
 def precheck(
     problem: SteerableProblem, goal_mm: np.ndarray, validator: MotionValidator
 ) -> tuple[PlanStatus, str] | None:
@@ -139,7 +150,6 @@ def precheck(
     """
     start = problem.start_pose
     p0, d0 = start[:3, 3], start[:3, 2]
-    tau = problem.goal_tolerance_mm
     if validator.points_collide(p0[None]):
         return PlanStatus.INVALID_PROBLEM, "start collides beyond the start exclusion"
     if validator.goal_collides(goal_mm):
@@ -155,14 +165,7 @@ def precheck(
     refusal = geometric_refusal(problem, start, goal_mm)
     if refusal is not None:
         return refusal
-    connected = validator.checker.connected(
-        goal_mm,
-        max_length_mm=problem.max_length_mm,
-        goal_tolerance_mm=tau,
-        start_direction=d0,
-        r_min_mm=problem.r_min_mm,
-        max_heading_change_deg=problem.max_heading_change_deg,
-    )
+    connected = validator.checker.connected(goal_mm, **_path_limits(problem, start))
     if connected is False:
         return (
             PlanStatus.INFEASIBLE,
@@ -274,15 +277,7 @@ class SteerableSearch:
             return None
         p = self.problem
         goal = p.goal_mm if goal_mm is None else goal_mm
-        connected = finer(
-            goal,
-            max_length_mm=p.max_length_mm,
-            goal_tolerance_mm=p.goal_tolerance_mm,
-            start_direction=self.start[:3, 2],
-            r_min_mm=p.r_min_mm,
-            max_heading_change_deg=p.max_heading_change_deg,
-        )
-        if connected is False:
+        if finer(goal, **_path_limits(p, self.start)) is False:
             return (
                 PlanStatus.INFEASIBLE,
                 "reachable workspace is not connected to the goal: no chain of free cells "
