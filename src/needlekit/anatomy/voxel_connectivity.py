@@ -255,10 +255,14 @@ def _to_dense(state, seen):  # pragma: no cover - compiled
     return first, seen, queued, nxt, counts
 
 
-def _mark_any(state, a):  # pragma: no cover - typed by _mark_any_overload
-    """:func:`_mark` or :func:`_mark_dense`, chosen by the state's type when compiling
-    (one kernel for each kind of reached set, no branch per voxel)."""
-    raise NotImplementedError("compiled only")
+def _mark_any(state, a):
+    """:func:`_mark` or :func:`_mark_dense`, by the kind of the state's reached set (flags
+    of ``uint8``, or a hash set). Compiled, the choice is made once per state type
+    (:func:`_mark_any_overload`: no branch per voxel); this body is the same choice for
+    Python (``NUMBA_DISABLE_JIT``)."""
+    if state[1].dtype == np.uint8:
+        return _mark_dense(state, a)
+    return _mark(state, a)
 
 
 @overload(_mark_any, inline="always")
