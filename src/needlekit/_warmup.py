@@ -41,18 +41,16 @@ def warm_up_kernels(jobs: int | None = None) -> float:
     t0 = time.perf_counter()
     if jobs is None:
         jobs = 2 if (os.cpu_count() or 1) >= 2 else 1
+    groups = (_warm_up_steerable, _warm_up_straight_and_control)
     if jobs <= 1:
-        for group in _GROUPS:
-            _run_group(group)
+        for group in groups:
+            group()
     else:
         ctx = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(len(_GROUPS), mp_context=ctx) as pool:
-            list(pool.map(_run_group, _GROUPS))
+        with concurrent.futures.ProcessPoolExecutor(len(groups), mp_context=ctx) as pool:
+            for done in [pool.submit(group) for group in groups]:
+                done.result()
     return time.perf_counter() - t0
-
-
-def _run_group(name: str) -> None:
-    {"steerable": _warm_up_steerable, "straight and control": _warm_up_straight_and_control}[name]()
 
 
 def _vessel_grid():
@@ -109,10 +107,6 @@ def _warm_up_straight_and_control() -> None:
 
     _warm_up_straight(VoxelSDF.from_mask(*_vessel_grid()))
     _warm_up_control()
-
-
-#: The two halves of the work, each in a process of its own.
-_GROUPS = ("steerable", "straight and control")
 
 
 def _warm_up_control() -> None:

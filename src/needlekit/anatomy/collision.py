@@ -388,19 +388,14 @@ class VoxelCentresChecker(CollisionChecker):
         r_min_mm=None,
         max_heading_change_deg=None,
     ) -> bool | None:
-        connected, _ = goal_connected(
-            self.obstacles,
-            self.start,
-            np.asarray(goal_mm, dtype=float),
+        return self._fill(
+            goal_mm,
             max_length_mm=max_length_mm,
             goal_tolerance_mm=goal_tolerance_mm,
-            exclusion_mm=self.exclusion,
-            spacing_mm=self.spacing_mm,
             start_direction=start_direction,
             r_min_mm=r_min_mm,
             max_heading_change_deg=max_heading_change_deg,
         )
-        return connected
 
     def connected_finer(self, goal_mm, **limits) -> bool | None:
         """The same proof over cells half a voxel wide (``subdivide=2``), which seal gaps
@@ -418,15 +413,17 @@ class VoxelCentresChecker(CollisionChecker):
             False only with a proof that no valid path reaches the goal; None when the
             fill could not tell within its cells.
         """
+        return self._fill(goal_mm, subdivide=2, max_cells=FINER_MAX_CELLS, **limits)
+
+    def _fill(self, goal_mm, **kwargs) -> bool | None:
+        """:func:`goal_connected` from this checker's start, exclusion and spacing."""
         connected, _ = goal_connected(
             self.obstacles,
             self.start,
             np.asarray(goal_mm, dtype=float),
             exclusion_mm=self.exclusion,
             spacing_mm=self.spacing_mm,
-            subdivide=2,
-            max_cells=FINER_MAX_CELLS,
-            **limits,
+            **kwargs,
         )
         return connected
 
