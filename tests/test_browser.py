@@ -4,8 +4,12 @@ and logs no warning or error (issue 12, point 6).
 Chromium and its driver come from Debian's packages (``make browser``, run by ``make
 test``); the test skips, saying why, where they are missing. WebGL runs on Chromium's
 software renderer (SwiftShader), the only GL a machine without a GPU has. The browser and
-the page check are fixtures of tests/conftest.py (``browser``, ``rendered``); the Feng
-lungs study's page is checked where that study runs (tests/studies/test_feng_lungs.py).
+the page check are fixtures of tests/conftest.py (``browser``, ``rendered``). The pages of
+runs that other tests make anyway are checked there, beside the run, not made a second
+time: the Feng lungs study (tests/studies/test_feng_lungs.py), the lecture's reproduction
+(tests/reproduce/test_lecture.py), the moving-obstacle example and its ``report`` page
+(tests/planning/test_dynamic.py), a ``puncture`` study and its ``report`` page
+(tests/control/test_puncture_study.py).
 """
 
 from pathlib import Path
@@ -65,11 +69,6 @@ def reports(tmp_path_factory):
         ],
         out / "multi.html",
     )
-    run(
-        "puncture",
-        ["puncture", "--trials", "1", "--seed", "3", "--out", str(out / "puncture")],
-        out / "puncture" / "puncture.html",
-    )
     import trimesh
 
     skin = trimesh.creation.icosphere(subdivisions=3, radius=60.0)
@@ -103,7 +102,6 @@ def reports(tmp_path_factory):
         "sweep": out / "sweep.json",
         "cfrw": out / "cfrw.json",
         "multi": out / "multi.json",
-        "puncture": out / "puncture" / "puncture.json",
     }
     for kind, path in results.items():
         page = out / f"report-{kind}.html"
@@ -111,15 +109,6 @@ def reports(tmp_path_factory):
     files = [str(results[k]) for k in ("plan", "sweep", "multi")]
     parts = out / "report-parts.html"
     run("report-parts", ["report", *files, "--out", str(parts)], parts)
-    moving = Path(__file__).resolve().parents[1] / "src" / "needlekit" / "data"
-    run(
-        "dynamic",
-        ["plan", str(moving / "lung_phantom_moving.yaml"), "--dynamic", "--out",
-         str(out / "dynamic.json"), "--report", str(out / "dynamic.html")],
-        out / "dynamic.html",
-    )  # fmt: skip
-    page = out / "report-dynamic.html"
-    run("report-dynamic", ["report", str(out / "dynamic.json"), "--out", str(page)], page)
     # a small `needlekit bench scale` record (made-up numbers, every series)
     from needlekit.io.files import write_json
 
@@ -127,11 +116,6 @@ def reports(tmp_path_factory):
     write_json(out / "scale.json", scale)
     page = out / "report-scale.html"
     run("report-scale", ["report", str(out / "scale.json"), "--out", str(page)], page)
-    run(
-        "reproduce-lecture",
-        ["reproduce", "lecture", "--quick", "--out", str(out / "reproduce")],
-        out / "reproduce" / "lecture.html",
-    )
     from needlekit.anatomy.phantoms import make_phantom
     from needlekit.report.scene3d import scene_figure, write_scenes_html
 
@@ -180,31 +164,8 @@ def _scale_record() -> dict:
 
 @pytest.mark.parametrize(
     "kind",
-    [
-        "scene",
-        "goals",
-        "sweep",
-        "multi",
-        "puncture",
-        "approach",
-        "scenes",
-        "dynamic",
-        "reproduce-lecture",
-    ]
-    + [
-        f"report-{k}"
-        for k in (
-            "plan",
-            "goals",
-            "sweep",
-            "cfrw",
-            "multi",
-            "puncture",
-            "parts",
-            "dynamic",
-            "scale",
-        )
-    ],
+    ["scene", "goals", "sweep", "multi", "approach", "scenes"]
+    + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "parts", "scale")],
 )
 def test_every_report_renders_its_3d_views_without_console_warnings(
     browser, rendered, reports, kind, tmp_path

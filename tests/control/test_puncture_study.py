@@ -1,6 +1,8 @@
 """The simulation study of Section III: trial sampling, summary statistics, violations,
 the ``needlekit puncture`` command and the control-step benchmark."""
 
+import contextlib
+import io
 import json
 import math
 
@@ -108,14 +110,23 @@ def test_puncture_command_rejects_bad_options_in_one_line(capsys, tmp_path):
     assert afile.read_text() == "x"
 
 
-@pytest.mark.slow
-def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
-    out = tmp_path / "study"
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """``(folder, exit code, stdout)`` of one ``needlekit puncture`` trial, shared by the
+    study's checks and the browser."""
+    out = tmp_path_factory.mktemp("puncture") / "study"
     # inline (D = 0): the trial whose figures below were measured before the 2 ms default
     # (the default schedule's trials: tests/control/test_adaptation_schedule.py)
     argv = ["puncture", "--trials", "1", "--seed", "3", "--adaptation-delay-ms", "0"]
-    code = main([*argv, "--out", str(out)])
-    text = capsys.readouterr().out
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        code = main([*argv, "--out", str(out)])
+    return out, code, text.getvalue()
+
+
+@pytest.mark.slow
+def test_puncture_command_runs_trials_and_writes_the_study(study):
+    out, code, text = study
     assert code == 0, text
     doc = json.loads((out / "puncture.json").read_text())
     assert doc["trials"] == 1 and doc["aborted"]["count"] == 0
@@ -157,6 +168,21 @@ def test_puncture_command_runs_trials_and_writes_the_study(capsys, tmp_path):
     assert g["trials_redrawn"] == (t["guide_draws"] > 1)
     assert doc["redraw_filter"]["all"]["draws"] == 40000
     assert "like Fig. 5 C and D" in html and "Guide-line redraws" in html
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_the_study_pages_render_in_a_browser(study, rendered, tmp_path):
+    """The page ``puncture`` wrote and the one ``report`` draws from its result, in
+    headless Chromium: every 3D view drawn, no console warning (``rendered``,
+    tests/conftest.py)."""
+    out = study[0]
+    again = tmp_path / "report-puncture.html"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["report", str(out / "puncture.json"), "--out", str(again)]) == 0
+    for path in (out / "puncture.html", again):
+        plots, pngs = rendered(path)
+        assert plots >= 1 and pngs
 
 
 @pytest.mark.slow

@@ -4,6 +4,8 @@ they move (a collision a snapshot misses), the continuation problem from inside 
 tissue, the re-planning loop against the plan made once at t = 0, the scenario block and
 the command line."""
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
@@ -429,13 +431,22 @@ def test_command_line_errors_are_one_line_before_any_anatomy(tmp_path, capsys):
     assert not (tmp_path / "d.json").exists()
 
 
-@pytest.mark.slow
-def test_the_example_collides_when_planned_once_and_reaches_when_replanned(tmp_path, capsys):
-    out, page = tmp_path / "dynamic.json", tmp_path / "dynamic.html"
+@pytest.fixture(scope="module")
+def example(tmp_path_factory):
+    """``(result, page, stdout)`` of ``plan --dynamic`` on the shipped moving example."""
+    d = tmp_path_factory.mktemp("dynamic")
+    out, page = d / "dynamic.json", d / "dynamic.html"
     argv = ["plan", str(DATA / "lung_phantom_moving.yaml"), "--dynamic", "--out", str(out),
             "--report", str(page)]  # fmt: skip
-    assert main(argv) == 0
-    text = capsys.readouterr().out
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        assert main(argv) == 0
+    return out, page, text.getvalue()
+
+
+@pytest.mark.slow
+def test_the_example_collides_when_planned_once_and_reaches_when_replanned(example):
+    out, page, text = example
     assert "reached" in text and "executed open-loop: fails the check" in text
     record = json.loads(out.read_text())
     assert record["status"] == "reached" and record["check"]["ok"]
@@ -449,3 +460,18 @@ def test_the_example_collides_when_planned_once_and_reaches_when_replanned(tmp_p
     assert static["metrics"]["certified_clearance_mm"] > 0  # clear of the anatomy at rest
     html = page.read_text()
     assert "plotly" in html and "drifting vessel at t = 0.0 s" in html
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_the_example_pages_render_in_a_browser(example, rendered, tmp_path):
+    """The page ``plan --dynamic --report`` drew and the one ``report`` draws from its
+    result, in headless Chromium: every 3D view drawn, no console warning (``rendered``,
+    tests/conftest.py)."""
+    out, page, _ = example
+    again = tmp_path / "report-dynamic.html"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["report", str(out), "--out", str(again)]) == 0
+    for path in (page, again):
+        plots, pngs = rendered(path)
+        assert plots >= 1 and pngs
