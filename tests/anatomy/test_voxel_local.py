@@ -243,6 +243,36 @@ def test_a_preview_draws_the_whole_structure_without_building_it():
     assert lazy.preview(40) is lazy.preview(40)  # kept
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_mask_bounds_are_the_built_fields_bounds_bit_for_bit(seed):
+    """VoxelSDF.mask_bounds, from the mask or from a crop of it placed in the whole grid,
+    against the bounds of the field from_mask builds (crop on and off, other paddings),
+    and a lazy field that boxes the structure without building it."""
+    mask = _blobs(seed)
+    rng = np.random.default_rng(seed)
+    for crop, pad in ((True, 5.0), (True, 0.0), (False, 5.0), (True, 17.3)):
+        built = VoxelSDF.from_mask(mask, AFFINE, crop=crop, padding_mm=pad).bounds()
+        got = VoxelSDF.mask_bounds(mask, AFFINE, crop=crop, padding_mm=pad)
+        assert np.array_equal(got, built), (crop, pad)
+        idx = np.argwhere(mask)
+        lo = idx.min(axis=0) - rng.integers(0, 3, 3)
+        lo = np.maximum(lo, 0)
+        hi = idx.max(axis=0) + 1
+        part = mask[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
+        cropped = VoxelSDF.mask_bounds(
+            part, AFFINE, offset=lo, shape=mask.shape, crop=crop, padding_mm=pad
+        )
+        assert np.array_equal(cropped, built), (crop, pad)
+    lazy = LazyField(lambda: VoxelSDF.from_mask(mask, AFFINE), "blobs",
+                     bounds=lambda: VoxelSDF.mask_bounds(mask, AFFINE))  # fmt: skip
+    assert np.array_equal(lazy.bounds(), VoxelSDF.from_mask(mask, AFFINE).bounds())
+    assert not lazy.built
+    lazy.get()
+    assert np.array_equal(lazy.bounds(), VoxelSDF.from_mask(mask, AFFINE).bounds())
+    with pytest.raises(InvalidInputError, match="mask"):
+        VoxelSDF.mask_bounds(np.zeros((4, 4, 4), bool), AFFINE)
+
+
 def test_a_point_field_refuses_points_beyond_its_reach():
     """A one-point field keeps only the centres near its point: a farther query is an
     error naming the argument, never a value from centres it does not hold."""

@@ -182,3 +182,41 @@ def test_lung1_starts_clear_the_exact_collision_test_only_with_the_start_exclusi
         assert not obs.collides(p, exclude_near=p, exclusion_mm=3.0)
     target = lung1.targets_mm["target"]
     assert not obs.collides(target)  # the nodule is not an obstacle
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_a_lung_scene_is_boxed_and_drawn_without_building_its_structures(medrad_dir):
+    """Drawing a patient (what `report` and `scene render` do) boxes every structure
+    from its mask and meshes it from its preview: no structure's full field is built
+    (lung 1: 15 s and 1.3 GB of cache entries before), and the box is the built field's."""
+    from needlekit.anatomy.fields import LazyField
+    from needlekit.report.scene3d import scene_figure
+
+    case = load_medrad("lung", 1, medrad_dir)  # the session's cache (tests/conftest.py)
+    lazy = [s.field for s in case.scene.structures if isinstance(s.field, LazyField)]
+    assert len(lazy) == 5
+    box = case.scene.bounds()
+    fig = scene_figure(case.scene)
+    assert len(fig.data) >= 5 and np.all(np.isfinite(box))
+    assert not any(f.built for f in lazy)
+    nodule = case.scene["nodule"].field
+    unbuilt = nodule.bounds()
+    nodule.get()
+    assert nodule.built and np.array_equal(unbuilt, nodule.bounds())
+
+
+def test_a_prepared_structure_is_boxed_without_building_it():
+    """The loader's lazy field without the cache (io.medrad_prepare) boxes a structure
+    as its built field does, bit for bit, without building it."""
+    from needlekit.io.medrad_prepare import _lazy_sdf
+    from needlekit.io.volumes import Mask
+
+    m = np.zeros((40, 30, 20), bool)
+    m[5:30, 8:12, 3:17] = True
+    affine = np.array([[0.0, -0.7, 0.0, 12.0], [0.8, 0.0, 0.0, -30.0],
+                       [0.0, 0.0, 1.25, 5.5], [0, 0, 0, 1]])  # fmt: skip
+    field = _lazy_sdf(Mask(m, affine, None), "a plate")
+    box = field.bounds()
+    assert not field.built
+    assert np.array_equal(box, VoxelSDF.from_mask(m, affine).bounds())

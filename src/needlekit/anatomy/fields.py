@@ -429,6 +429,10 @@ class LazyField(DistanceField):
     preview : callable, optional
         ``preview(max_cells)``: a coarse field of the same structure, at most about
         ``max_cells`` samples along an axis, for drawing it whole (:meth:`preview`).
+    bounds : callable, optional
+        ``bounds()``: what the built field's ``bounds()`` returns, found without building
+        it (e.g. :meth:`~needlekit.anatomy.voxel.VoxelSDF.mask_bounds`), so that boxing
+        or drawing a scene does not build every structure's field.
     """
 
     def __init__(
@@ -438,8 +442,10 @@ class LazyField(DistanceField):
         *,
         local: Callable[..., DistanceField | None] | None = None,
         preview: Callable[[int], DistanceField] | None = None,
+        bounds: Callable[[], np.ndarray] | None = None,
     ) -> None:
         self._build = build
+        self._bounds = bounds
         self._field: DistanceField | None = None
         self._lock = threading.Lock()
         self.description = description
@@ -559,6 +565,8 @@ class LazyField(DistanceField):
         return self.get()._gradient(points)
 
     def bounds(self) -> np.ndarray:
+        if self._field is None and self._bounds is not None:
+            return np.array(self._bounds(), dtype=np.float64).reshape(2, 3)
         return self.get().bounds()
 
     def __repr__(self) -> str:

@@ -130,6 +130,38 @@ def grid_error_bounds(values: np.ndarray, spacing, defect: float, value_error_mm
     return value_error, value_error + interpolation + defect * (extent + vmax)
 
 
+class _MaskGrid:
+    """The grid :meth:`VoxelSDF.from_mask` transforms: the set voxels' index box, the
+    padding around it, the window ``lo..hi`` and the structure's world box (one place, so
+    that :meth:`VoxelSDF.mask_bounds` gives the very numbers of a built field)."""
+
+    def __init__(self, shape, set_box, affine, padding_mm, crop) -> None:
+        a, self.spacing, _ = _orthogonal_affine(np.asarray(affine, dtype=np.float64), "affine")
+        pad_mm = as_scalar(padding_mm, "padding_mm")
+        if pad_mm < 0:
+            raise InvalidInputError("padding_mm", f"must be >= 0, got {pad_mm}")
+        if set_box is None:
+            raise InvalidInputError("mask", "no voxel is set: the structure is empty")
+        self.box = (np.asarray(set_box[0]), np.asarray(set_box[1]))
+        self.offset, self.value_error = mask_surface_offset(self.spacing)
+        r = 0.5 * float(np.linalg.norm(self.spacing))
+        # enough unset layers that boundary centres pass _check_structure_inside
+        min_pad = np.ceil((self.value_error + r + self.offset) / self.spacing).astype(np.int64) + 1
+        pad = np.maximum(np.ceil(pad_mm / self.spacing - 1e-9).astype(np.int64), min_pad)
+        lo, hi = self.box[0] - pad, self.box[1] + pad
+        if not crop:
+            lo = np.minimum(lo, 0)
+            hi = np.maximum(hi, np.array(shape) - 1)
+        self.lo, self.hi, self.affine = lo, hi, a
+
+    def box_world(self) -> np.ndarray:
+        shifted = self.affine.copy()  # the window's affine, as grids._window makes it
+        shifted[:3, 3] = self.affine[:3, :3] @ self.lo + self.affine[:3, 3]
+        return _index_box_to_world(
+            shifted, self.box[0] - self.lo - 0.5, self.box[1] - self.lo + 0.5
+        )
+
+
 class VoxelSDF(DistanceField):
     """Signed distance field sampled at the voxel centres of an orthogonal grid.
 
@@ -270,32 +302,63 @@ class VoxelSDF(DistanceField):
         True
         """
         m, a = _mask_and_affine(mask, affine)
-        a, spacing, _ = _orthogonal_affine(a, "affine")
-        pad_mm = as_scalar(padding_mm, "padding_mm")
-        if pad_mm < 0:
-            raise InvalidInputError("padding_mm", f"must be >= 0, got {pad_mm}")
-        box = _bbox(m)
-        if box is None:
-            raise InvalidInputError("mask", "no voxel is set: the structure is empty")
-        offset, value_error = mask_surface_offset(spacing)
-        r = 0.5 * float(np.linalg.norm(spacing))
-        # enough unset layers that boundary centres pass _check_structure_inside
-        min_pad = np.ceil((value_error + r + offset) / spacing).astype(np.int64) + 1
-        pad = np.maximum(np.ceil(pad_mm / spacing - 1e-9).astype(np.int64), min_pad)
-        lo, hi = box[0] - pad, box[1] + pad
-        if not crop:
-            lo = np.minimum(lo, 0)
-            hi = np.maximum(hi, np.array(m.shape) - 1)
-        m, a = _window(m, a, lo, hi)
+        g = _MaskGrid(m.shape, _bbox(m), a, padding_mm, crop)
+        m, a = _window(m, g.affine, g.lo, g.hi)
         threads = int(n_threads) if n_threads else (os.cpu_count() or 1)
-        aniso = tuple(float(s) for s in spacing)
+        aniso = tuple(float(s) for s in g.spacing)
         values = edt.edt(~m, anisotropy=aniso, black_border=False, parallel=threads)
-        values -= np.float32(offset)
+        values -= np.float32(g.offset)
         inside = edt.edt(m, anisotropy=aniso, black_border=False, parallel=threads)
-        np.subtract(np.float32(offset), inside, out=values, where=m)
+        np.subtract(np.float32(g.offset), inside, out=values, where=m)
         del inside
-        return cls(values, a, value_error_mm=value_error,
-                   _box=_index_box_to_world(a, box[0] - lo - 0.5, box[1] - lo + 0.5))  # fmt: skip
+        return cls(values, a, value_error_mm=g.value_error, _box=g.box_world())
+
+    @staticmethod
+    def mask_bounds(
+        mask,
+        affine,
+        *,
+        offset=None,
+        shape=None,
+        crop: bool = True,
+        padding_mm: float = DEFAULT_MASK_PADDING_MM,
+    ) -> np.ndarray:
+        """What :meth:`bounds` of ``from_mask(mask, affine, crop=crop,
+        padding_mm=padding_mm)`` returns, bit for bit, without the distance transforms:
+        for a structure built lazily that is only drawn or boxed (one pass over the mask).
+
+        Parameters
+        ----------
+        mask : array_like of bool, shape (i, j, k)
+            The structure's voxels, or a crop of them holding every set voxel.
+        affine : array_like, shape (4, 4)
+            Voxel->RAS affine (mm) of the whole grid.
+        offset : array_like of int, shape (3,), optional
+            Index of the crop's first voxel in the whole grid (default: none).
+        shape : tuple of int, optional
+            The whole grid's shape (default: the mask's).
+        crop, padding_mm :
+            As :meth:`from_mask`.
+
+        Returns
+        -------
+        ndarray, shape (2, 3)
+            ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` (RAS, mm).
+
+        Examples
+        --------
+        >>> m = np.zeros((20, 20, 20), bool); m[5:15, 5:15, 5:15] = True
+        >>> a = np.diag([0.5, 0.5, 0.5, 1.0])
+        >>> bool(np.array_equal(VoxelSDF.mask_bounds(m, a), VoxelSDF.from_mask(m, a).bounds()))
+        True
+        """
+        m = np.asarray(mask, dtype=bool)
+        box = _bbox(m)
+        if box is not None and offset is not None:
+            off = np.asarray(offset, dtype=np.int64).reshape(3)
+            box = (box[0] + off, box[1] + off)
+        full = m.shape if shape is None else tuple(int(v) for v in shape)
+        return _MaskGrid(full, box, affine, padding_mm, crop).box_world()
 
     @classmethod
     def from_function(

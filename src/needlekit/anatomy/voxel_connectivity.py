@@ -256,13 +256,9 @@ def _to_dense(state, seen):  # pragma: no cover - compiled
 
 
 def _mark_any(state, a):
-    """:func:`_mark` or :func:`_mark_dense`, by the kind of the state's reached set (flags
-    of ``uint8``, or a hash set). Compiled, the choice is made once per state type
-    (:func:`_mark_any_overload`: no branch per voxel); this body is the same choice for
-    Python (``NUMBA_DISABLE_JIT``)."""
-    if state[1].dtype == np.uint8:
-        return _mark_dense(state, a)
-    return _mark(state, a)
+    """:func:`_mark_dense` for a reached set of ``uint8`` flags, else :func:`_mark`: compiled,
+    chosen once per state type (:func:`_mark_any_overload`), here for NUMBA_DISABLE_JIT."""
+    return _mark_dense(state, a) if state[1].dtype == np.uint8 else _mark(state, a)
 
 
 @overload(_mark_any, inline="always")

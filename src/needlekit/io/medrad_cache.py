@@ -109,12 +109,24 @@ def _preview_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, max_cells: i
     return preview_mask_sdf(stored.values, affine, max_cells)
 
 
+def _cached_sdf_bounds(entry: anatomy_cache.CacheEntry, name: str) -> np.ndarray:
+    """A structure's box as its field gives it (:func:`_cached_sdf` builds the field from
+    this mask), from the stored (cropped) mask without building or reading the field."""
+    mask = entry[f"mask_{name}"]
+    meta = mask.meta
+    return VoxelSDF.mask_bounds(
+        mask.values, np.array(meta["affine"], dtype=np.float64), offset=meta["offset"],
+        shape=meta["shape"],
+    )  # fmt: skip
+
+
 def _lazy_cached_sdf(entry: anatomy_cache.CacheEntry, name: str, what: str) -> LazyField:
     return LazyField(
         lambda: _cached_sdf(entry, name),
         f"signed distance to {what}",
         local=lambda p, r, h=None: _local_cached_sdf(entry, name, p, r, h),
         preview=lambda cells: _preview_cached_sdf(entry, name, cells),
+        bounds=lambda: _cached_sdf_bounds(entry, name),
     )
 
 

@@ -100,6 +100,7 @@ def _lazy_sdf(mask: Mask, name: str) -> LazyField:
         f"signed distance to {name}",
         local=lambda p, r, h=None: local_mask_sdf(mask.data, mask.affine, p, r, h),
         preview=lambda cells: preview_mask_sdf(mask.data, mask.affine, cells),
+        bounds=lambda: VoxelSDF.mask_bounds(mask.data, mask.affine),
     )
 
 
