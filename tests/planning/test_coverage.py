@@ -379,3 +379,25 @@ def test_medrad_liver_nodules(medrad_dir):
     _, largest, largest_big = max(rows, key=lambda row: row[0])
     assert largest.needles >= 2 and largest_big.needles >= 2
     assert largest.needles == max(p.needles for _, p, _ in rows)
+
+
+def test_the_cover_keeps_each_candidates_gain_as_the_whole_product_gives_it():
+    """The gains kept up to date as zones are added and removed equal the sparse product
+    A @ (voxels uncovered), after every step of a random sequence (brute force)."""
+    from scipy import sparse
+
+    from needlekit.planning.straight.coverage.choose import _Cover
+
+    rng = np.random.default_rng(7)
+    A = sparse.random(60, 400, density=0.05, random_state=3, format="csr", dtype=np.float32)
+    A.data[:] = 1.0
+    cov = _Cover(A)
+    assert np.array_equal(cov.gains(), A @ np.ones(400, np.float32))
+    for step in range(300):
+        if cov.chosen and (rng.random() < 0.4 or len(cov.chosen) > 25):
+            cov.remove(cov.chosen[rng.integers(len(cov.chosen))])
+        else:
+            cov.add(int(rng.integers(60)))  # a candidate may be chosen twice
+        if step % 3 == 0 or step > 280:
+            expected = A @ (cov.count == 0).astype(np.float32)
+            assert np.array_equal(cov.gains(), expected), step

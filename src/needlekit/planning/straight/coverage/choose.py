@@ -175,30 +175,56 @@ class CoveragePlan:
 
 
 class _Cover:
-    """A set of chosen candidates and how many of them cover each voxel."""
+    """A set of chosen candidates, how many of them cover each voxel, and each candidate's
+    gain (the uncovered voxels it covers), kept up to date as zones come and go: a change
+    touches the candidates of the voxels it covers or uncovers, not the whole matrix (a
+    product per step took 4.5 of 5.5 s on a Med-RAD liver nodule)."""
 
     def __init__(self, A: sparse.csr_matrix):
         self.A = A
         self.chosen: list[int] = []
         self.count = np.zeros(A.shape[1], dtype=np.int64)
+        self._by_voxel: sparse.csr_matrix | None = None  # A transposed: voxel -> candidates
+        self._gain: np.ndarray | None = None  # A @ (count == 0), once asked for
 
     def row(self, c: int) -> np.ndarray:
         return self.A.indices[self.A.indptr[c] : self.A.indptr[c + 1]]
 
+    def _candidates_of(self, voxels: np.ndarray) -> np.ndarray:
+        """How many of ``voxels`` each candidate covers, shape (candidates,)."""
+        if self._by_voxel is None:
+            self._by_voxel = self.A.T.tocsr()
+        At = self._by_voxel
+        starts, ends = At.indptr[voxels], At.indptr[voxels + 1]
+        lengths = ends - starts
+        first = np.repeat(starts - np.cumsum(lengths) + lengths, lengths)
+        idx = At.indices[first + np.arange(int(lengths.sum()))]
+        return np.bincount(idx, minlength=self.A.shape[0])
+
     def add(self, c: int) -> None:
         self.chosen.append(c)
-        self.count[self.row(c)] += 1
+        r = self.row(c)
+        if self._gain is not None:
+            self._gain -= self._candidates_of(r[self.count[r] == 0])
+        self.count[r] += 1
 
     def remove(self, c: int) -> None:
         self.chosen.remove(c)
-        self.count[self.row(c)] -= 1
+        r = self.row(c)
+        self.count[r] -= 1
+        if self._gain is not None:
+            self._gain += self._candidates_of(r[self.count[r] == 0])
 
     @property
     def covered(self) -> int:
         return int(np.count_nonzero(self.count))
 
-    def gains(self, uncovered: np.ndarray) -> np.ndarray:
-        return self.A @ uncovered.astype(np.float32)
+    def gains(self) -> np.ndarray:
+        """Each candidate's count of uncovered voxels it covers (a copy)."""
+        if self._gain is None:
+            uncovered = (self.count == 0).astype(np.float32)
+            self._gain = np.rint(self.A @ uncovered).astype(np.int64)
+        return self._gain.astype(np.float32)
 
     def unique(self, c: int) -> int:
         return int(np.count_nonzero(self.count[self.row(c)] == 1))
@@ -206,7 +232,7 @@ class _Cover:
 
 def _greedy(cov: _Cover, goal: int, max_needles: int) -> None:
     while cov.covered < goal and len(cov.chosen) < max_needles:
-        g = cov.gains(cov.count == 0)
+        g = cov.gains()
         if not g.size:  # no candidate (all refused by ``allowed``)
             break
         best = int(np.argmax(g))  # ties: the first candidate in lattice order
@@ -236,7 +262,7 @@ def _move_zones(cov: _Cover) -> None:
         improved = False
         for c in list(cov.chosen):
             cov.remove(c)
-            g = cov.gains(cov.count == 0)
+            g = cov.gains()
             best = int(np.argmax(g))
             cov.add(best if g[best] > g[c] else c)
             improved |= g[best] > g[c]
