@@ -18,6 +18,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.medrad import MEDRAD_ENV, load_medrad, medrad_root
 
 _CACHE_ENV = "NEEDLEKIT_CACHE_DIR"
+_KEY_ENV = "NEEDLEKIT_CACHE_KEY_FILE"
 _saved: dict = {}
 
 
@@ -29,19 +30,24 @@ def pytest_configure(config):
     if hasattr(config, "workerinput") and os.environ.get(_CACHE_ENV):
         return
     _saved["env"] = os.environ.get(_CACHE_ENV)
+    _saved["key_env"] = os.environ.get(_KEY_ENV)
     _saved["dir"] = tempfile.mkdtemp(prefix="needlekit-test-cache-")
     os.environ[_CACHE_ENV] = _saved["dir"]
+    # and the key that signs it: the session's own, never the user's
+    _saved["key_dir"] = tempfile.mkdtemp(prefix="needlekit-test-key-")
+    os.environ[_KEY_ENV] = os.path.join(_saved["key_dir"], "cache.key")
 
 
 def pytest_unconfigure(config):
     if "dir" not in _saved:
         return
     shutil.rmtree(_saved.pop("dir"), ignore_errors=True)
-    env = _saved.pop("env")
-    if env is None:
-        os.environ.pop(_CACHE_ENV, None)
-    else:
-        os.environ[_CACHE_ENV] = env
+    shutil.rmtree(_saved.pop("key_dir"), ignore_errors=True)
+    for name, saved in ((_CACHE_ENV, _saved.pop("env")), (_KEY_ENV, _saved.pop("key_env"))):
+        if saved is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = saved
 
 
 def _medrad_root():

@@ -312,7 +312,7 @@ def test_an_unknown_or_malformed_file_is_named(tmp_path, capsys, content, expect
 @pytest.mark.parametrize(
     ("edit", "field", "expected"),
     [
-        (lambda d: d.update(goal_mm=[1, 2]), "goal_mm", "expected three numbers"),
+        (lambda d: d.update(goal_mm=[1, 2]), "goal_mm", "expected three finite numbers"),
         (lambda d: d.update(status="done"), "status", "expected one of solved"),
         (lambda d: d["primitives"][0].pop("length_mm"), "primitives", "rotation_rad"),
         (lambda d: d.update(start_pose=[[1, 0], [0, 1]]), "start_pose", "4x4"),

@@ -18,7 +18,7 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["Status", "enum_of", "field_of", "number_or_inf", "trial_solved"]
+__all__ = ["Status", "enum_of", "field_of", "is_number", "number_or_inf", "trial_solved"]
 
 
 class Status(enum.Enum):
@@ -60,6 +60,49 @@ class Status(enum.Enum):
     def has_plan(self) -> bool:
         """Whether a path comes with this status."""
         return self in (Status.SOLVED, Status.APPROXIMATE)
+
+
+def is_number(value) -> bool:
+    """A JSON number (an int or a float, numpy's too), not a bool and not text.
+
+    Parameters
+    ----------
+    value : object
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> is_number(1.5), is_number("1.5"), is_number(True)
+    (True, False, False)
+    """
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(
+        value, (bool, np.bool_)
+    )
+
+
+def _number_array(value) -> np.ndarray | None:
+    """``value`` as a float array when every leaf is a number (lists of lists, or a numeric
+    array); None when any leaf is text, a bool, null or an object: ``"1.5"`` is not a
+    number in a record, whatever ``float()`` makes of it."""
+    if isinstance(value, np.ndarray):
+        ok = value.dtype.kind in "iuf"
+    else:
+        stack, ok = [value], True
+        while stack and ok:
+            v = stack.pop()
+            if isinstance(v, (list, tuple)):
+                stack.extend(v)
+            else:
+                ok = is_number(v)
+    if not ok:
+        return None
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):  # ragged
+        return None
 
 
 def field_of(data: dict, key: str, where: str, kind: str = "number", *, optional: bool = False):
@@ -107,15 +150,12 @@ def field_of(data: dict, key: str, where: str, kind: str = "number", *, optional
         )
     if kind in ("point", "pose"):
         shape = (3,) if kind == "point" else (4, 4)
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            arr = None
+        arr = _number_array(value)
         if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
             what = "three finite numbers" if kind == "point" else "a 4x4 matrix of finite numbers"
             raise InvalidInputError(name, f"expected {what}")
         return arr
-    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    numeric = is_number(value)
     ok = {
         "number": numeric and np.isfinite(value),
         "int": isinstance(value, int) and not isinstance(value, bool),

@@ -251,6 +251,39 @@ def test_plan_and_verify_give_the_same_result_with_and_without_the_cache(patient
     assert len(_entries(Path(cache))) == 1
 
 
+@pytest.mark.parametrize("damaged", ["sdf_free_space.npy", "occupancy.npy", "free_space.npy"])
+def test_verify_on_a_damaged_cache_says_what_the_masks_say(
+    patient, tmp_path, capsys, caplog, damaged
+):
+    # a few thousand bytes of the prepared fields changed in the middle of the file (where
+    # format 1's sampled check did not look): the entry is rebuilt from the masks, with one
+    # warning, and plan and verify answer as without any cache
+    scenario = tmp_path / "scenario.yaml"
+    cache = str(tmp_path / "cache")
+    clean = _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache")
+    _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache)
+    (entry,) = _entries(Path(cache))
+    path = entry / damaged
+    middle = path.stat().st_size // 2
+    with open(path, "r+b") as f:
+        f.seek(middle)
+        block = bytearray(f.read(4000))
+        f.seek(middle)
+        f.write(bytes(b ^ 0x5A for b in block))
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        code, report = _verify(capsys, scenario, tmp_path / "none.json", "--cache-dir", cache)
+    assert [r.getMessage() for r in caplog.records if "corrupt entry" in r.getMessage()] != []
+    assert len(caplog.records) == 1
+    assert code == clean[2] and _plan_json_like(report) == _plan_json_like(clean[3])
+
+
+def _verify(capsys, scenario: Path, plan: Path, *cache_flags: str):
+    from needlekit.cli import main
+
+    code = main(["verify", str(scenario), str(plan), "--json", *cache_flags])
+    return code, json.loads(capsys.readouterr().out)
+
+
 def _plan_json_like(report):
     return json.loads(
         json.dumps(report),
@@ -336,11 +369,11 @@ def test_a_write_that_fails_midway_leaves_no_entry_and_no_debris(patient, tmp_pa
     real = anatomy_cache._write_array
     calls = []
 
-    def failing(folder, name, values, meta):
+    def failing(folder, name, values, meta, secret):
         calls.append(name)
         if len(calls) == 3:
             raise KeyboardInterrupt  # the process is stopped while it writes
-        real(folder, name, values, meta)
+        real(folder, name, values, meta, secret)
 
     monkeypatch.setattr(anatomy_cache, "_write_array", failing)
     with pytest.raises(KeyboardInterrupt):
@@ -355,6 +388,28 @@ def test_an_unwritable_cache_is_skipped_with_a_warning(patient, tmp_path, caplog
         case = load_medrad("lung", 1, patient, cache_dir=blocked / "cache")
     assert "going on without it" in caplog.text
     assert case.cache_entry is None and "load_s" in case.timings_s
+    fresh = load_medrad("lung", 1, patient, use_cache=False)
+    _same_sdf(case.scene.obstacle_field().base, fresh.scene.obstacle_field().base)
+
+
+def test_without_a_usable_key_the_cache_is_left_alone_with_a_warning(
+    patient, tmp_path, monkeypatch, caplog
+):
+    from needlekit.io.cache_key import CACHE_KEY_ENV, KEY_BYTES
+
+    cache = tmp_path / "cache"
+    signed = load_medrad("lung", 1, patient, cache_dir=cache).cache_entry
+    bad = tmp_path / "cache.key"
+    bad.write_bytes(b"\x00" * KEY_BYTES)
+    bad.chmod(0o644)  # anyone could read it, and sign entries with it
+    monkeypatch.setenv(CACHE_KEY_ENV, str(bad))
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.medrad"):
+        case = load_medrad("lung", 1, patient, cache_dir=cache)
+    assert case.cache_entry is None and "cache_load_s" not in case.timings_s
+    lines = caplog.text.strip().splitlines()
+    assert len(lines) == 1 and "prepared-anatomy cache unavailable" in lines[0]
+    assert "mode 644" in lines[0] and "going on without it" in lines[0]
+    assert _entries(cache) == [signed]  # nothing removed: nothing could be checked
     fresh = load_medrad("lung", 1, patient, use_cache=False)
     _same_sdf(case.scene.obstacle_field().base, fresh.scene.obstacle_field().base)
 
@@ -375,7 +430,7 @@ def test_write_entry_stores_and_reopens_arrays_exactly(tmp_path):
     for name, (values, meta) in arrays.items():
         assert entry[name].values.tobytes() == values.tobytes() and entry[name].meta == meta
         assert not entry[name].values.flags.writeable
-    again = open_entry(tmp_path, "test", key, full_check=True)
+    again = open_entry(tmp_path, "test", key)
     assert again is not None and again["a"].values.tobytes() == arrays["a"][0].tobytes()
     assert open_entry(tmp_path, "test", entry_key({"test": 2})) is None
     assert again.get("missing") is None
@@ -383,22 +438,62 @@ def test_write_entry_stores_and_reopens_arrays_exactly(tmp_path):
     assert open_entry(tmp_path, "test", key).get("c").values.tolist() == [0, 1, 2, 3, 4]
 
 
-def test_the_full_check_finds_damage_the_quick_check_may_miss(tmp_path, caplog):
+def _flip(path: Path, offset: int) -> None:
+    with open(path, "r+b") as f:
+        f.seek(offset)
+        byte = f.read(1)
+        f.seek(offset)
+        f.write(bytes([byte[0] ^ 0x01]))
+
+
+@pytest.mark.parametrize("where", ["header", "middle", "last"])
+def test_any_changed_byte_is_found(tmp_path, caplog, where):
+    # one bit of one byte, anywhere: in the .npy header, in the middle of the values (off
+    # the grid of blocks the sampled check of format 1 read), or the very last byte
     values = np.zeros((64, 64, 64), np.float32)
-    key = entry_key({"test": "full"})
+    key = entry_key({"test": "any byte"})
     entry = write_entry(tmp_path, "test", key, {}, {"a": (values, {})})
     path = entry.path / "a.npy"
     del entry
-    sampled = {0} | {int(i * (path.stat().st_size - 4096) / 63) for i in range(64)}
-    spot = next(o for o in range(5000, path.stat().st_size, 4096)
-                if all(not s <= o < s + 4096 for s in sampled))  # fmt: skip
-    with open(path, "r+b") as f:
-        f.seek(spot)
-        f.write(b"\x01")
-    assert open_entry(tmp_path, "test", key) is not None
+    size = path.stat().st_size
+    offset = {"header": 20, "middle": size // 2 + 1234, "last": size - 1}[where]
+    _flip(path, offset)
     with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
-        assert open_entry(tmp_path, "test", key, full_check=True) is None
+        assert open_entry(tmp_path, "test", key) is None
     assert "corrupt entry" in caplog.text and not (tmp_path / f"test-{key}").exists()
+    assert len(caplog.records) == 1
+
+
+def _forge(entry_path: Path, name: str, values: np.ndarray, secret: bytes) -> None:
+    """Replace an array and rewrite its record consistently, signed with ``secret``."""
+    from needlekit.io.cache_key import file_mac, mac
+
+    npy = entry_path / f"{name}.npy"
+    with open(npy, "wb") as f:
+        np.lib.format.write_array(f, values, allow_pickle=False)
+    rec = json.loads((entry_path / f"{name}.json").read_text())
+    rec.update(bytes=npy.stat().st_size, blake3=file_mac(secret, npy), shape=list(values.shape))
+    body = {k: v for k, v in rec.items() if k != "mac"}
+    rec["mac"] = mac(secret, json.dumps(body, sort_keys=True, separators=(",", ":")).encode())
+    (entry_path / f"{name}.json").write_text(json.dumps(rec))
+
+
+def test_a_record_rewritten_consistently_without_the_key_is_refused(tmp_path, caplog):
+    from needlekit.io.cache_key import cache_key
+
+    key = entry_key({"test": "forged"})
+    values = np.zeros((8, 8, 8), np.float32)
+    forged = np.full_like(values, 50.0)  # "everything is far from every obstacle"
+    path = write_entry(tmp_path, "test", key, {}, {"a": (values, {})}).path
+    # someone without the user's key: a record that is right in every field but its signature
+    _forge(path, "a", forged, b"\x07" * 32)
+    with caplog.at_level(logging.WARNING, logger="needlekit.io.anatomy_cache"):
+        assert open_entry(tmp_path, "test", key) is None
+    assert "signature does not match" in caplog.text
+    # the same rewrite signed with the user's key passes: the key is what decides
+    path = write_entry(tmp_path, "test", key, {}, {"a": (values, {})}).path
+    _forge(path, "a", forged, cache_key())
+    assert open_entry(tmp_path, "test", key)["a"].values.tolist() == forged.tolist()
 
 
 def test_a_writer_that_loses_the_race_uses_the_winners_entry(tmp_path, monkeypatch):
@@ -432,7 +527,7 @@ def test_processes_writing_the_same_entry_do_not_corrupt_it(tmp_path):
         ok = list(pool.map(_write_in_a_process, [(str(tmp_path), key)] * 6))
     assert all(ok)
     assert _entries(tmp_path) == [tmp_path / f"test-{key}"] and not _debris(tmp_path)
-    assert open_entry(tmp_path, "test", key, full_check=True) is not None
+    assert open_entry(tmp_path, "test", key) is not None
 
 
 def test_stale_temporary_folders_are_removed_and_clear_cache_empties(tmp_path):

@@ -455,7 +455,7 @@ class VoxelSDF(DistanceField):
         and the passes that compute the error bound and the structure's box are skipped:
         ``state`` carries their results. Use it only for values and state that a
         :class:`VoxelSDF` produced (e.g. read back from the prepared-anatomy cache, which
-        checks sizes and checksums); the values may be a read-only memory map.
+        checks every byte against its signed record); the values may be a read-only memory map.
 
         Parameters
         ----------

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from needlekit.cli import _flags
 from needlekit.cli._common import (
@@ -315,6 +316,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     if plan is None:
         raise NeedlekitError(f"{args.plan.name}: primitives: the file holds no plan to verify")
     _, problem = _source(args).load(scenario)
+    if args.any_start_direction:  # a sweep's plan: its start point, any direction
+        problem = problem.with_free_start_direction()
     check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
         print(
@@ -333,6 +336,13 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         )
         for v in check.violations:
             print(f"  - {v}")
+    turned = any(v.startswith("start: the plan's insertion direction") for v in check.violations)
+    if turned and data.get("start_direction") == "swept":
+        print(
+            "note: a sweep chose this plan's start direction; --any-start-direction holds it "
+            "to the start point and the entry-angle rule instead",
+            file=sys.stderr,
+        )
     return EXIT_OK if check.ok else 1
 
 
@@ -529,6 +539,13 @@ def _register_verify(sub) -> None:
     add_input(ver, "scenario", help="scenario file (YAML)")
     add_input(ver, "plan", help="plan file (plan.json)")
     _problem_overrides(ver)
+    ver.add_argument(
+        "--any-start-direction",
+        action="store_true",
+        help="hold the plan to the start point only, its direction free within the entry-angle "
+        "rule (a sweep's best plan); by default it must start in the scenario's (or "
+        "--start-pose's) direction too",
+    )
     _flags.add_cache_options(ver)
     _flags.JSON.add(ver, help="print JSON instead of text")
     ver.set_defaults(command_handler=_cmd_verify)

@@ -20,6 +20,7 @@ from needlekit.anatomy.fields import LazyField
 from needlekit.anatomy.voxel import DEFAULT_MASK_PADDING_MM, MASK_OFFSET_MAX_FRACTION, VoxelSDF
 from needlekit.anatomy.voxel_local import local_mask_sdf, preview_mask_sdf
 from needlekit.io import anatomy_cache
+from needlekit.io.cache_key import CacheKeyError
 from needlekit.io.medrad_prepare import FREE_SPACE_PADDING_MM, _prepare, _Prepared, _Spec
 from needlekit.io.volumes import Mask
 
@@ -167,7 +168,13 @@ def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: lis
     label = f"medrad-{organ}{patient}"
     timings = {"hash_s": time.perf_counter() - t0}
     t0 = time.perf_counter()
-    entry = anatomy_cache.open_entry(cache_dir, label, key)
+    try:
+        entry = anatomy_cache.open_entry(cache_dir, label, key)
+    except CacheKeyError as exc:  # nothing can be checked or signed: no cache this run
+        log.warning("prepared-anatomy cache unavailable (%s); going on without it", exc)
+        prep = _prepare(paths, specs, region, n_threads, folder)
+        prep.timings_s = {**timings, **prep.timings_s}
+        return prep
     if entry is not None:
         timings["cache_load_s"] = time.perf_counter() - t0
         log.debug("prepared anatomy from the cache: %s", entry.path)

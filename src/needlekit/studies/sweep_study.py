@@ -162,6 +162,8 @@ def run_sweep_study(
                 plan_path,
                 best,
                 scenario=source.scenario_path,
+                # the sweep chose the direction: `verify --any-start-direction` checks it
+                start_direction="swept",
                 check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
             )
         if report_path is not None:

@@ -16,7 +16,7 @@ from needlekit._validation import as_batch, as_poses
 from needlekit.constants import DEFAULT_SAMPLE_SPACING_MM
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs, sample_arcs, samples_for_spacing
-from needlekit.records import field_of
+from needlekit.records import field_of, is_number
 
 __all__ = ["SteerablePlan", "plan_from_dict"]
 
@@ -181,32 +181,25 @@ def plan_from_dict(data: dict, where: str):
     """
     if not isinstance(data, dict):
         raise InvalidInputError(where, "expected a JSON object (a plan)")
-    try:
-        goal = np.asarray(data["goal_mm"], dtype=float).reshape(3)
-    except (KeyError, TypeError, ValueError):
-        raise InvalidInputError(f"{where}: goal_mm", "expected three numbers") from None
-    cost = data.get("cost_mm")
-    if cost is not None and (
-        isinstance(cost, bool) or not isinstance(cost, (int, float)) or not np.isfinite(cost)
-    ):
-        raise InvalidInputError(f"{where}: cost_mm", f"expected a number or null, got {cost!r}")
-    prims = data.get("primitives") or []
+    goal = field_of(data, "goal_mm", where, "point")
+    field_of(data, "cost_mm", where, optional=True)
+    prims = data.get("primitives")
     if data.get("start_pose") is None or not prims:
+        if prims is not None and not isinstance(prims, list):
+            raise InvalidInputError(f"{where}: primitives", "expected a list")
         return None, goal
-    try:
-        rows = [
-            [float(q["rotation_rad"]), float(q["curvature_per_mm"]), float(q["length_mm"])]
-            for q in prims
-        ]
-    except (KeyError, TypeError, ValueError):
+    start = field_of(data, "start_pose", where, "pose")
+    keys = ("rotation_rad", "curvature_per_mm", "length_mm")
+    if not isinstance(prims, list) or not all(
+        isinstance(q, dict) and all(is_number(q.get(k)) for k in keys) for q in prims
+    ):
         raise InvalidInputError(
             f"{where}: primitives",
-            "expected objects with rotation_rad, curvature_per_mm, length_mm",
-        ) from None
+            "expected objects with numbers rotation_rad, curvature_per_mm, length_mm",
+        )
+    rows = np.array([[float(q[k]) for k in keys] for q in prims])
     try:
-        plan = SteerablePlan(np.asarray(data["start_pose"], dtype=float), np.array(rows))
+        plan = SteerablePlan(start, rows)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{where}: {exc.field}", exc.reason) from None
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{where}: start_pose", "expected a 4x4 matrix") from None
     return plan, goal

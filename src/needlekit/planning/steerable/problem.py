@@ -478,6 +478,17 @@ class SteerableProblem:
             return replace(self, start_pose=pose, start_point_mm=None)
         return self._derived(start_pose=pose, start_point_mm=pose[:3, 3].copy())
 
+    def with_free_start_direction(self) -> SteerableProblem:
+        """The same problem from the same start point with the start direction left free
+        (a sweep's problem): the start pose is dropped, what depends on the point alone
+        (entry surface, puncture normal, collision checkers) is kept.
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        return self._derived(start_pose=None)
+
     def with_goal_tolerance(self, goal_tolerance_mm: float) -> SteerableProblem:
         """The same problem with another goal tolerance (only it is checked).
 

@@ -3,6 +3,10 @@
 Every plan a planner reports passes this check first, and ``needlekit verify`` runs it on
 plan files. It re-derives the path from the plan's primitives alone and checks:
 
+- start: the plan starts at the problem's start point (within :data:`START_TOLERANCE_MM`)
+  and, when the problem has a start pose, in its insertion direction (within
+  :data:`START_TOLERANCE_RAD`; the roll about the needle is free). A problem with only a
+  start point (a sweep's) leaves the direction to the other rules (puncture angle);
 - curvature: every primitive's ``|curvature| <= 1 / r_min``;
 - length: total insertion ``<= l_max``;
 - goal: the end lies within tau of the goal;
@@ -38,10 +42,21 @@ from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 
-__all__ = ["Verification", "verify_approximate", "verify_plan"]
+__all__ = [
+    "START_TOLERANCE_MM",
+    "START_TOLERANCE_RAD",
+    "Verification",
+    "verify_approximate",
+    "verify_plan",
+]
 
 #: Slack on the checked limits (curvature, length, goal distance, angles): rounding only.
 VERIFY_SLACK: float = 1e-9
+
+#: How far a plan may start from the problem's start point (mm) and turn from its start
+#: direction (rad): a plan file stores its start pose to full precision, so only rounding.
+START_TOLERANCE_MM: float = 1e-6
+START_TOLERANCE_RAD: float = 1e-6
 
 
 def _dense_poses(plan: SteerablePlan, spacing_mm: float) -> np.ndarray:
@@ -80,9 +95,9 @@ def verify_plan(
     -------
     Verification
     """
-    bad: list[str] = []
     prims = plan.primitives
     start = plan.start_pose
+    bad = _start_violations(problem, start)
     kappa_max = problem.kappa_max_per_mm
     max_kappa = float(np.abs(prims[:, 1]).max()) if len(prims) else 0.0
     if max_kappa > kappa_max * (1 + VERIFY_SLACK) + VERIFY_SLACK:
@@ -145,6 +160,23 @@ def verify_plan(
         "colliding_samples": n_hits,
     }
     return Verification(not bad, tuple(bad), metrics)
+
+
+def _start_violations(problem: SteerableProblem, start: np.ndarray) -> list[str]:
+    """Where the plan starts against the problem's start point and direction."""
+    bad = []
+    moved = float(np.linalg.norm(start[:3, 3] - problem.start_point_mm))
+    if not moved <= START_TOLERANCE_MM:
+        bad.append(f"start: the plan starts {moved:.4f} mm from the problem's start point")
+    if problem.start_pose is not None:
+        cos = float(np.clip(start[:3, 2] @ problem.start_pose[:3, 2], -1.0, 1.0))
+        turned = float(np.arccos(cos))
+        if not turned <= START_TOLERANCE_RAD:
+            bad.append(
+                f"start: the plan's insertion direction is {np.degrees(turned):.4f} deg from "
+                "the problem's start direction"
+            )
+    return bad
 
 
 def _puncture_angle(problem: SteerableProblem, start: np.ndarray) -> tuple[float | None, str]:
