@@ -92,7 +92,8 @@ def test_missing_cases_are_skipped_saying_why(tmp_path):
 
 
 def test_missing_liver_scenario_is_skipped_saying_why(tmp_path):
-    (tmp_path / "medrad").mkdir()
+    # the data has liver 9, the examples have no scenario for it
+    (tmp_path / "medrad" / "Liver" / "Patient9").mkdir(parents=True)
     rec = run_straight_benchmark(
         repeat=1, livers=(9,), medrad_dir=tmp_path / "medrad", examples_dir=tmp_path
     )
@@ -117,3 +118,14 @@ def test_bad_flags_are_one_error_line_before_any_work(capsys, tmp_path, monkeypa
             code = exc.code
         lines = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and lines[0].startswith(start), lines
+
+
+@pytest.mark.realdata  # with the data, a liver it does not have is refused up front
+def test_a_liver_the_data_does_not_have_is_refused_before_any_work(capsys, tmp_path):
+    out = tmp_path / "bench.json"
+    code = main(["bench", "straight", "--livers", "4", "9", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists()
+    assert (
+        err.startswith("error: --livers: no Med-RAD liver patient 9 at ") and err.count("\n") == 1
+    )

@@ -250,6 +250,10 @@ CASES["formerly heavy"] = [
 ]  # fmt: skip
 
 
+#: A command group without its sub-command is a usage error (exit 2), not its help.
+CASES["groups"] = [["bench"], ["study"], ["scene"], ["kinematics"]]
+
+
 def _check(cases: list[list[str]], files: Path) -> None:
     argvs = [[a.replace("{d}", str(files)) for a in argv] for argv in cases]
     for argv, res in zip(argvs, _run(argvs), strict=True):

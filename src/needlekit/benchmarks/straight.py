@@ -366,6 +366,7 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
 def _case_paths(livers: Sequence[int], medrad_dir, examples: Path) -> list[tuple[str, Any]]:
     """(name, scenario path or the reason it is skipped) per case."""
     from needlekit.io.medrad import medrad_root
+    from needlekit.io.medrad_paths import patient_folder
 
     phantom = examples / PHANTOM_SCENARIO
     out: list[tuple[str, Any]] = [
@@ -378,6 +379,9 @@ def _case_paths(livers: Sequence[int], medrad_dir, examples: Path) -> list[tuple
         missing = None
     except InvalidInputError as exc:
         missing = f"Med-RAD data not found: {exc}"
+    if missing is None:  # a liver the data does not have is refused before any work
+        for n in livers:
+            patient_folder("liver", n, medrad_dir, flag="--livers")
     for n in livers:
         path = examples / f"medrad_liver{n}.yaml"
         if missing is not None:

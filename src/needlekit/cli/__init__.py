@@ -83,7 +83,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE if argv else EXIT_OK
     command = args.command
     if getattr(args, "command_handler", None) is None:  # a group without its sub-command
-        parser.parse_args([command, "--help"])  # prints the group's help and exits
+        print(
+            f"error: {command}: expected a sub-command (needlekit {command} --help)",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
     try:
         check_paths(args)

@@ -402,7 +402,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser(
         "bench", help="benchmarks that record machine, versions, inputs and figures"
     )
-    bench_sub = bench.add_subparsers(dest="bench_command", metavar="SUITE", parser_class=_Parser)
+    bench_sub = bench.add_subparsers(
+        dest="bench_command", metavar="SUITE", parser_class=_Parser, required=True
+    )
     _register_kinematics_fields(bench_sub)
     _register_control(bench_sub)
     _register_steerable(bench_sub)

@@ -139,7 +139,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     kin = sub.add_parser(
         "kinematics", help="bevel-tip needle kinematics: forward and inverse steering"
     )
-    kin_sub = kin.add_subparsers(dest="kin_command", metavar="MODE", parser_class=_Parser)
+    kin_sub = kin.add_subparsers(
+        dest="kin_command", metavar="MODE", parser_class=_Parser, required=True
+    )
     fwd = kin_sub.add_parser(
         "forward",
         help="tip trajectory of the 3D bevel-tip model for piecewise-constant inputs",

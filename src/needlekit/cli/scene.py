@@ -106,7 +106,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     schema.set_defaults(command_handler=_cmd_schema)
     scene = sub.add_parser("scene", help="inspect and render the anatomy of a scenario")
-    scene_sub = scene.add_subparsers(dest="scene_command", metavar="ACTION", parser_class=_Parser)
+    scene_sub = scene.add_subparsers(
+        dest="scene_command", metavar="ACTION", parser_class=_Parser, required=True
+    )
     info = scene_sub.add_parser(
         "info", help="summarise the structures: role, extent, voxel size, volume"
     )

@@ -232,6 +232,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     None
     """
     study = sub.add_parser("study", help="studies over many real cases, one table each")
-    study_sub = study.add_subparsers(dest="study_command", metavar="STUDY", parser_class=_Parser)
+    study_sub = study.add_subparsers(
+        dest="study_command", metavar="STUDY", parser_class=_Parser, required=True
+    )
     _register_livers(study_sub)
     _register_feng_lungs(study_sub)
