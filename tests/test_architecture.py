@@ -40,7 +40,8 @@ LAYERS: dict[str, int] = {
 }
 
 #: The base floor, one block (its modules import one another): errors, constants,
-#: conventions, validation, the result contract, provenance, the batch executor.
+#: conventions, validation, the result contract, provenance, the batch executor, the
+#: memory estimate.
 BASE = {
     "errors",
     "constants",
@@ -50,6 +51,7 @@ BASE = {
     "records",
     "provenance",
     "batch",
+    "memory",
 }
 
 #: Cycles tolerated for now (none: the test fails on any cycle, and on an entry here that

@@ -96,6 +96,18 @@ def _check_workers(workers) -> int | None:
     return workers
 
 
+def _capped(workers: int | None) -> int | None:
+    """More local workers than cores only share the cores (each worker holds its own copy
+    of the anatomy): capped at the CPU count, with a warning."""
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > cores:
+        logging.getLogger(__name__).warning(
+            "%d workers asked for, this machine has %d cores: using %d", workers, cores, cores
+        )
+        return cores
+    return workers
+
+
 @contextmanager
 def open_executor(
     kind: str = "serial", *, workers: int | None = None, address: str | None = None
@@ -107,7 +119,8 @@ def open_executor(
     kind : {"serial", "process", "dask"}
     workers : int, optional
         Worker processes (default: the machine's CPU count; ignored for ``"serial"`` and
-        for a remote Dask scheduler).
+        for a remote Dask scheduler). More than the CPU count is capped to it, with a
+        warning.
     address : str, optional
         Dask scheduler address; without one, ``"dask"`` starts a local cluster of
         ``workers`` single-threaded processes.
@@ -123,6 +136,8 @@ def open_executor(
         ``address`` within :data:`SCHEDULER_TIMEOUT_S` (named ``--scheduler``).
     """
     workers = _check_workers(workers)
+    if kind != "serial" and address is None:
+        workers = _capped(workers)
     if kind == "serial":
         yield SerialExecutor()
     elif kind == "process":

@@ -11,10 +11,9 @@ import sys
 from pathlib import Path
 
 import pytest
-import yaml
 
 from needlekit.cli import main
-from needlekit.io import scenario_schema
+from needlekit.io import safe_yaml, scenario_schema
 from needlekit.planning import registry
 from needlekit.planning.steerable.rcs import RCSStarPlanner
 from needlekit.planning.steerable.rrt import RRTPlanner
@@ -38,13 +37,13 @@ def counts(monkeypatch):
     n = {"schema": 0, "yaml": 0, "check": 0, "built": 0}
     validator = scenario_schema._validator()
     monkeypatch.setattr(scenario_schema, "_validator", lambda: _Counting(validator, n))
-    safe_load = yaml.safe_load
+    load = safe_yaml.load_bounded
 
-    def counting_load(stream):
+    def counting_load(text, **kw):
         n["yaml"] += 1
-        return safe_load(stream)
+        return load(text, **kw)
 
-    monkeypatch.setattr(yaml, "safe_load", counting_load)
+    monkeypatch.setattr(safe_yaml, "load_bounded", counting_load)
     check = registry.check_planner_options
 
     def counting_check(*a, **k):

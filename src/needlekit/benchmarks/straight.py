@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.io.medrad_paths import patient_folder
 from needlekit.planning.interface import Termination, get_planner
 from needlekit.provenance import machine_info
 from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
@@ -366,7 +367,6 @@ def _run_case(name: str, path: Path, *, repeat, resolution_deg, layer_h_mm, medr
 def _case_paths(livers: Sequence[int], medrad_dir, examples: Path) -> list[tuple[str, Any]]:
     """(name, scenario path or the reason it is skipped) per case."""
     from needlekit.io.medrad import medrad_root
-    from needlekit.io.medrad_paths import patient_folder
 
     phantom = examples / PHANTOM_SCENARIO
     out: list[tuple[str, Any]] = [

@@ -51,6 +51,10 @@ def _fields(args: argparse.Namespace) -> dict:
 
     if args.grid < 8:
         raise NeedlekitError("--grid: expected a whole number >= 8")
+    from needlekit.memory import refuse_if_too_big
+
+    # the test grids are float64 (and a mask and an EDT beside each): 8 bytes a voxel at least
+    refuse_if_too_big(8 * args.grid**3, "--grid", f"a {args.grid}^3 grid")
     return run_fields_benchmark(
         grid_size=args.grid,
         n_queries=args.queries,

@@ -28,6 +28,11 @@ def _cmd_markups(args: argparse.Namespace) -> int:
         raise InvalidInputError(
             str(args.plan), f"holds no path (status {status!r}): nothing to export"
         )
+    from needlekit.memory import refuse_if_too_big
+
+    # a curve point is three float64s and about 80 characters of JSON
+    points = plan.length_mm / spacing + 2
+    refuse_if_too_big(100 * points, "--spacing-mm", f"{points:.3g} curve points")
     planner = data.get("planner", "planner")
     write_plan_curve(
         out,

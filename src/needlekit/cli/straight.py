@@ -21,6 +21,29 @@ def _document(args: argparse.Namespace) -> dict:
     return doc
 
 
+#: The least memory one cell of a CFRW map holds: its float64 ray length and its
+#: feasibility, counts and angles beside it (two float64s is far below all of them).
+CFRW_BYTES_PER_CELL = 16
+
+
+def _refuse_big_grid(args: argparse.Namespace, doc: dict) -> None:
+    """``--resolution-deg`` (or the scenario's ``straight.resolution_deg``) whose CFRW
+    grid would not fit in memory, before the anatomy loads."""
+    import math
+
+    from needlekit.memory import refuse_if_too_big
+
+    flag, res = "--resolution-deg", getattr(args, "resolution_deg", None)
+    if res is None:
+        flag, res = "straight.resolution_deg", (doc.get("straight") or {}).get("resolution_deg")
+    if not isinstance(res, (int, float)) or isinstance(res, bool) or not res > 0:
+        return  # the default, or a value the loader refuses with its own message
+    cells = (math.ceil(180.0 / res) + 1) * math.ceil(360.0 / res)
+    refuse_if_too_big(
+        cells * CFRW_BYTES_PER_CELL, flag, f"a {res:g}-degree grid ({cells:.3g} cells)"
+    )
+
+
 def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
     doc = _document(args) if doc is None else doc
     from needlekit.scenario.loading import load_scenario
@@ -32,6 +55,7 @@ def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
 
 def _cmd_cfrw(args: argparse.Namespace) -> int:
     doc = _document(args)
+    _refuse_big_grid(args, doc)
     import numpy as np
 
     from needlekit.io.files import write_json
@@ -82,6 +106,7 @@ def _cmd_multi(args: argparse.Namespace) -> int:
 
     doc = _document(args)
     check_planner_options(args.planner)  # its name, before numba; its options below
+    _refuse_big_grid(args, doc)
     from needlekit.io.files import staged_outputs, write_json
 
     sc, multi, options = _multi_problem(args, doc)

@@ -285,7 +285,7 @@ def _read_array(folder: Path, name: str, secret: bytes) -> CachedArray:
         return CachedArray(np.asarray(values), record["meta"])
     except CorruptEntryError:
         raise
-    except (OSError, EOFError, ValueError, KeyError, TypeError) as exc:  # unreadable, malformed
+    except (OSError, EOFError, ValueError, KeyError, TypeError, RecursionError) as exc:
         raise CorruptEntryError(f"{folder / name}: {exc}") from exc
 
 
@@ -398,7 +398,7 @@ def _open_dir(path: Path, key: str, secret: bytes) -> CacheEntry:
         names = list(manifest["arrays"])
     except CorruptEntryError:
         raise
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, RecursionError) as exc:
         raise CorruptEntryError(f"{mpath}: {exc}") from exc
     arrays = {n: _read_array(path, n, secret) for n in names}
     return CacheEntry(path, manifest, arrays, secret)

@@ -367,6 +367,8 @@ def read_json_object(path: str | os.PathLike, what: str) -> dict:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InvalidInputError(str(p), f"not a JSON {what} file ({exc})") from None
+    except RecursionError:
+        raise InvalidInputError(str(p), "nested too deeply to be a needlekit file") from None
     if not isinstance(data, dict):
         raise InvalidInputError(str(p), "expected a JSON object at the top level")
     return data

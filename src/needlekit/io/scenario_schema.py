@@ -14,6 +14,7 @@ a bad scenario file at once.
 
 from __future__ import annotations
 
+import math
 import os
 from functools import cache
 from pathlib import Path
@@ -21,6 +22,7 @@ from typing import Any
 
 from needlekit.anatomy.collision_registry import check_collision_model
 from needlekit.errors import InvalidInputError
+from needlekit.io import safe_yaml
 from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-exported
     BASE,
     DYNAMIC,
@@ -161,6 +163,7 @@ def validate_scenario_document(data: Any, source: str) -> None:
     """
     import jsonschema
 
+    _refuse_non_finite(data, source)
     errors = sorted(
         _validator().iter_errors(data),
         key=lambda e: (len(e.absolute_path), list(map(str, e.absolute_path))),
@@ -175,6 +178,39 @@ def validate_scenario_document(data: Any, source: str) -> None:
             check_collision_model(data["collision_model"])
         except InvalidInputError as exc:
             raise InvalidInputError(f"{source}: collision_model", exc.reason) from None
+
+
+#: Largest length or coordinate a scenario may give (mm): a kilometre, far past any
+#: anatomy or robot, and far enough from the float range that distances, squares and
+#: sample counts computed from it stay finite.
+MAX_ABS_MM: float = 1e6
+
+
+def _refuse_non_finite(data: Any, source: str) -> None:
+    """No NaN or infinity anywhere in a document (YAML's ``.nan``, ``.inf``; numbers past
+    the float range such as ``1e999``), and no length (a field named ``*_mm``, or a value
+    inside one) past :data:`MAX_ABS_MM`: named by its field, before the schema looks."""
+    stack = [(data, "", False)]
+    while stack:
+        value, where, mm = stack.pop()
+        if isinstance(value, float) and not math.isfinite(value):
+            raise InvalidInputError(
+                f"{source}: {where or '(top level)'}", f"expected a finite number, got {value}"
+            )
+        if mm and isinstance(value, (int, float)) and not isinstance(value, bool):
+            if abs(value) > MAX_ABS_MM:
+                raise InvalidInputError(
+                    f"{source}: {where}",
+                    f"{value:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size or "
+                    "position in a body",
+                )
+        if isinstance(value, dict):
+            stack.extend(
+                (v, f"{where}.{k}" if where else str(k), mm or str(k).endswith("_mm"))
+                for k, v in value.items()
+            )
+        elif isinstance(value, list):
+            stack.extend((v, f"{where}[{i}]", mm) for i, v in enumerate(value))
 
 
 class ScenarioDocument(dict):
@@ -248,9 +284,11 @@ def read_scenario_document(path: str | os.PathLike) -> ScenarioDocument:
         raise InvalidInputError(str(p), "scenario file not found")
     try:
         text = p.read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
+        data = safe_yaml.load_bounded(text)
     except (OSError, UnicodeDecodeError) as exc:
         raise InvalidInputError(str(p), f"cannot read the file ({exc})") from None
+    except safe_yaml.YamlBoundsError as exc:
+        raise InvalidInputError(str(p), f"refused at line {exc.line}: the document {exc}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

@@ -150,6 +150,13 @@ def precheck(
     """
     start = problem.start_pose
     p0, d0 = start[:3, 3], start[:3, 2]
+    gap = float(np.linalg.norm(np.asarray(goal_mm, float) - p0))
+    if gap <= problem.goal_tolerance_mm:
+        return (
+            PlanStatus.INVALID_PROBLEM,
+            f"the goal is {gap:.3f} mm from the start, within the goal tolerance "
+            f"{problem.goal_tolerance_mm:g} mm: there is nothing to insert",
+        )
     if validator.points_collide(p0[None]):
         return PlanStatus.INVALID_PROBLEM, "start collides beyond the start exclusion"
     if validator.goal_collides(goal_mm):
