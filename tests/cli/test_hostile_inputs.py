@@ -192,3 +192,22 @@ def test_more_workers_than_cores_are_capped_with_a_warning(caplog):
     assert caplog.messages == [
         f"{cores + 5} workers asked for, this machine has {cores} cores: using {cores}"
     ]
+
+
+@pytest.mark.parametrize(
+    "doc",
+    [
+        {"version": 1, "collision_options": {"a\nb": float("inf")}},
+        {"version": 1, "goal": {"point\n_mm": [1e308, 0, 0]}},
+        {"version": 1, "needle": {"r_min_mm": 50, "x\r": float("nan")}},
+    ],
+    ids=["inf-under-a-broken-key", "mm-key-with-a-line-break", "nan-under-a-carriage-return"],
+)
+def test_a_key_with_line_breaks_keeps_the_error_on_one_line(doc):
+    from needlekit.errors import InvalidInputError
+    from needlekit.io.scenario_schema import validate_scenario_document
+
+    with pytest.raises(InvalidInputError) as err:
+        validate_scenario_document(doc, "fuzz.yaml")
+    assert "\n" not in str(err.value) and "\r" not in str(err.value)
+    assert str(err.value).startswith("fuzz.yaml: ")

@@ -99,10 +99,17 @@ def _validator():
     return jsonschema.Draft202012Validator(SCENARIO_SCHEMA)
 
 
+def _key(part) -> str:
+    """A mapping key as a message shows it: as written, or quoted when it holds line breaks
+    or other unprintable characters (the message stays one line)."""
+    text = str(part)
+    return text if text.isprintable() else repr(text)
+
+
 def _where(path) -> str:
     out = ""
     for part in path:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+        out += f"[{part}]" if isinstance(part, int) else (f".{_key(part)}" if out else _key(part))
     return out or "(top level)"
 
 
@@ -206,7 +213,7 @@ def _refuse_non_finite(data: Any, source: str) -> None:
                 )
         if isinstance(value, dict):
             stack.extend(
-                (v, f"{where}.{k}" if where else str(k), mm or str(k).endswith("_mm"))
+                (v, f"{where}.{_key(k)}" if where else _key(k), mm or str(k).endswith("_mm"))
                 for k, v in value.items()
             )
         elif isinstance(value, list):
