@@ -211,3 +211,18 @@ def test_a_key_with_line_breaks_keeps_the_error_on_one_line(doc):
         validate_scenario_document(doc, "fuzz.yaml")
     assert "\n" not in str(err.value) and "\r" not in str(err.value)
     assert str(err.value).startswith("fuzz.yaml: ")
+
+
+@pytest.mark.parametrize("value", [10**400, -(10**5000)], ids=["1e400", "minus-1e5000"])
+def test_a_whole_number_past_the_float_range_is_named(value):
+    from needlekit.errors import InvalidInputError
+    from needlekit.io.scenario_schema import validate_scenario_document
+
+    with pytest.raises(InvalidInputError) as err:
+        validate_scenario_document({"version": 1, "goal": {"point_mm": [value, 0, 0]}}, "f.yaml")
+    power = 400 if value > 0 else 5000
+    sign = "" if value > 0 else "-"
+    assert str(err.value) == (
+        f"f.yaml: goal.point_mm[0]: {sign}10^{power} mm is past 1e+06 mm (a kilometre): "
+        "not a size or position in a body"
+    )

@@ -193,6 +193,14 @@ def validate_scenario_document(data: Any, source: str) -> None:
 MAX_ABS_MM: float = 1e6
 
 
+def _magnitude(value: float) -> str:
+    """A large number in a few characters (an int past the float range too)."""
+    try:
+        return f"{float(value):g}"
+    except OverflowError:
+        return f"{'-' if value < 0 else ''}10^{int(abs(value).bit_length() * math.log10(2))}"
+
+
 def _refuse_non_finite(data: Any, source: str) -> None:
     """No NaN or infinity anywhere in a document (YAML's ``.nan``, ``.inf``; numbers past
     the float range such as ``1e999``), and no length (a field named ``*_mm``, or a value
@@ -208,8 +216,8 @@ def _refuse_non_finite(data: Any, source: str) -> None:
             if abs(value) > MAX_ABS_MM:
                 raise InvalidInputError(
                     f"{source}: {where}",
-                    f"{value:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size or "
-                    "position in a body",
+                    f"{_magnitude(value)} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a "
+                    "size or position in a body",
                 )
         if isinstance(value, dict):
             stack.extend(
