@@ -150,12 +150,12 @@ def test_a_goal_at_the_start_is_a_clear_answer_in_valid_json(tmp_path, capsys):
         (
             ["cfrw", MULTI, "--resolution-deg", "1e-5"],
             "--resolution-deg",
-            "a 1e-05-degree grid (6.48e+14 cells)",
+            "a 1e-05-degree grid (2.16e+14 cells)",
         ),
         (
             ["multi", MULTI, "--resolution-deg", "1e-5"],
             "--resolution-deg",
-            "a 1e-05-degree grid (6.48e+14 cells)",
+            "a 1e-05-degree grid (2.16e+14 cells)",
         ),
         (["bench", "fields", "--grid", "1000000"], "--grid", "a 1000000^3 grid"),
     ],

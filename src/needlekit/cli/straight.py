@@ -28,17 +28,23 @@ CFRW_BYTES_PER_CELL = 16
 
 def _refuse_big_grid(args: argparse.Namespace, doc: dict) -> None:
     """``--resolution-deg`` (or the scenario's ``straight.resolution_deg``) whose CFRW
-    grid would not fit in memory, before the anatomy loads."""
-    import math
-
+    grid would not fit in memory, before the anatomy loads: the grid's cells over the
+    scenario's angle ranges, as the map will build them."""
     from needlekit.memory import refuse_if_too_big
+    from needlekit.planning.straight import angle_grid as grid
 
+    block = doc.get("straight") or {}
     flag, res = "--resolution-deg", getattr(args, "resolution_deg", None)
     if res is None:
-        flag, res = "straight.resolution_deg", (doc.get("straight") or {}).get("resolution_deg")
+        flag, res = "straight.resolution_deg", block.get("resolution_deg")
     if not isinstance(res, (int, float)) or isinstance(res, bool) or not res > 0:
         return  # the default, or a value the loader refuses with its own message
-    cells = (math.ceil(180.0 / res) + 1) * math.ceil(360.0 / res)
+    m, k = grid.grid_shape(
+        block.get("theta_range_deg", grid.DEFAULT_THETA_RANGE_DEG),
+        block.get("phi_range_deg", grid.DEFAULT_PHI_RANGE_DEG),
+        res,
+    )
+    cells = m * k
     refuse_if_too_big(
         cells * CFRW_BYTES_PER_CELL, flag, f"a {res:g}-degree grid ({cells:.3g} cells)"
     )

@@ -23,6 +23,7 @@ from needlekit.anatomy.fields import DistanceField, union
 from needlekit.anatomy.scene import Role, Scene
 from needlekit.constants import DEFAULT_MAX_LENGTH_MM
 from needlekit.errors import InvalidInputError
+from needlekit.planning.straight.angle_grid import DEFAULT_PHI_RANGE_DEG, DEFAULT_THETA_RANGE_DEG
 
 __all__ = [
     "DEFAULT_GAMMA_MM",
@@ -173,8 +174,8 @@ class StraightProblem:
     entry_surface: str
     needle: StraightNeedle = field(default_factory=StraightNeedle)
     gamma_mm: float = DEFAULT_GAMMA_MM
-    theta_range_deg: tuple = (0.0, 90.0)
-    phi_range_deg: tuple = (-180.0, 180.0)
+    theta_range_deg: tuple = DEFAULT_THETA_RANGE_DEG
+    phi_range_deg: tuple = DEFAULT_PHI_RANGE_DEG
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     max_normal_angle_deg: float = 90.0
     extra_obstacles: tuple = ()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.planning.straight.angle_grid import grid_shape
 from needlekit.planning.straight.cfrw.bounds import (
     CLEARANCE_CAP_ABOVE_GAMMA_MM,
     NEAR_STEP_MM,
@@ -59,13 +60,11 @@ def cfrw_map(
         )
     t0, t1 = np.radians(problem.theta_range_deg)
     p0, p1 = np.radians(problem.phi_range_deg)
-    m = int(round((t1 - t0) / np.radians(res))) + 1
+    m, k = grid_shape(problem.theta_range_deg, problem.phi_range_deg, res)
     theta = np.linspace(t0, t1, m)
     if p1 - p0 >= 2 * np.pi - 1e-9:
-        k = int(round(2 * np.pi / np.radians(res)))
         phi = p0 + np.arange(k) * (2 * np.pi / k)
     else:
-        k = int(round((p1 - p0) / np.radians(res))) + 1
         phi = np.linspace(p0, p1, k)
     T, P = np.meshgrid(theta, phi, indexing="ij")
     u = directions_of(T, P, problem.world_T_sigma)
