@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from scipy.ndimage import gaussian_filter, map_coordinates
+from scipy.ndimage import distance_transform_edt, gaussian_filter, map_coordinates
 from scipy.spatial.transform import Rotation
 
+from needlekit.anatomy.grids import mask_edt
 from needlekit.anatomy.voxel import (
     PARALLEL_MIN_POINTS,
     VoxelSDF,
@@ -178,6 +179,29 @@ def test_field_uses_serial_and_parallel_kernels_consistently(lung_like_sphere):
 
 # ----------------------------------------------------------------------------------------
 # mask fields: error bound against the exact voxel surface
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_mask_edt_is_scipys_transform_and_edts_boolean_one(seed):
+    """The shared EDT (the mask's bytes as uint8 labels) against SciPy's exact transform
+    (unset voxels beyond the array, as ``black_border=False`` leaves them) and against
+    the edt package given the boolean mask, on random anisotropic blobs and their
+    complements."""
+    import edt
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(v) for v in rng.integers(2, 24, size=3))
+    mask = gaussian_filter(rng.standard_normal(shape), 1.5) > rng.uniform(-0.2, 0.2)
+    spacing = tuple(float(v) for v in rng.uniform(0.3, 2.0, size=3))
+    for m in (mask, ~mask):
+        got = mask_edt(m, spacing, threads=int(rng.integers(1, 3)))
+        assert got.dtype == np.float32 and got.shape == m.shape
+        boolean = edt.edt(m, anisotropy=spacing, black_border=False, parallel=1)
+        assert np.array_equal(got, boolean)
+        if m.all():  # no unset voxel at all: edt's convention, the array's border is not one
+            continue
+        exact = distance_transform_edt(m, sampling=spacing)
+        np.testing.assert_allclose(got, exact, rtol=1e-6, atol=1e-6)
 
 
 def test_mask_offset_and_bound_values():

@@ -6,6 +6,7 @@ The error analysis behind :func:`mask_surface_offset` is in :mod:`needlekit.anat
 
 from __future__ import annotations
 
+import edt
 import numpy as np
 
 from needlekit._validation import as_positive, as_scalar
@@ -18,6 +19,7 @@ __all__ = [
     "crop_mask",
     "downsample_mask",
     "grid_for_bounds",
+    "mask_edt",
     "mask_surface_offset",
 ]
 
@@ -97,6 +99,32 @@ def mask_surface_offset(spacing_mm) -> tuple[float, float]:
     half_min = 0.5 * float(h.min())
     a = min(0.5 * (r + half_min), MASK_OFFSET_MAX_FRACTION * 2.0 * half_min)
     return a, max(a - half_min, r - a)
+
+
+def mask_edt(mask: np.ndarray, spacing_mm, threads: int = 1) -> np.ndarray:
+    """Euclidean distance (mm, float32) from each set voxel centre of a boolean mask to
+    the nearest unset one (0 at unset voxels); the grid's border is not a boundary.
+
+    The ``edt`` package's transform, given the mask's bytes as ``uint8`` 0/1 labels: the
+    same values as a boolean input (one label against the background; the tests compare
+    both with SciPy's transform), and on this package's masks about twice as fast (edt
+    3.1: a lung's free space 0.36 -> 0.19 s per transform on 2 cores, a start's 40 x 40 x
+    34 window 4.1 -> 2.0 ms).
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (i, j, k)
+    spacing_mm : sequence of 3 floats
+        Voxel spacings along the array's axes.
+    threads : int
+
+    Returns
+    -------
+    ndarray of float32, shape (i, j, k)
+    """
+    m = np.ascontiguousarray(mask, dtype=bool)
+    aniso = tuple(float(s) for s in spacing_mm)
+    return edt.edt(m.view(np.uint8), anisotropy=aniso, black_border=False, parallel=int(threads))
 
 
 def grid_for_bounds(bounds, voxel_size_mm: float, padding_mm: float):

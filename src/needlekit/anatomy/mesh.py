@@ -26,13 +26,13 @@ from __future__ import annotations
 import math
 import os
 
-import edt
 import numba
 import numpy as np
 import trimesh
 
 from needlekit._validation import as_positive, as_scalar
 from needlekit.anatomy.fields import DistanceField
+from needlekit.anatomy.grids import mask_edt
 from needlekit.anatomy.voxel import VoxelSDF, grid_for_bounds
 from needlekit.errors import InvalidInputError
 
@@ -473,7 +473,7 @@ def voxelize_mesh_sdf(
     value_error = 0.0
     if not exact.all():
         threads = int(n_threads) if n_threads else (os.cpu_count() or 1)
-        far = edt.edt(~(dist <= r), anisotropy=(h, h, h), black_border=False, parallel=threads)
+        far = mask_edt(~(dist <= r), (h, h, h), threads)
         dist = np.where(exact, dist, np.maximum(far, np.float32(band)))
         value_error = r
     np.negative(dist, out=dist, where=inside)

@@ -43,7 +43,6 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
-import edt
 import numpy as np
 
 from needlekit._validation import as_scalar
@@ -69,6 +68,7 @@ from needlekit.anatomy.grids import (
     crop_mask,
     downsample_mask,
     grid_for_bounds,
+    mask_edt,
     mask_surface_offset,
 )
 from needlekit.errors import InvalidInputError
@@ -305,10 +305,9 @@ class VoxelSDF(DistanceField):
         g = _MaskGrid(m.shape, _bbox(m), a, padding_mm, crop)
         m, a = _window(m, g.affine, g.lo, g.hi)
         threads = int(n_threads) if n_threads else (os.cpu_count() or 1)
-        aniso = tuple(float(s) for s in g.spacing)
-        values = edt.edt(~m, anisotropy=aniso, black_border=False, parallel=threads)
+        values = mask_edt(~m, g.spacing, threads)
         values -= np.float32(g.offset)
-        inside = edt.edt(m, anisotropy=aniso, black_border=False, parallel=threads)
+        inside = mask_edt(m, g.spacing, threads)
         np.subtract(np.float32(g.offset), inside, out=values, where=m)
         del inside
         return cls(values, a, value_error_mm=g.value_error, _box=g.box_world())

@@ -26,12 +26,17 @@ full field's answer.
 
 from __future__ import annotations
 
-import edt
 import numpy as np
 
 from needlekit._validation import as_points, as_scalar
 from needlekit.anatomy.fields import GRADIENT_STEP_MM, DistanceField
-from needlekit.anatomy.grids import _bbox, _orthogonal_affine, downsample_mask, mask_surface_offset
+from needlekit.anatomy.grids import (
+    _bbox,
+    _orthogonal_affine,
+    downsample_mask,
+    mask_edt,
+    mask_surface_offset,
+)
 from needlekit.anatomy.voxel import VoxelSDF, _index_box_to_world, grid_error_bounds
 from needlekit.errors import InvalidInputError
 
@@ -176,12 +181,11 @@ def _point_field(part: np.ndarray, affine: np.ndarray, point: np.ndarray) -> Loc
     b_hi = np.minimum(np.ceil(u).astype(np.int64) + half, np.array(padded.shape) - 1)
     block = tuple(slice(int(x), int(y) + 1) for x, y in zip(b_lo, b_hi, strict=True))
     offset, value_error = mask_surface_offset(spacing)
-    aniso = tuple(float(v) for v in spacing)
-    values = edt.edt(~padded, anisotropy=aniso, black_border=False, parallel=1)[block]
+    values = mask_edt(~padded, spacing)[block]
     values -= np.float32(offset)
     inside_block = padded[block]
     if inside_block.any():
-        inside = edt.edt(padded, anisotropy=aniso, black_border=False, parallel=1)[block]
+        inside = mask_edt(padded, spacing)[block]
         np.subtract(np.float32(offset), inside, out=values, where=inside_block)
     values = np.ascontiguousarray(values, dtype=np.float32)
     origin = a.copy()

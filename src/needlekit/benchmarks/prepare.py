@@ -9,7 +9,7 @@ while the stage ran (a lower bound: a spike shorter than the sampling step, or o
 numpy call holds the GIL, can be missed).
 
 Stages (``load_medrad``'s own timings split the load): ``import`` (numpy, scipy, numba,
-needlekit), ``hash`` (the mask files' digests, the cache key), then cold ``read``,
+needlekit, the scenario reader), ``hash`` (the mask files' digests, the cache key), then cold ``read``,
 ``align``, ``free_space``, ``free_field``, ``cache_write``, or warm ``cache_load``; then
 ``scene`` (the scene and the combined obstacle field), ``problem`` (start 1's problem: its
 entry surface and normal, and the obstacle voxels of the ``voxel_centres`` model) and
@@ -95,6 +95,10 @@ def _run_stages(root: str | None, patient: int, cache_dir: str) -> dict[str, Any
     spans: list[tuple[str, float, float]] = []
     t = time.perf_counter()
 
+    # what ``needlekit plan SCENARIO`` has imported before it loads the anatomy: the
+    # scenario reader too (it reads the file first), whose import the problem stage
+    # would otherwise pay for, as it pays for no other import
+    import needlekit.scenario.loading  # noqa: F401
     from needlekit.benchmarks.steerable import medrad_lung_problem
     from needlekit.io.medrad import load_medrad
     from needlekit.planning.steerable.solve import solve
