@@ -41,7 +41,7 @@ LAYERS: dict[str, int] = {
 
 #: The base floor, one block (its modules import one another): errors, constants,
 #: conventions, validation, the result contract, provenance, the batch executor, the
-#: memory estimate.
+#: memory estimate, the units' plausible ranges.
 BASE = {
     "errors",
     "constants",
@@ -52,6 +52,7 @@ BASE = {
     "provenance",
     "batch",
     "memory",
+    "plausibility",
 }
 
 #: Cycles tolerated for now (none: the test fails on any cycle, and on an entry here that

@@ -11,6 +11,7 @@ import html
 import importlib
 import inspect
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -267,11 +268,33 @@ def test_a_moved_scenario_is_found_beside_the_result_or_given(made, tmp_path, ca
     (moved / "plan.json").write_text(json.dumps({**doc, "scenario": "gone/toy.yaml"}))
     line = _one_error_line(capsys, ["report", moved / "plan.json", "--out", tmp_path / "b.html"])
     assert line == (
-        f"error: --scenario: {moved / 'plan.json'} names the scenario gone/toy.yaml, which is "
-        "not there; give its path with --scenario"
+        f"error: --scenario: {moved / 'plan.json'} names the scenario 'gone/toy.yaml' (relative "
+        f"to the result: '{moved / 'gone/toy.yaml'}'), which is not there; give its path with "
+        "--scenario"
     )
     argv = ["report", moved / "plan.json", "--scenario", TOY, "--out", tmp_path / "b.html"]
     assert _run(argv) == 0 and (tmp_path / "b.html").stat().st_size > 0
+
+
+def test_a_result_names_its_scenario_relative_to_itself_only(tmp_path, capsys, monkeypatch):
+    """Issue 22, point 7: the commands write the scenario's path relative to the result, and
+    report reads it there, whatever the working folder; a path that only the working
+    folder would resolve is not read."""
+    out = tmp_path / "runs" / "a" / "plan.json"
+    out.parent.mkdir(parents=True)
+    assert _run(["plan", TOY, "--max-iterations", "50", "--out", out]) in (0, 1)
+    written = json.loads(out.read_text())["scenario"]
+    assert written == os.path.relpath(TOY, out.parent) and not os.path.isabs(written)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the report runs from another folder: same scenario
+    assert _run(["report", out, "--out", tmp_path / "r.html"]) in (0, 1)
+    # a working-folder path (what results used to hold) is not looked up there
+    (elsewhere / "toy.yaml").write_text(TOY.read_text())
+    doc = {**json.loads(out.read_text()), "scenario": "toy.yaml"}
+    out.write_text(json.dumps(doc))
+    line = _one_error_line(capsys, ["report", out, "--out", tmp_path / "s.html"])
+    assert line.startswith(f"error: --scenario: {out} names the scenario 'toy.yaml' (relative to ")
 
 
 def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):

@@ -226,3 +226,54 @@ def test_a_whole_number_past_the_float_range_is_named(value):
         f"f.yaml: goal.point_mm[0]: {sign}10^{power} mm is past 1e+06 mm (a kilometre): "
         "not a size or position in a body"
     )
+
+
+# ---------------------------------------------------------------------------------------
+# point 7: an error never echoes what the file holds
+
+
+def _secret_files(tmp_path: Path) -> dict[str, Path]:
+    """Files that are not what a command expects, each holding the word SECRET where a
+    parser would quote it."""
+    files = {
+        "shadow": "root:SECRET1:19000:0:99999:7:::\nuser:*SECRET2\n",
+        "alias.yaml": "a: *SECRET3\n",
+        "tag.yaml": "a: !SECRET4 x\n",
+        "pose.txt": "SECRET5 1 2 3\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+        "bad.json": '{"a": SECRET6}',
+        "header.nrrd": "NRRD0004\ntype: SECRET7\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n",
+        "mesh.vtk": "# vtk DataFile Version 3.0\nx\nASCII\nDATASET POLYDATA\nPOINTS 1 float\n"
+        "SECRET8 0 0\n",
+    }
+    out = {}
+    for name, text in files.items():
+        out[name] = tmp_path / name
+        out[name].write_text(text)
+    gz = tmp_path / "mask.nii.gz"
+    gz.write_bytes(b"SECRET9 not gzip")
+    out["mask.nii.gz"] = gz
+    return out
+
+
+def test_errors_never_echo_the_file(tmp_path, capsys):
+    f = _secret_files(tmp_path)
+    cases = [
+        ["plan", f["shadow"]],
+        ["plan", f["alias.yaml"]],
+        ["plan", f["tag.yaml"]],
+        ["plan", TOY, "--start-pose", f["pose.txt"]],
+        ["plan", TOY, "--start-pose", f["shadow"]],
+        ["verify", TOY, f["bad.json"]],
+        ["verify", TOY, f["shadow"]],
+        ["report", f["shadow"], "--out", tmp_path / "r.html"],
+        ["markups", f["bad.json"], "--out", tmp_path / "m.mrk.json"],
+    ]
+    for name, kind in (("header.nrrd", "mask"), ("mask.nii.gz", "mask"), ("mesh.vtk", "mesh")):
+        scenario = tmp_path / f"with-{name}.yaml"
+        scenario.write_text(
+            f"version: 1\nstructures:\n  - {{name: a, role: obstacle, {kind}: {{path: {name}}}}}\n"
+        )
+        cases.append(["scene", "info", scenario])
+    for argv in cases:
+        line = _one_error(capsys, *argv)
+        assert "SECRET" not in line, (argv, line)

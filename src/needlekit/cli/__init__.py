@@ -23,6 +23,7 @@ from needlekit.cli._common import EXIT_OK, EXIT_USAGE
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import NeedlekitError
+from needlekit.plausibility import flag_warnings, warn
 
 __all__ = ["main"]
 
@@ -90,6 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         check_paths(args)
+        warn(flag_warnings(vars(args)))
         from needlekit.io.files import staged_outputs
 
         with staged_outputs():

@@ -18,6 +18,7 @@ from needlekit.cli._common import (
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError, NeedlekitError
+from needlekit.io.results import scenario_reference
 
 
 def _pose_override(args: argparse.Namespace):
@@ -109,7 +110,7 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
     _, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
-    write_plan_json(args.out, res, scenario=str(args.scenario))
+    write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
     print(
@@ -160,7 +161,7 @@ def _plan_dynamic(args: argparse.Namespace, doc: dict, settings, dynamic: dict) 
     kw = checked_dynamic_settings(dynamic)
     sc, static, moving = moving_case(_source(args), doc)
     res = replan_among_moving(static, moving, **kw, **settings.replanning())
-    record = {"scenario": str(args.scenario), **res.to_dict()}
+    record = {"scenario": scenario_reference(args.scenario, args.out), **res.to_dict()}
     with staged_outputs():
         write_json(args.out, record)
         if args.report is not None:
@@ -228,7 +229,7 @@ def _plan_goals(args: argparse.Namespace, doc: dict, settings, planner_instance)
     record = {
         "planner": planner,
         "mode": args.multi,
-        "scenario": str(args.scenario),
+        "scenario": scenario_reference(args.scenario, args.out),
         "targets": [r.to_dict() for r in results],
     }
     with staged_outputs():

@@ -8,6 +8,7 @@ from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK, _positive, _positive_int
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
+from needlekit.io.results import scenario_reference
 
 
 def _document(args: argparse.Namespace) -> dict:
@@ -76,7 +77,7 @@ def _cmd_cfrw(args: argparse.Namespace) -> int:
     res = args.resolution_deg or options.get("resolution_deg", 1.0)
     m = cfrw_map(problem, resolution_deg=res)
     record = m.to_dict()
-    record["scenario"] = str(args.scenario)
+    record["scenario"] = scenario_reference(args.scenario, args.out)
     record["target"] = args.target
     record["resolution_deg"] = res
     record["layers"] = {
@@ -130,7 +131,7 @@ def _cmd_multi(args: argparse.Namespace) -> int:
         plan = planner.solve(multi, Termination(args.time_limit_s))
     record = plan.to_dict()
     record["planner"] = args.planner
-    record["scenario"] = str(args.scenario)
+    record["scenario"] = scenario_reference(args.scenario, args.out)
     record["resolution_deg"] = options.get("resolution_deg", 1.0)  # to redraw the maps
     record["coverage"] = None if coverage is None else coverage.to_dict()
     if coverage is not None and not coverage.ok:
@@ -283,7 +284,7 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     )
     analysis_s = time.perf_counter() - t1
     record = a.to_dict(per_face=not args.summary_only)
-    record["scenario"] = str(args.scenario)
+    record["scenario"] = scenario_reference(args.scenario, args.out)
     record["skin"] = {"structure": problem.entry_surface, "faces": int(len(skin.faces))}
     record["obstacles"] = {name: int(len(m.faces)) for name, m in obstacles.items()}
     record["timings_s"] = {"meshes": mesh_s, "analysis": analysis_s}

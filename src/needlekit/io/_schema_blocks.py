@@ -337,11 +337,16 @@ STRAIGHT = _obj(
         "theta_range_deg": _RANGE2,
         "phi_range_deg": _RANGE2,
         "up": _VEC3,
-        "max_normal_angle_deg": _POS,
-        "approach_cone_deg": _POS,
-        "resolution_deg": _POS,
+        "max_normal_angle_deg": {**_POS, "maximum": 90},
+        "approach_cone_deg": {**_POS, "maximum": 180},
+        "resolution_deg": {**_POS, "maximum": 45},
         "objective": {"enum": ["min_length", "max_clearance", "min_normal_angle"]},
-        "order": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+        "order": {
+            "type": "array",
+            "items": {"type": "integer", "minimum": 0},
+            "uniqueItems": True,
+            "description": "the needles' order: a permutation of 0..n-1 over the n targets",
+        },
         "deformation": {
             "anyOf": [
                 {"enum": ["none", "needle_drag"]},

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextvars
 import json
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -31,7 +32,41 @@ __all__ = [
     "write_bytes",
     "write_json",
     "write_text",
+    "without_content",
 ]
+
+#: What a parser's message may quote of a file: its syntax (a bracket, a comma, a colon,
+#: a tab) and the parser's own markers (``<stream end>``); anything else quoted is the
+#: file's text.
+_QUOTABLE = re.compile(r"""(['"])(?:[^\w\s]{1,3}|<[a-z ]+>|\\t)\1""")
+_QUOTED = re.compile(r"b?'[^']*'" + r'|b?"[^"]*"')
+
+
+def without_content(message: str) -> str:
+    """A library's error message with the file's own text taken out, for an error line: a
+    parser that quotes what it found (``found undefined alias 'X'``, ``Not a gzipped file
+    (b'ro')``, ``could not convert string 'X' to float``) would print part of whatever
+    file the user pointed at, perhaps by mistake. The punctuation it expected and its
+    markers stay; other quoted text becomes ``'...'``.
+
+    Parameters
+    ----------
+    message : str
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> without_content("found undefined alias 'secret'")
+    "found undefined alias '...'"
+    >>> without_content("expected ',' or ']', but got '<stream end>'")
+    "expected ',' or ']', but got '<stream end>'"
+    """
+    return _QUOTED.sub(
+        lambda m: m.group(0) if _QUOTABLE.fullmatch(m.group(0)) else "'...'", str(message)
+    )
 
 
 def _umask() -> int:
@@ -366,7 +401,9 @@ def read_json_object(path: str | os.PathLike, what: str) -> dict:
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(str(p), f"not a JSON {what} file ({exc})") from None
+        raise InvalidInputError(
+            str(p), f"not a JSON {what} file ({without_content(exc)})"
+        ) from None
     except RecursionError:
         raise InvalidInputError(str(p), "nested too deeply to be a needlekit file") from None
     if not isinstance(data, dict):

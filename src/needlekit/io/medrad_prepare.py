@@ -41,7 +41,8 @@ def _align(mask: Mask, ref: Mask, name: str) -> Mask:
     Med-RAD masks of one patient share a grid except for a few (Patient 4's fissures sit on
     an offset grid with the same spacing): for those the voxels are shifted by the whole
     number of voxels between the grids, exactly. Other grids are resampled by nearest
-    neighbour. Set voxels that fall outside the reference grid are reported.
+    neighbour. Set voxels that fall outside the reference grid are reported; a mask none of
+    whose set voxels falls inside it is an error naming its file.
     """
     if mask.shape == ref.shape and np.allclose(mask.affine, ref.affine, atol=1e-4):
         return mask
@@ -74,7 +75,14 @@ def _align(mask: Mask, ref: Mask, name: str) -> Mask:
                 mask.data.astype(np.uint8), idx, order=0, mode="constant", cval=0
             )
             out[:, :, kk] = vals.reshape(ref.shape[0], ref.shape[1], len(kk)).astype(bool)
-    lost = int(mask.data.sum()) - int(out.sum())
+    total = int(mask.data.sum())
+    lost = total - int(out.sum())
+    if total > 0 and lost == total:
+        raise InvalidInputError(
+            str(mask.path or name),
+            f"none of its {total} set voxels lies in the volume of {ref.path or 'the reference mask'} "
+            "(the masks do not overlap: a mask of another patient, or a wrong affine?)",
+        )
     if lost > 0:
         log.warning("%s: %d set voxels lie outside the common grid and were dropped", name, lost)
     return Mask(out, ref.affine, mask.path)

@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import atomic_write
+from needlekit.io.files import atomic_write, without_content
 
 __all__ = ["read_mesh", "write_mesh"]
 
@@ -54,7 +54,9 @@ def _read_vtk_polydata(path: Path) -> trimesh.Trimesh:
         try:
             return np.array(out[:count], dtype=kind)
         except ValueError as exc:
-            raise InvalidInputError(where, f"bad number in VTK data: {exc}") from exc
+            raise InvalidInputError(
+                where, f"bad number in VTK data: {without_content(exc)}"
+            ) from exc
 
     first = next_line()
     if first is None or [t.upper() for t in first] != ["DATASET", "POLYDATA"]:
@@ -149,7 +151,7 @@ def read_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         try:
             mesh = trimesh.load(p, file_type=_TRIMESH_TYPES[ext], force="mesh")
         except Exception as exc:  # trimesh raises many types on bad files
-            raise InvalidInputError(str(p), f"cannot read mesh: {exc}") from exc
+            raise InvalidInputError(str(p), f"cannot read mesh: {without_content(exc)}") from exc
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(str(p), f"expected a triangle mesh, got {type(mesh).__name__}")
     if len(mesh.faces) == 0:

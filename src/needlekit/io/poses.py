@@ -14,14 +14,44 @@ from needlekit.io.files import atomic_write
 __all__ = ["read_point_txt", "read_pose_txt", "write_pose_txt"]
 
 
+#: Largest pose or point file read (bytes): a 4x4 pose is a few hundred bytes; a larger
+#: file is not one (and is not read whole to find out).
+MAX_TEXT_BYTES: int = 64 * 1024
+
+
 def _load(path: str | os.PathLike) -> np.ndarray:
+    """The numbers of a small text file, whitespace-separated, ``#`` comments and blank
+    lines skipped. An error names the line and the item that is not a number, never what
+    the file holds there (it may be any file the user pointed at by mistake)."""
     p = Path(path)
     if not p.is_file():
         raise InvalidInputError(str(p), "file not found")
     try:
-        return np.loadtxt(p, dtype=np.float64, ndmin=1)
-    except ValueError as exc:
-        raise InvalidInputError(str(p), f"expected whitespace-separated numbers ({exc})") from exc
+        with open(p, "rb") as fh:
+            raw = fh.read(MAX_TEXT_BYTES + 1)
+    except OSError as exc:
+        raise InvalidInputError(str(p), f"cannot read the file ({exc.strerror or exc})") from None
+    if len(raw) > MAX_TEXT_BYTES:
+        raise InvalidInputError(
+            str(p), f"larger than {MAX_TEXT_BYTES // 1024} KiB: not a pose or point file"
+        )
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InvalidInputError(str(p), "not a text file of numbers") from None
+    values: list[float] = []
+    for line_no, line in enumerate(text.splitlines(), start=1):
+        items = line.split("#", 1)[0].split()
+        for col, item in enumerate(items, start=1):
+            try:
+                values.append(float(item))
+            except ValueError:
+                raise InvalidInputError(
+                    str(p),
+                    f"line {line_no}, item {col} is not a number (pose and point files hold "
+                    "whitespace-separated numbers)",
+                ) from None
+    return np.array(values, dtype=np.float64)
 
 
 def read_pose_txt(path: str | os.PathLike) -> np.ndarray:

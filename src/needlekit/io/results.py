@@ -18,12 +18,33 @@ not the obstacles' shapes (the scenario gives them).
 from __future__ import annotations
 
 import enum
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["KIND_FIELDS", "ResultFile", "ResultKind", "result_kind"]
+__all__ = ["KIND_FIELDS", "ResultFile", "ResultKind", "result_kind", "scenario_reference"]
+
+
+def scenario_reference(scenario: str | os.PathLike, result_path: str | os.PathLike) -> str:
+    """How a result file names its scenario: the scenario's path relative to the folder the
+    result is written to. A report resolves it there and nowhere else (not against the
+    working folder it happens to run in), so the pair can be moved together.
+
+    Parameters
+    ----------
+    scenario : path-like
+        The scenario file, as the command was given it.
+    result_path : path-like
+        Where the result is written.
+
+    Returns
+    -------
+    str
+    """
+    folder = os.path.dirname(os.path.abspath(result_path))
+    return os.path.relpath(os.path.abspath(scenario), folder)
 
 
 class ResultKind(enum.Enum):

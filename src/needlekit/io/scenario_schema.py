@@ -35,6 +35,8 @@ from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-e
     STRAIGHT,
     STRUCTURE,
 )
+from needlekit.io.files import without_content
+from needlekit.plausibility import document_warnings, warn
 
 __all__ = [
     "PRIMITIVE_KINDS",
@@ -179,12 +181,42 @@ def validate_scenario_document(data: Any, source: str) -> None:
         best = jsonschema.exceptions.best_match(errors)
         where, msg = _schema_message(best)
         raise InvalidInputError(f"{source}: {where}", msg)
+    _check_relations(data, source)
+    warn(document_warnings(data), source)
     if isinstance(data, dict) and "collision_model" in data:
         # a registered checker's name (the registry is light: no kernel loads)
         try:
             check_collision_model(data["collision_model"])
         except InvalidInputError as exc:
             raise InvalidInputError(f"{source}: collision_model", exc.reason) from None
+
+
+def _check_relations(data: Any, source: str) -> None:
+    """What the schema cannot say and the planners would refuse only after the anatomy is
+    loaded: directions that are vectors, a needle order that is a permutation (of the
+    targets listed, when they are)."""
+    if not isinstance(data, dict):
+        return
+    straight = data.get("straight") if isinstance(data.get("straight"), dict) else {}
+    for where, vec in (
+        ("start.direction", (data.get("start") or {}).get("direction")),
+        ("straight.up", straight.get("up")),
+    ):
+        if isinstance(vec, list) and not any(float(v) != 0.0 for v in vec):
+            raise InvalidInputError(
+                f"{source}: {where}", "expected a non-zero vector, got [0, 0, 0]"
+            )
+    order = straight.get("order")
+    if isinstance(order, list):
+        targets = straight.get("targets")
+        # the targets listed; one (the goal) when none are; coverage's are known later
+        n = len(targets) if isinstance(targets, list) else 1 if targets is None else len(order)
+        if sorted(order) != list(range(n)):
+            listed = "the targets" if targets != "coverage" else "its own length"
+            raise InvalidInputError(
+                f"{source}: straight.order",
+                f"expected a permutation of 0..{n - 1} ({listed}), got {order}",
+            )
 
 
 #: Largest length or coordinate a scenario may give (mm): a kilometre, far past any
@@ -307,7 +339,7 @@ def read_scenario_document(path: str | os.PathLike) -> ScenarioDocument:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or "invalid YAML"
+        problem = without_content(getattr(exc, "problem", None) or "invalid YAML")
         raise InvalidInputError(str(p), f"invalid YAML{at}: {problem}") from None
     if not isinstance(data, dict):
         raise InvalidInputError(

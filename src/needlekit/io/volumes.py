@@ -27,7 +27,7 @@ import numpy as np
 from isal import igzip
 
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import atomic_write
+from needlekit.io.files import atomic_write, without_content
 
 __all__ = [
     "AFFINE_DEGENERACY_TOL",
@@ -152,7 +152,9 @@ def _load_nifti_gz(path: Path):
     try:
         data = igzip.decompress(raw)
     except (OSError, EOFError, ValueError) as exc:
-        raise InvalidInputError(str(path), f"cannot read as gzip-compressed NIfTI: {exc}") from exc
+        raise InvalidInputError(
+            str(path), f"cannot read as gzip-compressed NIfTI: {without_content(exc)}"
+        ) from exc
     size = int.from_bytes(data[:4], "little") if len(data) >= 4 else 0
     size_be = int.from_bytes(data[:4], "big") if len(data) >= 4 else 0
     nifti2 = 540 in (size, size_be)
@@ -254,7 +256,7 @@ def _read_nifti(path: Path) -> tuple[np.ndarray, np.ndarray]:
     except InvalidInputError:
         raise
     except Exception as exc:  # nibabel raises several types for corrupt files
-        raise InvalidInputError(str(path), f"cannot read as NIfTI: {exc}") from exc
+        raise InvalidInputError(str(path), f"cannot read as NIfTI: {without_content(exc)}") from exc
     header = img.header
     if int(header["sform_code"]) == 0 and int(header["qform_code"]) == 0:
         raise InvalidInputError(
@@ -269,7 +271,7 @@ def _read_nrrd(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         data, header = nrrd.read(str(path))
     except Exception as exc:  # pynrrd raises NRRDError, OSError, ValueError...
-        raise InvalidInputError(str(path), f"cannot read as NRRD: {exc}") from exc
+        raise InvalidInputError(str(path), f"cannot read as NRRD: {without_content(exc)}") from exc
     space = header.get("space")
     if space is None:
         raise InvalidInputError(

@@ -200,7 +200,7 @@ def _multi_part(rf: ResultFile, load) -> ReportPart:
     status = "solved" if plan.solved else "not solved"
     return ReportPart(
         rf,
-        f"Straight multi-needle plan: {rf.data.get('scenario', rf.scenario)}",
+        f"Straight multi-needle plan: {rf.scenario or rf.data.get('scenario')}",
         sections,
         f"{len(plan.needles)} needles, {status}; check {'passed' if check.ok else 'FAILED'}",
         check.ok,

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.io.files import write_bytes, write_json, write_text
+from needlekit.io.results import scenario_reference
 from needlekit.planning.result import PlanStatus
 from needlekit.report.dynamic_report import dynamic_sections
 from needlekit.report.html_page import FigureSection, ImageSection, PartSection, TableSection
@@ -170,7 +171,8 @@ def _multi_target(case: Path, quick: bool):
     for mode, results in (("per-target", per), ("one-tree", one)):
         write_json(
             case / f"targets_{mode}.json",
-            {"planner": "rrt", "mode": mode, "scenario": str(scenario),
+            {"planner": "rrt", "mode": mode,
+             "scenario": scenario_reference(scenario, case / f"targets_{mode}.json"),
              "targets": [r.to_dict() for r in results]},
         )  # fmt: skip
     solved = sum(r.status is PlanStatus.SOLVED for r in per)
@@ -222,7 +224,7 @@ def _dynamic(case: Path):
         sc, static, moving = moving_case(ScenarioSource.of(path))
     scenario = write_text(case / "moving.yaml", text)
     res = replan_among_moving(static, moving, **kw, **settings.replanning())
-    record = {"scenario": str(scenario), **res.to_dict()}
+    record = {"scenario": scenario_reference(scenario, case / "dynamic.json"), **res.to_dict()}
     write_json(case / "dynamic.json", record)
     plan0, check0 = res.static
     m = res.check.metrics

@@ -377,7 +377,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     stage("three needles in the order 1, 2, 3 (Figs 13-18), re-checked by verify")
     rigid = _plan(multi, options, res)
     rigid_doc = rigid.to_dict()
-    rigid_doc.update(planner="liu_cfrw", scenario=str(case / "scenario.yaml"))
+    rigid_doc.update(planner="liu_cfrw", scenario="scenario.yaml")  # beside it
     rigid_check = verify_multi(multi.problem, rigid_doc)
     write_json(case / "multi.json", rigid_doc)
 
@@ -385,9 +385,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     deformed = replace(multi, deformation=NeedleDragDeformation())
     moved = _plan(deformed, options, res)
     moved_doc = moved.to_dict()
-    moved_doc.update(
-        planner="liu_cfrw", scenario=str(case / "scenario.yaml"), deformation="needle_drag"
-    )
+    moved_doc.update(planner="liu_cfrw", scenario="scenario.yaml", deformation="needle_drag")
     moved_check = verify_multi(multi.problem, moved_doc)
     write_json(case / "multi_deformed.json", moved_doc)
 

@@ -36,7 +36,6 @@ from needlekit.constants import (
     DEFAULT_R_MIN_MM,
     DEFAULT_START_EXCLUSION_MM,
     MM_WARNING_MIN_EXTENT_MM,
-    MM_WARNING_MIN_R_MIN_MM,
 )
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.io.poses import read_point_txt, read_pose_txt
@@ -273,9 +272,10 @@ def parse_scenario(
     data = checked_document(data, source)  # a document checked already is not checked again
     ctx = _Ctx(source, Path(base_dir), data.get("frame", "RAS"))
     cache = {"cache_dir": cache_dir, "use_cache": use_cache}
-    base = _base(data["base"], ctx, cache, share_base) if "base" in data else None
     names: set[str] = set()
+    # the file's own structures first: a bad one is named before a patient is loaded
     extra = [_structure(i, s, ctx, names) for i, s in enumerate(data.get("structures", []))]
+    base = _base(data["base"], ctx, cache, share_base) if "base" in data else None
     if base is not None:
         base_scene = _dropped(base.scene, data["base"], ctx)
         clash = names & set(base_scene.names)
@@ -289,6 +289,7 @@ def parse_scenario(
         structures, obstacle = extra, None
     if not structures:
         raise ctx.error("structures", "the scenario has no structures (add some or a base)")
+    _check_masks_overlap(data.get("structures", []), extra, structures, ctx)
     scene_name = base.scene.name if base is not None else data.get("name", "")
     scene = Scene(structures, name=scene_name, obstacle_field=obstacle)
     moving = _moving(data.get("structures", []), ctx)
@@ -303,7 +304,7 @@ def parse_scenario(
     needle = NeedleSpec(**data.get("needle", {}))
     start = _start(data["start"], ctx, base) if "start" in data else None
     goal = _goal(data["goal"], ctx, base) if "goal" in data else None
-    _warn_if_not_mm(scene, needle, source)
+    _warn_if_not_mm(scene, source)
     return Scenario(
         data.get("name", ""),
         data.get("description", ""),
@@ -340,8 +341,38 @@ def _cheap_extent_mm(scene: Scene) -> float | None:
     return float(np.max(b[:, 1].max(axis=0) - b[:, 0].min(axis=0)))
 
 
-def _warn_if_not_mm(scene: Scene, needle: NeedleSpec, source: str) -> None:
-    """Log a warning when the sizes look like centimetres or metres, not millimetres."""
+def _check_masks_overlap(specs: list, extra: list, structures: list, ctx) -> None:
+    """Each mask the file adds lies where the rest of the anatomy is: its set voxels' box
+    meets the box of the other structures (the base's and the file's own bounded ones). A
+    mask whose affine places it elsewhere (another volume's mask, a wrong origin, LPS read
+    as RAS) is an error naming its file, not an obstacle planned around far away."""
+    for i, (spec, st) in enumerate(zip(specs, extra, strict=True)):
+        if "mask" not in spec:
+            continue
+        others = [
+            b
+            for b in (o.field.bounds() for o in structures if o is not st)
+            if np.all(np.isfinite(b))
+        ]
+        if not others:
+            continue
+        lo = np.min([b[0] for b in others], axis=0)
+        hi = np.max([b[1] for b in others], axis=0)
+        box = st.field.bounds()
+        if np.all(box[0] <= hi) and np.all(box[1] >= lo):
+            continue
+        raise ctx.error(
+            f"structures[{i}].mask.path",
+            f"{st.source}: its set voxels span {np.round(box, 1).tolist()} mm, outside the "
+            f"anatomy the other structures span {np.round([lo, hi], 1).tolist()} mm (a mask "
+            "of another volume, or a wrong affine?)",
+        )
+
+
+def _warn_if_not_mm(scene: Scene, source: str) -> None:
+    """Log a warning when the anatomy's size looks like centimetres or metres, not
+    millimetres (each length field is held to its range when the document is checked:
+    :mod:`needlekit.plausibility`)."""
     extent = _cheap_extent_mm(scene)
     if extent is not None and extent < MM_WARNING_MIN_EXTENT_MM:
         _log.warning(
@@ -349,13 +380,6 @@ def _warn_if_not_mm(scene: Scene, needle: NeedleSpec, source: str) -> None:
             "millimetres (was it written in cm or m?)",
             source,
             extent,
-        )
-    if needle.r_min_mm < MM_WARNING_MIN_R_MIN_MM:
-        _log.warning(
-            "%s: needle.r_min_mm is %.3g mm; lengths in scenario files are millimetres "
-            "(was it written in cm or m?)",
-            source,
-            needle.r_min_mm,
         )
 
 

@@ -174,19 +174,25 @@ def _check_scale(data: dict, where: str) -> None:
                 field_of(entry, name, f"{where}: {series}.{key}[{i}]")
 
 
+def _short(text: str, limit: int = 120) -> str:
+    """A path from a file, quoted, at most ``limit`` characters (the rest elided)."""
+    return repr(text if len(text) <= limit else text[: limit - 3] + "...")
+
+
 def _locate_scenario(data: dict, path: Path, flag: str) -> Path:
-    """The scenario a result names: as written (relative to the working folder), else
-    relative to the result's folder."""
+    """The scenario a result names, relative to the result's own folder (as the commands
+    write it: :func:`needlekit.io.results.scenario_reference`), never to the working
+    folder: the same result file reads the same scenario wherever the report runs."""
     named = data.get("scenario")
-    if not isinstance(named, str) or not named:
+    if not isinstance(named, str) or not named or "\0" in named:
         raise InvalidInputError(flag, f"{path}: the result names no scenario; give it with {flag}")
-    first = Path(named)
-    candidates = [first] if first.is_absolute() else [first, path.parent / first]
-    for c in candidates:
-        if c.is_file():
-            return c
+    located = path.parent / named  # an absolute path stays itself
+    if located.is_file():
+        return located
     raise InvalidInputError(
-        flag, f"{path} names the scenario {named}, which is not there; give its path with {flag}"
+        flag,
+        f"{path} names the scenario {_short(named)} (relative to the result: "
+        f"{_short(str(located))}), which is not there; give its path with {flag}",
     )
 
 

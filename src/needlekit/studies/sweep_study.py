@@ -27,6 +27,7 @@ from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import staged_outputs, write_json
 from needlekit.io.plans import write_plan_json
+from needlekit.io.results import scenario_reference
 
 __all__ = ["SweepStudy", "run_sweep_study"]
 
@@ -144,7 +145,7 @@ def run_sweep_study(
     check = None
     files = {}
     record = {
-        "scenario": source.scenario_path,
+        "scenario": scenario_reference(source.scenario_path, sweep_path),
         "time_limit_s": time_limit_s,
         "max_iterations": max_iterations,
         "seed": seed,
@@ -161,7 +162,7 @@ def run_sweep_study(
             files["plan"] = write_plan_json(
                 plan_path,
                 best,
-                scenario=source.scenario_path,
+                scenario=scenario_reference(source.scenario_path, plan_path),
                 # the sweep chose the direction: `verify --any-start-direction` checks it
                 start_direction="swept",
                 check={"ok": check.ok, "violations": list(check.violations), **check.metrics},
