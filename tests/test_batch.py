@@ -133,3 +133,69 @@ def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
         ThreadPoolExecutor(1) as ex,
     ):
         sweep(problem, "rcs_star", directions=sphere_directions(8), executor=ex)
+
+
+# ---------------------------------------------------------------------------------------
+# a local Dask cluster no one else can use (issue 22, point 6)
+
+_INTRUDER = """
+import sys
+from distributed import Client
+address = sys.argv[1]
+for label, target in (("tls", address), ("tcp", address.replace("tls://", "tcp://"))):
+    try:
+        client = Client(target, timeout=5)
+    except Exception as exc:
+        print(label, "refused", type(exc).__name__)
+    else:
+        print(label, "CONNECTED", client.submit(abs, -1).result(timeout=5))
+        client.close()
+"""
+
+
+def _http_status(port: int, path: str) -> int | str:
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=5) as r:
+            return r.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
+    except OSError as exc:
+        return type(exc).__name__
+
+
+def test_a_local_dask_cluster_refuses_other_processes_and_serves_no_page():
+    import subprocess
+    import sys
+
+    pytest.importorskip("distributed")
+    with open_executor("dask", workers=1) as ex:
+        client = ex._client
+        address = client.scheduler.address
+        assert address.startswith("tls://127.0.0.1:")
+        assert ex.submit(abs, -3).result() == 3  # this run's own client works
+        info = client.scheduler_info()
+        intruder = subprocess.run(
+            [sys.executable, "-c", _INTRUDER, address],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        said = intruder.stdout.split("\n")
+        assert [line.split()[:2] for line in said if line] == [
+            ["tls", "refused"],
+            ["tcp", "refused"],
+        ], intruder.stdout + intruder.stderr
+        # Dask starts an HTTP server on every node whatever it is told: none serves a page
+        ports = [info["services"]["dashboard"]]
+        ports += [w["services"]["dashboard"] for w in info["workers"].values()]
+        for port in ports:
+            for path in ("/", "/status", "/metrics", "/health", "/info/main/workers.html"):
+                assert _http_status(port, path) == 404, (port, path)
+
+
+def test_the_dashboard_is_served_only_when_asked():
+    pytest.importorskip("distributed")
+    with open_executor("dask", workers=1, dashboard=True) as ex:
+        port = ex._client.scheduler_info()["services"]["dashboard"]
+        assert _http_status(port, "/health") == 200

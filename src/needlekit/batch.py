@@ -108,9 +108,61 @@ def _capped(workers: int | None) -> int | None:
     return workers
 
 
+#: Dask's HTTP routes emptied: its nodes start an HTTP server whatever they are told
+#: (scheduler, nanny and worker), and these settings leave it serving nothing (no
+#: dashboard, metrics, health or JSON pages) unless a dashboard is asked for.
+_NO_HTTP_ROUTES = {
+    "distributed.scheduler.http.routes": [],
+    "distributed.worker.http.routes": [],
+    "distributed.nanny.http.routes": [],
+}
+
+
+@contextmanager
+def _local_dask_cluster(workers: int | None, dashboard: bool):
+    """A local Dask cluster no one else can use: every listener on 127.0.0.1, its comms
+    under TLS with credentials made for this run alone (``Security.temporary()``: a fresh
+    CA and certificate, in memory), so another local process cannot connect or submit;
+    no dashboard or other HTTP page unless ``dashboard``."""
+    import dask
+    from distributed import Client, LocalCluster
+    from distributed.security import Security
+
+    try:
+        security = Security.temporary()
+    except ImportError:
+        raise InvalidInputError(
+            "executor",
+            "a local Dask cluster runs under TLS, which needs the cryptography package: "
+            "pip install 'needlekit[dask]'",
+        ) from None
+    with (
+        dask.config.set({} if dashboard else _NO_HTTP_ROUTES),
+        LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            security=security,
+            # the scheduler's HTTP server: Dask's usual port when asked for, else any
+            dashboard_address="127.0.0.1:8787" if dashboard else "127.0.0.1:0",
+            scheduler_kwargs={"dashboard": dashboard},
+            silence_logs=logging.WARNING,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        if dashboard:
+            logging.getLogger(__name__).warning("Dask dashboard: %s", client.dashboard_link)
+        yield client
+
+
 @contextmanager
 def open_executor(
-    kind: str = "serial", *, workers: int | None = None, address: str | None = None
+    kind: str = "serial",
+    *,
+    workers: int | None = None,
+    address: str | None = None,
+    dashboard: bool = False,
 ) -> Iterator[Executor]:
     """An executor of the given kind, shut down on leaving the ``with`` block.
 
@@ -123,7 +175,11 @@ def open_executor(
         warning.
     address : str, optional
         Dask scheduler address; without one, ``"dask"`` starts a local cluster of
-        ``workers`` single-threaded processes.
+        ``workers`` single-threaded processes, on 127.0.0.1 under TLS with credentials
+        made for this run (no other process can use it).
+    dashboard : bool
+        Serve the local Dask cluster's dashboard (its link is logged); without it the
+        cluster's nodes serve no HTTP page.
 
     Yields
     ------
@@ -132,8 +188,9 @@ def open_executor(
     Raises
     ------
     InvalidInputError
-        Unknown kind, bad worker count, Dask not installed, or no scheduler answering at
-        ``address`` within :data:`SCHEDULER_TIMEOUT_S` (named ``--scheduler``).
+        Unknown kind, bad worker count, Dask (or, for a local cluster, cryptography) not
+        installed, or no scheduler answering at ``address`` within
+        :data:`SCHEDULER_TIMEOUT_S` (named ``--scheduler``).
     """
     workers = _check_workers(workers)
     if kind != "serial" and address is None:
@@ -148,7 +205,7 @@ def open_executor(
             yield pool
     elif kind == "dask":
         try:
-            from distributed import Client, LocalCluster
+            from distributed import Client
         except ImportError as exc:
             raise InvalidInputError(
                 "executor", "'dask' needs Dask distributed: pip install 'needlekit[dask]'"
@@ -163,16 +220,7 @@ def open_executor(
                 with _connect(Client, address) as client:
                     yield client.get_executor()
             else:
-                with (
-                    LocalCluster(
-                        n_workers=workers or os.cpu_count() or 1,
-                        threads_per_worker=1,
-                        processes=True,
-                        dashboard_address=None,
-                        silence_logs=logging.WARNING,
-                    ) as cluster,
-                    Client(cluster) as client,
-                ):
+                with _local_dask_cluster(workers, dashboard) as client:
                     yield client.get_executor()
         finally:
             dask_log.setLevel(old_level)

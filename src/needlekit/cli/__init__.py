@@ -20,6 +20,7 @@ import sys
 from collections.abc import Sequence
 
 from needlekit.cli._common import EXIT_OK, EXIT_USAGE
+from needlekit.cli._flags import check_dashboard
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import NeedlekitError
@@ -91,6 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     try:
         check_paths(args)
+        check_dashboard(args)
         warn(flag_warnings(vars(args)))
         from needlekit.io.files import staged_outputs
 

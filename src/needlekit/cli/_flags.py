@@ -17,6 +17,7 @@ from types import MappingProxyType
 
 from needlekit.cli._common import _positive, _positive_int, _seed
 from needlekit.cli._paths import add_input, add_output
+from needlekit.errors import InvalidInputError
 
 #: What a command may give :meth:`Flag.add` besides the definition.
 _PER_COMMAND = frozenset({"help", "default", "required", "folder", "contents", "dest"})
@@ -239,6 +240,35 @@ DASK_WORKERS = Flag(
     "--dask-workers", {"type": _positive_int, "metavar": "N", "action": _ExecutorChoice}
 )
 SCHEDULER = Flag("--scheduler", {"metavar": "ADDRESS", "action": _ExecutorChoice})
+DASHBOARD = Flag("--dashboard", {"action": "store_true"})
+
+
+def check_dashboard(args) -> None:
+    """``--dashboard`` serves the dashboard of the local Dask cluster a command starts:
+    given without one, it is an input error before any work.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+    """
+    if not getattr(args, "dashboard", False):
+        return
+    if getattr(args, "scheduler", None) is not None:
+        raise InvalidInputError(
+            "--dashboard", "the cluster at --scheduler serves its own dashboard, if any"
+        )
+    if getattr(args, "executor", None) != "dask":
+        raise InvalidInputError(
+            "--dashboard", "serves a local Dask cluster's dashboard: add --dask-workers N"
+        )
 
 
 def add_executor_options(p) -> None:
@@ -270,6 +300,12 @@ def add_executor_options(p) -> None:
         help="run on the Dask cluster whose scheduler is at ADDRESS (tcp://HOST:PORT; "
         "implies --executor dask); its workers need needlekit and the data at the same paths",
     )
+    DASHBOARD.add(
+        p,
+        help="with a local Dask cluster: serve its dashboard on 127.0.0.1 (the link is "
+        "printed); without it the cluster serves no web page, and its comms take only this "
+        "run's TLS credentials",
+    )
 
 
 #: Every shared flag by name (the test of "defined once" walks the parser with it).
@@ -278,5 +314,6 @@ SHARED_FLAGS: dict[str, Flag] = {
     for f in (
         TIME_LIMIT_S, MAX_ITERATIONS, SEED, OUT, JSON, QUICK, MEDRAD, CACHE_DIR, NO_CACHE,
         RRT_CONNECTION, DIRECTIONS, OPTION, EXECUTOR, WORKERS, DASK_WORKERS, SCHEDULER,
+        DASHBOARD,
     )
 }  # fmt: skip

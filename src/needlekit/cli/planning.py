@@ -276,7 +276,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         dirs = sphere_directions(args.directions)
     with (
-        open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
+        open_executor(
+            args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+        ) as ex,
         sweep_progress() as progress,
     ):
         study = run_sweep_study(

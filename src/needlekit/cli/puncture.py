@@ -93,7 +93,9 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     )
     scenario = PunctureScenario(redraw_guides=not args.no_redraw)
     with (
-        open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
+        open_executor(
+            args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+        ) as ex,
         tqdm(total=args.trials, desc="puncture", unit="trial", disable=None) as bar,
     ):
 

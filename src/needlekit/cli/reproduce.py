@@ -20,7 +20,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
     papers = list(PAPERS) if "all" in args.papers else list(dict.fromkeys(args.papers))
     failed = []
-    with open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex:
+    with open_executor(
+        args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+    ) as ex:
         for paper in papers:
             rep = reproduce(
                 paper,

@@ -96,7 +96,9 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
     from needlekit.studies.feng_timing import timing_verdict
 
     with (
-        open_executor(args.executor, workers=args.workers, address=args.scheduler) as ex,
+        open_executor(
+            args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+        ) as ex,
         sweep_progress() as progress,
     ):
         study = run_feng_lungs(
