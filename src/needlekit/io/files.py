@@ -42,6 +42,11 @@ _QUOTABLE = re.compile(r"""(['"])(?:[^\w\s]{1,3}|<[a-z ]+>|\\t)\1""")
 _QUOTED = re.compile(r"b?'[^']*'" + r'|b?"[^"]*"')
 
 
+def _undecodable(exc: UnicodeDecodeError) -> str:
+    """Where a file stops being UTF-8: the byte's value and offset, nothing around it."""
+    return f"byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
+
+
 def without_content(message: str) -> str:
     """A library's error message with the file's own text taken out, for an error line: a
     parser that quotes what it found (``found undefined alias 'X'``, ``Not a gzipped file
@@ -400,7 +405,11 @@ def read_json_object(path: str | os.PathLike, what: str) -> dict:
         raise InvalidInputError(str(p), f"{what} file not found")
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(
+            str(p), f"not a JSON {what} file (not UTF-8 text: {_undecodable(exc)})"
+        ) from None
+    except (OSError, json.JSONDecodeError) as exc:
         raise InvalidInputError(
             str(p), f"not a JSON {what} file ({without_content(exc)})"
         ) from None

@@ -35,7 +35,7 @@ from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-e
     STRAIGHT,
     STRUCTURE,
 )
-from needlekit.io.files import without_content
+from needlekit.io.files import _undecodable, without_content
 from needlekit.plausibility import document_warnings, warn
 
 __all__ = [
@@ -332,8 +332,10 @@ def read_scenario_document(path: str | os.PathLike) -> ScenarioDocument:
     try:
         text = p.read_text(encoding="utf-8")
         data = safe_yaml.load_bounded(text)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InvalidInputError(str(p), f"cannot read the file ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(str(p), f"not UTF-8 text ({_undecodable(exc)})") from None
+    except OSError as exc:
+        raise InvalidInputError(str(p), f"cannot read the file ({exc.strerror or exc})") from None
     except safe_yaml.YamlBoundsError as exc:
         raise InvalidInputError(str(p), f"refused at line {exc.line}: the document {exc}") from None
     except yaml.YAMLError as exc:
@@ -341,6 +343,8 @@ def read_scenario_document(path: str | os.PathLike) -> ScenarioDocument:
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = without_content(getattr(exc, "problem", None) or "invalid YAML")
         raise InvalidInputError(str(p), f"invalid YAML{at}: {problem}") from None
+    if data is None:
+        raise InvalidInputError(str(p), "the file is empty: expected a scenario mapping")
     if not isinstance(data, dict):
         raise InvalidInputError(
             str(p), f"expected a mapping at the top level, got {type(data).__name__}"
