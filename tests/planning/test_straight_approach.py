@@ -2,6 +2,7 @@
 and needlekit's criteria beside it (issue 11: everything PAA does, and what it cannot)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +12,8 @@ from needlekit.anatomy.mesh import ExactMeshDistance
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.approach import approach_analysis, approach_scores
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 R = 60.0
 
@@ -194,3 +197,87 @@ def test_bench_approach_without_the_data_says_so(tmp_path):
     (case,) = rec["cases"]
     assert case["name"] == "medrad_liver4" and "no Med-RAD liver 4" in case["skipped"]
     assert rec["results"][0]["summary"].startswith("skipped: no Med-RAD liver 4")
+
+
+# ---------------------------------------------------------------------------------------
+# the shipped examples (issue 22, point 8): the figures docs/straight.md shows, pinned
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_liver_4_example_keeps_the_figures_the_docs_show(medrad_dir, tmp_path, capsys,
+                                                            monkeypatch):  # fmt: skip
+    """``needlekit approach examples/medrad_liver4.yaml`` on the vessels' own surfaces.
+    These are the figures docs/straight.md shows, and VTK's BSP tree (PAA's procedure,
+    ``bench approach``) gave the same answer on all but 17 of the 249830 triangles
+    (2026-12-05, VTK 9.7.2). The meshes once came from the lazy fields' coarse previews,
+    whose pooled voxels grow the vessels: 121644 lines blocked and a score of 0.5102,
+    which VTK agreed with on those wrong meshes; here the count is held to the real one."""
+    monkeypatch.setenv("NEEDLEKIT_MEDRAD", str(medrad_dir))
+    out = tmp_path / "approach.json"
+    argv = ["approach", str(EXAMPLES / "medrad_liver4.yaml"), "--summary-only", "--out", str(out)]
+    assert main(argv) == 0
+    rec = json.loads(out.read_text())
+    assert rec["skin"] == {"structure": "liver", "faces": 249830}
+    assert rec["obstacles"] == {"hepaticArtery": 28048, "hepaticVein": 11038, "portalVein": 8322}
+    assert rec["blocked"] == {
+        "obstacle_on_line": 82182, "leaves_body": 118185, "clearance_below_gamma": 106352,
+        "too_long": 0, "too_oblique": 37950,
+    }  # fmt: skip
+    assert round(rec["paa"]["score"], 4) == 0.6665
+    assert round(rec["needlekit"]["score"], 4) == 0.1925
+    assert round(rec["paa"]["shortest"]["length_mm"], 2) == 19.53
+    assert round(rec["needlekit"]["shortest"]["length_mm"], 2) == 21.39
+    said = capsys.readouterr().out
+    assert (
+        "PAA (line, no thickness): score 0.6665; shortest 19.53 mm from (42.90, 8.37, -265.55)"
+        in said
+    )
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_liver_4_line_test_is_vtk_s_answer(medrad_dir, monkeypatch):
+    """Against the reference itself, where VTK is installed (the ``paa`` extra): PAA's
+    BSP-tree procedure and needlekit's exact line test on the example's meshes differ on
+    at most 20 of 249830 triangles (17 measured, each a line within VTK's tolerance of a
+    vessel's surface)."""
+    pytest.importorskip("vtk", reason="the paa extra (VTK) is not installed")
+    from needlekit.benchmarks.approach import _paa_lines
+    from needlekit.planning.straight.approach import reach_box, structure_mesh
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
+
+    monkeypatch.setenv("NEEDLEKIT_MEDRAD", str(medrad_dir))
+    sc = load_scenario(EXAMPLES / "medrad_liver4.yaml")
+    multi, _ = multi_problem_from_scenario(sc)
+    pr = multi.problem
+    target = np.asarray(multi.targets_mm[0], dtype=float)
+    box = reach_box(target, pr.needle.max_length_mm)
+    skin = structure_mesh(pr.scene[pr.entry_surface], bounds=box)
+    from needlekit.anatomy.scene import Role
+
+    obstacles = [structure_mesh(s, bounds=box) for s in pr.scene.by_role(Role.OBSTACLE)]
+    ours = approach_analysis(target, skin, obstacles)
+    theirs = _paa_lines(np.asarray(skin.triangles_center), target, obstacles)
+    assert len(theirs) == 249830
+    assert int(np.sum(ours.hit != theirs)) <= 20
+
+
+@pytest.mark.slow
+def test_the_phantom_example_is_analysed(tmp_path, capsys):
+    """``examples/liver_phantom_multi.yaml``: the phantom's skin, an unbounded elliptic
+    cylinder, used to fail ("could not be meshed"); it is meshed within the needle's reach
+    of the target (``reach_box``), faces turned outward by its field."""
+    out = tmp_path / "approach.json"
+    argv = ["approach", str(EXAMPLES / "liver_phantom_multi.yaml"), "--summary-only",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    rec = json.loads(out.read_text())
+    assert rec["skin"]["faces"] == 204828
+    assert rec["blocked"]["obstacle_on_line"] == 104934
+    assert rec["blocked"]["leaves_body"] == 0  # the outward faces: lines start on the skin
+    assert round(rec["paa"]["score"], 4) == 0.4867
+    assert round(rec["needlekit"]["score"], 4) == 0.1347
+    # every skin vertex lies within the box the needle can come from
+    assert "PAA (line, no thickness): score 0.4867" in capsys.readouterr().out

@@ -256,7 +256,11 @@ def _cmd_approach(args: argparse.Namespace) -> int:
 
     from needlekit.anatomy.scene import Role
     from needlekit.io.files import staged_outputs, write_json
-    from needlekit.planning.straight.approach import approach_analysis, structure_mesh
+    from needlekit.planning.straight.approach import (
+        approach_analysis,
+        reach_box,
+        structure_mesh,
+    )
 
     _, multi, _ = _multi_problem(args, doc)
     k = len(multi.targets_mm)
@@ -265,9 +269,12 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     problem = multi.problem
     target = np.asarray(multi.targets_mm[args.target - 1], dtype=float)
     t0 = time.perf_counter()
-    skin = structure_mesh(problem.scene[problem.entry_surface], max_cells=args.max_cells)
+    box = reach_box(target, problem.needle.max_length_mm)  # for unbounded surfaces
+    skin = structure_mesh(
+        problem.scene[problem.entry_surface], max_cells=args.max_cells, bounds=box
+    )
     obstacles = {
-        s.name: structure_mesh(s, max_cells=args.max_cells)
+        s.name: structure_mesh(s, max_cells=args.max_cells, bounds=box)
         for s in problem.scene.by_role(Role.OBSTACLE)
     }
     mesh_s = time.perf_counter() - t0

@@ -41,9 +41,16 @@ from pathlib import Path
 import numpy as np
 
 from needlekit._validation import as_points
+from needlekit.anatomy.fields import LazyField
 from needlekit.errors import InvalidInputError
 
-__all__ = ["ApproachAnalysis", "approach_analysis", "approach_scores", "structure_mesh"]
+__all__ = [
+    "ApproachAnalysis",
+    "approach_analysis",
+    "approach_scores",
+    "reach_box",
+    "structure_mesh",
+]
 
 #: Fraction of a line's length, near its skin end, left out when asking whether the line
 #: meets the skin before its own triangle (the own triangle is met at the end).
@@ -326,7 +333,25 @@ def approach_scores(targets_mm, skin, obstacles) -> np.ndarray:
     return out
 
 
-def structure_mesh(structure, *, max_cells: int = 200):
+def reach_box(target_mm, max_length_mm: float) -> np.ndarray:
+    """The box a straight needle of length ``max_length_mm`` ending at the target can
+    come from: the part of an unbounded surface (a phantom's skin, an elliptic cylinder)
+    that an approach analysis meshes.
+
+    Parameters
+    ----------
+    target_mm : array_like, shape (3,)
+    max_length_mm : float
+
+    Returns
+    -------
+    ndarray, shape (2, 3)
+    """
+    t = np.asarray(target_mm, dtype=float).reshape(3)
+    return np.stack([t - max_length_mm, t + max_length_mm])
+
+
+def structure_mesh(structure, *, max_cells: int = 200, bounds=None):
     """A structure's surface as a triangle mesh: its mesh file when it came from one,
     else marching cubes on its field (as a segmentation becomes a model in Slicer).
 
@@ -335,6 +360,10 @@ def structure_mesh(structure, *, max_cells: int = 200):
     structure : Structure
     max_cells : int
         Largest number of samples along an axis for marching cubes.
+    bounds : array_like, shape (2, 3), optional
+        The box to mesh an unbounded structure in (:func:`reach_box`); a bounded one is
+        meshed whole. The faces are turned to face out of the structure (along its
+        field's gradient), as a closed model's are.
 
     Returns
     -------
@@ -348,12 +377,22 @@ def structure_mesh(structure, *, max_cells: int = 200):
     if src is not None and src.suffix.lower() in (".stl", ".obj", ".ply", ".vtk", ".off"):
         mesh = trimesh.load(src, force="mesh")
     else:
-        v, f = surface_mesh(structure.field, max_cells=max_cells)
+        # the structure's own field, built whole if it is not yet: a lazy field's coarse
+        # preview (for figures) pools voxels and grows thin vessels by up to a coarse
+        # voxel, which would block lines the segmentation leaves open
+        field = structure.field.get() if isinstance(structure.field, LazyField) else structure.field
+        box = field.bounds()
+        unbounded = not np.all(np.isfinite(box))
+        v, f = surface_mesh(field, max_cells=max_cells, bounds=bounds if unbounded else None)
         if len(f) == 0:
-            raise InvalidInputError(
-                structure.name, "its surface could not be meshed (empty or unbounded)"
-            )
+            why = "unbounded, and no box was given" if unbounded and bounds is None else "empty"
+            raise InvalidInputError(structure.name, f"its surface could not be meshed ({why})")
         mesh = trimesh.Trimesh(v, f, process=True)
+        # outward by the field (a cut-open surface has no volume to orient it by)
+        grad = field.gradient(mesh.triangles_center)
+        if float(np.sum(np.einsum("ij,ij->i", grad, mesh.face_normals))) < 0.0:
+            mesh.invert()
+        return mesh
     if mesh.volume < 0:
         mesh.invert()
     return mesh
