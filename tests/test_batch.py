@@ -139,17 +139,23 @@ def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
 # a local Dask cluster no one else can use (issue 22, point 6)
 
 _INTRUDER = """
-import sys
+import os, signal, sys
 from distributed import Client
+
+def give_up(signum, frame):
+    raise TimeoutError("no connection")
+
+signal.signal(signal.SIGALRM, give_up)
 address = sys.argv[1]
 for label, target in (("tls", address), ("tcp", address.replace("tls://", "tcp://"))):
+    signal.alarm(20)  # a client that can neither connect nor fail is refused too
     try:
         client = Client(target, timeout=5)
-    except Exception as exc:
-        print(label, "refused", type(exc).__name__)
-    else:
-        print(label, "CONNECTED", client.submit(abs, -1).result(timeout=5))
-        client.close()
+        print(label, "CONNECTED", client.submit(abs, -1).result(timeout=5), flush=True)
+    except BaseException as exc:
+        print(label, "refused", type(exc).__name__, flush=True)
+    signal.alarm(0)
+os._exit(0)  # Dask's threads of a failed client must not hold the interpreter open
 """
 
 

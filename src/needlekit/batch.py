@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import socket
 import threading
 import time
@@ -86,6 +87,32 @@ class SerialExecutor(Executor):
         except BaseException as exc:
             fut.set_exception(exc)
         return fut
+
+
+#: How long a stopped worker process gets to end after SIGTERM before it is killed (s).
+STOP_GRACE_S: float = 0.5
+
+
+def _ignore_sigint() -> None:
+    """A pool worker leaves Ctrl-C to the main process (a terminal sends it to the whole
+    process group): the main process stops the workers, and no worker prints a traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """End a process pool at once: queued tasks cancelled, running ones abandoned, every
+    worker terminated (killed if it does not end within :data:`STOP_GRACE_S`)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + STOP_GRACE_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(STOP_GRACE_S)
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _check_workers(workers) -> int | None:
@@ -198,11 +225,17 @@ def open_executor(
     if kind == "serial":
         yield SerialExecutor()
     elif kind == "process":
-        with ProcessPoolExecutor(
+        pool = ProcessPoolExecutor(
             max_workers=workers or os.cpu_count() or 1,
             mp_context=multiprocessing.get_context("spawn"),
-        ) as pool:
+            initializer=_ignore_sigint,
+        )
+        try:
             yield pool
+        except BaseException:  # Ctrl-C, or an error: stop the workers now, not after their tasks
+            _stop_pool(pool)
+            raise
+        pool.shutdown(wait=True)
     elif kind == "dask":
         try:
             from distributed import Client

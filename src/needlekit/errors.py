@@ -9,6 +9,7 @@ line.
 from __future__ import annotations
 
 __all__ = [
+    "Interrupted",
     "InvalidInputError",
     "NeedlekitError",
     "SingularityError",
@@ -53,3 +54,23 @@ class SingularityError(NeedlekitError, ArithmeticError):
         self.field = field
         self.reason = message
         super().__init__(f"{field}: {message}")
+
+
+class Interrupted(Exception):
+    """A long run stopped by the user (Ctrl-C, SIGINT) after some of its work was done.
+
+    Not a :class:`NeedlekitError`: nothing was wrong with the input. The command line
+    prints the message on one line and exits with status 130 (128 + SIGINT), and the
+    files written for the partial result are kept (:func:`needlekit.io.files.staged_outputs`).
+
+    Parameters
+    ----------
+    message : str
+        What was done and where it was written.
+    partial : object, optional
+        The partial result (e.g. a sweep's directions done so far).
+    """
+
+    def __init__(self, message: str, partial=None) -> None:
+        super().__init__(message)
+        self.partial = partial

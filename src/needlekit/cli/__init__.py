@@ -18,12 +18,13 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from concurrent.futures import BrokenExecutor
 
-from needlekit.cli._common import EXIT_OK, EXIT_USAGE
+from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from needlekit.cli._flags import check_dashboard
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
-from needlekit.errors import NeedlekitError
+from needlekit.errors import Interrupted, NeedlekitError
 from needlekit.plausibility import flag_warnings, warn
 
 __all__ = ["main"]
@@ -105,6 +106,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except Interrupted as exc:  # the partial result is written: the message says where
+        print(f"interrupted: {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except KeyboardInterrupt:
+        print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
+        why = str(exc).split(".")[0] or type(exc).__name__
+        print(f"error: a worker stopped unexpectedly ({why}); no output was changed",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAILED
     except BrokenPipeError:  # e.g. `needlekit schema | head`: the reader left early
         _quiet_stdout()
         return EXIT_OK

@@ -10,6 +10,10 @@ from contextlib import contextmanager
 
 EXIT_OK = 0
 EXIT_USAGE = 2
+#: The work ran but did not produce a result that passes its checks.
+EXIT_FAILED = 1
+#: A run stopped by Ctrl-C or SIGINT (128 + the signal's number, as shells report it).
+EXIT_INTERRUPTED = 130
 
 
 #: A value that starts with a minus sign and is a number or a comma-separated list of them

@@ -269,12 +269,17 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from needlekit.studies.sweep_study import run_sweep_study
 
     built = settings.build()  # the values of the options checked, before the anatomy
-    source = _source(args)
-    source.cached(doc)  # load (and check) the scenario before starting any worker
     if args.healpix is not None:
         dirs = healpix_directions(args.healpix)
     else:
         dirs = sphere_directions(args.directions)
+    resume = None
+    if args.resume:  # the partial file agrees with this run, before any anatomy
+        from needlekit.studies.sweep_study import read_partial_sweep
+
+        resume = read_partial_sweep(args.out, list(built), dirs)
+    source = _source(args)
+    source.cached(doc)  # load (and check) the scenario before starting any worker
     with (
         open_executor(
             args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
@@ -293,6 +298,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             seed=settings.seed,
             executor=None if args.executor == "serial" else ex,
             progress=progress,
+            resume=resume,
         )
 
     def mm(v):
@@ -543,6 +549,13 @@ def _register_sweep(sub) -> None:
     )
     _flags.add_executor_options(sw)
     _rrt_connection(sw)
+    sw.add_argument(
+        "--resume",
+        action="store_true",
+        help="carry on from the partial --out an interrupted run wrote (Ctrl-C keeps the "
+        "directions done): the same scenario, planners and directions; only the rest is "
+        "planned",
+    )
     sw.set_defaults(command_handler=_cmd_sweep)
 
 

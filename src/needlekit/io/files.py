@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError
 
 __all__ = [
     "atomic_write",
@@ -212,8 +212,10 @@ def staged_outputs() -> Iterator[None]:
     the destination but does not rename it yet. When the block ends normally, all files
     are moved into place together; if the block raises (or a move fails), the temporary
     files and the folders made for them are removed and every file that was already
-    there is left (or put back) as it was. Blocks nest: an inner block joins the outer
-    one, whose end decides.
+    there is left (or put back) as it was, except when the block raises
+    :class:`~needlekit.errors.Interrupted`: the files of the partial result written for the
+    stopped run are moved into place. Blocks nest: an inner block joins the outer one,
+    whose end decides.
 
     Yields
     ------
@@ -241,6 +243,10 @@ def staged_outputs() -> Iterator[None]:
     token = _STAGE.set(stage)
     try:
         yield
+    except Interrupted:  # the partial result written for the stopped run is kept
+        _STAGE.reset(token)
+        stage.commit()
+        raise
     except BaseException:
         _STAGE.reset(token)
         stage.discard()

@@ -24,12 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
-from needlekit.errors import InvalidInputError
-from needlekit.io.files import staged_outputs, write_json
+from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.io.files import read_json_object, staged_outputs, write_json
 from needlekit.io.plans import write_plan_json
 from needlekit.io.results import scenario_reference
 
-__all__ = ["SweepStudy", "run_sweep_study"]
+__all__ = ["SweepStudy", "read_partial_sweep", "run_sweep_study"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,7 @@ def run_sweep_study(
     progress: Callable[[str], Callable] | None = None,
     title: str | None = None,
     options: dict | None = None,
+    resume: dict | None = None,
 ) -> SweepStudy:
     """Sweep a scenario's start directions, check the best plan, write the files.
 
@@ -103,6 +104,9 @@ def run_sweep_study(
         Per planner name, its settings (e.g. ``{"rrt": {"connection": "arc"}}``), for
         the planners given by name. ``sweep.json`` records every planner's options as it
         ran (``options``), and the seed given (``seed``).
+    resume : dict, optional
+        Per planner name, the results an interrupted run finished (one per direction,
+        ``None`` where one is still to do: :func:`read_partial_sweep`); they are kept.
 
     Returns
     -------
@@ -112,6 +116,9 @@ def run_sweep_study(
     ------
     InvalidInputError
         No planners, or an unknown one.
+    Interrupted
+        Ctrl-C: the directions finished are written to ``sweep_path`` as a result marked
+        ``"partial": true`` (no plan file, no report), which ``resume`` carries on from.
     """
     from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions, sweep, sweeps_to_dict
@@ -129,29 +136,35 @@ def run_sweep_study(
     sc, problem = source.cached()
     dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
     sweeps = {}
-    for name, planner in built.items():
-        sweeps[name] = sweep(
-            problem,
-            planner,
-            directions=dirs,
-            time_limit_s=time_limit_s,
-            max_iterations=max_iterations,
-            executor=executor,
-            source=source,
-            progress=None if progress is None else progress(name),
-        )
     options = {name: _options_of(planner) for name, planner in built.items()}
-    best = sweeps[next(iter(built))].best
-    check = None
-    files = {}
-    record = {
+    head = {
         "scenario": scenario_reference(source.scenario_path, sweep_path),
         "time_limit_s": time_limit_s,
         "max_iterations": max_iterations,
         "seed": seed,
         "options": options,
-        **sweeps_to_dict(sweeps),
     }
+    for name, planner in built.items():
+        try:
+            sweeps[name] = sweep(
+                problem,
+                planner,
+                directions=dirs,
+                time_limit_s=time_limit_s,
+                max_iterations=max_iterations,
+                executor=executor,
+                source=source,
+                progress=None if progress is None else progress(name),
+                done=(resume or {}).get(name),
+            )
+        except Interrupted as exc:  # write what is done, and say so (raises Interrupted)
+            sweeps[name] = exc.partial
+            _write_partial(sweep_path, head, sweeps, built, resume)
+    options = {name: _options_of(planner) for name, planner in built.items()}
+    best = sweeps[next(iter(built))].best
+    check = None
+    files = {}
+    record = {**head, **sweeps_to_dict(sweeps)}
     if best is not None:
         p = problem.with_start_pose(best.start_pose)
         check = verify_plan(p, best.plan, expected_cost_mm=best.cost_mm)
@@ -178,6 +191,73 @@ def run_sweep_study(
                 options,
             )
     return SweepStudy(sweeps, best, check, files)
+
+
+def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) -> None:
+    """The record of an interrupted sweep: every planner's finished directions (a planner
+    not reached keeps what ``resume`` gave it), marked partial; the message says how much
+    is done and how to carry on."""
+    from needlekit.planning.steerable.sweep import SweepResult, sweep_stats, sweeps_to_dict
+
+    first = next(iter(sweeps.values()))
+    n = len(first.directions)
+    for name in built:
+        if name not in sweeps:
+            res = list((resume or {}).get(name) or [None] * n)
+            stats = sweep_stats(first.directions, first.effective, res)
+            sweeps[name] = SweepResult(first.directions, first.effective, res, name, stats)
+    record = {**head, "partial": True, **sweeps_to_dict(sweeps)}
+    write_json(sweep_path, record)
+    total = int(first.effective.sum()) * len(built)
+    done = sum(
+        r is not None for s in sweeps.values() for i, r in enumerate(s.results) if s.effective[i]
+    )
+    raise Interrupted(
+        f"{done} of {total} effective directions done ({', '.join(built)}); written to "
+        f"{sweep_path} marked partial; the same command with --resume carries on",
+        partial=sweeps,
+    )
+
+
+def read_partial_sweep(path, planners, directions) -> dict:
+    """What an interrupted sweep finished, read back to carry on (``sweep --resume``):
+    per planner, one result per direction (``None`` where still to do).
+
+    Parameters
+    ----------
+    path : path-like
+        Its ``sweep.json``, marked ``"partial": true``.
+    planners : sequence of str
+        The planners of the run to resume: the file's, in its order.
+    directions : ndarray, shape (n, 3)
+        The run's directions: the file's.
+
+    Returns
+    -------
+    dict of str to list
+
+    Raises
+    ------
+    InvalidInputError
+        (named ``--resume``) No such file, not a partial sweep, or other planners or
+        directions than this run's.
+    """
+    from needlekit.planning.steerable.sweep import sweeps_from_dict
+
+    data = read_json_object(path, "sweep")
+    if data.get("partial") is not True:
+        raise InvalidInputError("--resume", f"{path} is not a partial sweep: nothing to carry on")
+    sweeps = sweeps_from_dict(data, str(path))
+    if list(sweeps) != list(planners):
+        raise InvalidInputError(
+            "--resume", f"{path} swept {', '.join(sweeps)}; this run asks for {', '.join(planners)}"
+        )
+    dirs = next(iter(sweeps.values())).directions
+    if dirs.shape != np.shape(directions) or not np.allclose(dirs, directions, atol=1e-9):
+        raise InvalidInputError(
+            "--resume", f"{path} swept other directions ({len(dirs)}) than this run asks for"
+        )
+    return {name: list(s.results) for name, s in sweeps.items()}
 
 
 def _options_of(planner) -> dict:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from concurrent.futures import Executor
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
+from needlekit.errors import Interrupted
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.sweep_batch import SweepJob, sweep_many
@@ -55,6 +56,7 @@ def sweep(
     max_iterations: int | None = None,
     progress=None,
     options: dict | None = None,
+    done=None,
 ) -> SweepResult:
     """Plan from the start point over every effective start direction.
 
@@ -91,20 +93,33 @@ def sweep(
     options : dict, optional
         Planner settings (see :func:`~needlekit.planning.steerable.solve.solve`); only
         with a planner's name.
+    done : list of (PlanResult or None), optional
+        Results of the directions an interrupted sweep finished (one per direction,
+        ``None`` where one is still to do): kept, not planned again.
 
     Returns
     -------
     SweepResult
         Several sweeps at once, without waiting between them:
         :func:`~needlekit.planning.steerable.sweep_batch.sweep_many`.
+
+    Raises
+    ------
+    Interrupted
+        Ctrl-C during the sweep; its ``partial`` is the :class:`SweepResult` of the
+        directions finished (``None`` for the others).
     """
     job = SweepJob(problem, planner, source, options, normal)
-    return sweep_many(
-        [job],
-        directions=directions,
-        time_limit_s=time_limit_s,
-        executor=executor,
-        seed=seed,
-        max_iterations=max_iterations,
-        progress=progress,
-    ).sweeps[0]
+    try:
+        return sweep_many(
+            [job],
+            directions=directions,
+            time_limit_s=time_limit_s,
+            executor=executor,
+            seed=seed,
+            max_iterations=max_iterations,
+            progress=progress,
+            done=None if done is None else [done],
+        ).sweeps[0]
+    except Interrupted as exc:
+        raise Interrupted(str(exc), partial=exc.partial.sweeps[0]) from None

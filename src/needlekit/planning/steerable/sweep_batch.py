@@ -25,7 +25,7 @@ import numpy as np
 
 from needlekit.batch import worker_builds, worker_name
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
-from needlekit.errors import InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.search import geometric_refusal
@@ -203,6 +203,7 @@ def sweep_many(
     seed: int | None = None,
     max_iterations: int | None = None,
     progress=None,
+    done=None,
 ) -> SweepBatch:
     """Several sweeps at once: every (job, direction) task is submitted together, with no
     wait between sweeps, searched directions before those the pre-checks refuse
@@ -226,6 +227,9 @@ def sweep_many(
     progress : callable, optional
         Called once per finished direction (with its result); ``set_total(n)`` first, if
         it has one.
+    done : sequence of (list or None), optional
+        Per job, the results of directions done already (an interrupted run's, read back:
+        ``None`` where a direction is still to do); those are kept, not planned again.
 
     Returns
     -------
@@ -237,6 +241,10 @@ def sweep_many(
     ------
     InvalidInputError
         No jobs, or a problem too heavy to send to workers without a source.
+    Interrupted
+        Ctrl-C (KeyboardInterrupt) during the batch: the pending tasks are cancelled and
+        the directions finished so far come back as the exception's ``partial``
+        :class:`SweepBatch` (``None`` results where a direction was not finished).
     """
     jobs = list(jobs)
     if not jobs:
@@ -251,13 +259,14 @@ def sweep_many(
     dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     # executors that run tasks elsewhere get the recipe, or a scene small enough to ship
     remote = executor is not None and not getattr(executor, "in_process", False)
+    results = _prefilled(done, len(jobs), len(dirs))
     effs, order = [], []
     for j, job in enumerate(jobs):
         eff = _effective(job, dirs)
         effs.append(eff)
         if remote and job.source is None:
             _check_task_size(job.problem)
-        idx = np.flatnonzero(eff)
+        idx = np.array([i for i in np.flatnonzero(eff) if results[j][i] is None], dtype=int)
         refused = refused_before_search(job.problem, dirs[idx])
         order += [(job.rank, bool(r), j, int(i)) for i, r in zip(idx, refused, strict=True)]
     order.sort()
@@ -276,7 +285,6 @@ def sweep_many(
         tasks += [batch[k : k + REFUSED_PER_TASK] for k in range(0, len(batch), REFUSED_PER_TASK)]
     if progress is not None and hasattr(progress, "set_total"):
         progress.set_total(len(order))
-    results = [[None] * len(dirs) for _ in jobs]
     last_s = [0.0] * len(jobs)
     workers: dict = {}
 
@@ -295,23 +303,46 @@ def sweep_many(
             if progress is not None:
                 progress(r)
 
-    if executor is None:
-        for t in tasks:
-            collect([k for k, _ in t], _plan_tasks([a for _, a in t]))
-    else:
-        pending = {executor.submit(_plan_tasks, [a for _, a in t]): t for t in tasks}
-        try:
-            for fut in as_completed(list(pending)):
-                collect([k for k, _ in pending.pop(fut)], fut.result())
-        finally:
-            for fut in pending:
-                fut.cancel()
-    sweeps = [
-        SweepResult(
-            dirs, effs[j], results[j], planners[j].name, _stats(dirs, effs[j], results[j], t)
-        )
-        for j, t in enumerate(last_s)
-    ]
-    if not remote:  # this process planned from the problems it was given
-        workers = {}
-    return SweepBatch(sweeps, workers, time.perf_counter() - t0)
+    def batch() -> SweepBatch:
+        sweeps = [
+            SweepResult(
+                dirs, effs[j], results[j], planners[j].name, _stats(dirs, effs[j], results[j], t)
+            )
+            for j, t in enumerate(last_s)
+        ]
+        # this process planned from the problems it was given: no worker to report
+        return SweepBatch(sweeps, workers if remote else {}, time.perf_counter() - t0)
+
+    try:
+        if executor is None:
+            for t in tasks:
+                collect([k for k, _ in t], _plan_tasks([a for _, a in t]))
+        else:
+            pending = {executor.submit(_plan_tasks, [a for _, a in t]): t for t in tasks}
+            try:
+                for fut in as_completed(list(pending)):
+                    collect([k for k, _ in pending.pop(fut)], fut.result())
+            finally:
+                for fut in pending:
+                    fut.cancel()
+    except KeyboardInterrupt:
+        n = sum(r is not None for rs in results for r in rs)
+        raise Interrupted(f"{n} directions done", partial=batch()) from None
+    return batch()
+
+
+def _prefilled(done, n_jobs: int, n_dirs: int) -> list[list]:
+    """Per job, a results list of the directions done already (``done``), else empty."""
+    if done is None:
+        return [[None] * n_dirs for _ in range(n_jobs)]
+    done = list(done)
+    if len(done) != n_jobs:
+        raise InvalidInputError("done", f"expected one entry per sweep ({n_jobs}), got {len(done)}")
+    out = []
+    for j, d in enumerate(done):
+        if d is not None and len(d) != n_dirs:
+            raise InvalidInputError(
+                f"done[{j}]", f"expected a result or None per direction ({n_dirs}), got {len(d)}"
+            )
+        out.append([None] * n_dirs if d is None else list(d))
+    return out

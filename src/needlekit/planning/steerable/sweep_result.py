@@ -429,10 +429,14 @@ def sweeps_from_dict(data: dict, where: str, goal_mm=None) -> dict:
         stats = field_of(summary, name, f"{where}: summary", "dict")
         best_index = field_of(stats, "best_index", f"{where}: summary.{name}", "int", optional=True)
         results: list = [None] * len(rows)
+        partial = data.get("partial") is True
         for i in np.flatnonzero(eff):
             at = f"{where}: directions[{i}]"
             row = rows[i]
-            status = enum_of(Status, field_of(row, "status", at, "dict").get(name), f"{at}: status")
+            given = field_of(row, "status", at, "dict").get(name)
+            if given is None and partial:  # an interrupted sweep had not reached it
+                continue
+            status = enum_of(Status, given, f"{at}: status")
             cost = number_or_inf(field_of(row, "cost_mm", at, "dict"), name, f"{at}: cost_mm")
             t = field_of(field_of(row, "time_s", at, "dict"), name, f"{at}: time_s", optional=True)
             results[i] = PlanResult(status, name, None, cost, float(t or 0.0), goal)

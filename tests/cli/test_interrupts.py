@@ -1,0 +1,141 @@
+"""Interrupts keep work (issue 22, point 5): SIGINT to the main process of a sweep, as
+`timeout -s INT` or Ctrl-C sends it, stops every worker, exits with status 130 and one
+line, writes the directions finished as a sweep marked partial, and `--resume` carries on
+from it to the same result as an uninterrupted run (iteration budgets: reproducible).
+
+Nothing here asserts a time: the command is signalled once it has written progress, and
+the test waits for it to end. How fast it ends is measured by hand (docs/steerable.md).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
+
+#: Enough directions and iterations that the sweep is still running when signalled.
+SWEEP = ["--directions", "600", "--max-iterations", "400", "--planner", "rcs_star", "rrt"]
+
+
+def _children(pid: int) -> list[int]:
+    """The live child processes of ``pid`` (from /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU seconds used by a process and its live children (from /proc)."""
+    total = 0.0
+    for p in [pid, *_children(pid)]:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
+
+
+def _interrupted_sweep(tmp_path: Path, cpu_s: float, *extra: str):
+    out = tmp_path / "sweep.json"
+    argv = [sys.executable, "-m", "needlekit.cli", "sweep", str(TOY), *SWEEP, "--out", str(out),
+            *extra]  # fmt: skip
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    # signal once it has planned a while: the start-up (imports, the toy scene; each pool
+    # worker's too) takes about 2 s of CPU per process, the whole sweep about 9 s
+    while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
+        time.sleep(0.1)
+    assert proc.poll() is None, "the sweep ended before it could be interrupted"
+    workers = [c for c in _children(proc.pid) if b"spawn_main" in _cmdline(c)]  # pool workers
+    assert len(workers) == (2 if "--workers" in extra else 0)
+    proc.send_signal(signal.SIGINT)  # to the main process alone, as `timeout -s INT` does
+    stdout, stderr = proc.communicate(timeout=120)
+    for pid in workers:  # every worker stopped with it
+        assert not Path(f"/proc/{pid}").exists(), pid
+    return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr), out
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory) -> dict:
+    """The same sweep, uninterrupted (the table does not depend on the executor)."""
+    out = tmp_path_factory.mktemp("whole") / "sweep.json"
+    argv = [sys.executable, "-m", "needlekit.cli", "sweep", str(TOY), *SWEEP, "--out", str(out)]
+    ref = subprocess.run(argv, capture_output=True, text=True, timeout=600)
+    assert ref.returncode == 0, ref.stderr
+    return json.loads(out.read_text())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("executor", "cpu_s"), [([], 5.0), (["--workers", "2"], 8.0)], ids=["serial", "process"]
+)
+def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, executor, cpu_s,
+                                                                  whole):  # fmt: skip
+    done, out = _interrupted_sweep(tmp_path, cpu_s, *executor)
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert done.returncode == 130, done.stderr
+    assert len(lines) == 1 and lines[0].startswith("interrupted: "), done.stderr
+    assert f"written to {out} marked partial; the same command with --resume carries on" in lines[0]
+    partial = json.loads(out.read_text())
+    assert partial["partial"] is True
+    rows = [r for r in partial["directions"] if r["effective"]]
+    n_done = sum(r["status"][p] is not None for r in rows for p in ("rcs_star", "rrt"))
+    assert 0 < n_done < 2 * len(rows)
+    assert lines[0].startswith(f"interrupted: {n_done} of {2 * len(rows)} effective directions")
+    # carry on: the same table as the uninterrupted sweep
+    argv = [sys.executable, "-m", "needlekit.cli", "sweep", str(TOY), *SWEEP, *executor]
+    resumed = subprocess.run([*argv, "--out", str(out), "--resume"], capture_output=True,
+                             text=True, timeout=600)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    a = json.loads(out.read_text())
+    assert "partial" not in a
+    key = [(r["status"], r["cost_mm"]) for r in a["directions"]]
+    assert key == [(r["status"], r["cost_mm"]) for r in whole["directions"]]
+    for p in ("rcs_star", "rrt"):
+        for k in ("n_solved", "best_index", "best_cost_mm", "mean_cost_mm"):
+            assert a["summary"][p][k] == whole["summary"][p][k], (p, k)
+    for p in ("rcs_star", "rrt"):  # the same best plan (its timings aside)
+        got, want = a["best_plans"][p], whole["best_plans"][p]
+        assert {k: got[k] for k in want if k not in ("time_s", "stats")} == {
+            k: want[k] for k in want if k not in ("time_s", "stats")
+        }
+
+
+def test_resume_refuses_a_file_that_is_not_a_partial_sweep(tmp_path, capsys):
+    from needlekit.cli import main
+
+    out = tmp_path / "sweep.json"
+    out.write_text(json.dumps({"planners": ["rcs_star"], "directions": []}))
+    code = main(["sweep", str(TOY), "--out", str(out), "--resume"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [
+        f"error: --resume: {out} is not a partial sweep: nothing to carry on"
+    ]
+    missing = tmp_path / "none.json"
+    code = main(["sweep", str(TOY), "--out", str(missing), "--resume"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err == [f"error: {missing}: sweep file not found"]
