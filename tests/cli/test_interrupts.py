@@ -64,7 +64,13 @@ def _interrupted_sweep(tmp_path: Path, cpu_s: float, *extra: str):
     out = tmp_path / "sweep.json"
     argv = [sys.executable, "-m", "needlekit.cli", "sweep", str(TOY), *SWEEP, "--out", str(out),
             *extra]  # fmt: skip
-    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    # a run started in the background of a shell without job control (a CI script's
+    # `make test &`) inherits SIGINT ignored, and Python then keeps ignoring it: the
+    # command under test gets the default disposition, as a terminal gives it
+    proc = subprocess.Popen(
+        argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
     # signal once it has planned a while: the start-up (imports, the toy scene; each pool
     # worker's too) takes about 2 s of CPU per process, the whole sweep about 9 s
     while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
