@@ -10,12 +10,13 @@ the command line (:func:`flag_warnings`). Warnings, not errors: a phantom or a t
 odd sizes on purpose. A zero is never warned about where zero is allowed (no margin).
 
 Ranges (mm unless said): needle diameter 0.1-10 (33 G to 4 G needles and ablation
-antennas), minimum radius of curvature at least 1 (the lecture's needles bend at 50-100),
-insertion length 5-2000, safety margin and start exclusion at most 50 and 100, goal
-tolerance 0.01-50, Liu et al.'s gamma 0.01-50 (they use 1.5-3), ablation margin at most 50
-and zone sizes 1-300, voxel sizes 0.01-20, a moving obstacle's step 0.01-200 and speed
-0.01-1000 mm/s, the puncture controller's stability radius 0.01-50 (Tang et al.: 1.5), a
-markup curve's spacing 0.01-100 and a curvature at most 1/mm.
+antennas), minimum radius of curvature at least 1 (needlekit's default is 50; the
+reference planner's Med-RAD set-ups use 50 and 100), insertion length 5-2000, safety
+margin and start exclusion at most 50 and 100, goal tolerance 0.01-50, Liu et al.'s safe
+distance gamma 0.01-50 (the paper sets 1.5; `study livers` also runs 3), ablation margin
+at most 50 and zone sizes 1-300, voxel sizes 0.01-20, a moving obstacle's step 0.01-200
+and speed 0.01-1000 mm/s, the puncture controller's stability radius 0.01-50 (needlekit's
+default 1.5), a markup curve's spacing 0.01-100 and a curvature at most 1/mm.
 """
 
 from __future__ import annotations

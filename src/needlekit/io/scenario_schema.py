@@ -202,10 +202,9 @@ def _check_relations(data: Any, source: str) -> None:
         ("start.direction", (data.get("start") or {}).get("direction")),
         ("straight.up", straight.get("up")),
     ):
-        if isinstance(vec, list) and not any(float(v) != 0.0 for v in vec):
-            raise InvalidInputError(
-                f"{source}: {where}", "expected a non-zero vector, got [0, 0, 0]"
-            )
+        # the planners' rule: no component above 1e-12 is no direction
+        if isinstance(vec, list) and not max(abs(float(v)) for v in vec) > 1e-12:
+            raise InvalidInputError(f"{source}: {where}", f"expected a non-zero vector, got {vec}")
     order = straight.get("order")
     if isinstance(order, list):
         targets = straight.get("targets")

@@ -160,7 +160,6 @@ def run_sweep_study(
         except Interrupted as exc:  # write what is done, and say so (raises Interrupted)
             sweeps[name] = exc.partial
             _write_partial(sweep_path, head, sweeps, built, resume)
-    options = {name: _options_of(planner) for name, planner in built.items()}
     best = sweeps[next(iter(built))].best
     check = None
     files = {}
