@@ -49,6 +49,47 @@ def test_as_completed_indexed_propagates_a_task_error():
         dict(as_completed_indexed(SerialExecutor(), _fail_on_three, range(5)))
 
 
+def _interrupt_at(x):
+    if x == 2:
+        raise KeyboardInterrupt
+    return x
+
+
+def test_ctrl_c_stops_a_serial_run_at_the_task_it_hits():
+    """Ctrl-C is not a task's failure: the tasks after it never run, and the results taken
+    before it are the ones done."""
+    seen = []
+    with pytest.raises(KeyboardInterrupt):
+        for i, r in as_completed_indexed(SerialExecutor(), _interrupt_at, range(5)):
+            seen.append((i, r))
+    assert seen == [(0, 0), (1, 1)]
+
+
+def test_stopping_a_pool_with_cancelled_tasks_leaves_no_thread_error(monkeypatch):
+    """Ctrl-C while tasks wait in a pool: the waiting ones are cancelled, the workers
+    stopped, and the pool's manager thread fails no cancelled task (Python 3.11 printed a
+    thread traceback there)."""
+    import threading
+    import time
+
+    from needlekit import batch
+
+    errors = []
+    monkeypatch.setattr(threading, "excepthook", lambda a: errors.append(a.exc_type))
+    pool = batch.ProcessPoolExecutor(max_workers=1, initializer=batch._ignore_sigint,
+                                     mp_context=batch.multiprocessing.get_context("spawn"))  # fmt: skip
+    futures = [pool.submit(time.sleep, 60) for _ in range(4)]
+    while not futures[0].running():
+        time.sleep(0.01)
+    assert all(f.cancel() for f in futures[2:])  # the ones still queued here
+    manager = pool._executor_manager_thread
+    procs = list(pool._processes.values())
+    batch._stop_pool(pool)
+    manager.join(10)
+    assert not manager.is_alive() and not any(p.is_alive() for p in procs)
+    assert errors == []
+
+
 @pytest.mark.parametrize(
     ("kind", "workers", "field"),
     [("threads", None, "executor"), ("process", 0, "workers"), ("serial", 1.5, "workers")],

@@ -102,3 +102,45 @@ def test_a_missing_patient_is_one_line_naming_the_flag(medrad_dir, tmp_path, cap
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1
     assert err.startswith("error: --livers: no patient [9] under") and not out.exists()
+
+
+@pytest.mark.realdata
+def test_an_interrupted_study_keeps_its_rows_and_resume_plans_only_the_rest(
+    medrad_dir, tmp_path, monkeypatch, capsys
+):
+    """Issue 22, point 5, the bookkeeping without the planning: each case is a row made
+    from its key, and Ctrl-C arrives in the third case."""
+    import needlekit.studies.liver_study as ls
+
+    ran = []
+
+    def fake(case, gamma_mm, **_):
+        ran.append((case["start"], gamma_mm))
+        if len(ran) == 3:
+            raise KeyboardInterrupt
+        return {**case, "gamma_mm": gamma_mm, "status": "covered", "reason": "",
+                "needles_chosen": 1, "needles_planned": 1, "coverage": 1.0,
+                "tumour_coverage": 1.0, "min_clearance_mm": 2.0, "healthy_ablated_ml": 1.0,
+                "plan_s": 0.1, "verified": True, "violations": []}  # fmt: skip
+
+    monkeypatch.setattr(ls, "run_liver_case", fake)
+    out = tmp_path / "livers.json"
+    args = ["study", "livers", "--livers", "2", "--gamma", "1.5", "3", "--medrad", str(medrad_dir)]
+    assert main([*args, "--out", str(out)]) == 130
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == (
+        f"interrupted: 2 of 6 cases done; written to {out} marked partial; the same command "
+        "with --resume carries on"
+    )
+    assert [r["gamma_mm"] for r in json.loads(out.read_text())["rows"]] == [1.5, 3.0]
+    assert main([*args, "--gamma", "3", "--out", str(out), "--resume"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"error: --resume: {out} was written with other settings than this run's"
+    )
+    assert main([*args, "--out", str(out), "--resume"]) == 0
+    first = ("target1_start1", 1.5)
+    assert ran[:3] == [first, ("target1_start1", 3.0), ("target1_start2", 1.5)]
+    assert ran[3:] == [("target1_start2", 1.5), ("target1_start2", 3.0),
+                       ("target2_start1", 1.5), ("target2_start1", 3.0)]  # fmt: skip
+    rec = json.loads(out.read_text())
+    assert "partial" not in rec and rec["summary"]["cases"] == 6

@@ -61,7 +61,8 @@ SCHEDULER_TIMEOUT_S: float = 5.0
 class SerialExecutor(Executor):
     """An executor that runs every task at submission, in the calling thread.
 
-    Exceptions are stored in the returned future, as with a pool.
+    A task's exception is stored in the returned future, as with a pool; Ctrl-C
+    (``KeyboardInterrupt``) is not a task's failure and stops the caller at once.
     """
 
     #: Tasks run in the caller's process: they need not be picklable.
@@ -84,7 +85,7 @@ class SerialExecutor(Executor):
         fut: Future = Future()
         try:
             fut.set_result(fn(*args, **kwargs))
-        except BaseException as exc:
+        except Exception as exc:
             fut.set_exception(exc)
         return fut
 
@@ -103,6 +104,12 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """End a process pool at once: queued tasks cancelled, running ones abandoned, every
     worker terminated (killed if it does not end within :data:`STOP_GRACE_S`)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    # a stopped worker makes the pool's manager thread fail every pending task; on Python
+    # 3.11 it raises (and prints a thread traceback) at a task already cancelled: give
+    # those a fresh future to fail instead (list() copies the dict under the GIL)
+    for item in list((getattr(pool, "_pending_work_items", None) or {}).values()):
+        if item.future.cancelled():
+            item.future = Future()
     for p in procs:
         if p.is_alive():
             p.terminate()
@@ -309,8 +316,14 @@ def as_completed_indexed(
     ------
     tuple of (int, object)
         The item's position and ``fn``'s result, in completion order. A task's exception
-        propagates when its result is reached; the remaining tasks are cancelled.
+        propagates when its result is reached; the remaining tasks are cancelled. An
+        in-process executor (:class:`SerialExecutor`) runs each task when the previous
+        result has been taken, so a caller sees (and can keep) every result as it comes.
     """
+    if getattr(executor, "in_process", False):
+        for i, item in enumerate(items):
+            yield i, executor.submit(fn, item).result()
+        return
     futures = {executor.submit(fn, item): i for i, item in enumerate(items)}
     try:
         for fut in as_completed(futures):

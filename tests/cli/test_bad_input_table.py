@@ -177,6 +177,26 @@ ROWS = [
         "error: argument --goal: expected three numbers x,y,z (mm), got '1,2,x'",
     ),
     (
+        ["plan", "{TOY}", "--goal", "1e7,0,0"],
+        "error: argument --goal: '1e7,0,0' is past 1e+06 mm (a kilometre): not a position in a body",
+    ),
+    (
+        ["plan", "{TOY}", "--r-min-mm", "1e300"],
+        "error: --r-min-mm: 1e+300 mm is past 1e+06 mm (a kilometre): not a size in a body",
+    ),
+    (
+        ["study", "livers", "--gamma", "2e6"],
+        "error: --gamma: 2e+06 mm is past 1e+06 mm (a kilometre): not a size in a body",
+    ),
+    (
+        ["sweep", "{TOY}", "--out", "{d}/none.json", "--resume"],
+        "error: {d}/none.json: sweep file not found",
+    ),
+    (
+        ["puncture", "--out", "{d}/nothing", "--resume"],
+        "error: {d}/nothing/puncture.json: puncture file not found",
+    ),
+    (
         ["plan", "{TOY}", "--goals", "1,2,3", "--goal", "1,2,3"],
         "error: --goals: give the targets with --goals or --goal, not both",
     ),

@@ -145,3 +145,67 @@ def test_resume_refuses_a_file_that_is_not_a_partial_sweep(tmp_path, capsys):
     code = main(["sweep", str(TOY), "--out", str(missing), "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [f"error: {missing}: sweep file not found"]
+
+
+def _puncture(argv, capsys):
+    from needlekit.cli import main
+
+    code = main(["puncture", "--trials", "3", "--seed", "3", "--no-report", *argv])
+    return code, [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+
+
+def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the_rest(
+    tmp_path, monkeypatch, capsys
+):
+    """The study's bookkeeping, without the 4 s simulations: each trial is a record made
+    from its index, and Ctrl-C arrives while trial 2 runs (a SIGINT to the real command
+    is measured in docs/control.md)."""
+    import needlekit.studies.puncture_study as ps
+
+    ran = []
+
+    def fake(job):
+        i = job[2]
+        ran.append(i)
+        if i == 2 and len(ran) == 3:
+            raise KeyboardInterrupt
+        return {"trial": i, "octant": i % 4, "status": "completed", "reason": "",
+                "position_error_mm": 1.0 + i, "angle_error_deg": 0.1 * i,
+                "max_guide_distance_mm": 0.0, "max_cone_angle_deg": 0.0, "reached": True,
+                "min_plane_distance_mm": 1.0, "min_patient_distance_mm": 500.0,
+                "reached_estimated": True, "guide_draws": 1, "guide_refused": {}}  # fmt: skip
+
+    monkeypatch.setattr(ps, "_run_job", fake)
+    out = tmp_path / "study"
+    code, err = _puncture(["--out", str(out)], capsys)
+    path = out / "puncture.json"
+    assert code == 130 and err == [
+        f"interrupted: 2 of 3 trials done; written to {path} marked partial; the same "
+        "command with --resume carries on"
+    ]
+    partial = json.loads(path.read_text())
+    assert partial["partial"] is True and [t["trial"] for t in partial["per_trial"]] == [0, 1]
+    # another seed, or a changed byte: refused before any trial, naming --resume
+    code, err = _puncture(["--out", str(out), "--resume", "--seed", "4"], capsys)
+    assert code == 2 and err == [
+        f"error: --resume: {path} was written with other seed than this run's"
+    ]
+    text = path.read_text()
+    path.write_text(text.replace('"position_error_mm": 2.0', '"position_error_mm": 0.2'))
+    code, err = _puncture(["--out", str(out), "--resume"], capsys)
+    assert code == 2 and err == [
+        f"error: --resume: {path} is not as the interrupted run wrote it (its signature does "
+        "not match): run again without --resume"
+    ]
+    assert ran == [0, 1, 2]
+    path.write_text(text)
+    code, _ = _puncture(["--out", str(out), "--resume"], capsys)
+    assert ran == [0, 1, 2, 2]  # only the trial not done
+    doc = json.loads(path.read_text())
+    assert "partial" not in doc and code == 0, doc["constraint_violations"]
+    assert [t["trial"] for t in doc["per_trial"]] == [0, 1, 2]
+    assert doc["position_error_mm"]["mean"] == pytest.approx(2.0)
+    code, err = _puncture(["--out", str(out), "--resume"], capsys)
+    assert code == 2 and err == [
+        f"error: --resume: {path} is not a partial puncture: nothing to carry on"
+    ]

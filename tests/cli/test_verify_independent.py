@@ -61,6 +61,21 @@ def test_a_plan_moved_to_start_elsewhere_fails_on_its_start(toy_plan, tmp_path, 
     assert report["metrics"]["goal_distance_mm"] == pytest.approx(0.5, abs=1e-9)
 
 
+def test_the_report_holds_a_moved_plan_to_the_scenarios_start(toy_plan, tmp_path, capsys):
+    """``report`` checks a plan as ``verify`` does: the same moved start fails there too."""
+    doc = json.loads(json.dumps(toy_plan))
+    step = np.asarray(doc["goal_mm"]) - _end(doc)
+    pose = np.asarray(doc["start_pose"])
+    pose[:3, 3] += step * 0.5 / np.linalg.norm(step)
+    doc["start_pose"] = pose.tolist()
+    page = tmp_path / "page.html"
+    for name, plan, want in (("same.json", toy_plan, 0), ("moved.json", doc, 1)):
+        path = _write(tmp_path, plan, name)
+        code, text, _ = _run(capsys, "report", path, "--scenario", TOY, "--out", page)
+        assert code == want, text
+    assert "check FAILED (1 of 1)" in text and "an independent check failed" in text
+
+
 def test_the_roll_about_the_needle_is_free(toy_plan, tmp_path, capsys):
     # the same path from a start pose rolled 30 degrees about the needle, the first bend's
     # rotation taking the roll back: the start is the scenario's and the plan passes

@@ -240,3 +240,61 @@ def test_the_study_page_renders_in_a_browser(quick, rendered):
     out, _, _ = quick
     plots, pngs = rendered(out / "report.html")
     assert plots >= 4 and pngs
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_an_interrupted_study_keeps_its_sweeps_and_resume_gives_the_whole_tables(
+    medrad_dir, tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C while the sixth direction is planned (issue 22, point 5): both targets'
+    sweeps so far are written marked partial, and --resume plans the rest to the tables of
+    a run never interrupted (iteration budgets: reproducible)."""
+    import needlekit.planning.steerable.sweep_batch as sb
+
+    small = ["--directions", "24", "--max-iterations", "40", "--medrad", str(medrad_dir)]
+    ref = tmp_path / "ref"
+    assert main(["study", "feng-lungs", "--out", str(ref), *small]) == 0
+    plan_tasks, calls = sb._plan_tasks, []
+
+    def interrupt_sixth(tasks):
+        calls.append(len(tasks))
+        if len(calls) == 6:
+            raise KeyboardInterrupt
+        return plan_tasks(tasks)
+
+    monkeypatch.setattr(sb, "_plan_tasks", interrupt_sixth)
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert main(["study", "feng-lungs", "--out", str(out), *small]) == 130
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    paths = [out / g / "sweep.json" for g in ("goal1", "goal2")]
+    assert line.endswith(
+        f"written to {paths[0]} and {paths[1]} marked partial; the same command with "
+        "--resume carries on"
+    ), line
+    partial = [json.loads(p.read_text()) for p in paths]
+    assert all(p["partial"] is True for p in partial)
+    assert not (out / "feng_lungs.json").exists()
+    n_done = sum(
+        v is not None
+        for p in partial
+        for r in p["directions"]
+        if r["effective"]
+        for v in r["status"].values()
+    )
+    assert 0 < n_done == sum(calls[:5])  # the five tasks before Ctrl-C
+    monkeypatch.setattr(sb, "_plan_tasks", plan_tasks)
+    assert main(["study", "feng-lungs", "--out", str(out), *small, "--resume"]) == 0
+    want = json.loads((ref / "feng_lungs.json").read_text())
+    got = json.loads((out / "feng_lungs.json").read_text())
+    assert got["settings"]["resumed"] is True and got["timing"]["within_bound"] is None
+    for g in ("goal1", "goal2"):
+        for name, t in want["goals"][g]["table4"].items():  # their run times aside
+            assert {**got["goals"][g]["table4"][name], "time_s": 0} == {**t, "time_s": 0}
+        assert got["goals"][g]["checks"] == want["goals"][g]["checks"]
+        a, b = (json.loads((d / g / "sweep.json").read_text()) for d in (out, ref))
+        assert "partial" not in a
+        assert [(r["status"], r["cost_mm"]) for r in a["directions"]] == [
+            (r["status"], r["cost_mm"]) for r in b["directions"]
+        ]

@@ -47,6 +47,12 @@ class _Formatter(argparse.HelpFormatter):
 
 
 def _numbers(count: int, what: str):
+    """The type of a flag of ``count`` numbers; a point in millimetres (``what`` says
+    "(mm)") keeps each coordinate within the scenario files' bound (a kilometre)."""
+    from needlekit.io.scenario_schema import MAX_ABS_MM
+
+    bound = MAX_ABS_MM if "(mm)" in what else math.inf
+
     def parse(text: str) -> list[float]:
         parts = [p for p in text.replace(",", " ").split() if p]
         try:
@@ -57,6 +63,10 @@ def _numbers(count: int, what: str):
             raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
         if not all(math.isfinite(v) for v in values):
             raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
+        if any(abs(v) > bound for v in values):
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is past {bound:g} mm (a kilometre): not a position in a body"
+            )
         return values
 
     return parse

@@ -84,6 +84,8 @@ SEED = Flag("--seed", {"type": _seed})
 OUT = Flag("--out", path="output")
 JSON = Flag("--json", {"action": "store_true"})
 QUICK = Flag("--quick", {"action": "store_true"})
+#: Carry on from the partial result an interrupted run wrote (:mod:`needlekit.io.partial`).
+RESUME = Flag("--resume", {"action": "store_true"})
 
 # -- data and caches -------------------------------------------------------------------------
 
@@ -317,3 +319,35 @@ SHARED_FLAGS: dict[str, Flag] = {
         DASHBOARD,
     )
 }  # fmt: skip
+
+
+def check_lengths(args) -> None:
+    """Every length flag (the millimetre flags of :data:`needlekit.plausibility.QUANTITIES`)
+    within the bound the scenario files keep
+    (:data:`needlekit.io.scenario_schema.MAX_ABS_MM`, a kilometre), before any work: past
+    it, distances, squares and sample counts made from it are no longer finite.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Named by the flag.
+    """
+    from needlekit.io.scenario_schema import MAX_ABS_MM
+    from needlekit.plausibility import QUANTITIES
+
+    values = vars(args)
+    for flag in (f for q in QUANTITIES if q.unit == "mm" for f in q.flags):
+        value = values.get(flag.lstrip("-").replace("-", "_"))
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) > MAX_ABS_MM:
+                raise InvalidInputError(
+                    flag, f"{v:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size in a body"
+                )

@@ -275,9 +275,14 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         dirs = sphere_directions(args.directions)
     resume = None
     if args.resume:  # the partial file agrees with this run, before any anatomy
-        from needlekit.studies.sweep_study import read_partial_sweep
+        from needlekit.studies.sweep_study import read_partial_sweep, sweep_settings
 
-        resume = read_partial_sweep(args.out, list(built), dirs)
+        resume = read_partial_sweep(
+            args.out,
+            list(built),
+            dirs,
+            sweep_settings(built, settings.time_limit_s, settings.max_iterations, settings.seed),
+        )
     source = _source(args)
     source.cached(doc)  # load (and check) the scenario before starting any worker
     with (
@@ -549,9 +554,8 @@ def _register_sweep(sub) -> None:
     )
     _flags.add_executor_options(sw)
     _rrt_connection(sw)
-    sw.add_argument(
-        "--resume",
-        action="store_true",
+    _flags.RESUME.add(
+        sw,
         help="carry on from the partial --out an interrupted run wrote (Ctrl-C keeps the "
         "directions done): the same scenario, planners and directions; only the rest is "
         "planned",

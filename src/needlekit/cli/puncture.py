@@ -75,6 +75,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
     from needlekit.studies.puncture_study import (
         PunctureScenario,
         TrialOptions,
+        read_partial_puncture,
         run_puncture_study,
     )
 
@@ -92,11 +93,22 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         qp_solver=args.qp_solver,
     )
     scenario = PunctureScenario(redraw_guides=not args.no_redraw)
+    resume = None
+    if args.resume:  # the partial file agrees with this run, before any trial
+        resume = read_partial_puncture(
+            args.out, trials=args.trials, seed=args.seed, scenario=scenario, options=options
+        )
     with (
         open_executor(
             args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
         ) as ex,
-        tqdm(total=args.trials, desc="puncture", unit="trial", disable=None) as bar,
+        tqdm(
+            total=args.trials,
+            initial=len(resume or ()),
+            desc="puncture",
+            unit="trial",
+            disable=None,
+        ) as bar,
     ):
 
         def progress(trial: dict) -> None:
@@ -112,6 +124,7 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
             executor=None if args.executor == "serial" else ex,
             progress=progress,
             report=not args.no_report,
+            resume=resume,
         )
     s = study.summary
     rows = []
@@ -217,4 +230,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(pip install 'needlekit[quadprog]') or one registered under needlekit.qp_solvers",
     )
     _flags.add_executor_options(pu)
+    _flags.RESUME.add(
+        pu,
+        help="carry on from the partial DIR/puncture.json an interrupted run wrote (Ctrl-C "
+        "keeps the trials done): the same trials, seed and settings; only the rest run",
+    )
     pu.set_defaults(command_handler=_cmd_puncture)

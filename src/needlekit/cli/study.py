@@ -36,9 +36,18 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.planning.straight.coverage import fraction_text
-    from needlekit.studies.liver_study import liver_cases, run_liver_study
+    from needlekit.studies.liver_study import liver_cases, read_partial_livers, run_liver_study
 
     cases = liver_cases(args.medrad, args.livers)  # bad folders and patients fail here, at once
+    resume = None
+    if args.resume:  # the partial record agrees with this run, before any case
+        resume = read_partial_livers(
+            args.out,
+            medrad_dir=args.medrad,
+            livers=args.livers,
+            gammas_mm=args.gamma,
+            resolution_deg=args.resolution_deg,
+        )
     with tqdm(total=len(cases) * len(args.gamma), desc="livers", unit="case", disable=None) as bar:
 
         def progress(row: dict) -> None:
@@ -54,6 +63,7 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
             cache_dir=args.cache_dir,
             use_cache=not args.no_cache,
             progress=progress,
+            resume=resume,
         )
     rows = []
     for r in record["rows"]:
@@ -114,6 +124,7 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
             medrad_dir=args.medrad,
             cache_dir=args.cache_dir,
             use_cache=not args.no_cache,
+            resume=args.resume,
         )
     record = study.record
     rows = []
@@ -187,6 +198,11 @@ def _register_livers(study_sub) -> None:
     sl.add_argument("--resolution-deg", type=_positive, help="CFRW grid step (default 1)")
     _flags.add_medrad(sl)
     _flags.add_cache_options(sl)
+    _flags.RESUME.add(
+        sl,
+        help="carry on from the partial --out an interrupted run wrote (Ctrl-C keeps the "
+        "cases done): the same livers, gammas and settings; only the rest is planned",
+    )
     sl.set_defaults(command_handler=_cmd_study_livers)
 
 
@@ -218,6 +234,11 @@ def _register_feng_lungs(study_sub) -> None:
     _flags.add_medrad(sf)
     _flags.add_cache_options(sf)
     _flags.add_executor_options(sf)
+    _flags.RESUME.add(
+        sf,
+        help="carry on from the partial goal1/ and goal2/sweep.json an interrupted run wrote "
+        "(Ctrl-C keeps the directions done): the same settings; only the rest is planned",
+    )
     sf.set_defaults(command_handler=_cmd_study_feng_lungs)
 
 

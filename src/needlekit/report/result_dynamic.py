@@ -100,7 +100,7 @@ def _dynamic_part(rf: ResultFile, load) -> ReportPart:
 
     rec = DynamicRecord.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(load, sc, rf, rec.executed.start_pose, rec.goal_mm)
+    problem = _steerable_problem(load, sc, rf, goal_mm=rec.goal_mm)  # the scenario's start
     _, static, moving = load.moving_case(sc, problem)
     _same_motions(rf, rec.motions, moving)
     check, base = _dynamic_checks(rf, rec, static, moving)

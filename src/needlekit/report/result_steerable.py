@@ -18,18 +18,30 @@ from needlekit.report.steerable_report import goals_sections, plan_rows, plan_se
 __all__: list[str] = []
 
 
-def _check(problem, result):
-    """The independent check of a result's plan (None without one); a path that stops short
-    of the goal is checked as such."""
+def _check(problem, result, *, free_direction: bool = False):
+    """The independent check of a result's plan (None without one), as ``needlekit verify``
+    makes it: from the scenario's start (its point; its direction too unless a sweep chose
+    the plan's, ``free_direction``), to the goal the plan was made for. A plan edited to
+    start elsewhere fails. A path that stops short of the goal is checked as such."""
     from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
     if result.plan is None:
         return None
-    p = problem.with_start_pose(result.plan.start_pose).with_goal(result.goal_mm)
+    p = problem.with_goal(result.goal_mm)
+    if free_direction:
+        p = p.with_free_start_direction()
     if result.status is PlanStatus.APPROXIMATE:
         return verify_approximate(p, result.plan)
     cost = None if not np.isfinite(result.cost_mm) else result.cost_mm
     return verify_plan(p, result.plan, expected_cost_mm=cost)
+
+
+def _own_goal(problem, results) -> str:
+    """Says when the plans were made for goals other than the scenario's (``plan --goal``,
+    ``--goals``): they are checked against those."""
+    if all(np.allclose(r.goal_mm, problem.goal_mm, atol=1e-9) for r in results):
+        return ""
+    return " (checked against the goals given when planning, not the scenario's)"
 
 
 def _verdict(checks) -> tuple[bool | None, str]:
@@ -45,9 +57,11 @@ def _plan_part(rf: ResultFile, load) -> ReportPart:
 
     result = PlanResult.from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(load, sc, rf, result.start_pose, result.goal_mm)
-    check = _check(problem, result)
+    problem = _steerable_problem(load, sc, rf)
+    check = _check(problem, result, free_direction=rf.data.get("start_direction") == "swept")
     ok, verdict = _verdict([check])
+    verdict += _own_goal(problem, [result])
+    problem = problem.with_goal(result.goal_mm)
     cost = "" if result.plan is None else f", cost {result.cost_mm:.4f}"
     return ReportPart(
         rf,
@@ -63,14 +77,17 @@ def _goals_part(rf: ResultFile, load) -> ReportPart:
 
     results = goals_from_dict(rf.data, rf.path.name)
     sc = load(rf.scenario)
-    problem = _steerable_problem(load, sc, rf, results[0].start_pose, results[0].goal_mm)
+    problem = _steerable_problem(load, sc, rf)
     checks = [_check(problem, r) for r in results]
+    own_goal = _own_goal(problem, results)
+    problem = problem.with_goal(results[0].goal_mm)
     planner, mode = rf.data["planner"], rf.data["mode"]
     sections = goals_sections(problem, results, planner=planner, mode=mode, checks=checks)
     for i, r in enumerate(results, start=1):
         if r.plan is not None:
             sections.append(TableSection(f"Target {i}: motions", plan_rows(r.plan)))
     ok, verdict = _verdict(checks)
+    verdict += own_goal
     solved = sum(r.status.value == "solved" for r in results)
     return ReportPart(
         rf,
@@ -90,7 +107,7 @@ def _sweep_part(rf: ResultFile, load) -> ReportPart:
     sweeps = sweeps_from_dict(rf.data, rf.path.name, goal_mm=problem.goal_mm)
     first = next(iter(sweeps))
     best = sweeps[first].best
-    check = None if best is None else _check(problem, best)
+    check = None if best is None else _check(problem, best, free_direction=True)
     sections = sweep_study_sections(
         sweeps, problem, options=rf.data.get("options") or {}, best=best, check=check
     )

@@ -45,8 +45,9 @@ from pathlib import Path
 import numpy as np
 
 from needlekit.batch import executor_workers
-from needlekit.errors import InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError
 from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.partial import write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.planning.result import PlanStatus
 from needlekit.provenance import machine_info
@@ -319,6 +320,7 @@ def run_feng_lungs(
     cache_dir=None,
     use_cache: bool = True,
     report: bool = True,
+    resume: bool = False,
 ) -> FengLungsStudy:
     """Run Feng's protocol on the Med-RAD lung case and write :data:`FENG_LUNGS_FILES`.
 
@@ -350,6 +352,11 @@ def run_feng_lungs(
     use_cache : bool
     report : bool
         Also write ``report.html`` (``needlekit reproduce feng2023`` draws its own page).
+    resume : bool
+        Carry on from the partial ``goal1/sweep.json`` and ``goal2/sweep.json`` an
+        interrupted run wrote in ``out_dir`` (the same settings): only the directions not
+        done are planned. The record's ``timing`` then covers this run alone and does not
+        judge the bound.
 
     Returns
     -------
@@ -361,7 +368,10 @@ def run_feng_lungs(
     ------
     InvalidInputError
         A bad setting, missing data, or a goal not in free space or out of reach (before
-        any sweep).
+        any sweep); with ``resume``, partial files missing, changed or of other settings.
+    Interrupted
+        Ctrl-C during the sweeps: each target's ``scenario.yaml`` and ``sweep.json`` (its
+        finished directions, marked partial) are written, and nothing else.
     """
     from needlekit.planning.steerable.solve import build_planner
     from needlekit.planning.steerable.sweep import sphere_directions
@@ -376,6 +386,15 @@ def run_feng_lungs(
     out = Path(out_dir)
     docs = {g: feng_lung_scenario(i, medrad_dir=medrad_dir) for i, g in enumerate(_GOALS, 1)}
     dirs = sphere_directions(int(settings["directions"]))
+    head = _sweep_head(settings, seed, options)
+    done = None
+    if resume:  # the partial files agree with this run, before the anatomy
+        from needlekit.studies.sweep_study import read_partial_sweep
+
+        resumed = {
+            g: read_partial_sweep(out / g / "sweep.json", FENG_PLANNERS, dirs, head) for g in _GOALS
+        }
+        done = [resumed[g][name] for g in _GOALS for name in FENG_PLANNERS]
     sources, problems = _sources_and_problems(docs, out, cache_dir, use_cache)
     main_prep_s = time.perf_counter() - t0
     jobs = [  # RCS* first: its part ends first, and its time is measured
@@ -383,16 +402,20 @@ def run_feng_lungs(
         for g in _GOALS
         for name in FENG_PLANNERS
     ]
-    batch = sweep_many(
-        jobs,
-        directions=dirs,
-        time_limit_s=float(settings["time_limit_s"]),
-        executor=executor,
-        max_iterations=settings["max_iterations"],
-        progress=None
-        if progress is None
-        else progress(f"{len(_GOALS)} targets x {len(FENG_PLANNERS)} planners"),
-    )
+    try:
+        batch = sweep_many(
+            jobs,
+            directions=dirs,
+            time_limit_s=float(settings["time_limit_s"]),
+            executor=executor,
+            max_iterations=settings["max_iterations"],
+            progress=None
+            if progress is None
+            else progress(f"{len(_GOALS)} targets x {len(FENG_PLANNERS)} planners"),
+            done=done,
+        )
+    except Interrupted as exc:  # each target's finished directions, marked partial
+        _write_partial(out, docs, head, exc.partial)
     found = iter(batch.sweeps)
     sweeps: dict = {g: {name: next(found) for name in FENG_PLANNERS} for g in _GOALS}
     t_post = time.perf_counter()
@@ -406,6 +429,7 @@ def run_feng_lungs(
             "seed": seed,
             "options": options,
             "quick": bool(quick),
+            "resumed": bool(resume),
             "needle": docs["goal1"]["needle"],
             "tolerance_mm": docs["goal1"]["goal"]["tolerance_mm"],
         },
@@ -440,6 +464,7 @@ def run_feng_lungs(
             post_s=post_s,
             write_s=write_s,
             report_s=report_s,
+            resumed=resume,
         )
         # the budgets are wall-clock: other work on the machine costs iterations
         record["load_average"] = {"start": list(load_before), "end": list(os.getloadavg())}
@@ -481,15 +506,7 @@ def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settin
 
     files = {f"{g}/scenario.yaml": _write_scenario(out / g / "scenario.yaml", doc, g)}
     files[f"{g}/sweep.json"] = write_json(
-        out / g / "sweep.json",
-        {
-            "scenario": "scenario.yaml",
-            "time_limit_s": float(settings["time_limit_s"]),
-            "max_iterations": settings["max_iterations"],
-            "seed": seed,
-            "options": options,
-            **sweeps_to_dict(sweeps),
-        },
+        out / g / "sweep.json", {**_sweep_head(settings, seed, options), **sweeps_to_dict(sweeps)}
     )
     best = sweeps[FENG_PLANNERS[0]].best
     if best is not None:
@@ -498,3 +515,37 @@ def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settin
             out / g / "plan.json", best, scenario="scenario.yaml", check=check
         )
     return files
+
+
+def _sweep_head(settings: dict, seed: int, options: dict) -> dict:
+    """What each target's ``sweep.json`` holds beside its directions."""
+    return {
+        "scenario": "scenario.yaml",
+        "time_limit_s": float(settings["time_limit_s"]),
+        "max_iterations": settings["max_iterations"],
+        "seed": seed,
+        "options": options,
+    }
+
+
+def _write_partial(out: Path, docs: dict, head: dict, batch) -> None:
+    """An interrupted study: each target's scenario and its sweeps so far, marked partial
+    (raises :class:`~needlekit.errors.Interrupted` saying so)."""
+    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict, sweeps_to_dict
+
+    found = iter(batch.sweeps)
+    paths = []
+    n_done = n_all = 0
+    for g in _GOALS:
+        sweeps = {name: next(found) for name in FENG_PLANNERS}
+        _write_scenario(out / g / "scenario.yaml", docs[g], g)
+        record = {**head, **sweeps_to_dict(sweeps), "solved_plans": solved_plans_to_dict(sweeps)}
+        paths.append(write_partial(out / g / "sweep.json", record))
+        for sw in sweeps.values():
+            n_all += int(sw.effective.sum())
+            n_done += sum(r is not None for r, e in zip(sw.results, sw.effective, strict=True) if e)
+    raise Interrupted(
+        f"{n_done} of {n_all} effective directions done ({len(_GOALS)} targets x "
+        f"{len(FENG_PLANNERS)} planners); written to {' and '.join(map(str, paths))} marked "
+        "partial; the same command with --resume carries on"
+    )

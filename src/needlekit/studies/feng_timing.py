@@ -32,6 +32,7 @@ def timing_record(
     post_s: float,
     write_s: float,
     report_s: float,
+    resumed: bool = False,
 ) -> dict:
     """The ``timing`` block of ``feng_lungs.json``.
 
@@ -49,6 +50,9 @@ def timing_record(
         This process's preparation of the patient and both targets' problems.
     post_s, write_s, report_s : float
         The direct connections and the checks; writing the files; the HTML page.
+    resumed : bool
+        The run carried on from an interrupted one: its wall time covers only the rest,
+        so the bound is not judged (``within_bound`` is None).
 
     Returns
     -------
@@ -92,7 +96,8 @@ def timing_record(
         "rcs_star_limit_s": RCS_STAR_LIMIT_S,
         "bound_factor": BOUND_FACTOR,
         "bound_s": float(bound),
-        "within_bound": bool(wall_s <= bound),
+        "resumed": bool(resumed),
+        "within_bound": None if resumed else bool(wall_s <= bound),
         "rcs_star_within_limit": None if rcs_star_s is None else rcs_star_s <= RCS_STAR_LIMIT_S,
     }
 
@@ -119,7 +124,9 @@ def timing_verdict(t: dict) -> str:
      prep 1.2 = 116.2 s, within; RCS* part 21.0 s (limit 60 s)'
     """
     prep = max(t["prep_s_by_worker"].values(), default=0.0)
-    verdict = "within" if t["within_bound"] else "OVER"
+    verdict = {True: "within", False: "OVER"}.get(
+        t["within_bound"], "not judged (a resumed run: its wall time covers only the rest)"
+    )
     line = (
         f"wall time {t['wall_s']:.1f} s on {t['workers']} worker{'s' * (t['workers'] != 1)}; "
         f"planners {t['planner_s_sum']:.1f} s in sum: bound {t['bound_factor']:g} x "

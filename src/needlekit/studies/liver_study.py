@@ -36,14 +36,22 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError
 from needlekit.io.files import write_json
 from needlekit.io.medrad_paths import chosen_patients, patient_folder
+from needlekit.io.partial import read_partial, write_partial
 from needlekit.planning.interface import get_planner
 from needlekit.provenance import machine_info
 from needlekit.scenario.straight import coverage_region, multi_problem_from_scenario
 
-__all__ = ["LIVER_SETTINGS", "liver_cases", "liver_scenario", "run_liver_case", "run_liver_study"]
+__all__ = [
+    "LIVER_SETTINGS",
+    "liver_cases",
+    "liver_scenario",
+    "read_partial_livers",
+    "run_liver_case",
+    "run_liver_study",
+]
 
 #: The scenario of ``examples/medrad_liver4.yaml`` (the study's defaults); ``patient``,
 #: the start, the nodule and gamma are filled in per case.
@@ -239,6 +247,7 @@ def run_liver_study(
     cache_dir=None,
     use_cache: bool = True,
     progress: Callable[[dict], None] | None = None,
+    resume: Sequence[dict] | None = None,
 ) -> dict:
     """Run every case at every gamma and write ``out`` (JSON, atomically).
 
@@ -257,37 +266,72 @@ def run_liver_study(
     use_cache : bool
     progress : callable, optional
         Called with each row as it is done.
+    resume : sequence of dict, optional
+        Rows an interrupted run finished (:func:`read_partial_livers`): kept, and only the
+        other cases planned.
 
     Returns
     -------
     dict
         The record written: ``settings``, ``machine``, ``summary`` and ``rows``.
+
+    Raises
+    ------
+    Interrupted
+        Ctrl-C during the cases: the rows done are written to ``out`` marked partial,
+        which ``resume`` carries on from.
     """
+    cases = liver_cases(medrad_dir, livers)
+    head = _study_head(cases, gammas_mm, medrad_dir, resolution_deg)
+    done = {_row_key(r, r["gamma_mm"]): r for r in resume or ()}
+    rows = []
+    t0 = time.perf_counter()
+    try:
+        for case in cases:
+            for g in gammas_mm:
+                row = done.get(_row_key(case, g)) or run_liver_case(
+                    case,
+                    g,
+                    medrad_dir=medrad_dir,
+                    resolution_deg=resolution_deg,
+                    cache_dir=cache_dir,
+                    use_cache=use_cache,
+                )
+                rows.append(row)
+                if progress is not None:
+                    progress(row)
+    except KeyboardInterrupt:  # keep what is done, and say so
+        write_partial(out, {**head, "rows": rows})
+        raise Interrupted(
+            f"{len(rows)} of {len(cases) * len(gammas_mm)} cases done; written to {out} "
+            "marked partial; the same command with --resume carries on"
+        ) from None
+    record = {
+        **head,
+        "machine": machine_info(),
+        "wall_s": time.perf_counter() - t0,
+        "summary": _summary(rows),
+        "rows": rows,
+    }
+    write_json(out, record)
+    return record
+
+
+def _row_key(case: dict, gamma_mm) -> tuple:
+    return (case["patient"], case["start"], case["nodule"], float(gamma_mm))
+
+
+def _study_head(cases: list[dict], gammas_mm, medrad_dir, resolution_deg) -> dict:
+    """The record's ``study`` and ``settings`` (what a resumed run must share)."""
     for g in gammas_mm:
         if not (np.isfinite(g) and g >= 0):
             raise InvalidInputError("--gamma", f"expected numbers >= 0 (mm), got {g}")
-    cases = liver_cases(medrad_dir, livers)
-    rows = []
-    t0 = time.perf_counter()
-    for case in cases:
-        for g in gammas_mm:
-            row = run_liver_case(
-                case,
-                g,
-                medrad_dir=medrad_dir,
-                resolution_deg=resolution_deg,
-                cache_dir=cache_dir,
-                use_cache=use_cache,
-            )
-            rows.append(row)
-            if progress is not None:
-                progress(row)
     settings = liver_scenario(cases[0], gammas_mm[0], resolution_deg=resolution_deg)
     for key in ("name", "base", "start"):
         settings.pop(key)
     settings["straight"].pop("gamma_mm")
     settings["straight"]["coverage"].pop("structure")
-    record = {
+    return {
         "study": "medrad_livers",
         "settings": {
             **settings,
@@ -296,10 +340,30 @@ def run_liver_study(
             "livers": sorted({c["patient"] for c in cases}),
             "medrad_dir": None if medrad_dir is None else os.fspath(medrad_dir),
         },
-        "machine": machine_info(),
-        "wall_s": time.perf_counter() - t0,
-        "summary": _summary(rows),
-        "rows": rows,
     }
-    write_json(out, record)
-    return record
+
+
+def read_partial_livers(
+    out, *, medrad_dir=None, livers=None, gammas_mm=DEFAULT_GAMMAS_MM, resolution_deg=None
+) -> list[dict]:
+    """The rows an interrupted study finished (``study livers --resume``), from its
+    record marked partial (signed: :func:`needlekit.io.partial.read_partial`).
+
+    Parameters
+    ----------
+    out : path-like
+    medrad_dir, livers, gammas_mm, resolution_deg
+        This run's: the record's.
+
+    Returns
+    -------
+    list of dict
+
+    Raises
+    ------
+    InvalidInputError
+        (named ``--resume``) No such file, not partial, changed since it was written, or
+        other settings than this run's.
+    """
+    head = _study_head(liver_cases(medrad_dir, livers), gammas_mm, medrad_dir, resolution_deg)
+    return list(read_partial(out, "study", head).get("rows") or [])

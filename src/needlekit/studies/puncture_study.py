@@ -41,8 +41,9 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.batch import SerialExecutor, as_completed_indexed
-from needlekit.errors import InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError
 from needlekit.io.files import staged_outputs, write_text
+from needlekit.io.partial import read_partial, write_partial
 from needlekit.records import trial_solved
 from needlekit.studies.guide_filter import (
     ACCEPTABLE,
@@ -52,12 +53,14 @@ from needlekit.studies.guide_filter import (
     redraw_filter_rates,
     redraw_summary,
 )
+from needlekit.studies.puncture_summary import _Bounds, _violations, summary_stats
 
 __all__ = [
     "PAPER_RESULTS",
     "PunctureScenario",
     "PunctureStudy",
     "TrialOptions",
+    "read_partial_puncture",
     "run_puncture_study",
     "run_puncture_trial",
     "sample_trial",
@@ -380,74 +383,6 @@ def _finite_or_none(v: float):
     return float(v) if math.isfinite(v) else None
 
 
-def summary_stats(values) -> dict:
-    """``mean``, ``sd`` (sample), ``median``, ``min`` and ``max`` of finite values.
-
-    Parameters
-    ----------
-    values : array_like, shape (n,)
-
-    Returns
-    -------
-    dict
-        Also ``n``; the statistics are None when there is no value.
-    """
-    v = np.asarray([x for x in values if x is not None and math.isfinite(x)], dtype=float)
-    if not len(v):
-        return dict.fromkeys(("n", "mean", "sd", "median", "min", "max")) | {"n": 0}
-    return {
-        "n": len(v),
-        "mean": float(v.mean()),
-        "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
-        "median": float(np.median(v)),
-        "min": float(v.min()),
-        "max": float(v.max()),
-    }
-
-
-@dataclass(frozen=True)
-class _Bounds:
-    guide_mm: float
-    cone_deg: float
-    patient_mm: float
-    noise_mm: float
-    noise_deg: float
-
-
-def _violations(trials: list[dict], b: _Bounds) -> dict:
-    """Constraint violations beyond the measurement noise (the paper's criterion), on the
-    real tip and needle over the whole puncture, from its first step, whether or not the
-    tip ever entered the guide cylinder: the tip farther from the guide line, or the needle
-    farther from its direction, than the bound or than where the puncture started
-    (whichever is larger: starting outside, a VFI only lets it come closer)."""
-
-    def start(t, key):
-        v = t.get(key)
-        return 0.0 if v is None else v
-
-    checks = {
-        "guide_cylinder": lambda t: (
-            t["max_guide_distance_mm"]
-            > max(b.guide_mm, start(t, "start_guide_distance_mm")) + b.noise_mm
-        ),
-        "cone": lambda t: (
-            t["max_cone_angle_deg"]
-            > max(b.cone_deg, start(t, "start_cone_angle_deg")) + b.noise_deg
-        ),
-        "plane": lambda t: (t["min_plane_distance_mm"] or 0.0) < -b.noise_mm,
-        "patient_cylinder": lambda t: (
-            (t["min_patient_distance_mm"] or math.inf) < b.patient_mm - b.noise_mm
-        ),
-    }
-    out = {}
-    for name, bad in checks.items():
-        hit = [t["trial"] for t in trials if trial_solved(t["status"]) and bad(t)]
-        out[name] = {"count": len(hit), "trials": hit}
-    out["total"] = sum(v["count"] for v in out.values())
-    out["tolerance"] = {"position_mm": b.noise_mm, "angle_deg": b.noise_deg}
-    return out
-
-
 @dataclass
 class PunctureStudy:
     """What :func:`run_puncture_study` produced."""
@@ -468,6 +403,7 @@ def run_puncture_study(
     progress: Callable[[dict], None] | None = None,
     example_trials: int = 4,
     report: bool = True,
+    resume: list[dict] | None = None,
 ) -> PunctureStudy:
     """Run the study and write ``out_dir/puncture.json`` (and ``puncture.html``).
 
@@ -487,10 +423,19 @@ def run_puncture_study(
         Trials (the first ones: one per octant) whose time series are kept for the figures.
     report : bool
         Also write the report page.
+    resume : list of dict, optional
+        Trials an interrupted run finished (:func:`read_partial_puncture`): kept, and only
+        the others run.
 
     Returns
     -------
     PunctureStudy
+
+    Raises
+    ------
+    Interrupted
+        Ctrl-C during the trials: the trials finished are written to ``puncture.json``
+        marked partial (no page), which ``resume`` carries on from.
     """
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.em import EMSensorSpec
@@ -508,12 +453,25 @@ def run_puncture_study(
     filter_rates = redraw_filter_rates(scenario, seed=seed)
     ex = executor or SerialExecutor()
     t0 = time.perf_counter()
-    jobs = [(scenario, options, i, seeds[i], i < example_trials) for i in range(trials)]
+    head = _settings_record(trials, seed, scenario, options)
     results: list[dict | None] = [None] * trials
-    for i, result in as_completed_indexed(ex, _run_job, jobs):
-        results[i] = result
-        if progress is not None:
-            progress(results[i])
+    for r in resume or ():
+        results[r["trial"]] = r
+    todo = [i for i in range(trials) if results[i] is None]
+    jobs = [(scenario, options, i, seeds[i], i < example_trials) for i in todo]
+    try:
+        for k, result in as_completed_indexed(ex, _run_job, jobs):
+            results[todo[k]] = result
+            if progress is not None:
+                progress(result)
+    except KeyboardInterrupt:  # keep what is done, and say so
+        path = out_dir / "puncture.json"
+        done = [r for r in results if r is not None]
+        write_partial(path, {**head, "per_trial": done})
+        raise Interrupted(
+            f"{len(done)} of {trials} trials done; written to {path} marked partial; the "
+            "same command with --resume carries on"
+        ) from None
     wall = time.perf_counter() - t0
     done = [r for r in results if r is not None]
     completed = [r for r in done if trial_solved(r["status"])]
@@ -526,9 +484,7 @@ def run_puncture_study(
         0.0 if options.exact_sensors else spec.orientation_sigma_deg,
     )
     summary = {
-        "needlekit_version": __version__,
-        "trials": trials,
-        "seed": seed,
+        **{k: head[k] for k in ("needlekit_version", "trials", "seed")},
         "completed": len(completed),
         "aborted": {
             "count": trials - len(completed),
@@ -571,3 +527,41 @@ def run_puncture_study(
 
             files["report"] = write_puncture_report(out_dir / "puncture.html", summary, done)
     return PunctureStudy(summary, done, files)
+
+
+def _settings_record(trials: int, seed: int, scenario, options) -> dict:
+    """What a partial record holds besides its trials, and a resumed run must share."""
+    return {
+        "needlekit_version": __version__,
+        "trials": trials,
+        "seed": seed,
+        "scenario": asdict(scenario),
+        "options": asdict(options),
+    }
+
+
+def read_partial_puncture(
+    out_dir, *, trials: int, seed: int, scenario: PunctureScenario, options: TrialOptions
+) -> list[dict]:
+    """The trials an interrupted run finished (``puncture --resume``), from its
+    ``puncture.json`` marked partial (signed: :func:`needlekit.io.partial.read_partial`).
+
+    Parameters
+    ----------
+    out_dir : path-like
+    trials, seed, scenario, options
+        This run's: the file's.
+
+    Returns
+    -------
+    list of dict
+
+    Raises
+    ------
+    InvalidInputError
+        (named ``--resume``) No such file, not partial, changed since it was written, or
+        other settings than this run's.
+    """
+    path = Path(out_dir) / "puncture.json"
+    data = read_partial(path, "puncture", _settings_record(trials, seed, scenario, options))
+    return list(data.get("per_trial") or [])

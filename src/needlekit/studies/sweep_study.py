@@ -25,11 +25,12 @@ import numpy as np
 
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import Interrupted, InvalidInputError
-from needlekit.io.files import read_json_object, staged_outputs, write_json
+from needlekit.io.files import staged_outputs, write_json
+from needlekit.io.partial import read_partial, write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.io.results import scenario_reference
 
-__all__ = ["SweepStudy", "read_partial_sweep", "run_sweep_study"]
+__all__ = ["SweepStudy", "read_partial_sweep", "run_sweep_study", "sweep_settings"]
 
 
 @dataclass(frozen=True)
@@ -136,14 +137,11 @@ def run_sweep_study(
     sc, problem = source.cached()
     dirs = sphere_directions() if directions is None else np.asarray(directions, dtype=float)
     sweeps = {}
-    options = {name: _options_of(planner) for name, planner in built.items()}
     head = {
         "scenario": scenario_reference(source.scenario_path, sweep_path),
-        "time_limit_s": time_limit_s,
-        "max_iterations": max_iterations,
-        "seed": seed,
-        "options": options,
+        **sweep_settings(built, time_limit_s, max_iterations, seed),
     }
+    options = head["options"]
     for name, planner in built.items():
         try:
             sweeps[name] = sweep(
@@ -197,6 +195,7 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
     not reached keeps what ``resume`` gave it), marked partial; the message says how much
     is done and how to carry on."""
     from needlekit.planning.steerable.sweep import SweepResult, sweep_stats, sweeps_to_dict
+    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict
 
     first = next(iter(sweeps.values()))
     n = len(first.directions)
@@ -205,8 +204,10 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
             res = list((resume or {}).get(name) or [None] * n)
             stats = sweep_stats(first.directions, first.effective, res)
             sweeps[name] = SweepResult(first.directions, first.effective, res, name, stats)
-    record = {**head, "partial": True, **sweeps_to_dict(sweeps)}
-    write_json(sweep_path, record)
+    write_partial(
+        sweep_path,
+        {**head, **sweeps_to_dict(sweeps), "solved_plans": solved_plans_to_dict(sweeps)},
+    )
     total = int(first.effective.sum()) * len(built)
     done = sum(
         r is not None for s in sweeps.values() for i, r in enumerate(s.results) if s.effective[i]
@@ -218,18 +219,45 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
     )
 
 
-def read_partial_sweep(path, planners, directions) -> dict:
+def sweep_settings(planners: dict, time_limit_s, max_iterations, seed) -> dict:
+    """The settings a sweep record holds beside its directions (and a resumed run must
+    share): ``time_limit_s``, ``max_iterations``, ``seed`` and each planner's ``options``.
+
+    Parameters
+    ----------
+    planners : dict of str to Planner
+        The built planners, by name.
+    time_limit_s : float
+    max_iterations : int or None
+    seed : int or None
+
+    Returns
+    -------
+    dict
+    """
+    return {
+        "time_limit_s": time_limit_s,
+        "max_iterations": max_iterations,
+        "seed": seed,
+        "options": {name: _options_of(p) for name, p in planners.items()},
+    }
+
+
+def read_partial_sweep(path, planners, directions, settings: dict | None = None) -> dict:
     """What an interrupted sweep finished, read back to carry on (``sweep --resume``):
     per planner, one result per direction (``None`` where still to do).
 
     Parameters
     ----------
     path : path-like
-        Its ``sweep.json``, marked ``"partial": true``.
+        Its ``sweep.json``, marked ``"partial": true`` and signed
+        (:func:`needlekit.io.partial.write_partial`).
     planners : sequence of str
         The planners of the run to resume: the file's, in its order.
     directions : ndarray, shape (n, 3)
         The run's directions: the file's.
+    settings : dict, optional
+        The run's other settings (:func:`sweep_settings`): the file's.
 
     Returns
     -------
@@ -238,15 +266,14 @@ def read_partial_sweep(path, planners, directions) -> dict:
     Raises
     ------
     InvalidInputError
-        (named ``--resume``) No such file, not a partial sweep, or other planners or
-        directions than this run's.
+        (named ``--resume``) No such file, not a partial sweep, changed since it was
+        written, or other planners, directions or settings than this run's.
     """
-    from needlekit.planning.steerable.sweep import sweeps_from_dict
+    from needlekit.planning.steerable.sweep_result import solved_plans_from_dict, sweeps_from_dict
 
-    data = read_json_object(path, "sweep")
-    if data.get("partial") is not True:
-        raise InvalidInputError("--resume", f"{path} is not a partial sweep: nothing to carry on")
+    data = read_partial(path, "sweep", settings or {})
     sweeps = sweeps_from_dict(data, str(path))
+    solved_plans_from_dict(sweeps, data.get("solved_plans") or {}, f"{path}: solved_plans")
     if list(sweeps) != list(planners):
         raise InvalidInputError(
             "--resume", f"{path} swept {', '.join(sweeps)}; this run asks for {', '.join(planners)}"

@@ -159,6 +159,8 @@ def precheck(
         )
     if validator.points_collide(p0[None]):
         return PlanStatus.INVALID_PROBLEM, "start collides beyond the start exclusion"
+    if gap > problem.max_length_mm:  # out of reach whatever lies there (the scene may end)
+        return PlanStatus.INFEASIBLE, "goal farther than the maximum length"
     if validator.goal_collides(goal_mm):
         return PlanStatus.INVALID_PROBLEM, "goal lies inside an obstacle (for this needle)"
     if problem.puncture_normal is not None and problem.min_puncture_angle_deg > 0:

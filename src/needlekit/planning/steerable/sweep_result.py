@@ -36,6 +36,8 @@ __all__ = [
     "effective_directions",
     "healpix_directions",
     "solved_costs",
+    "solved_plans_from_dict",
+    "solved_plans_to_dict",
     "sphere_directions",
     "sweep_stats",
     "sweeps_from_dict",
@@ -450,3 +452,73 @@ def sweeps_from_dict(data: dict, where: str, goal_mm=None) -> dict:
             results[best_index] = b
         out[name] = SweepResult(dirs, eff, results, name, dict(stats))
     return out
+
+
+def solved_plans_to_dict(sweeps: dict) -> dict:
+    """Every plan of every sweep, per planner and direction index: what a partial record
+    keeps (``sweep.json`` keeps the best ones only), so that a resumed run checks the
+    plans found before the interruption as its own.
+
+    Parameters
+    ----------
+    sweeps : mapping of str to SweepResult
+
+    Returns
+    -------
+    dict
+        Per planner, per direction index (as text), the ``plan.json`` record without its
+        ``points_mm`` (derived from the primitives).
+    """
+    out: dict = {}
+    for name, sw in sweeps.items():
+        out[name] = {}
+        for i, r in enumerate(sw.results):
+            if r is not None and r.plan is not None:
+                rec = r.to_dict(spacing_mm=1e6)  # the ends alone: dropped below
+                rec["points_mm"] = []
+                rec["stats"] = {  # e.g. a search's best cost before any solution (inf)
+                    k: None if isinstance(v, float) and not np.isfinite(v) else v
+                    for k, v in rec["stats"].items()
+                }
+                out[name][str(i)] = rec
+    return out
+
+
+def solved_plans_from_dict(sweeps: dict, data, where: str) -> dict:
+    """Put the plans :func:`solved_plans_to_dict` kept back into the sweeps read from the
+    same record (:func:`sweeps_from_dict`, whose results carry no plan).
+
+    Parameters
+    ----------
+    sweeps : dict of str to SweepResult
+        Changed in place.
+    data : dict
+        Per planner, per direction index, a plan record.
+    where : str
+        Names the record in messages.
+
+    Returns
+    -------
+    dict of str to SweepResult
+        ``sweeps``.
+
+    Raises
+    ------
+    InvalidInputError
+        A plan for a planner, or a direction, that the sweeps do not have, or a plan not as
+        the format says (named).
+    """
+    for name, plans in field_of({"p": data}, "p", where, "dict").items():
+        if name not in sweeps:
+            raise InvalidInputError(f"{where}.{name}", "not a planner of the sweep")
+        results = sweeps[name].results
+        for key, rec in field_of({"p": plans}, "p", f"{where}.{name}", "dict").items():
+            at = f"{where}.{name}.{key}"
+            i = int(key) if key.isdigit() else -1
+            if not 0 <= i < len(results) or results[i] is None:
+                raise InvalidInputError(at, "not a direction the sweep planned")
+            r = PlanResult.from_dict(rec, at)
+            if r.status is not results[i].status or r.cost_mm != results[i].cost_mm:
+                raise InvalidInputError(at, "not the result the sweep's table gives")
+            results[i] = r
+    return sweeps

@@ -1,0 +1,122 @@
+"""Partial results: what a long run stopped by Ctrl-C writes, and what ``--resume`` reads.
+
+A sweep, a study or a puncture run that is interrupted writes the work it finished as its
+usual result file with ``"partial": true``, and the same command with ``--resume`` plans
+or runs only the rest. The finished part is taken as it is: it is not recomputed, so a
+resumed run trusts the partial file. That trust is earned the way the prepared-anatomy
+cache earns it (:mod:`needlekit.io.cache_key`): the file carries a keyed BLAKE3 hash of
+its whole content under the user's secret, and ``--resume`` refuses a file whose hash
+does not match (any edited byte of the record, or a record written by someone else) and
+a file written for other settings than the run asked for (each setting is named).
+
+Examples
+--------
+>>> import tempfile, os
+>>> from pathlib import Path
+>>> d = Path(tempfile.mkdtemp())
+>>> os.environ["NEEDLEKIT_CACHE_KEY_FILE"] = str(d / "key")
+>>> p = write_partial(d / "run.json", {"seed": 1, "done": [3]})
+>>> read_partial(p, "run", {"seed": 1})["done"]
+[3]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from needlekit.errors import InvalidInputError
+from needlekit.io.cache_key import CacheKeyError, cache_key, mac, same_mac
+from needlekit.io.files import read_json_object, write_json
+
+__all__ = ["PARTIAL_SIGNATURE", "read_partial", "write_partial"]
+
+#: The field holding a partial record's keyed hash.
+PARTIAL_SIGNATURE: str = "partial_signature"
+
+
+def _canonical(data) -> bytes:
+    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+
+
+def _signature(key: bytes, record: dict) -> str:
+    return mac(key, b"needlekit partial result\0" + _canonical(record))
+
+
+def write_partial(path: str | os.PathLike, record: dict) -> Path:
+    """Write ``record`` marked ``"partial": true`` and signed (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+    record : dict
+        JSON-ready (NaN and infinity are refused, as by
+        :func:`~needlekit.io.files.write_json`).
+
+    Returns
+    -------
+    Path
+
+    Notes
+    -----
+    Without a usable key (:class:`~needlekit.io.cache_key.CacheKeyError`) the file is
+    written unsigned: it keeps the work for the user to read, and ``--resume`` refuses it
+    with the reason.
+    """
+    # signed as it will read back (JSON turns tuples into lists, keys into text)
+    data = json.loads(_canonical({**record, "partial": True}))
+    data.pop(PARTIAL_SIGNATURE, None)
+    try:
+        data[PARTIAL_SIGNATURE] = _signature(cache_key(), data)
+    except CacheKeyError:
+        data[PARTIAL_SIGNATURE] = None
+    return write_json(path, data)
+
+
+def read_partial(path: str | os.PathLike, what: str, expect: dict, flag: str = "--resume") -> dict:
+    """A partial record written by :func:`write_partial`, checked before use.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file is, for messages (``"sweep"``, ``"puncture"``).
+    expect : dict
+        Settings the record must hold as this run has them (compared as JSON).
+    flag : str
+        The option named in errors.
+
+    Returns
+    -------
+    dict
+        The record, without its signature.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing or not JSON (named by the path); not partial, its signature missing or
+        not matching, or a setting of ``expect`` different (named ``flag``).
+    """
+    data = read_json_object(path, what)
+    if data.get("partial") is not True:
+        raise InvalidInputError(flag, f"{path} is not a partial {what}: nothing to carry on")
+    stored = data.pop(PARTIAL_SIGNATURE, None)
+    try:
+        key = cache_key()
+    except CacheKeyError as exc:
+        raise InvalidInputError(flag, f"cannot check {path}: {exc}") from None
+    try:
+        ok = same_mac(stored, _signature(key, data))
+    except ValueError:  # NaN or infinity: not a record write_partial made
+        ok = False
+    if not ok:
+        raise InvalidInputError(
+            flag,
+            f"{path} is not as the interrupted run wrote it (its signature does not match): "
+            "run again without --resume",
+        )
+    for name, value in expect.items():
+        if _canonical(data.get(name)) != _canonical(value):
+            raise InvalidInputError(flag, f"{path} was written with other {name} than this run's")
+    return data
