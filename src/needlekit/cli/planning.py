@@ -556,9 +556,7 @@ def _register_sweep(sub) -> None:
     _rrt_connection(sw)
     _flags.RESUME.add(
         sw,
-        help="carry on from the partial --out an interrupted run wrote (Ctrl-C keeps the "
-        "directions done): the same scenario, planners and directions; only the rest is "
-        "planned",
+        help="carry on from the partial --out an interrupted run wrote: only the rest is planned",
     )
     sw.set_defaults(command_handler=_cmd_sweep)
 

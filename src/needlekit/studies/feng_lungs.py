@@ -387,14 +387,7 @@ def run_feng_lungs(
     docs = {g: feng_lung_scenario(i, medrad_dir=medrad_dir) for i, g in enumerate(_GOALS, 1)}
     dirs = sphere_directions(int(settings["directions"]))
     head = _sweep_head(settings, seed, options)
-    done = None
-    if resume:  # the partial files agree with this run, before the anatomy
-        from needlekit.studies.sweep_study import read_partial_sweep
-
-        resumed = {
-            g: read_partial_sweep(out / g / "sweep.json", FENG_PLANNERS, dirs, head) for g in _GOALS
-        }
-        done = [resumed[g][name] for g in _GOALS for name in FENG_PLANNERS]
+    done = _resumed(out, dirs, head) if resume else None  # before the anatomy
     sources, problems = _sources_and_problems(docs, out, cache_dir, use_cache)
     main_prep_s = time.perf_counter() - t0
     jobs = [  # RCS* first: its part ends first, and its time is measured
@@ -420,23 +413,8 @@ def run_feng_lungs(
     sweeps: dict = {g: {name: next(found) for name in FENG_PLANNERS} for g in _GOALS}
     t_post = time.perf_counter()
     goals = {g: _goal_result(problems[g], sweeps[g]) for g in _GOALS}
-    record = {
-        "study": "feng-lungs",
-        "case": _case_record(problems["goal1"]),
-        "settings": {
-            **settings,
-            "planners": list(FENG_PLANNERS),
-            "seed": seed,
-            "options": options,
-            "quick": bool(quick),
-            "resumed": bool(resume),
-            "needle": docs["goal1"]["needle"],
-            "tolerance_mm": docs["goal1"]["goal"]["tolerance_mm"],
-        },
-        "feng": {"table4": FENG_TABLE4, "points_mm": FENG_POINTS_MM, "order": list(FENG_ORDER)},
-        "goals": goals,
-        "machine": machine_info(),
-    }
+    run = {"seed": seed, "options": options, "quick": bool(quick), "resumed": bool(resume)}
+    record = _study_record(problems, docs, settings, run, goals)
     post_s = time.perf_counter() - t_post
     files: dict = {}
     with staged_outputs():
@@ -470,6 +448,36 @@ def run_feng_lungs(
         record["load_average"] = {"start": list(load_before), "end": list(os.getloadavg())}
         files["feng_lungs.json"] = write_json(out / "feng_lungs.json", record)
     return FengLungsStudy(record, sweeps, files, problems, options)
+
+
+def _resumed(out: Path, dirs, head: dict) -> list:
+    """Per sweep job (targets, then planners), the directions an interrupted run finished
+    (its partial ``sweep.json`` files, checked against this run)."""
+    from needlekit.studies.sweep_study import read_partial_sweep
+
+    found = {
+        g: read_partial_sweep(out / g / "sweep.json", FENG_PLANNERS, dirs, head) for g in _GOALS
+    }
+    return [found[g][name] for g in _GOALS for name in FENG_PLANNERS]
+
+
+def _study_record(problems: dict, docs: dict, settings: dict, run: dict, goals: dict) -> dict:
+    """``feng_lungs.json`` before its timing: the case, the settings (with ``run``'s seed,
+    options, quick and resumed), Feng's figures and every goal's record."""
+    return {
+        "study": "feng-lungs",
+        "case": _case_record(problems["goal1"]),
+        "settings": {
+            **settings,
+            "planners": list(FENG_PLANNERS),
+            **run,
+            "needle": docs["goal1"]["needle"],
+            "tolerance_mm": docs["goal1"]["goal"]["tolerance_mm"],
+        },
+        "feng": {"table4": FENG_TABLE4, "points_mm": FENG_POINTS_MM, "order": list(FENG_ORDER)},
+        "goals": goals,
+        "machine": machine_info(),
+    }
 
 
 def _goal_result(problem, sweeps: dict) -> dict:
