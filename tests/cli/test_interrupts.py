@@ -118,7 +118,7 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
                              text=True, timeout=600)  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     a = json.loads(out.read_text())
-    assert "partial" not in a
+    assert "partial" not in a and a["resumed"] is True
     key = [(r["status"], r["cost_mm"]) for r in a["directions"]]
     assert key == [(r["status"], r["cost_mm"]) for r in whole["directions"]]
     for p in ("rcs_star", "rrt"):

@@ -162,6 +162,8 @@ def run_sweep_study(
     check = None
     files = {}
     record = {**head, **sweeps_to_dict(sweeps)}
+    if resume is not None:  # each summary's time_s counts this run's part alone
+        record["resumed"] = True
     if best is not None:
         p = problem.with_start_pose(best.start_pose)
         check = verify_plan(p, best.plan, expected_cost_mm=best.cost_mm)
