@@ -11,12 +11,11 @@ a file written for other settings than the run asked for (each setting is named)
 
 Examples
 --------
->>> import tempfile, os
+>>> import tempfile
 >>> from pathlib import Path
 >>> d = Path(tempfile.mkdtemp())
->>> os.environ["NEEDLEKIT_CACHE_KEY_FILE"] = str(d / "key")
->>> p = write_partial(d / "run.json", {"seed": 1, "done": [3]})
->>> read_partial(p, "run", {"seed": 1})["done"]
+>>> p = write_partial(d / "run.json", {"seed": 1, "done": [3]}, key_file=d / "key")
+>>> read_partial(p, "run", {"seed": 1}, key_file=d / "key")["done"]
 [3]
 """
 
@@ -44,7 +43,7 @@ def _signature(key: bytes, record: dict) -> str:
     return mac(key, b"needlekit partial result\0" + _canonical(record))
 
 
-def write_partial(path: str | os.PathLike, record: dict) -> Path:
+def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Path:
     """Write ``record`` marked ``"partial": true`` and signed (atomically).
 
     Parameters
@@ -53,6 +52,8 @@ def write_partial(path: str | os.PathLike, record: dict) -> Path:
     record : dict
         JSON-ready (NaN and infinity are refused, as by
         :func:`~needlekit.io.files.write_json`).
+    key_file : path-like, optional
+        The secret's file (default :func:`~needlekit.io.cache_key.cache_key_path`).
 
     Returns
     -------
@@ -68,13 +69,15 @@ def write_partial(path: str | os.PathLike, record: dict) -> Path:
     data = json.loads(_canonical({**record, "partial": True}))
     data.pop(PARTIAL_SIGNATURE, None)
     try:
-        data[PARTIAL_SIGNATURE] = _signature(cache_key(), data)
+        data[PARTIAL_SIGNATURE] = _signature(cache_key(key_file), data)
     except CacheKeyError:
         data[PARTIAL_SIGNATURE] = None
     return write_json(path, data)
 
 
-def read_partial(path: str | os.PathLike, what: str, expect: dict, flag: str = "--resume") -> dict:
+def read_partial(
+    path: str | os.PathLike, what: str, expect: dict, flag: str = "--resume", *, key_file=None
+) -> dict:
     """A partial record written by :func:`write_partial`, checked before use.
 
     Parameters
@@ -86,6 +89,8 @@ def read_partial(path: str | os.PathLike, what: str, expect: dict, flag: str = "
         Settings the record must hold as this run has them (compared as JSON).
     flag : str
         The option named in errors.
+    key_file : path-like, optional
+        The secret's file (default :func:`~needlekit.io.cache_key.cache_key_path`).
 
     Returns
     -------
@@ -103,7 +108,7 @@ def read_partial(path: str | os.PathLike, what: str, expect: dict, flag: str = "
         raise InvalidInputError(flag, f"{path} is not a partial {what}: nothing to carry on")
     stored = data.pop(PARTIAL_SIGNATURE, None)
     try:
-        key = cache_key()
+        key = cache_key(key_file)
     except CacheKeyError as exc:
         raise InvalidInputError(flag, f"cannot check {path}: {exc}") from None
     try:

@@ -62,6 +62,7 @@ from needlekit.studies.feng_case import (
     feng_patient_folder,
 )
 from needlekit.studies.feng_timing import timing_record
+from needlekit.studies.sweep_study import read_partial_sweep
 
 __all__ = [
     "FENG_GOAL2_OFFSET_MM",
@@ -453,8 +454,6 @@ def run_feng_lungs(
 def _resumed(out: Path, dirs, head: dict) -> list:
     """Per sweep job (targets, then planners), the directions an interrupted run finished
     (its partial ``sweep.json`` files, checked against this run)."""
-    from needlekit.studies.sweep_study import read_partial_sweep
-
     found = {
         g: read_partial_sweep(out / g / "sweep.json", FENG_PLANNERS, dirs, head) for g in _GOALS
     }
