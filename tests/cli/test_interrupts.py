@@ -190,6 +190,14 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     assert code == 2 and err == [
         f"error: --resume: {path} was written with other seed than this run's"
     ]
+    import needlekit.io.partial as partial_io
+
+    with monkeypatch.context() as m:  # another version of needlekit: refused, named
+        m.setattr(partial_io, "__version__", "0.0.1")
+        code, err = _puncture(["--out", str(out), "--resume"], capsys)
+    assert code == 2 and err == [
+        f"error: --resume: {path} was written with other needlekit_version than this run's"
+    ]
     text = path.read_text()
     path.write_text(text.replace('"position_error_mm": 2.0', '"position_error_mm": 0.2'))
     code, err = _puncture(["--out", str(out), "--resume"], capsys)

@@ -6,8 +6,9 @@ or runs only the rest. The finished part is taken as it is: it is not recomputed
 resumed run trusts the partial file. That trust is earned the way the prepared-anatomy
 cache earns it (:mod:`needlekit.io.cache_key`): the file carries a keyed BLAKE3 hash of
 its whole content under the user's secret, and ``--resume`` refuses a file whose hash
-does not match (any edited byte of the record, or a record written by someone else) and
-a file written for other settings than the run asked for (each setting is named).
+does not match (any edited byte of the record, or a record written by someone else), and
+a file written by another needlekit version or for other settings than the run asked for
+(each setting is named).
 
 Examples
 --------
@@ -25,6 +26,7 @@ import json
 import os
 from pathlib import Path
 
+from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.cache_key import CacheKeyError, cache_key, mac, same_mac
 from needlekit.io.files import read_json_object, write_json
@@ -33,6 +35,8 @@ __all__ = ["PARTIAL_SIGNATURE", "read_partial", "write_partial"]
 
 #: The field holding a partial record's keyed hash.
 PARTIAL_SIGNATURE: str = "partial_signature"
+#: The version that wrote a partial record: a resumed run must be made by the same one.
+_VERSION = "needlekit_version"
 
 
 def _canonical(data) -> bytes:
@@ -66,7 +70,7 @@ def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Pa
     with the reason.
     """
     # signed as it will read back (JSON turns tuples into lists, keys into text)
-    data = json.loads(_canonical({**record, "partial": True}))
+    data = json.loads(_canonical({**record, "partial": True, _VERSION: __version__}))
     data.pop(PARTIAL_SIGNATURE, None)
     try:
         data[PARTIAL_SIGNATURE] = _signature(cache_key(key_file), data)
@@ -121,7 +125,7 @@ def read_partial(
             f"{path} is not as the interrupted run wrote it (its signature does not match): "
             "run again without --resume",
         )
-    for name, value in expect.items():
+    for name, value in [(_VERSION, __version__), *expect.items()]:
         if _canonical(data.get(name)) != _canonical(value):
             raise InvalidInputError(flag, f"{path} was written with other {name} than this run's")
     return data
