@@ -1,0 +1,172 @@
+"""The tip pose estimated from delayed, noisy EM samples: a Kalman filter on SE(3).
+
+State: the tip pose ``(p, R)``. Error: ``p = p_hat + dp`` and ``R = exp(phi^) R_hat``
+(world frame), six numbers with covariance ``P``. Between samples the filter moves the
+estimate as the planner's model says the commanded motion moves the tip (a spin, then
+an arc of the commanded curvature); the error then grows as
+
+    dp' = dp - [R_hat a]x phi,    phi' = phi,
+
+``a`` the step's translation in the tip frame, plus the process noise: the orientation
+noise of :class:`~needlekit.execute.needle_sim.ExecutionNoise`, the curvature's spread
+(a rotation about the tip's x axis) and the tissue's push (a translation), each per step.
+The last two are biases of one insertion that a white process noise stands in for;
+``bias_scale`` widens them (default 3), so that the filter does not grow overconfident
+over a long insertion.
+
+A sample (:class:`needlekit.control.em.EMSample`) is taken ``latency_s`` before it
+arrives: the filter goes back to the estimate of the moment it was taken (it keeps the
+steps of the last half second), corrects it, and replays the steps since. The update is
+the standard one with ``H = I`` on the innovation ``(z_p - p_hat, log(z_R R_hat^T))``,
+the covariance in Joseph form.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+from needlekit.execute.needle_sim import ExecutionNoise, small_rotation
+from needlekit.geometry.arcs import arc_end_unchecked
+from needlekit.geometry.so3 import so3_log
+
+__all__ = ["TipEstimator"]
+
+#: How much of the past the filter keeps to place a late sample (s).
+HISTORY_S: float = 0.5
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class TipEstimator:
+    """A Kalman filter on the tip pose (see the module notes).
+
+    Parameters
+    ----------
+    start_pose : ndarray, shape (4, 4)
+        The tip where the insertion starts, as the robot placed it.
+    start_sigma_mm, start_sigma_rad : float
+        How well that is known (SD of position and orientation).
+    r_min_mm : float
+        The needle's nominal radius (the model the filter predicts with).
+    noise : ExecutionNoise
+        What the filter assumes of the needle.
+    position_sigma_mm, orientation_sigma_rad : float
+        The sensor's noise.
+    bias_scale : float
+        Widens the curvature's and the tissue's share of the process noise.
+    """
+
+    def __init__(
+        self,
+        start_pose,
+        *,
+        start_sigma_mm: float,
+        start_sigma_rad: float,
+        r_min_mm: float,
+        noise: ExecutionNoise,
+        position_sigma_mm: float,
+        orientation_sigma_rad: float,
+        bias_scale: float = 3.0,
+    ) -> None:
+        g = np.asarray(start_pose, dtype=np.float64)
+        if g.shape != (4, 4) or not np.all(np.isfinite(g)):
+            raise InvalidInputError("start_pose", "expected a 4x4 matrix of finite numbers")
+        self.pose = np.ascontiguousarray(g.copy())
+        self.P = np.diag([start_sigma_mm**2] * 3 + [start_sigma_rad**2] * 3)
+        self.r_min_mm = float(r_min_mm)
+        self.noise = noise
+        self.bias_scale = float(bias_scale)
+        self.R_meas = np.diag([position_sigma_mm**2] * 3 + [orientation_sigma_rad**2] * 3)
+        self.t = 0.0
+        self._steps: deque = deque()  # (t before, pose before, P before, command)
+        self.n_updates = 0
+
+    def _propagate(self, pose, P, command):
+        spin, kappa, ds, dt = command
+        new = arc_end_unchecked(pose, spin, kappa, ds)
+        a = new[:3, 3] - pose[:3, 3]
+        F = np.eye(6)
+        F[:3, 3:] = -_skew(a)
+        n = self.noise
+        # the needle turns by noise only while it is inserted
+        q_rot = (n.orientation_sigma_rad**2) * dt / n.reference_interval_s if ds > 0 else 0.0
+        spread = kappa * n.radius_sigma_mm / self.r_min_mm * ds * self.bias_scale
+        x = new[:3, 0]
+        Q = np.zeros((6, 6))
+        Q[:3, :3] = np.eye(3) * (n.deflection_sigma * ds * self.bias_scale) ** 2
+        Q[3:, 3:] = np.eye(3) * q_rot + np.outer(x, x) * spread**2
+        return new, F @ P @ F.T + Q
+
+    def predict(self, spin_rad: float, kappa_per_mm: float, ds_mm: float, dt_s: float) -> None:
+        """Move the estimate as the model moves the tip for one commanded step.
+
+        Parameters
+        ----------
+        spin_rad, kappa_per_mm, ds_mm, dt_s : float
+            The command (as :meth:`SimulatedNeedle.step` takes it).
+
+        Returns
+        -------
+        None
+        """
+        command = (float(spin_rad), float(kappa_per_mm), float(ds_mm), float(dt_s))
+        self._steps.append((self.t, self.pose, self.P, command))
+        while self._steps and self._steps[0][0] < self.t - HISTORY_S:
+            self._steps.popleft()
+        self.pose, self.P = self._propagate(self.pose, self.P, command)
+        self.t += dt_s
+
+    def update(self, taken_s: float, measured_pose) -> None:
+        """Correct the estimate with a sample taken at ``taken_s`` (now or earlier).
+
+        Parameters
+        ----------
+        taken_s : float
+            When the sample was taken (the filter's clock: seconds of commanded steps).
+        measured_pose : ndarray, shape (4, 4)
+
+        Returns
+        -------
+        None
+        """
+        z = np.asarray(measured_pose, dtype=np.float64)
+        # the estimate of the moment the sample was taken: after every step begun before it
+        replay = [s for s in self._steps if s[0] >= taken_s - 1e-9]
+        if replay:
+            _, pose, P, _ = replay[0]
+        else:
+            pose, P = self.pose, self.P
+        y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
+        S = P + self.R_meas
+        K = np.linalg.solve(S, P).T  # P S^-1 (both symmetric)
+        dx = K @ y
+        pose = pose.copy()
+        pose[:3, 3] += dx[:3]
+        pose[:3, :3] = small_rotation(dx[3:]) @ pose[:3, :3]
+        pose = np.ascontiguousarray(pose)
+        A = np.eye(6) - K
+        P = A @ P @ A.T + K @ self.R_meas @ K.T
+        # replay the steps since, from the corrected estimate (and rewrite their history)
+        kept = deque(s for s in self._steps if s[0] < taken_s - 1e-9)
+        for t0, _, _, command in replay:
+            kept.append((t0, pose, P, command))
+            pose, P = self._propagate(pose, P, command)
+        self._steps = kept
+        self.pose, self.P = pose, P
+        self.n_updates += 1
+
+    @property
+    def position_sigma_mm(self) -> float:
+        """The estimate's position uncertainty: the root of the mean variance per axis.
+
+        Returns
+        -------
+        float
+        """
+        return math.sqrt(float(np.trace(self.P[:3, :3])) / 3.0)
