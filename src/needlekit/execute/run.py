@@ -23,6 +23,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.execute.estimator import TipEstimator
 from needlekit.execute.feedback import PlanReference, pure_pursuit
 from needlekit.execute.needle_sim import ExecutionNoise, SimulatedNeedle
+from needlekit.execute.replan import Replanner
 from needlekit.planning.steerable.plan import SteerablePlan
 
 __all__ = ["DEFAULT_SENSOR", "ExecutionRun", "ExecutionSettings", "execute_plan"]
@@ -84,6 +85,10 @@ class ExecutionRun:
         Closed loop, the estimate's distance from the true tip at the end.
     samples : int
         EM samples the filter used.
+    replans : int
+        Re-plans adopted (closed loop with a :class:`~needlekit.execute.replan.Replanner`).
+    replan_latency_s : tuple of float
+        The measured time of every re-plan, adopted or not.
     """
 
     closed_loop: bool
@@ -92,6 +97,8 @@ class ExecutionRun:
     inserted_mm: float
     estimate_error_mm: float | None = None
     samples: int = 0
+    replans: int = 0
+    replan_latency_s: tuple = ()
 
 
 def _open_loop_commands(plan: SteerablePlan, step_mm: float):
@@ -110,6 +117,7 @@ def execute_plan(
     closed_loop: bool,
     seed,
     settings: ExecutionSettings | None = None,
+    replanner: Replanner | None = None,
 ) -> ExecutionRun:
     """Insert along ``plan`` in simulated tissue (see the module notes).
 
@@ -124,6 +132,8 @@ def execute_plan(
         The trial's seed: its first child draws the needle and the tissue, its second the
         sensor (the same needle open and closed loop).
     settings : ExecutionSettings, optional
+    replanner : Replanner, optional
+        Closed loop, re-plan from the estimated tip when it drifts from the plan.
 
     Returns
     -------
@@ -151,10 +161,10 @@ def execute_plan(
         points.append(needle.pose[:3, 3].copy())
         err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
         return ExecutionRun(False, err, np.array(points), needle.inserted_mm)
-    return _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record)
+    return _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner)
 
 
-def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record) -> ExecutionRun:
+def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner):
     sensor = EMSensor(s.sensor, np.random.default_rng(sensor_seed))
     est = TipEstimator(
         plan.start_pose,
@@ -169,7 +179,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record) -
     kappa_max = 1.0 / r_min_mm
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
-    index, t, used = 0, 0.0, 0
+    index, t, used, pending = 0, 0.0, 0, None
     while needle.inserted_mm < limit:
         sample = sensor.update(t, lambda: needle.pose)
         if sample is not None:
@@ -179,7 +189,15 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record) -
         ahead = pose[:3, :3].T @ (goal - pose[:3, 3])
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
             break
+        if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
+            ref, index, pending = pending[0], 0, None
+            limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
         index = ref.nearest(pose[:3, 3], index)
+        off = float(np.linalg.norm(ref.points_mm[index] - pose[:3, 3]))
+        if pending is None and replanner is not None and replanner.due(off, needle.inserted_mm):
+            res, took = replanner.replan(pose, needle.inserted_mm)
+            if res is not None:
+                pending = (PlanReference.of_plan(res.plan, goal), t + took)
         spin, kappa = pure_pursuit(pose, ref.ahead(index, s.lookahead_mm), kappa_max)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         needle.step(spin, kappa, step, s.dt_s)
@@ -189,4 +207,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record) -
     points.append(needle.pose[:3, 3].copy())
     err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
-    return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used)
+    if replanner is None:
+        return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used)
+    return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
+                        replanner.adopted, tuple(replanner.latencies_s))  # fmt: skip

@@ -38,14 +38,17 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from needlekit._validation import as_positive
-from needlekit.anatomy.scene import Scene
 from needlekit.errors import InvalidInputError
 from needlekit.planning.result import PlanStatus, Verification
+from needlekit.planning.steerable.continuation import (
+    continuation_from_pose,
+    continuation_problem,
+)
 from needlekit.planning.steerable.moving import (
     CHECK_SPACING_MM,
     ArrivalField,
@@ -69,14 +72,12 @@ __all__ = [
     "DynamicResult",
     "DynamicStatus",
     "check_settings",
+    "continuation_from_pose",
     "continuation_problem",
     "json_ready",
     "plan_static",
     "replan_among_moving",
 ]
-
-#: Angle (deg) kept back from the heading limit of a continuation: rounding only.
-HEADING_SLACK_DEG: float = 1e-6
 #: A motion that ends within this (mm) past an advance's end is advanced whole: rounding.
 SPLIT_SLACK_MM: float = 1e-9
 #: Default advance between re-plans (mm): a tenth of a 50 mm insertion, 2.5 s at 2 mm/s.
@@ -84,66 +85,6 @@ DEFAULT_STEP_MM: float = 5.0
 #: What a cycle plans against (the first is the default): each obstacle wherever it may be when the tip can pass a
 #: point, swept over the next advance, or where it is now.
 PREDICTIONS: tuple[str, ...] = ("arrival", "swept", "snapshot")
-
-
-def continuation_problem(
-    problem: SteerableProblem, executed: SteerablePlan, scene: Scene | None = None
-) -> SteerableProblem:
-    """The problem of going on from the end of an executed path, inside the tissue.
-
-    Parameters
-    ----------
-    problem : SteerableProblem
-        The original problem (start pose, limits, goal).
-    executed : SteerablePlan
-        What has been inserted, from the problem's start pose (no primitives: the start).
-    scene : Scene, optional
-        The anatomy to plan in (default the problem's).
-
-    Returns
-    -------
-    SteerableProblem
-        With nothing inserted, the original problem (on ``scene``). Otherwise from the
-        executed path's end pose, a start inside the tissue (``start_inside``: no entry
-        surface, no puncture angle) without start exclusion, ``max_length_mm`` less the
-        inserted length, and ``max_heading_change_deg`` less the angle between the start
-        direction and the current one: a continuation within it keeps the whole path
-        within the original limit.
-
-    Raises
-    ------
-    InvalidInputError
-        Nothing left of the length or the heading budget (``executed``).
-    """
-    scene = problem.scene if scene is None else scene
-    if executed.length_mm <= 0.0:
-        return replace(problem, scene=scene, metadata=dict(problem.metadata))
-    tip = executed.end_pose()
-    cos_turn = float(np.clip(tip[:3, 2] @ problem.start_pose[:3, 2], -1.0, 1.0))
-    heading = problem.max_heading_change_deg - math.degrees(math.acos(cos_turn))
-    heading -= HEADING_SLACK_DEG
-    length = problem.max_length_mm - executed.length_mm
-    if heading <= 0.0 or length <= 0.0:
-        raise InvalidInputError(
-            "executed",
-            f"nothing left to plan with: {length:.3f} mm of length and {heading:.3f} deg of "
-            "heading change remain",
-        )
-    meta = {k: v for k, v in problem.metadata.items() if k != "puncture_normal_source"}
-    return replace(
-        problem,
-        scene=scene,
-        start_pose=tip,
-        start_point_mm=None,
-        min_puncture_angle_deg=0.0,
-        start_exclusion_mm=0.0,
-        max_length_mm=length,
-        max_heading_change_deg=heading,
-        entry_surface=None,
-        entry_normal=None,
-        start_inside=True,
-        metadata={**meta, "continued_after_mm": executed.length_mm},
-    )
 
 
 class DynamicStatus(enum.Enum):
