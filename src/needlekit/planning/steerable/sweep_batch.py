@@ -314,8 +314,8 @@ def sweep_many(
         return SweepBatch(sweeps, workers if remote else {}, time.perf_counter() - t0)
 
     try:
-        if executor is None:
-            for t in tasks:
+        if not remote:
+            for t in tasks:  # here, one task after another (Ctrl-C keeps those done)
                 collect([k for k, _ in t], _plan_tasks([a for _, a in t]))
         else:
             pending = {executor.submit(_plan_tasks, [a for _, a in t]): t for t in tasks}
