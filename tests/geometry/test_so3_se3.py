@@ -16,7 +16,17 @@ from needlekit.geometry.se3 import (
     transform_points,
     vee6,
 )
-from needlekit.geometry.so3 import hat, rot_x, rot_y, rot_z, so3_exp, so3_log, vee
+from needlekit.geometry.so3 import (
+    hat,
+    hat_unchecked,
+    rot_x,
+    rot_y,
+    rot_z,
+    so3_exp,
+    so3_exp_unchecked,
+    so3_log,
+    vee,
+)
 
 
 def _rotvecs(rng, n, max_angle=np.pi):
@@ -47,6 +57,15 @@ def test_so3_log_near_zero_and_pi(angle):
     w = so3_log(r)
     assert np.allclose(so3_exp(w), r, atol=1e-12)
     assert np.linalg.norm(w) == pytest.approx(angle, abs=1e-9)
+
+
+@pytest.mark.parametrize("w", [[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [1e-3, 2e-3, -1e-3],
+                               [0.3, -1.2, 2.0], [0.0, 0.0, np.pi]])  # fmt: skip
+def test_the_unchecked_twins_match_scipy_for_one_vector(w):
+    w = np.asarray(w, dtype=float)
+    assert np.allclose(so3_exp_unchecked(w), Rotation.from_rotvec(w).as_matrix(), atol=1e-14)
+    assert np.allclose(so3_exp_unchecked(w), so3_exp(w), atol=1e-15)
+    assert np.array_equal(hat_unchecked(w), hat(w))
 
 
 def test_elementary_rotations_match_scipy():

@@ -29,18 +29,14 @@ from collections import deque
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.execute.needle_sim import ExecutionNoise, small_rotation
+from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.geometry.arcs import arc_end_unchecked
-from needlekit.geometry.so3 import so3_log
+from needlekit.geometry.so3 import hat_unchecked, so3_exp_unchecked, so3_log
 
 __all__ = ["TipEstimator"]
 
 #: How much of the past the filter keeps to place a late sample (s).
 HISTORY_S: float = 0.5
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 class TipEstimator:
@@ -92,7 +88,7 @@ class TipEstimator:
         new = arc_end_unchecked(pose, spin, kappa, ds)
         a = new[:3, 3] - pose[:3, 3]
         F = np.eye(6)
-        F[:3, 3:] = -_skew(a)
+        F[:3, 3:] = -hat_unchecked(a)
         n = self.noise
         # the needle turns by noise only while it is inserted
         q_rot = (n.orientation_sigma_rad**2) * dt / n.reference_interval_s if ds > 0 else 0.0
@@ -148,7 +144,7 @@ class TipEstimator:
         dx = K @ y
         pose = pose.copy()
         pose[:3, 3] += dx[:3]
-        pose[:3, :3] = small_rotation(dx[3:]) @ pose[:3, :3]
+        pose[:3, :3] = so3_exp_unchecked(dx[3:]) @ pose[:3, :3]
         pose = np.ascontiguousarray(pose)
         A = np.eye(6) - K
         P = A @ P @ A.T + K @ self.R_meas @ K.T

@@ -8,9 +8,8 @@ drawn here from its own random stream:
 - **Orientation noise.** After every step the tip turns by a random rotation (a rotation
   vector ``N(0, s^2 I)`` in the tip frame), ``s = orientation_sigma_rad`` per
   ``reference_interval_s`` of insertion, scaled by ``sqrt(dt / reference_interval_s)``
-  for other steps (a random walk). Default pi/2000 rad per 0.1 s, as in the published
-  simulations of steerable needles under motion uncertainty (Alterovitz et al.; Patil
-  et al.).
+  for other steps (a random walk). Default pi/2000 rad per 0.1 s, the value issue 21
+  gives from published simulations of steerable needles.
 - **Curvature.** The needle's radius of curvature in this tissue is ``r_min`` plus
   ``N(0, radius_sigma_mm^2)`` (default SD 3 mm), drawn once per insertion: a commanded
   curvature ``kappa`` (a duty cycle ``kappa r_min``) gives ``kappa r_min / r``.
@@ -32,8 +31,9 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import arc_end_unchecked
+from needlekit.geometry.so3 import so3_exp_unchecked
 
-__all__ = ["ExecutionNoise", "SimulatedNeedle", "small_rotation"]
+__all__ = ["ExecutionNoise", "SimulatedNeedle"]
 
 
 @dataclass(frozen=True)
@@ -75,24 +75,6 @@ class ExecutionNoise:
         ExecutionNoise
         """
         return cls(0.0, 0.1, 0.0, 0.0)
-
-
-def small_rotation(w: np.ndarray) -> np.ndarray:
-    """The rotation matrix of a rotation vector (Rodrigues), for one 3-vector.
-
-    Parameters
-    ----------
-    w : ndarray, shape (3,)
-
-    Returns
-    -------
-    ndarray, shape (3, 3)
-    """
-    theta = math.sqrt(float(w @ w))
-    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if theta < 1e-8:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + math.sin(theta) / theta * k + (1 - math.cos(theta)) / theta**2 * k @ k
 
 
 class SimulatedNeedle:
@@ -160,7 +142,7 @@ class SimulatedNeedle:
         g = arc_end_unchecked(self.pose, float(spin_rad), float(kappa_true), float(ds_mm))
         sigma = self.noise.orientation_sigma_rad * math.sqrt(dt_s / self.noise.reference_interval_s)
         if sigma > 0 and ds_mm > 0:
-            g[:3, :3] = g[:3, :3] @ small_rotation(self.rng.normal(0.0, sigma, 3))
+            g[:3, :3] = g[:3, :3] @ so3_exp_unchecked(self.rng.normal(0.0, sigma, 3))
         g[:3, 3] += self.deflection * ds_mm
         self.pose = g
         self.inserted_mm += ds_mm

@@ -6,12 +6,24 @@ gives a single result, a batch ``(n, 3)`` / ``(n, 3, 3)`` gives a batch.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from needlekit._validation import as_batch, as_rotations, unbatch
 from needlekit.constants import SMALL_ANGLE_RAD
 
-__all__ = ["hat", "rot_x", "rot_y", "rot_z", "so3_exp", "so3_log", "vee"]
+__all__ = [
+    "hat",
+    "hat_unchecked",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "so3_exp",
+    "so3_exp_unchecked",
+    "so3_log",
+    "vee",
+]
 
 
 def _hat_batch(w: np.ndarray) -> np.ndarray:
@@ -104,6 +116,44 @@ def so3_exp(omega):
     """
     w, single = as_batch(omega, "omega", (3,))
     return unbatch(_so3_exp_batch(w), single)
+
+
+# unchecked entry points for per-step loops (a simulation tick): one float64 3-vector in,
+# nothing validated or broadcast; each gives what its checked twin gives for one vector
+
+
+def hat_unchecked(w: np.ndarray) -> np.ndarray:
+    """:func:`hat` of one float64 3-vector, without its checks.
+
+    Parameters
+    ----------
+    w : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def so3_exp_unchecked(w: np.ndarray) -> np.ndarray:
+    """:func:`so3_exp` of one float64 3-vector, without its checks (a fifth of its time).
+
+    Parameters
+    ----------
+    w : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    theta = math.sqrt(float(w @ w))
+    if theta < SMALL_ANGLE_RAD:  # the series of _exp_coefficients
+        a, b = 1.0 - theta * theta / 6.0, 0.5 - theta * theta / 24.0
+    else:
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / (theta * theta)
+    k = hat_unchecked(w)
+    return np.eye(3) + a * k + b * (k @ k)
 
 
 def _so3_log_batch(r: np.ndarray) -> np.ndarray:
