@@ -47,7 +47,6 @@ import numpy as np
 from needlekit.batch import executor_workers
 from needlekit.errors import Interrupted, InvalidInputError
 from needlekit.io.files import staged_outputs, write_json
-from needlekit.io.partial import write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.planning.result import PlanStatus
 from needlekit.provenance import machine_info
@@ -62,7 +61,7 @@ from needlekit.studies.feng_case import (
     feng_patient_folder,
 )
 from needlekit.studies.feng_timing import timing_record
-from needlekit.studies.sweep_study import read_partial_sweep
+from needlekit.studies.sweep_study import read_partial_sweep, write_partial_sweep
 
 __all__ = [
     "FENG_GOAL2_OFFSET_MM",
@@ -538,16 +537,13 @@ def _sweep_head(settings: dict, seed: int, options: dict) -> dict:
 def _write_partial(out: Path, docs: dict, head: dict, batch) -> None:
     """An interrupted study: each target's scenario and its sweeps so far, marked partial
     (raises :class:`~needlekit.errors.Interrupted` saying so)."""
-    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict, sweeps_to_dict
-
     found = iter(batch.sweeps)
     paths = []
     n_done = n_all = 0
     for g in _GOALS:
         sweeps = {name: next(found) for name in FENG_PLANNERS}
         _write_scenario(out / g / "scenario.yaml", docs[g], g)
-        record = {**head, **sweeps_to_dict(sweeps), "solved_plans": solved_plans_to_dict(sweeps)}
-        paths.append(write_partial(out / g / "sweep.json", record))
+        paths.append(write_partial_sweep(out / g / "sweep.json", head, sweeps))
         for sw in sweeps.values():
             n_all += int(sw.effective.sum())
             n_done += sum(r is not None for r, e in zip(sw.results, sw.effective, strict=True) if e)

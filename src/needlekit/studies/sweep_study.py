@@ -30,7 +30,13 @@ from needlekit.io.partial import read_partial, write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.io.results import scenario_reference
 
-__all__ = ["SweepStudy", "read_partial_sweep", "run_sweep_study", "sweep_settings"]
+__all__ = [
+    "SweepStudy",
+    "read_partial_sweep",
+    "run_sweep_study",
+    "sweep_settings",
+    "write_partial_sweep",
+]
 
 
 @dataclass(frozen=True)
@@ -196,8 +202,7 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
     """The record of an interrupted sweep: every planner's finished directions (a planner
     not reached keeps what ``resume`` gave it), marked partial; the message says how much
     is done and how to carry on."""
-    from needlekit.planning.steerable.sweep import SweepResult, sweep_stats, sweeps_to_dict
-    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict
+    from needlekit.planning.steerable.sweep import SweepResult, sweep_stats
 
     first = next(iter(sweeps.values()))
     n = len(first.directions)
@@ -206,10 +211,7 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
             res = list((resume or {}).get(name) or [None] * n)
             stats = sweep_stats(first.directions, first.effective, res)
             sweeps[name] = SweepResult(first.directions, first.effective, res, name, stats)
-    write_partial(
-        sweep_path,
-        {**head, **sweeps_to_dict(sweeps), "solved_plans": solved_plans_to_dict(sweeps)},
-    )
+    write_partial_sweep(sweep_path, head, sweeps)
     total = int(first.effective.sum()) * len(built)
     done = sum(
         r is not None for s in sweeps.values() for i, r in enumerate(s.results) if s.effective[i]
@@ -219,6 +221,28 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
         f"{sweep_path} marked partial; the same command with --resume carries on",
         partial=sweeps,
     )
+
+
+def write_partial_sweep(path, head: dict, sweeps: dict):
+    """An interrupted sweep's record: ``head`` (:func:`sweep_settings` and the scenario),
+    the sweeps so far as ``sweep.json`` holds them and every plan found so far, marked
+    partial and signed (:func:`needlekit.io.partial.write_partial`); what
+    :func:`read_partial_sweep` reads back.
+
+    Parameters
+    ----------
+    path : path-like
+    head : dict
+    sweeps : dict of str to SweepResult
+
+    Returns
+    -------
+    Path
+    """
+    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict, sweeps_to_dict
+
+    record = {**head, **sweeps_to_dict(sweeps), "solved_plans": solved_plans_to_dict(sweeps)}
+    return write_partial(path, record)
 
 
 def sweep_settings(planners: dict, time_limit_s, max_iterations, seed) -> dict:
