@@ -29,7 +29,14 @@ from typing import Any
 
 from needlekit.constants import MM_WARNING_MIN_R_MIN_MM
 
-__all__ = ["QUANTITIES", "Quantity", "document_warnings", "flag_warnings", "implausible"]
+__all__ = [
+    "QUANTITIES",
+    "Quantity",
+    "document_warnings",
+    "flag_values",
+    "flag_warnings",
+    "implausible",
+]
 
 _log = logging.getLogger("needlekit.units")
 
@@ -173,14 +180,32 @@ def flag_warnings(values: Mapping[str, Any]) -> list[str]:
     list of str
     """
     out = []
+    for q, flag, v in flag_values(values):
+        msg = implausible(flag, v, q)
+        if msg is not None:
+            out.append(msg)
+    return out
+
+
+def flag_values(values: Mapping[str, Any]) -> Iterator[tuple[Quantity, str, Any]]:
+    """Every value given to a flag of the table: ``(quantity, flag, value)``, a list
+    value (``--gamma 1.5 3``) item by item; flags not given are skipped.
+
+    Parameters
+    ----------
+    values : mapping
+        ``vars(args)`` (argparse's ``dest`` names).
+
+    Yields
+    ------
+    tuple of (Quantity, str, object)
+    """
     for q in QUANTITIES:
         for flag in q.flags:
             value = values.get(flag.lstrip("-").replace("-", "_"))
             for v in value if isinstance(value, (list, tuple)) else [value]:
-                msg = implausible(flag, v, q)
-                if msg is not None:
-                    out.append(msg)
-    return out
+                if v is not None:
+                    yield q, flag, v
 
 
 def warn(messages: Iterable[str], source: str | None = None) -> None:

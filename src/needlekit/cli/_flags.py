@@ -341,13 +341,11 @@ def check_lengths(args) -> None:
         Named by the flag.
     """
     from needlekit.io.scenario_schema import MAX_ABS_MM
-    from needlekit.plausibility import QUANTITIES
+    from needlekit.plausibility import flag_values
 
-    values = vars(args)
-    for flag in (f for q in QUANTITIES if q.unit == "mm" for f in q.flags):
-        value = values.get(flag.lstrip("-").replace("-", "_"))
-        for v in value if isinstance(value, (list, tuple)) else [value]:
-            if isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) > MAX_ABS_MM:
-                raise InvalidInputError(
-                    flag, f"{v:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size in a body"
-                )
+    for q, flag, v in flag_values(vars(args)):
+        numeric = isinstance(v, (int, float)) and not isinstance(v, bool)
+        if q.unit == "mm" and numeric and abs(v) > MAX_ABS_MM:
+            raise InvalidInputError(
+                flag, f"{v:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size in a body"
+            )
