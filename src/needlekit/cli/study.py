@@ -43,8 +43,8 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
     if args.resume:  # the partial record agrees with this run, before any case
         resume = read_partial_livers(
             args.out,
+            cases,
             medrad_dir=args.medrad,
-            livers=args.livers,
             gammas_mm=args.gamma,
             resolution_deg=args.resolution_deg,
         )

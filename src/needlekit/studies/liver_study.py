@@ -344,7 +344,7 @@ def _study_head(cases: list[dict], gammas_mm, medrad_dir, resolution_deg) -> dic
 
 
 def read_partial_livers(
-    out, *, medrad_dir=None, livers=None, gammas_mm=DEFAULT_GAMMAS_MM, resolution_deg=None
+    out, cases: list[dict], *, medrad_dir=None, gammas_mm=DEFAULT_GAMMAS_MM, resolution_deg=None
 ) -> list[dict]:
     """The rows an interrupted study finished (``study livers --resume``), from its
     record marked partial (signed: :func:`needlekit.io.partial.read_partial`).
@@ -352,7 +352,9 @@ def read_partial_livers(
     Parameters
     ----------
     out : path-like
-    medrad_dir, livers, gammas_mm, resolution_deg
+    cases : list of dict
+        This run's cases (:func:`liver_cases`).
+    medrad_dir, gammas_mm, resolution_deg
         This run's: the record's.
 
     Returns
@@ -365,5 +367,5 @@ def read_partial_livers(
         (named ``--resume``) No such file, not partial, changed since it was written, or
         other settings than this run's.
     """
-    head = _study_head(liver_cases(medrad_dir, livers), gammas_mm, medrad_dir, resolution_deg)
+    head = _study_head(cases, gammas_mm, medrad_dir, resolution_deg)
     return list(read_partial(out, "study", head).get("rows") or [])
