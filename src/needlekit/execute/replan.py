@@ -13,6 +13,13 @@ The needle does not wait for the planner: the search's measured time (or a fixed
 along the old plan, and the new plan applies from where the tip is when the search
 returns.
 
+The search is warm-started from the rest of the plan being followed
+(:func:`rest_of_plan`): the plan's remaining primitives, from the estimated tip in the
+plan's own roll, kept for the whole, three quarters, half, a quarter or none of the rest and
+then joined to the goal by the shortest turn-then-straight connection. The cheapest that
+passes the check is RCS*'s first best plan: it prunes against it from the first node, and
+a search that runs out of time returns it instead of nothing.
+
 Plans and re-plans keep a clearance margin for the noise (:func:`noise_margin_mm`): the
 obstacles are grown by ``k`` standard deviations of the tip's lateral error, ``k`` the
 one-sided normal quantile of the stated crossing probability.
@@ -25,15 +32,23 @@ import time
 from dataclasses import dataclass
 from statistics import NormalDist
 
+import numpy as np
+
 from needlekit.errors import InvalidInputError
+from needlekit.planning.interface import Termination
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.continuation import continuation_from_pose
+from needlekit.planning.steerable.goal import goal_connection_unchecked
+from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.result import PlanResult
-from needlekit.planning.steerable.solve import build_planner, solve
+from needlekit.planning.steerable.solve import build_planner
 from needlekit.planning.steerable.verify import verify_plan
 
-__all__ = ["ReplanPolicy", "Replanner", "noise_margin_mm"]
+__all__ = ["WARM_START_KEPT", "ReplanPolicy", "Replanner", "noise_margin_mm", "rest_of_plan"]
+
+#: The parts of the rest of the plan that the warm starts keep before joining the goal.
+WARM_START_KEPT: tuple[float, ...] = (1.0, 0.75, 0.5, 0.25, 0.0)
 
 
 def noise_margin_mm(lateral_sigma_mm: float, crossing_probability: float) -> float:
@@ -68,6 +83,73 @@ def noise_margin_mm(lateral_sigma_mm: float, crossing_probability: float) -> flo
     return lateral_sigma_mm * NormalDist().inv_cdf(1.0 - crossing_probability)
 
 
+def rest_of_plan(
+    plan: SteerablePlan, arc_mm: float, tip_pose, problem: SteerableProblem
+) -> list[SteerablePlan]:
+    """Warm starts for a re-plan from ``tip_pose``: the rest of ``plan`` after ``arc_mm``,
+    carried over to the tip, then joined to the goal.
+
+    The remaining primitives are applied from the tip after a spin that turns the tip's
+    roll into the plan's roll at ``arc_mm`` (so that they bend the way the plan bends);
+    each of :data:`WARM_START_KEPT` of the rest is kept and the goal joined from its end by
+    the shortest turn-then-straight connection to within the goal tolerance, where there
+    is one. Nothing here is checked against the anatomy: the search does that.
+
+    Parameters
+    ----------
+    plan : SteerablePlan
+        The plan being followed.
+    arc_mm : float
+        Where along it the tip is (e.g. the nearest point's arc length).
+    tip_pose : array_like, shape (4, 4)
+        The estimated tip: the re-plan's start pose.
+    problem : SteerableProblem
+        Its goal, tolerance and ``r_min``.
+
+    Returns
+    -------
+    list of SteerablePlan
+        From ``tip_pose``, in the order of :data:`WARM_START_KEPT` (those with no
+        connection left out).
+    """
+    tip = np.asarray(tip_pose, dtype=np.float64)
+    prims = plan.primitives
+    rest = np.zeros((0, 3))
+    if len(prims):
+        ends = np.cumsum(prims[:, 2])
+        i = min(int(np.searchsorted(ends, arc_mm, "right")), len(prims) - 1)
+        begin = ends[i] - prims[i, 2]
+        into = min(max(0.0, arc_mm - begin), prims[i, 2])
+        here = SteerablePlan(plan.start_pose, np.vstack([prims[:i], [[*prims[i, :2], into]]]))
+        x = here.end_pose()[:3, 0]  # the plan's roll there, seen from the tip
+        roll = math.atan2(float(x @ tip[:3, 1]), float(x @ tip[:3, 0]))
+        rest = np.array(prims[i:], dtype=np.float64)
+        rest[0, 2] -= into
+        rest[0, 0] = roll + (rest[0, 0] if into <= 0.0 else 0.0)
+    total = float(rest[:, 2].sum())
+    goal = np.ascontiguousarray(problem.goal_mm, dtype=np.float64)
+    out = []
+    for kept in WARM_START_KEPT:
+        part = _first_mm(rest, kept * total)
+        end = np.ascontiguousarray(SteerablePlan(tip, part).end_pose())
+        conn = goal_connection_unchecked(end, goal, problem.r_min_mm, problem.goal_tolerance_mm)
+        if conn is not None:
+            out.append(SteerablePlan(tip, np.vstack([part, conn.primitives])))
+    return out
+
+
+def _first_mm(prims: np.ndarray, length_mm: float) -> np.ndarray:
+    """The first ``length_mm`` of a chain of primitives."""
+    out = []
+    left = length_mm
+    for spin, kappa, length in prims:
+        if left <= 1e-9:
+            break
+        out.append([spin, kappa, min(length, left)])
+        left -= length
+    return np.array(out, dtype=np.float64).reshape(-1, 3)
+
+
 @dataclass(frozen=True)
 class ReplanPolicy:
     """When to re-plan and with what budget.
@@ -84,6 +166,8 @@ class ReplanPolicy:
         Its iteration budget (reproducible runs).
     delay_s : float or None
         The time a re-plan takes in the simulation; None: the search's measured time.
+    warm_start : bool
+        Start the search from the rest of the plan being followed (:func:`rest_of_plan`).
     """
 
     cross_track_mm: float = 0.5
@@ -91,6 +175,7 @@ class ReplanPolicy:
     time_limit_s: float = 0.025
     max_iterations: int | None = None
     delay_s: float | None = None
+    warm_start: bool = True
 
 
 class Replanner:
@@ -108,6 +193,8 @@ class Replanner:
         The measured time of every re-plan (search and check).
     adopted, refused : int
         Re-plans that passed their check and were followed, and those that did not.
+    warm_kept : int
+        Adopted re-plans that are a warm start itself (the search found nothing cheaper).
     """
 
     def __init__(self, problem: SteerableProblem, policy: ReplanPolicy | None = None) -> None:
@@ -117,25 +204,34 @@ class Replanner:
         self.latencies_s: list[float] = []
         self.adopted = 0
         self.refused = 0
+        self.warm_kept = 0
         self._last_mm = -math.inf
 
-    def due(self, cross_track_mm: float, inserted_mm: float) -> bool:
-        """Whether the drift asks for a re-plan now.
+    def due(self, cross_track_mm: float, inserted_mm: float, goal_distance_mm: float) -> bool:
+        """Whether the drift asks for a re-plan now: off the plan by more than
+        ``cross_track_mm``, ``min_interval_mm`` in since the last re-plan, past the start
+        exclusion (the tip still touches the entry there: a start a continuation refuses) and
+        farther from the goal than its tolerance (nothing left to plan).
 
         Parameters
         ----------
-        cross_track_mm, inserted_mm : float
+        cross_track_mm, inserted_mm, goal_distance_mm : float
 
         Returns
         -------
         bool
         """
-        p = self.policy
+        p, problem = self.policy, self.problem
         return (
-            cross_track_mm > p.cross_track_mm and inserted_mm - self._last_mm >= p.min_interval_mm
+            cross_track_mm > p.cross_track_mm
+            and inserted_mm - self._last_mm >= p.min_interval_mm
+            and inserted_mm > problem.start_exclusion_mm
+            and goal_distance_mm > problem.goal_tolerance_mm
         )
 
-    def replan(self, tip_pose, inserted_mm: float) -> tuple[PlanResult | None, float]:
+    def replan(
+        self, tip_pose, inserted_mm: float, following: tuple[SteerablePlan, float] | None = None
+    ) -> tuple[PlanResult | None, float]:
         """Plan from ``tip_pose`` and check the plan.
 
         Parameters
@@ -143,6 +239,8 @@ class Replanner:
         tip_pose : ndarray, shape (4, 4)
             The estimated tip.
         inserted_mm : float
+        following : (SteerablePlan, float), optional
+            The plan being followed and the tip's arc length along it: the warm start.
 
         Returns
         -------
@@ -158,8 +256,13 @@ class Replanner:
             cont = None
         result = None
         if cont is not None:
-            res = solve(cont, self.planner, time_limit_s=self.policy.time_limit_s,
-                        max_iterations=self.policy.max_iterations)  # fmt: skip
+            warm = []
+            if following is not None and self.policy.warm_start:
+                warm = rest_of_plan(following[0], following[1], cont.start_pose, cont)
+            p = self.policy
+            res = self.planner.solve(
+                cont, Termination(p.time_limit_s, p.max_iterations), warm_start=warm
+            )
             if res.plan is not None:
                 check = verify_plan(cont, res.plan, expected_cost_mm=res.cost_mm)
                 result = res if check.ok and res.status is PlanStatus.SOLVED else None
@@ -169,4 +272,5 @@ class Replanner:
             self.refused += 1
         else:
             self.adopted += 1
+            self.warm_kept += bool(result.stats.get("warm_start_kept"))
         return result, elapsed if self.policy.delay_s is None else self.policy.delay_s

@@ -175,7 +175,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         position_sigma_mm=s.sensor.position_sigma_mm,
         orientation_sigma_rad=math.radians(s.sensor.orientation_sigma_deg),
     )
-    ref = PlanReference.of_plan(plan, goal)
+    current, ref = plan, PlanReference.of_plan(plan, goal)
     kappa_max = 1.0 / r_min_mm
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
@@ -190,14 +190,18 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
             break
         if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
-            ref, index, pending = pending[0], 0, None
+            (current, ref), index, pending = pending[0], 0, None
             limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
         index = ref.nearest(pose[:3, 3], index)
         off = float(np.linalg.norm(ref.points_mm[index] - pose[:3, 3]))
-        if pending is None and replanner is not None and replanner.due(off, needle.inserted_mm):
-            res, took = replanner.replan(pose, needle.inserted_mm)
+        if (
+            pending is None
+            and replanner is not None
+            and replanner.due(off, needle.inserted_mm, float(np.linalg.norm(ahead)))
+        ):
+            res, took = replanner.replan(pose, needle.inserted_mm, (current, ref.arc_mm[index]))
             if res is not None:
-                pending = (PlanReference.of_plan(res.plan, goal), t + took)
+                pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took)
         spin, kappa = pure_pursuit(pose, ref.ahead(index, s.lookahead_mm), kappa_max)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         needle.step(spin, kappa, step, s.dt_s)

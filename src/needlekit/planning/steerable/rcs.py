@@ -267,19 +267,25 @@ class RCSStarPlanner:
     def __init__(self, options: RCSOptions | None = None) -> None:
         self.options = RCSOptions() if options is None else options
 
-    def solve(self, problem: SteerableProblem, termination: Termination) -> PlanResult:
+    def solve(
+        self, problem: SteerableProblem, termination: Termination, *, warm_start=()
+    ) -> PlanResult:
         """Plan (see :func:`solve_rcs`).
 
         Parameters
         ----------
         problem : SteerableProblem
         termination : Termination
+        warm_start : sequence of SteerablePlan
+            See :func:`solve_rcs`.
 
         Returns
         -------
         PlanResult
         """
-        return _search(problem, termination, self.optimal, self.name, self.options.resolution)
+        return _search(
+            problem, termination, self.optimal, self.name, self.options.resolution, warm_start
+        )
 
 
 class RCSPlanner(RCSStarPlanner):
@@ -296,6 +302,7 @@ def solve_rcs(
     optimal: bool = True,
     max_iterations: int | None = None,
     resolution: Resolution | None = None,
+    warm_start=(),
 ) -> PlanResult:
     """Plan with RCS* (``optimal=True``) or RCS.
 
@@ -311,6 +318,12 @@ def solve_rcs(
         Budget in processed nodes.
     resolution : Resolution, optional
         Primitive resolution (default: 16 mm to 0.125 mm, spins down to pi/32).
+    warm_start : sequence of SteerablePlan
+        Plans from the start pose to the goal to start from: the cheapest that passes the
+        independent check is the first best plan (``stats["warm_start"]``: ``"adopted"``
+        or ``"none passed"``), so RCS* prunes against it from the first node and returns it
+        when nothing cheaper turns up in the budget. An empty finished search certifies
+        that no plan at the finest resolution beats it.
 
     Returns
     -------
@@ -324,7 +337,7 @@ def solve_rcs(
     planner = (RCSStarPlanner if optimal else RCSPlanner)(
         RCSOptions(Resolution() if resolution is None else resolution)
     )
-    return planner.solve(problem, Termination(time_limit_s, max_iterations))
+    return planner.solve(problem, Termination(time_limit_s, max_iterations), warm_start=warm_start)
 
 
 class _RankQueue:
@@ -366,6 +379,7 @@ def _search(
     optimal: bool,
     name: str,
     res: Resolution,
+    warm_start=(),
 ) -> PlanResult:
     search = SteerableSearch(problem, termination, name)
     run = search.run
@@ -387,8 +401,8 @@ def _search(
     nodes = [_Node(start, -1, 0.0, h0, 0.0, 0, False, 0, 0, set(), scale * h0)]
     queue = _RankQueue(optimal)
     push_node, pop = queue.push, queue.pop
-    best = math.inf
-    best_plan: SteerablePlan | None = None
+    best, best_plan = search.warm_start(warm_start)
+    warm_plan = best_plan
 
     goal_c = np.ascontiguousarray(goal, dtype=np.float64)
     r_min, tau = problem.r_min_mm, problem.goal_tolerance_mm
@@ -494,6 +508,9 @@ def _search(
         expand(idx)
 
     stats = _stats(problem, optimal, prune, not queue, best_plan, len(nodes), n_duplicates)
+    if warm_start:
+        stats["warm_start"] = "none passed" if warm_plan is None else "adopted"
+        stats["warm_start_kept"] = warm_plan is not None and best_plan is warm_plan
     if best_plan is not None:
         return search.result(PlanStatus.SOLVED, best_plan, best, **stats)
     if stats["exhausted"]:

@@ -319,6 +319,48 @@ class SteerableSearch:
             )
         return check.ok
 
+    def warm_start(self, plans) -> tuple[float, SteerablePlan | None]:
+        """The first best of a warm-started search: the cheapest of ``plans`` that passes
+        the independent check (the others are not counted as refused: they are guesses,
+        not the search's candidates).
+
+        Parameters
+        ----------
+        plans : sequence of SteerablePlan
+            Plans from the problem's start pose to its goal (e.g. the rest of a plan
+            being executed, from the tracked tip).
+
+        Returns
+        -------
+        (float, SteerablePlan or None)
+            Its cost and the plan, or ``(inf, None)``.
+
+        Raises
+        ------
+        InvalidInputError
+            Not a plan, or a plan that starts elsewhere than the start pose.
+        """
+        ranked = []
+        for k, plan in enumerate(plans):
+            if not isinstance(plan, SteerablePlan):
+                raise InvalidInputError(
+                    "warm_start", f"item {k}: expected a SteerablePlan, got {type(plan).__name__}"
+                )
+            if not np.allclose(plan.start_pose, self.start, rtol=0.0, atol=1e-9):
+                raise InvalidInputError(
+                    "warm_start", f"item {k}: the plan starts elsewhere than the start pose"
+                )
+            if len(plan.primitives):
+                ranked.append((chain_cost(self.problem, self.start, plan.primitives), k, plan))
+        spacing = self.validator.spacing_mm
+        for cost, _, plan in sorted(ranked, key=lambda c: c[:2]):
+            check = verify_plan(self.problem, plan, spacing_mm=spacing)
+            if check.ok:
+                self._last_check = (plan, check)
+                self.run.improved(cost)
+                return cost, plan
+        return math.inf, None
+
     def result(
         self,
         status: PlanStatus,
