@@ -16,6 +16,7 @@ from needlekit import __version__
 from needlekit.cli import (
     bench,
     demo,
+    execute,
     kinematics,
     markups,
     planning,
@@ -50,6 +51,7 @@ COMMAND_MODULES = (
     straight,  # cfrw, multi, approach
     markups,
     puncture,
+    execute,  # execute SCENARIO PLAN
     report,
     demo,
     reproduce,

@@ -1,4 +1,4 @@
-"""``needlekit bench kinematics|fields|steerable|control|straight|approach|scale``."""
+"""``needlekit bench kinematics|fields|steerable|execute|control|straight|approach|scale``."""
 
 from __future__ import annotations
 
@@ -6,7 +6,14 @@ import argparse
 from pathlib import Path
 
 from needlekit.cli import _flags
-from needlekit.cli._common import EXIT_OK, _Parser, _positive, _positive_int, _seed
+from needlekit.cli._common import (
+    EXIT_OK,
+    _non_negative,
+    _Parser,
+    _positive,
+    _positive_int,
+    _seed,
+)
 from needlekit.cli._paths import add_input
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
 from needlekit.errors import InvalidInputError, NeedlekitError
@@ -137,6 +144,22 @@ def _straight(args: argparse.Namespace) -> dict:
         livers=tuple(n for n in args.livers if n != 0),
         medrad_dir=args.medrad,
         progress=lambda name: print(f"bench straight: {name}", file=sys.stderr),
+    )
+
+
+def _execute(args: argparse.Namespace) -> dict:
+    import sys
+
+    from needlekit.benchmarks.execute import run_execute_benchmark
+
+    return run_execute_benchmark(
+        tuple(p for p in args.patients if p != 0),
+        margin_mm=args.margin_mm,
+        replans=args.replans,
+        trials=args.trials,
+        seed=args.seed,
+        medrad_dir=args.medrad,
+        progress=lambda name: print(f"bench execute: {name}", file=sys.stderr),
     )
 
 
@@ -310,6 +333,33 @@ def _register_steerable(bench_sub) -> None:
     )
 
 
+def _register_execute(bench_sub) -> None:
+    be = _suite(
+        bench_sub,
+        "execute",
+        _execute,
+        help="closed-loop execution on the Med-RAD lungs: re-plan latency (warm and cold) "
+        "and the feedback step",
+    )
+    be.add_argument(
+        "--patients", type=_seed, nargs="+", default=[1, 2, 3, 4, 5],
+        help="lung patients (default 1-5)",
+    )  # fmt: skip
+    be.add_argument(
+        "--margin-mm", type=_non_negative, default=0.0,
+        help="the scenarios' clearance margin (default 0)",
+    )  # fmt: skip
+    be.add_argument(
+        "--replans", type=_positive_int, default=20, help="tips re-planned per lung (default 20)"
+    )
+    be.add_argument(
+        "--trials", type=_positive_int, default=2,
+        help="closed-loop trials per lung whose feedback steps are timed (default 2)",
+    )  # fmt: skip
+    _flags.SEED.add(be, default=0, help="seed of the tips and trials (default 0)")
+    _flags.add_medrad(be)
+
+
 def _register_liver_suites(bench_sub) -> None:
     ba = _suite(
         bench_sub,
@@ -412,5 +462,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     _register_kinematics_fields(bench_sub)
     _register_control(bench_sub)
     _register_steerable(bench_sub)
+    _register_execute(bench_sub)
     _register_liver_suites(bench_sub)
     _register_scale(bench_sub)

@@ -26,6 +26,9 @@ FENG_LUNGS_FILES = (
     "feng_lungs.json",
     "report.html",
 )
+#: What ``needlekit study execute-lungs`` writes in its --out folder (the lungs' folders
+#: beside it).
+EXECUTE_LUNGS_FILES = ("execute_lungs.json",)
 
 
 def _cmd_study_livers(args: argparse.Namespace) -> int:
@@ -176,6 +179,100 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
     return EXIT_OK if reached else 1
 
 
+def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
+    from needlekit.cli.execute import check_noise_flags
+
+    check_noise_flags(args)
+    from tqdm import tqdm
+
+    from needlekit.batch import open_executor
+    from needlekit.cli.execute import execute_options
+    from needlekit.studies.execute_lungs import run_execute_lungs
+
+    options = execute_options(args, 50.0)  # the lungs' needle: r_min 50 mm
+    patients = tuple(args.patients)
+    with (
+        open_executor(
+            args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+        ) as ex,
+        tqdm(
+            total=len(patients) * args.trials, desc="execute-lungs", unit="trial", disable=None
+        ) as bar,  # fmt: skip
+    ):
+        record = run_execute_lungs(
+            args.out, patients=patients, trials=args.trials, seed=args.seed, options=options,
+            executor=None if args.executor == "serial" else ex, progress=lambda _: bar.update(1),
+            medrad_dir=args.medrad, pilot_trials=args.pilot_trials,
+            crossing_probability=args.crossing_probability,
+        )  # fmt: skip
+    rows = []
+    for c in record["cases"]:
+        if c["status"] != "done":
+            rows.append([f"lung {c['patient']}", c["status"], *["-"] * 9])
+            continue
+        cl, op = c["closed_loop"], c["open_loop"]
+        rows.append([
+            f"lung {c['patient']}", "done", f"{c['margin_wanted_mm']:.2f}",
+            f"{c['margin_mm']:.2f}", f"{op['mean_error_mm']:.2f}", f"{cl['mean_error_mm']:.3f}",
+            f"{cl['sd_error_mm']:.3f}", f"{100 * cl['within_1mm']:.0f}",
+            f"{cl['violated']} / {op['violated']}", f"{cl['replans_mean']:.2f}",
+            "yes" if c["holds"] else "NO",
+        ])  # fmt: skip
+    print(_fmt_table(
+        ["case", "status", "margin wanted", "kept", "open mean", "closed mean", "sd",
+         "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"], rows,
+    ))  # fmt: skip
+    print(
+        f"targets: closed-loop mean <= 0.5 mm, >= 95 % within 1 mm, no crossing: "
+        f"{'hold' if record['holds'] else 'DO NOT hold'} ({record['wall_s']:.0f} s) -> {args.out}"
+    )
+    return EXIT_OK if record["holds"] else 1
+
+
+def _register_execute_lungs(study_sub) -> None:
+    from needlekit.cli.execute import add_noise_flags
+
+    se = study_sub.add_parser(
+        "execute-lungs",
+        help="plans carried out in simulated tissue on the Med-RAD lungs, open beside closed "
+        "loop (issue 21)",
+        description="For each Med-RAD lung (start 1 to its target): the margin the execution "
+        "noise asks for (a pilot's deviation, k sigma), the largest the anatomy allows, the "
+        "plan, and --trials trials open and closed loop as `needlekit execute` runs them. "
+        "Writes DIR/lungN/{scenario.yaml,plan.json,execute.json} and DIR/execute_lungs.json. "
+        "Exit 1 when a case misses the targets (closed-loop mean <= 0.5 mm, >= 95 %% within "
+        "1 mm, no crossing).",
+    )
+    _flags.OUT.add(se, folder=True, contents=EXECUTE_LUNGS_FILES, required=True,
+                   help="output folder")  # fmt: skip
+    se.add_argument("--patients", type=_positive_int, nargs="+", default=[1, 2, 3, 4, 5],
+                    help="lung patients (default 1-5)")  # fmt: skip
+    se.add_argument(
+        "--trials", type=_positive_int, default=100, help="trials per lung (default 100)"
+    )
+    _flags.SEED.add(se, default=0, help="root seed (default 0)")
+    se.add_argument("--pilot-trials", type=_positive_int, default=10,
+                    help="closed-loop trials that measure the deviation (default 10)")  # fmt: skip
+    se.add_argument("--crossing-probability", type=_probability, default=0.001,
+                    help="per recorded point, that the margin is set for (default 0.001)")  # fmt: skip
+    add_noise_flags(se)
+    _flags.add_medrad(se)
+    _flags.add_executor_options(se)
+    se.set_defaults(command_handler=_cmd_study_execute_lungs)
+
+
+def _probability(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a probability in (0, 0.5], got {text!r}"
+        ) from None
+    if not 0.0 < v <= 0.5:
+        raise argparse.ArgumentTypeError(f"expected a probability in (0, 0.5], got {text!r}")
+    return v
+
+
 def _register_livers(study_sub) -> None:
     sl = study_sub.add_parser(
         "livers",
@@ -243,7 +340,7 @@ def _register_feng_lungs(study_sub) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``study livers|feng-lungs`` to the ``needlekit`` parser.
+    """Add ``study livers|feng-lungs|execute-lungs`` to the ``needlekit`` parser.
 
     Parameters
     ----------
@@ -260,3 +357,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _register_livers(study_sub)
     _register_feng_lungs(study_sub)
+    _register_execute_lungs(study_sub)

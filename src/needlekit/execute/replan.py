@@ -45,7 +45,21 @@ from needlekit.planning.steerable.result import PlanResult
 from needlekit.planning.steerable.solve import build_planner
 from needlekit.planning.steerable.verify import verify_plan
 
-__all__ = ["WARM_START_KEPT", "ReplanPolicy", "Replanner", "noise_margin_mm", "rest_of_plan"]
+__all__ = [
+    "WARM_START_KEPT",
+    "ReplanPolicy",
+    "Replanner",
+    "first_mm",
+    "noise_margin_mm",
+    "rest_of_plan",
+]
+
+#: A re-plan's search gets at least this long (s), whatever its set-up took.
+MIN_SEARCH_S: float = 0.001
+#: The first re-plan's guess (s) of the time outside the search's clock (set-up, check).
+INITIAL_OVERHEAD_S: float = 0.005
+#: How many of the latest re-plans that guess is taken from (their largest).
+OVERHEAD_MEMORY: int = 10
 
 #: The parts of the rest of the plan that the warm starts keep before joining the goal.
 WARM_START_KEPT: tuple[float, ...] = (1.0, 0.75, 0.5, 0.25, 0.0)
@@ -130,7 +144,7 @@ def rest_of_plan(
     goal = np.ascontiguousarray(problem.goal_mm, dtype=np.float64)
     out = []
     for kept in WARM_START_KEPT:
-        part = _first_mm(rest, kept * total)
+        part = first_mm(rest, kept * total)
         end = np.ascontiguousarray(SteerablePlan(tip, part).end_pose())
         conn = goal_connection_unchecked(end, goal, problem.r_min_mm, problem.goal_tolerance_mm)
         if conn is not None:
@@ -138,8 +152,25 @@ def rest_of_plan(
     return out
 
 
-def _first_mm(prims: np.ndarray, length_mm: float) -> np.ndarray:
-    """The first ``length_mm`` of a chain of primitives."""
+def first_mm(prims: np.ndarray, length_mm: float) -> np.ndarray:
+    """The first ``length_mm`` of a chain of primitives.
+
+    Parameters
+    ----------
+    prims : ndarray, shape (m, 3)
+        ``(spin, kappa, length)`` rows.
+    length_mm : float
+
+    Returns
+    -------
+    ndarray, shape (k, 3)
+        The rows up to that length, the last one cut there.
+
+    Examples
+    --------
+    >>> first_mm(np.array([[0.5, 0.0, 10.0], [0.0, 0.02, 10.0]]), 12.0).tolist()
+    [[0.5, 0.0, 10.0], [0.0, 0.02, 2.0]]
+    """
     out = []
     left = length_mm
     for spin, kappa, length in prims:
@@ -161,7 +192,9 @@ class ReplanPolicy:
     min_interval_mm : float
         Insertion between two re-plans.
     time_limit_s : float
-        RCS*'s budget per re-plan.
+        The budget of a whole re-plan: RCS* gets what the continuation problem, the warm
+        starts, the search's set-up and the final check leave of it (those estimated from
+        the latest re-plans).
     max_iterations : int or None
         Its iteration budget (reproducible runs).
     delay_s : float or None
@@ -205,6 +238,8 @@ class Replanner:
         self.adopted = 0
         self.refused = 0
         self.warm_kept = 0
+        # the latest re-plans' time outside the search's clock (its set-up, the check)
+        self._overheads_s: list[float] = [INITIAL_OVERHEAD_S]
         self._last_mm = -math.inf
 
     def due(self, cross_track_mm: float, inserted_mm: float, goal_distance_mm: float) -> bool:
@@ -260,12 +295,15 @@ class Replanner:
             if following is not None and self.policy.warm_start:
                 warm = rest_of_plan(following[0], following[1], cont.start_pose, cont)
             p = self.policy
-            res = self.planner.solve(
-                cont, Termination(p.time_limit_s, p.max_iterations), warm_start=warm
-            )
+            before = time.perf_counter() - t0
+            # the search gets what the set-up and the check leave of the budget
+            left = max(p.time_limit_s - before - max(self._overheads_s), MIN_SEARCH_S)
+            res = self.planner.solve(cont, Termination(left, p.max_iterations), warm_start=warm)
             if res.plan is not None:
                 check = verify_plan(cont, res.plan, expected_cost_mm=res.cost_mm)
                 result = res if check.ok and res.status is PlanStatus.SOLVED else None
+            overhead = time.perf_counter() - t0 - before - res.stats.get("planner_wall_s", 0.0)
+            self._overheads_s = [*self._overheads_s[1 - OVERHEAD_MEMORY :], overhead]
         elapsed = time.perf_counter() - t0
         self.latencies_s.append(elapsed)
         if result is None:

@@ -14,6 +14,7 @@ seed, so they meet the same needle in the same tissue.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,6 +49,9 @@ class ExecutionSettings:
     overrun_mm : float
         Closed loop, the insertion stops at the plan's length plus this, whatever the
         estimate says.
+    record_mm : float
+        The true tip path is recorded every this much insertion (its clearance is
+        certified from those points, less half their gap).
     noise : ExecutionNoise
     sensor : EMSensorSpec
     """
@@ -56,11 +60,12 @@ class ExecutionSettings:
     dt_s: float = 0.005
     lookahead_mm: float = 10.0
     overrun_mm: float = 10.0
+    record_mm: float = 0.25
     noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     sensor: EMSensorSpec = DEFAULT_SENSOR
 
     def __post_init__(self) -> None:
-        for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm"):
+        for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InvalidInputError(name, f"expected a finite number > 0, got {v!r}")
@@ -79,7 +84,7 @@ class ExecutionRun:
     final_error_mm : float
         The true tip's distance from the goal where the insertion stopped.
     points_mm : ndarray, shape (k, 3)
-        The true tip path (RAS mm), about every 0.5 mm.
+        The true tip path (RAS mm), every ``record_mm`` of insertion and at the end.
     inserted_mm : float
     estimate_error_mm : float or None
         Closed loop, the estimate's distance from the true tip at the end.
@@ -89,6 +94,9 @@ class ExecutionRun:
         Re-plans adopted (closed loop with a :class:`~needlekit.execute.replan.Replanner`).
     replan_latency_s : tuple of float
         The measured time of every re-plan, adopted or not.
+    cross_track_mm : ndarray or None
+        Closed loop, the true tip's distance from the plan it was following (its nearest
+        point), at each recorded point: the deviation a clearance margin has to cover.
     """
 
     closed_loop: bool
@@ -99,6 +107,7 @@ class ExecutionRun:
     samples: int = 0
     replans: int = 0
     replan_latency_s: tuple = ()
+    cross_track_mm: np.ndarray | None = None
 
 
 def _open_loop_commands(plan: SteerablePlan, step_mm: float):
@@ -118,6 +127,7 @@ def execute_plan(
     seed,
     settings: ExecutionSettings | None = None,
     replanner: Replanner | None = None,
+    tick_times: list | None = None,
 ) -> ExecutionRun:
     """Insert along ``plan`` in simulated tissue (see the module notes).
 
@@ -134,6 +144,10 @@ def execute_plan(
     settings : ExecutionSettings, optional
     replanner : Replanner, optional
         Closed loop, re-plan from the estimated tip when it drifts from the plan.
+    tick_times : list, optional
+        Closed loop, gets the time (s) of every feedback step: the estimator's update and
+        prediction, the nearest point and the law (not the simulated needle and sensor,
+        nor a re-plan's search).
 
     Returns
     -------
@@ -141,7 +155,11 @@ def execute_plan(
     """
     s = settings or ExecutionSettings()
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    needle_seed, sensor_seed = ss.spawn(2)
+    # ss.spawn(2) of a fresh sequence, without spawning from ss (the same draws each call)
+    needle_seed, sensor_seed = (
+        np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, k), pool_size=ss.pool_size)
+        for k in range(2)
+    )
     goal = np.asarray(goal_mm, dtype=np.float64)
     needle = SimulatedNeedle(plan.start_pose, r_min_mm, s.noise, np.random.default_rng(needle_seed))
     ds = s.insertion_speed_mm_s * s.dt_s
@@ -150,7 +168,7 @@ def execute_plan(
 
     def record() -> None:
         nonlocal last
-        if needle.inserted_mm - last >= 0.5:
+        if needle.inserted_mm - last >= s.record_mm - 1e-9:
             points.append(needle.pose[:3, 3].copy())
             last = needle.inserted_mm
 
@@ -161,10 +179,14 @@ def execute_plan(
         points.append(needle.pose[:3, 3].copy())
         err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
         return ExecutionRun(False, err, np.array(points), needle.inserted_mm)
-    return _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner)
+    return _closed_loop(
+        plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, tick_times
+    )
 
 
-def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner):
+def _closed_loop(
+    plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, tick_times
+):
     sensor = EMSensor(s.sensor, np.random.default_rng(sensor_seed))
     est = TipEstimator(
         plan.start_pose,
@@ -180,8 +202,11 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
     index, t, used, pending = 0, 0.0, 0, None
+    clock = time.perf_counter
+    cross: list[float] = []
     while needle.inserted_mm < limit:
         sample = sensor.update(t, lambda: needle.pose)
+        c0 = clock()
         if sample is not None:
             est.update(sample.taken_s, sample.pose)
             used += 1
@@ -199,19 +224,28 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
             and replanner is not None
             and replanner.due(off, needle.inserted_mm, float(np.linalg.norm(ahead)))
         ):
+            c1 = clock()
             res, took = replanner.replan(pose, needle.inserted_mm, (current, ref.arc_mm[index]))
             if res is not None:
                 pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took)
+            c0 += clock() - c1  # the search is not the feedback step
         spin, kappa = pure_pursuit(pose, ref.ahead(index, s.lookahead_mm), kappa_max)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
+        c1 = clock()
         needle.step(spin, kappa, step, s.dt_s)
+        c2 = clock()
         est.predict(spin, kappa, step, s.dt_s)
+        if tick_times is not None:
+            tick_times.append(clock() - c2 + (c1 - c0))
         t += s.dt_s
+        n = len(points)
         record()
+        if len(points) > n:  # the true tip's deviation, where its path is recorded
+            true = points[-1]
+            cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
     points.append(needle.pose[:3, 3].copy())
     err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
-    if replanner is None:
-        return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used)
+    adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
-                        replanner.adopted, tuple(replanner.latencies_s))  # fmt: skip
+                        adopted, tuple(lat), np.array(cross))  # fmt: skip

@@ -1,0 +1,298 @@
+"""``needlekit execute``: a plan carried out in simulated tissue, open loop beside closed
+loop, over many trials (docs/execute.md)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from needlekit.cli import _flags
+from needlekit.cli._common import (
+    EXIT_OK,
+    _fmt_table,
+    _non_negative,
+    _positive,
+    _positive_int,
+    _seed,
+)
+from needlekit.cli._paths import add_input
+from needlekit.errors import InvalidInputError
+
+#: What ``needlekit execute`` writes in its --out folder.
+EXECUTE_FILES = ("execute.json",)
+
+#: Upper ends of the noise flags: beyond them the model is not a needle in tissue.
+NOISE_LIMITS = {
+    "orientation_noise_rad": 0.05,  # per 0.1 s: 0.5 rad per second of insertion
+    "deflection_sd": 0.2,  # mm per mm: the tip pushed 20 mm off over 100 mm
+}
+#: ``--radius-sd-mm`` at most this fraction of r_min (a radius 5 SD short stays > 0).
+RADIUS_SD_FRACTION = 0.2
+
+_EPILOG = """\
+example:
+  needlekit plan examples/medrad_lung1.yaml --out out/lung1/plan.json
+  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trials 100 --seed 0 \\
+      --out out/lung1 --workers 2
+  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trial 17 --out out/t17
+"""
+
+
+def check_noise_flags(args: argparse.Namespace) -> None:
+    """The noise flags' values within :data:`NOISE_LIMITS`, before any work.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Named by the flag.
+    """
+    for name, top in NOISE_LIMITS.items():
+        v = getattr(args, name)
+        if v is not None and v > top:
+            flag = "--" + name.replace("_", "-")
+            raise InvalidInputError(flag, f"expected at most {top:g}, got {v:g}")
+
+
+def _check_flags(args: argparse.Namespace) -> None:
+    """Every flag's value, before the anatomy loads."""
+    check_noise_flags(args)
+    if args.trial is not None and args.trial >= args.trials:
+        raise InvalidInputError(
+            "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
+        )
+    if args.trial is not None and args.resume:
+        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
+
+
+def execute_options(args: argparse.Namespace, r_min_mm: float):
+    """The trials' options from the flags of :func:`add_noise_flags`.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    r_min_mm : float
+        The needle's radius of curvature (``--radius-sd-mm`` is held to a fifth of it).
+
+    Returns
+    -------
+    ExecuteOptions
+    """
+    from dataclasses import replace
+
+    from needlekit.execute.needle_sim import ExecutionNoise
+    from needlekit.execute.replan import ReplanPolicy
+    from needlekit.execute.run import ExecutionSettings
+    from needlekit.studies.execute_study import ExecuteOptions
+
+    noise = ExecutionNoise()
+    if args.orientation_noise_rad is not None:
+        noise = replace(noise, orientation_sigma_rad=args.orientation_noise_rad)
+    if args.radius_sd_mm is not None:
+        top = RADIUS_SD_FRACTION * r_min_mm
+        if args.radius_sd_mm > top:
+            raise InvalidInputError(
+                "--radius-sd-mm",
+                f"expected at most {top:g} ({RADIUS_SD_FRACTION:g} r_min), got {args.radius_sd_mm:g}",
+            )
+        noise = replace(noise, radius_sigma_mm=args.radius_sd_mm)
+    if args.deflection_sd is not None:
+        noise = replace(noise, deflection_sigma=args.deflection_sd)
+    policy = ReplanPolicy(
+        cross_track_mm=args.cross_track_mm,
+        time_limit_s=args.replan_time_limit_s,
+        max_iterations=args.replan_iterations,
+        delay_s=None if args.replan_delay_ms is None else args.replan_delay_ms / 1e3,
+        warm_start=not args.no_warm_start,
+    )
+    settings = ExecutionSettings(insertion_speed_mm_s=args.speed_mm_s, noise=noise)
+    return ExecuteOptions(settings, policy, replan=not args.no_replan)
+
+
+def load_checked_plan(args: argparse.Namespace):
+    """The scenario's source and problem and the plan, the plan checked against the
+    scenario (made for it, and passing its check) before any trial.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``scenario``, ``plan``, ``cache_dir``, ``no_cache``.
+
+    Returns
+    -------
+    (ScenarioSource, SteerableProblem, SteerablePlan, str)
+        The source, its problem, the plan and the scenario's name.
+
+    Raises
+    ------
+    InvalidInputError
+        A plan with no path, made for another start or goal, or failing its check.
+    """
+    import numpy as np
+
+    from needlekit.io.scenario_schema import read_scenario_document
+    from needlekit.planning.steerable.verify import verify_plan
+    from needlekit.scenario.problems import ScenarioSource
+    from needlekit.scenario.results import read_plan_json
+
+    read_scenario_document(args.scenario)  # a bad scenario file: before the anatomy loads
+    plan, goal, _ = read_plan_json(args.plan)
+    if plan is None:
+        raise InvalidInputError("plan", f"{args.plan.name} holds no plan to carry out")
+    source = ScenarioSource.of(args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache)
+    scenario, problem = source.cached()
+    other = []
+    if not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
+        other.append("its start pose")
+    if not np.allclose(goal, problem.goal_mm, rtol=0.0, atol=1e-6):
+        other.append("its goal")
+    if other:
+        raise InvalidInputError(
+            "plan",
+            f"{args.plan.name} was made for another scenario: {' and '.join(other)} differ "
+            f"from {args.scenario.name}'s",
+        )
+    check = verify_plan(problem, plan)
+    if not check.ok:
+        raise InvalidInputError(
+            "plan", f"{args.plan.name} fails its check against {args.scenario.name}: "
+            + "; ".join(check.violations)
+        )  # fmt: skip
+    return source, problem, plan, scenario.name or args.scenario.name
+
+
+def _cmd_execute(args: argparse.Namespace) -> int:
+    _check_flags(args)
+    from tqdm import tqdm
+
+    from needlekit.batch import open_executor
+    from needlekit.studies.execute_study import read_partial_execute, run_execute_study
+
+    source, problem, plan, name = load_checked_plan(args)
+    options = execute_options(args, 1.0 / problem.kappa_max_per_mm)
+    trials = [args.trial] if args.trial is not None else list(range(args.trials))
+    resume = None
+    if args.resume:
+        resume = read_partial_execute(args.out, name, plan, args.seed, trials, options)
+    with (
+        open_executor(
+            args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
+        ) as ex,
+        tqdm(
+            total=len(trials), initial=len(resume or ()), desc="execute", unit="trial", disable=None
+        ) as bar,  # fmt: skip
+    ):
+        study = run_execute_study(
+            args.out, source, plan, trials=trials, seed=args.seed, options=options,
+            executor=None if args.executor == "serial" else ex,
+            progress=lambda _: bar.update(1), resume=resume, scenario_name=name,
+        )  # fmt: skip
+    s = study.document["summary"]
+    print(_summary_table(s))
+    for c in s["crashed"]:
+        print(f"  trial {c['trial']} crashed: {c['error']}")
+    print(f"-> {study.path}")
+    crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
+    return EXIT_OK if not s["crashed"] and crossed == 0 else 1
+
+
+def _summary_table(s: dict) -> str:
+    rows = []
+    for loop in ("open_loop", "closed_loop"):
+        r = s[loop]
+        e, c, lat = r["final_error_mm"], r["min_clearance_mm"], r["replan_latency_ms"]
+        rows.append([
+            loop.replace("_", " "), e.get("mean", math.nan), e.get("sd", math.nan),
+            e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), c.get("min", math.nan),
+            r["violated"], r["replans"].get("mean", math.nan), lat.get("p95", math.nan),
+        ])  # fmt: skip
+    head = ["run", "error mean", "sd", "max", "% <= 1 mm", "min clearance", "crossed",
+            "re-plans", "re-plan p95 ms"]  # fmt: skip
+    return (
+        _fmt_table(head, rows)
+        + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
+    )
+
+
+def add_noise_flags(p) -> None:
+    """The needle's, the tissue's and the closed loop's flags (``execute`` and ``study
+    execute-lungs``).
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    None
+    """
+    noise = p.add_argument_group("the needle and the tissue (defaults: docs/execute.md)")
+    noise.add_argument("--orientation-noise-rad", type=_non_negative, metavar="RAD",
+                       help="orientation noise SD per 0.1 s of insertion (default pi/2000)")  # fmt: skip
+    noise.add_argument("--radius-sd-mm", type=_non_negative, metavar="MM",
+                       help="SD of the needle's radius of curvature (default 3)")  # fmt: skip
+    noise.add_argument("--deflection-sd", type=_non_negative, metavar="MM_PER_MM",
+                       help="SD of the tissue's lateral push per mm inserted (default 0.01)")  # fmt: skip
+    noise.add_argument("--speed-mm-s", type=_positive, default=2.0,
+                       help="insertion speed (default 2 mm/s)")  # fmt: skip
+    loop = p.add_argument_group("the closed loop")
+    loop.add_argument("--no-replan", action="store_true", help="feedback to the plan only")
+    loop.add_argument("--no-warm-start", action="store_true",
+                      help="re-plan without the rest of the plan as RCS*'s first best")  # fmt: skip
+    loop.add_argument("--cross-track-mm", type=_positive, default=0.5,
+                      help="re-plan when the estimate is this far off the plan (default 0.5)")  # fmt: skip
+    loop.add_argument("--replan-time-limit-s", type=_positive, default=0.025,
+                      help="RCS*'s budget per re-plan (default 0.025)")  # fmt: skip
+    loop.add_argument("--replan-iterations", type=_positive_int, metavar="N",
+                      help="RCS*'s iteration budget per re-plan (reproducible runs)")  # fmt: skip
+    loop.add_argument("--replan-delay-ms", type=_non_negative, metavar="MS",
+                      help="the time a re-plan takes in the simulation (default: the "
+                      "search's measured time; a fixed value replays exactly)")  # fmt: skip
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``execute`` to the ``needlekit`` parser.
+
+    Parameters
+    ----------
+    sub : argparse._SubParsersAction
+        The top-level parser's sub-commands.
+
+    Returns
+    -------
+    None
+    """
+    ex = sub.add_parser(
+        "execute",
+        help="carry a plan out in simulated tissue: open loop beside closed loop (tracked "
+        "tip, feedback, re-planning), many trials",
+        description="Insert a steerable plan with a needle that does not follow its model "
+        "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
+        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle or a "
+        "trial crashed.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_input(ex, "scenario", help="scenario file (YAML): anatomy, needle, margin")
+    add_input(ex, "plan", help="plan file (plan.json) made for the scenario")
+    ex.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
+    ex.add_argument("--trial", type=_seed, metavar="K", help="run trial K alone (its seed)")
+    _flags.SEED.add(ex, default=0, help="root seed (default 0)")
+    _flags.OUT.add(
+        ex, folder=True, contents=EXECUTE_FILES, default="out/execute",
+        help="output folder (default out/execute)",
+    )  # fmt: skip
+    add_noise_flags(ex)
+    _flags.add_cache_options(ex)
+    _flags.add_executor_options(ex)
+    _flags.RESUME.add(
+        ex, help="carry on from the partial DIR/execute.json an interrupted run wrote"
+    )
+    ex.set_defaults(command_handler=_cmd_execute)

@@ -1,0 +1,259 @@
+"""The closed loop on the Med-RAD lungs (issue 21, point 3; ``needlekit study execute-lungs``).
+
+For each lung (start 1 to its target; the needle and the exact voxel-centre test of
+``examples/medrad_lung1.yaml``):
+
+1. **The margin the noise asks for.** RCS* plans with no margin; a pilot of closed-loop
+   trials (their own seeds, never a trial's) carries that plan out and measures how far
+   the true tip strays from the plan it follows (``cross_track_mm`` at every recorded
+   point). The margin wanted is :func:`~needlekit.execute.replan.noise_margin_mm` of that
+   deviation's RMS for the stated crossing probability (per recorded point; default
+   0.001, ``k = 3.09``).
+2. **The margin the anatomy allows.** RCS* plans again with the margin wanted, rounded up
+   to 0.05 mm, then 0.1 mm less each time, down to none, until it solves: a tight
+   passage (a transbronchial start on the airway wall, a vessel beside the path) may not
+   leave room for the whole margin. Both are written per case.
+3. **The study.** ``DIR/lungN/scenario.yaml`` (with the margin) and ``plan.json`` are
+   written, and the trials run exactly as ``needlekit execute DIR/lungN/scenario.yaml
+   DIR/lungN/plan.json --trials T --seed S --out DIR/lungN`` runs them
+   (:func:`~needlekit.studies.execute_study.run_execute_study`), into
+   ``DIR/lungN/execute.json``.
+
+``DIR/execute_lungs.json`` gathers the cases and judges each against issue 21's targets:
+closed-loop mean error at most 0.5 mm, at least 95 % of trials within 1 mm, no obstacle
+crossed (open or closed loop figures beside them, judged on nothing).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from needlekit import __version__
+from needlekit.execute.replan import noise_margin_mm
+from needlekit.io.files import write_json, write_text
+from needlekit.io.plans import write_plan_json
+from needlekit.planning.steerable.rcs import solve_rcs
+from needlekit.scenario.problems import ScenarioSource, problem_from_scenario
+from needlekit.studies.execute_study import (
+    ExecuteOptions,
+    lung_scenario_document,
+    run_execute_study,
+    run_execute_trial,
+)
+
+__all__ = [
+    "CROSSING_PROBABILITY",
+    "PILOT_KEY",
+    "TARGETS",
+    "pilot_deviation",
+    "plan_with_margin",
+    "run_execute_lungs",
+]
+
+#: Issue 21's targets on the five lungs.
+TARGETS = {"closed_mean_error_mm": 0.5, "closed_within_1mm": 0.95, "crossed": 0}
+#: The crossing probability (per recorded point) the margin wanted is set for.
+CROSSING_PROBABILITY: float = 0.001
+#: The pilot's seeds: ``SeedSequence(seed, spawn_key=(PILOT_KEY, k))`` (a trial's has
+#: one key, so they never meet).
+PILOT_KEY: int = 0x9170
+#: The steps the margin comes down by when the anatomy does not leave room (mm).
+MARGIN_STEP_MM: float = 0.1
+#: RCS*'s budget for each plan of the study (s).
+PLAN_TIME_LIMIT_S: float = 1.0
+
+
+def pilot_deviation(problem, truth, plan, options: ExecuteOptions, seed: int, trials: int) -> float:
+    """The RMS of the true tip's distance from the plan it follows, over closed-loop pilot
+    trials.
+
+    Parameters
+    ----------
+    problem, truth : SteerableProblem
+        The problem (re-plans) and its margin-free twin (as for
+        :func:`~needlekit.studies.execute_study.run_execute_trial`).
+    plan : SteerablePlan
+    options : ExecuteOptions
+    seed, trials : int
+
+    Returns
+    -------
+    float
+        mm.
+    """
+    squares = []
+    for k in range(trials):
+        ss = np.random.SeedSequence(seed, spawn_key=(PILOT_KEY, k))
+        rec = run_execute_trial(problem, truth, plan, ss, options, loops=("closed_loop",))
+        squares += [d * d for d in rec["closed_loop"]["cross_track_mm"]]
+    return math.sqrt(sum(squares) / len(squares)) if squares else 0.0
+
+
+def plan_with_margin(patient: int, wanted_mm: float, medrad_dir=None):
+    """Plan lung ``patient`` with the largest margin up to ``wanted_mm`` that RCS* solves.
+
+    Parameters
+    ----------
+    patient : int
+    wanted_mm : float
+    medrad_dir : path-like, optional
+
+    Returns
+    -------
+    (float, dict, ScenarioSource, PlanResult)
+        The margin kept, the scenario document, its source and the plan (the last one
+        tried, margin 0, when none solves).
+    """
+    top = math.ceil(wanted_mm / 0.05 - 1e-9) * 0.05
+    margins = [round(top - i * MARGIN_STEP_MM, 4) for i in range(int(top / MARGIN_STEP_MM) + 1)]
+    if margins[-1] > 0.0:
+        margins.append(0.0)
+    for m in margins:
+        doc = lung_scenario_document(patient, m, medrad_dir)
+        source = ScenarioSource.of_document(doc, ".", name=f"lung{patient}.yaml")
+        _, problem = source.cached()
+        res = solve_rcs(problem, time_limit_s=PLAN_TIME_LIMIT_S)
+        if res.status.value == "solved":
+            break
+    return m, doc, source, res
+
+
+def _case(out: Path, patient: int, trials: int, seed: int, options, executor, progress,
+          medrad_dir, pilot_trials: int, crossing_probability: float) -> dict:  # fmt: skip
+    row = {"patient": patient}
+    doc0 = lung_scenario_document(patient, 0.0, medrad_dir)
+    src0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml")
+    sc0, problem0 = src0.cached()
+    res0 = solve_rcs(problem0, time_limit_s=PLAN_TIME_LIMIT_S)
+    if res0.status.value != "solved":
+        return {**row, "status": res0.status.value, "reason": "no plan without a margin"}
+    truth = problem_from_scenario(sc0, safety_margin_mm=0.0)
+    sigma = pilot_deviation(problem0, truth, res0.plan, options, seed, pilot_trials)
+    wanted = noise_margin_mm(sigma, crossing_probability)
+    margin, doc, source, res = plan_with_margin(patient, wanted, medrad_dir)
+    if res.status.value != "solved":
+        return {**row, "status": res.status.value, "reason": "no plan with the margin"}
+    case_dir = out / f"lung{patient}"
+    scenario_path = case_dir / "scenario.yaml"
+    head = f"# Med-RAD lung {patient} (CC BY-NC-SA 4.0), written by needlekit study execute-lungs\n"
+    write_text(scenario_path, head + yaml.safe_dump(doc, sort_keys=False))
+    write_plan_json(case_dir / "plan.json", res, scenario="scenario.yaml")
+    study = run_execute_study(case_dir, source, res.plan, trials=list(range(trials)), seed=seed,
+                              options=options, executor=executor, progress=progress,
+                              scenario_name=doc["name"])  # fmt: skip
+    s = study.document["summary"]
+    c, o = s["closed_loop"], s["open_loop"]
+    verdict = {
+        "closed_mean_error_mm": c["final_error_mm"].get("mean", math.inf)
+        <= TARGETS["closed_mean_error_mm"],
+        "closed_within_1mm": (c["within_1mm"] or 0.0) >= TARGETS["closed_within_1mm"],
+        "crossed": c["violated"] == 0 and not s["crashed"],
+    }
+    return {
+        **row,
+        "status": "done",
+        "plan_cost_mm": float(res.cost_mm),
+        "pilot_cross_track_rms_mm": sigma,
+        "margin_wanted_mm": wanted,
+        "margin_mm": margin,
+        "closed_loop": _brief(c),
+        "open_loop": _brief(o),
+        "crashed": len(s["crashed"]),
+        "verdict": verdict,
+        "holds": all(verdict.values()),
+        "execute_json": str(study.path.relative_to(out)),
+    }
+
+
+def _brief(loop: dict) -> dict:
+    e = loop["final_error_mm"]
+    return {
+        "mean_error_mm": e.get("mean"),
+        "sd_error_mm": e.get("sd"),
+        "max_error_mm": e.get("max"),
+        "within_1mm": loop["within_1mm"],
+        "violated": loop["violated"],
+        "min_clearance_mm": loop["min_clearance_mm"].get("min"),
+        "replans_mean": loop["replans"].get("mean"),
+        "replan_latency_p95_ms": loop["replan_latency_ms"].get("p95"),
+        "cross_track_rms_mm": loop.get("cross_track_rms_mm"),
+    }
+
+
+def run_execute_lungs(
+    out_dir: str | os.PathLike,
+    *,
+    patients=(1, 2, 3, 4, 5),
+    trials: int = 100,
+    seed: int = 0,
+    options: ExecuteOptions | None = None,
+    executor=None,
+    progress: Callable[[dict], None] | None = None,
+    medrad_dir=None,
+    pilot_trials: int = 10,
+    crossing_probability: float = CROSSING_PROBABILITY,
+) -> dict:
+    """Run the study (module notes) and write ``out_dir/execute_lungs.json``.
+
+    Parameters
+    ----------
+    out_dir : path-like
+    patients : sequence of int
+    trials : int
+        Trials per lung.
+    seed : int
+    options : ExecuteOptions, optional
+    executor : concurrent.futures.Executor, optional
+        Runs each lung's trials.
+    progress : callable, optional
+        Called with each finished trial.
+    medrad_dir : path-like, optional
+    pilot_trials : int
+        Closed-loop trials measuring the deviation, per lung.
+    crossing_probability : float
+
+    Returns
+    -------
+    dict
+        The record written: ``cases`` (per lung: the pilot's deviation, the margin wanted
+        and kept, closed- and open-loop figures, verdicts), ``targets``, ``holds``.
+    """
+    options = options or ExecuteOptions()
+    out = Path(out_dir)
+    t0 = time.perf_counter()
+    cases = [
+        _case(
+            out,
+            p,
+            trials,
+            seed,
+            options,
+            executor,
+            progress,
+            medrad_dir,
+            pilot_trials,
+            crossing_probability,
+        )
+        for p in patients
+    ]
+    record = {
+        "needlekit_version": __version__,
+        "patients": list(patients),
+        "trials": trials,
+        "seed": seed,
+        "pilot_trials": pilot_trials,
+        "crossing_probability": crossing_probability,
+        "targets": TARGETS,
+        "cases": cases,
+        "holds": all(c.get("holds", False) for c in cases),
+        "wall_s": time.perf_counter() - t0,
+    }
+    write_json(out / "execute_lungs.json", record)
+    return record
