@@ -35,6 +35,7 @@ def test_bench_execute_times_every_replan_warm_and_cold_and_the_feedback_steps(
     s = record["summary"]
     assert s["replans"] == 3 and s["targets"] == {"replan_p95_ms": 25.0, "feedback_p99_ms": 1.0}
     assert isinstance(s["replan_within_target"], bool)
+    assert record["verdict"].startswith("re-plan p95") and "verdict:" in capsys.readouterr().out
 
 
 def test_the_margin_comes_down_to_what_lung_1_allows(medrad_dir):

@@ -155,8 +155,10 @@ def run_execute_benchmark(
         rows.append(row)
         if progress is not None:
             progress(f"lung{patient}")
+    summary = _summary(warm, cold, ticks)
     return {
         "benchmark": "execute",
+        "verdict": _verdict(summary),
         "machine": machine_info(),
         "inputs": {
             "patients": list(patients),
@@ -168,8 +170,20 @@ def run_execute_benchmark(
             "tip_turn_sd_deg": TIP_TURN_SD_DEG,
         },
         "results": rows,
-        "summary": _summary(warm, cold, ticks),
+        "summary": summary,
     }
+
+
+def _verdict(s: dict) -> str:
+    if not s.get("replans"):
+        return "nothing timed (no lung planned)"
+    ok = s["replan_within_target"] and s["feedback_within_target"]
+    return (
+        f"re-plan p95 {s['replan_p95_ms']:.2f} ms over {s['replans']} re-plans (target "
+        f"{REPLAN_P95_MS:g}; cold {s['cold_replan_p95_ms']:.2f}, warm/cold "
+        f"{s['warm_over_cold_p95']:.2f}), feedback step p99 {1e3 * s['feedback_p99_ms']:.0f} us "
+        f"(target {1e3 * FEEDBACK_P99_MS:.0f}): {'within' if ok else 'MISSES'} the targets"
+    )
 
 
 def _summary(warm: list, cold: list, ticks: list) -> dict:

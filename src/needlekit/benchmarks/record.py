@@ -41,7 +41,7 @@ def format_record(record: dict[str, Any]) -> str:
     ----------
     record : dict
         ``benchmark``, ``machine`` (:func:`machine_info`), ``inputs`` and ``results`` (rows
-        with ``name`` and ``summary``).
+        with ``name`` and ``summary``), and optionally ``verdict`` (one line).
 
     Returns
     -------
@@ -55,4 +55,6 @@ def format_record(record: dict[str, Any]) -> str:
     lines.append("inputs:    " + ", ".join(f"{k}={v}" for k, v in record["inputs"].items()))
     for row in record["results"]:
         lines.append(f"  {row['name']:<28} {row['summary']}")
+    if record.get("verdict"):  # a suite's judgement of its pooled figures
+        lines.append(f"verdict:   {record['verdict']}")
     return "\n".join(lines)

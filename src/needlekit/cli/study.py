@@ -203,7 +203,7 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
             args.out, patients=patients, trials=args.trials, seed=args.seed, options=options,
             executor=None if args.executor == "serial" else ex, progress=lambda _: bar.update(1),
             medrad_dir=args.medrad, pilot_trials=args.pilot_trials,
-            crossing_probability=args.crossing_probability,
+            crossing_probability=args.crossing_probability, resume=args.resume,
         )  # fmt: skip
     rows = []
     for c in record["cases"]:
@@ -258,6 +258,11 @@ def _register_execute_lungs(study_sub) -> None:
     add_noise_flags(se)
     _flags.add_medrad(se)
     _flags.add_executor_options(se)
+    _flags.RESUME.add(
+        se,
+        help="carry on from the partial DIR/execute_lungs.json an interrupted run wrote (the "
+        "lungs done kept, the one under way from its margin, plan and trials done)",
+    )
     se.set_defaults(command_handler=_cmd_study_execute_lungs)
 
 

@@ -30,20 +30,26 @@ import math
 import os
 import time
 from collections.abc import Callable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from needlekit import __version__
+from needlekit.errors import Interrupted
 from needlekit.execute.replan import noise_margin_mm
 from needlekit.io.files import write_json, write_text
+from needlekit.io.partial import read_partial, write_partial
 from needlekit.io.plans import write_plan_json
+from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
 from needlekit.scenario.problems import ScenarioSource, problem_from_scenario
 from needlekit.studies.execute_study import (
+    EXECUTE_FILE,
     ExecuteOptions,
     lung_scenario_document,
+    read_partial_execute,
     run_execute_study,
     run_execute_trial,
 )
@@ -57,6 +63,8 @@ __all__ = [
     "run_execute_lungs",
 ]
 
+#: The study's record in its --out folder.
+LUNGS_FILE = "execute_lungs.json"
 #: Issue 21's targets on the five lungs.
 TARGETS = {"closed_mean_error_mm": 0.5, "closed_within_1mm": 0.95, "crossed": 0}
 #: The crossing probability (per recorded point) the margin wanted is set for.
@@ -125,29 +133,67 @@ def plan_with_margin(patient: int, wanted_mm: float, medrad_dir=None):
     return m, doc, source, res
 
 
-def _case(out: Path, patient: int, trials: int, seed: int, options, executor, progress,
-          medrad_dir, pilot_trials: int, crossing_probability: float) -> dict:  # fmt: skip
-    row = {"patient": patient}
-    doc0 = lung_scenario_document(patient, 0.0, medrad_dir)
-    src0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml")
-    sc0, problem0 = src0.cached()
+@dataclass
+class _Study:
+    """What every case of one run shares."""
+
+    out: Path
+    trials: int
+    seed: int
+    options: ExecuteOptions
+    executor: object
+    progress: Callable | None
+    medrad_dir: object
+    pilot_trials: int
+    crossing_probability: float
+
+
+def _decide(st: _Study, patient: int) -> dict:
+    """The margin and the plan of one lung (steps 1 and 2), its files written."""
+    doc0 = lung_scenario_document(patient, 0.0, st.medrad_dir)
+    sc0, problem0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml").cached()
     res0 = solve_rcs(problem0, time_limit_s=PLAN_TIME_LIMIT_S)
     if res0.status.value != "solved":
-        return {**row, "status": res0.status.value, "reason": "no plan without a margin"}
+        return {"patient": patient, "status": res0.status.value,
+                "reason": "no plan without a margin"}  # fmt: skip
     truth = problem_from_scenario(sc0, safety_margin_mm=0.0)
-    sigma = pilot_deviation(problem0, truth, res0.plan, options, seed, pilot_trials)
-    wanted = noise_margin_mm(sigma, crossing_probability)
-    margin, doc, source, res = plan_with_margin(patient, wanted, medrad_dir)
+    sigma = pilot_deviation(problem0, truth, res0.plan, st.options, st.seed, st.pilot_trials)
+    wanted = noise_margin_mm(sigma, st.crossing_probability)
+    margin, doc, _, res = plan_with_margin(patient, wanted, st.medrad_dir)
     if res.status.value != "solved":
-        return {**row, "status": res.status.value, "reason": "no plan with the margin"}
-    case_dir = out / f"lung{patient}"
-    scenario_path = case_dir / "scenario.yaml"
+        return {"patient": patient, "status": res.status.value,
+                "reason": "no plan with the margin"}  # fmt: skip
+    case_dir = st.out / f"lung{patient}"
     head = f"# Med-RAD lung {patient} (CC BY-NC-SA 4.0), written by needlekit study execute-lungs\n"
-    write_text(scenario_path, head + yaml.safe_dump(doc, sort_keys=False))
+    write_text(case_dir / "scenario.yaml", head + yaml.safe_dump(doc, sort_keys=False))
     write_plan_json(case_dir / "plan.json", res, scenario="scenario.yaml")
-    study = run_execute_study(case_dir, source, res.plan, trials=list(range(trials)), seed=seed,
-                              options=options, executor=executor, progress=progress,
-                              scenario_name=doc["name"])  # fmt: skip
+    return {
+        "patient": patient,
+        "status": "planned",
+        "plan_cost_mm": float(res.cost_mm),
+        "plan_primitives": res.plan.primitives.tolist(),
+        "pilot_cross_track_rms_mm": sigma,
+        "margin_wanted_mm": wanted,
+        "margin_mm": margin,
+    }
+
+
+def _run_case(st: _Study, decided: dict, resume: bool) -> dict:
+    """The trials of one planned lung (step 3), carried on from its partial execute.json
+    when ``resume``."""
+    patient = decided["patient"]
+    doc = lung_scenario_document(patient, decided["margin_mm"], st.medrad_dir)
+    source = ScenarioSource.of_document(doc, ".", name=f"lung{patient}.yaml")
+    _, problem = source.cached()
+    plan = SteerablePlan(problem.start_pose, decided["plan_primitives"])
+    case_dir = st.out / f"lung{patient}"
+    trials = list(range(st.trials))
+    kept = None
+    if resume and (case_dir / EXECUTE_FILE).exists():
+        kept = read_partial_execute(case_dir, doc["name"], plan, st.seed, trials, st.options)
+    study = run_execute_study(case_dir, source, plan, trials=trials, seed=st.seed,
+                              options=st.options, executor=st.executor, progress=st.progress,
+                              resume=kept, scenario_name=doc["name"])  # fmt: skip
     s = study.document["summary"]
     c, o = s["closed_loop"], s["open_loop"]
     verdict = {
@@ -157,18 +203,28 @@ def _case(out: Path, patient: int, trials: int, seed: int, options, executor, pr
         "crossed": c["violated"] == 0 and not s["crashed"],
     }
     return {
-        **row,
+        **{k: v for k, v in decided.items() if k != "plan_primitives"},
         "status": "done",
-        "plan_cost_mm": float(res.cost_mm),
-        "pilot_cross_track_rms_mm": sigma,
-        "margin_wanted_mm": wanted,
-        "margin_mm": margin,
         "closed_loop": _brief(c),
         "open_loop": _brief(o),
         "crashed": len(s["crashed"]),
         "verdict": verdict,
         "holds": all(verdict.values()),
-        "execute_json": str(study.path.relative_to(out)),
+        "execute_json": str(study.path.relative_to(st.out)),
+    }
+
+
+def _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options) -> dict:
+    """What a partial record holds besides its cases, and a resumed run must share."""
+    return {
+        "needlekit_version": __version__,
+        "patients": list(patients),
+        "trials": trials,
+        "seed": seed,
+        "pilot_trials": pilot_trials,
+        "crossing_probability": crossing_probability,
+        "targets": TARGETS,
+        "options": asdict(options),
     }
 
 
@@ -199,6 +255,7 @@ def run_execute_lungs(
     medrad_dir=None,
     pilot_trials: int = 10,
     crossing_probability: float = CROSSING_PROBABILITY,
+    resume: bool = False,
 ) -> dict:
     """Run the study (module notes) and write ``out_dir/execute_lungs.json``.
 
@@ -218,42 +275,59 @@ def run_execute_lungs(
     pilot_trials : int
         Closed-loop trials measuring the deviation, per lung.
     crossing_probability : float
+    resume : bool
+        Carry on from the partial ``execute_lungs.json`` an interrupted run wrote (signed:
+        the lungs done kept as they are, the one under way from its margin, plan and
+        partial ``execute.json``).
 
     Returns
     -------
     dict
         The record written: ``cases`` (per lung: the pilot's deviation, the margin wanted
         and kept, closed- and open-loop figures, verdicts), ``targets``, ``holds``.
+
+    Raises
+    ------
+    Interrupted
+        Ctrl-C: the lungs done (and the one under way, with its margin and plan) written to
+        ``execute_lungs.json`` marked partial, its trials done in its ``execute.json``.
     """
     options = options or ExecuteOptions()
     out = Path(out_dir)
+    st = _Study(out, trials, seed, options, executor, progress, medrad_dir, pilot_trials,
+                crossing_probability)  # fmt: skip
+    path = out / LUNGS_FILE
+    head = _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options)
+    cases: list[dict] = []
+    current = None
+    if resume:
+        data = read_partial(path, "execute-lungs record", head)
+        cases, current = list(data.get("cases") or []), data.get("current")
     t0 = time.perf_counter()
-    cases = [
-        _case(
-            out,
-            p,
-            trials,
-            seed,
-            options,
-            executor,
-            progress,
-            medrad_dir,
-            pilot_trials,
-            crossing_probability,
-        )
-        for p in patients
-    ]
+    try:
+        for p in patients:
+            if any(c["patient"] == p for c in cases):
+                continue
+            carried = current is not None and current["patient"] == p
+            decided = current if carried else _decide(st, p)
+            if decided["status"] != "planned":
+                cases.append(decided)
+                continue
+            write_partial(path, {**head, "cases": cases, "current": decided})
+            cases.append(_run_case(st, decided, resume=carried))
+            write_partial(path, {**head, "cases": cases})
+    except (Interrupted, KeyboardInterrupt):
+        raise Interrupted(
+            f"{len(cases)} of {len(patients)} lungs done (the trials of the one under way kept "
+            f"in its execute.json); written to {path} marked partial; the same command with "
+            "--resume carries on"
+        ) from None
     record = {
-        "needlekit_version": __version__,
-        "patients": list(patients),
-        "trials": trials,
-        "seed": seed,
-        "pilot_trials": pilot_trials,
-        "crossing_probability": crossing_probability,
-        "targets": TARGETS,
+        **head,
         "cases": cases,
         "holds": all(c.get("holds", False) for c in cases),
+        "resumed": bool(resume),  # then wall_s covers the rest only
         "wall_s": time.perf_counter() - t0,
     }
-    write_json(out / "execute_lungs.json", record)
+    write_json(path, record)
     return record
