@@ -213,12 +213,12 @@ def test_the_walk_sees_imports_inside_functions(tmp_path):
 
 #: Third-party packages whose loading a function-level import may defer: slow to import
 #: (numba compiles or loads its kernels; scipy, plotly, matplotlib, trimesh ...) or an
-#: optional extra (dask, vtk, quadprog, the TRO 2022 wheel, selenium). numpy is loaded by
-#: every module.
+#: optional extra (dask, vtk, quadprog, the TRO 2022 wheel, selenium, pyigtl). numpy is
+#: loaded by every module.
 DEFERRABLE = {
     "numba", "scipy", "plotly", "matplotlib", "nibabel", "nrrd", "isal", "edt", "trimesh",
     "rtree", "skimage", "yaml", "jsonschema", "tqdm", "dqrobotics", "daqp", "dask",
-    "distributed", "vtk", "marinholab", "quadprog", "selenium",
+    "distributed", "vtk", "marinholab", "quadprog", "selenium", "pyigtl",
 }  # fmt: skip
 
 #: The command line and its start-up helpers defer what they like (a command loads only

@@ -126,10 +126,10 @@ def test_a_trial_that_crashes_is_recorded_with_its_seed_and_the_others_go_on(
     plan, _, _ = read_plan_json(toy_plan)
     real = execute_study.run_execute_trial
 
-    def flaky(problem, truth, plan, seed, options, loops=("open_loop", "closed_loop")):
+    def flaky(problem, truth, plan, seed, options, **kw):
         if seed.spawn_key == (1,):
             raise FloatingPointError("the needle broke")
-        return real(problem, truth, plan, seed, options, loops)
+        return real(problem, truth, plan, seed, options, **kw)
 
     monkeypatch.setattr(execute_study, "run_execute_trial", flaky)
     doc = _study(tmp_path, plan, trials=[0, 1, 2]).document

@@ -12,7 +12,7 @@ the given margin), RCS* plans; then
   record gives both and their ratio. Target (issue 21): p95 at most 25 ms, one sensor
   period at 40 Hz.
 - **feedback step**: closed-loop trials with the default noise and sensor, every step of
-  the controller timed (:func:`~needlekit.execute.run.execute_plan`'s ``tick_times``:
+  the controller timed (:class:`~needlekit.execute.run.LoopHooks`' ``tick_times``:
   the estimator's update and prediction, the nearest point, the law). Target: p99 at most
   1 ms.
 
@@ -30,7 +30,7 @@ import numpy as np
 from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.timing import step_statistics
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
-from needlekit.execute.run import execute_plan
+from needlekit.execute.run import LoopHooks, execute_plan
 from needlekit.geometry.so3 import so3_exp
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
@@ -142,7 +142,7 @@ def run_execute_benchmark(
             rep = Replanner(problem)
             execute_plan(res.plan, problem.goal_mm, r_min, closed_loop=True,
                          seed=np.random.SeedSequence(seed, spawn_key=(patient, k)),
-                         replanner=rep, tick_times=times)  # fmt: skip
+                         replanner=rep, hooks=LoopHooks(tick_times=times))  # fmt: skip
         row["feedback_step_us"] = step_statistics(times)
         warm += row["replan"]["warm"]["latencies_ms"]
         cold += row["replan"]["cold"]["latencies_ms"]

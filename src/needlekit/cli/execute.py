@@ -70,6 +70,22 @@ def _check_flags(args: argparse.Namespace) -> None:
         )
     if args.trial is not None and args.resume:
         raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
+    if args.tip_from_igtl is not None and args.igtl is None:
+        raise InvalidInputError(
+            "--tip-from-igtl", "takes the tip from the --igtl link: give that too"
+        )
+    if args.igtl is not None:
+        from needlekit.execute.igtl_link import parse_address
+
+        parse_address(args.igtl)
+        if args.trial is None and args.trials != 1:
+            raise InvalidInputError(
+                "--igtl", "streams one insertion: give --trial K (or --trials 1)"
+            )
+        if args.executor != "serial" or args.workers is not None:
+            raise InvalidInputError(
+                "--igtl", "streams from this process: no --executor or --workers"
+            )
 
 
 def execute_options(args: argparse.Namespace, r_min_mm: float):
@@ -181,6 +197,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     resume = None
     if args.resume:
         resume = read_partial_execute(args.out, name, plan, args.seed, trials, options)
+    hooks, link = _live_link(args, options) if args.igtl is not None else (None, None)
     with (
         open_executor(
             args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
@@ -192,8 +209,13 @@ def _cmd_execute(args: argparse.Namespace) -> int:
         study = run_execute_study(
             args.out, source, plan, trials=trials, seed=args.seed, options=options,
             executor=None if args.executor == "serial" else ex,
-            progress=lambda _: bar.update(1), resume=resume, scenario_name=name,
+            progress=lambda _: bar.update(1), resume=resume, scenario_name=name, hooks=hooks,
         )  # fmt: skip
+    if link is not None:
+        link.flush()
+        link.close()
+        print(f"OpenIGTLink: {link.sent} messages sent" + (
+            f", {hooks.sensor.received} tip poses received" if hooks.sensor else ""))  # fmt: skip
     s = study.document["summary"]
     print(_summary_table(s))
     for c in s["crashed"]:
@@ -201,6 +223,18 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     print(f"-> {study.path}")
     crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
     return EXIT_OK if not s["crashed"] and crossed == 0 else 1
+
+
+def _live_link(args: argparse.Namespace, options):
+    """The closed loop's hooks for ``--igtl``: the link publishes every sensor period,
+    and with ``--tip-from-igtl`` it is the sensor."""
+    from needlekit.execute.igtl_link import IGTLLink, IGTLTipSensor
+    from needlekit.execute.run import LoopHooks
+
+    link = IGTLLink(args.igtl, realtime=args.igtl_realtime, wait_s=args.igtl_wait_s)
+    sensor = None if args.tip_from_igtl is None else IGTLTipSensor(link, args.tip_from_igtl)
+    period = 1.0 / options.settings.sensor.rate_hz
+    return LoopHooks(sensor=sensor, observe=link.publish, observe_every_s=period), link
 
 
 def _summary_table(s: dict) -> str:
@@ -290,6 +324,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output folder (default out/execute)",
     )  # fmt: skip
     add_noise_flags(ex)
+    live = ex.add_argument_group("a live link to 3D Slicer (pip install 'needlekit[igtl]')")
+    live.add_argument("--igtl", metavar="[HOST:]PORT",
+                      help="stream the closed-loop insertion over OpenIGTLink (tip TRANSFORMs, "
+                      "the plan as POLYDATA, the state as STRING at the sensor rate): listen on "
+                      "PORT, or connect to HOST:PORT (Slicer's OpenIGTLinkIF; port 18944)")  # fmt: skip
+    live.add_argument("--tip-from-igtl", metavar="NAME",
+                      help="take the sensed tip from incoming TRANSFORMs named NAME (a tracker "
+                      "behind PLUS: NeedleToTracker) instead of the simulated sensor")  # fmt: skip
+    live.add_argument("--igtl-realtime", type=_non_negative, default=1.0, metavar="FACTOR",
+                      help="simulated seconds per second while streaming (default 1; 0: as "
+                      "fast as it runs)")  # fmt: skip
+    live.add_argument("--igtl-wait-s", type=_non_negative, default=30.0, metavar="S",
+                      help="how long to wait for the other end (default 30)")  # fmt: skip
     _flags.add_cache_options(ex)
     _flags.add_executor_options(ex)
     _flags.RESUME.add(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,7 +28,7 @@ from needlekit.execute.needle_sim import ExecutionNoise, SimulatedNeedle
 from needlekit.execute.replan import Replanner
 from needlekit.planning.steerable.plan import SteerablePlan
 
-__all__ = ["DEFAULT_SENSOR", "ExecutionRun", "ExecutionSettings", "execute_plan"]
+__all__ = ["DEFAULT_SENSOR", "ExecutionRun", "ExecutionSettings", "LoopHooks", "execute_plan"]
 
 #: The tip sensor of issue 21: 40 Hz, 0.4 mm and 0.5 deg SD, 5 ms latency.
 DEFAULT_SENSOR = EMSensorSpec(
@@ -110,6 +111,33 @@ class ExecutionRun:
     cross_track_mm: np.ndarray | None = None
 
 
+@dataclass
+class LoopHooks:
+    """What a caller attaches to a closed-loop run (all optional).
+
+    Attributes
+    ----------
+    tick_times : list or None
+        Gets the time (s) of every feedback step: the estimator's update and prediction,
+        the nearest point and the law (not the simulated needle and sensor, nor a search).
+    sensor : object or None
+        Takes the simulated sensor's place: ``update(t, true_pose) -> EMSample or None``,
+        as :class:`~needlekit.control.em.EMSensor` (e.g. a tracker over OpenIGTLink,
+        :class:`needlekit.execute.igtl_link.IGTLTipSensor`).
+    observe : callable or None
+        Called every ``observe_every_s`` of simulated time, and once at the end, with
+        ``(t_s, true_pose, estimated_pose, plan_points_mm, state)``; ``state`` a dict of
+        ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
+        (``"inserting"`` or ``"done"``).
+    observe_every_s : float
+    """
+
+    tick_times: list | None = None
+    sensor: object | None = None
+    observe: Callable | None = None
+    observe_every_s: float = 0.025
+
+
 def _open_loop_commands(plan: SteerablePlan, step_mm: float):
     """The plan's primitives cut into steps of at most ``step_mm``: (spin, kappa, ds)."""
     for spin, kappa, length in plan.primitives:
@@ -127,7 +155,7 @@ def execute_plan(
     seed,
     settings: ExecutionSettings | None = None,
     replanner: Replanner | None = None,
-    tick_times: list | None = None,
+    hooks: LoopHooks | None = None,
 ) -> ExecutionRun:
     """Insert along ``plan`` in simulated tissue (see the module notes).
 
@@ -144,11 +172,8 @@ def execute_plan(
     settings : ExecutionSettings, optional
     replanner : Replanner, optional
         Closed loop, re-plan from the estimated tip when it drifts from the plan.
-    tick_times : list, optional
-        Closed loop, gets the time (s) of every feedback step: the estimator's update and
-        prediction, the nearest point and the law (not the simulated needle and sensor,
-        nor a re-plan's search).
-
+    hooks : LoopHooks, optional
+        Closed loop: step timings, another sensor, an observer.
     Returns
     -------
     ExecutionRun
@@ -180,14 +205,22 @@ def execute_plan(
         err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
         return ExecutionRun(False, err, np.array(points), needle.inserted_mm)
     return _closed_loop(
-        plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, tick_times
+        plan,
+        goal,
+        r_min_mm,
+        s,
+        needle,
+        sensor_seed,
+        points,
+        record,
+        replanner,
+        hooks or LoopHooks(),
     )
 
 
-def _closed_loop(
-    plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, tick_times
-):
-    sensor = EMSensor(s.sensor, np.random.default_rng(sensor_seed))
+def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, hooks):
+    sensor = hooks.sensor or EMSensor(s.sensor, np.random.default_rng(sensor_seed))
+    tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
     est = TipEstimator(
         plan.start_pose,
         start_sigma_mm=s.sensor.position_sigma_mm,
@@ -238,14 +271,30 @@ def _closed_loop(
         if tick_times is not None:
             tick_times.append(clock() - c2 + (c1 - c0))
         t += s.dt_s
+        if observe is not None and t - seen >= hooks.observe_every_s - 1e-9:
+            seen = t
+            observe(t, needle.pose, est.pose, ref.points_mm,
+                    _state(needle, est.pose, goal, replanner, "inserting"))  # fmt: skip
         n = len(points)
         record()
         if len(points) > n:  # the true tip's deviation, where its path is recorded
             true = points[-1]
             cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
     points.append(needle.pose[:3, 3].copy())
+    if observe is not None:
+        observe(t, needle.pose, est.pose, ref.points_mm,
+                _state(needle, est.pose, goal, replanner, "done"))  # fmt: skip
     err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
                         adopted, tuple(lat), np.array(cross))  # fmt: skip
+
+
+def _state(needle, est_pose, goal, replanner, phase: str) -> dict:
+    return {
+        "inserted_mm": float(needle.inserted_mm),
+        "goal_distance_mm": float(np.linalg.norm(goal - est_pose[:3, 3])),
+        "replans": 0 if replanner is None else replanner.adopted,
+        "phase": phase,
+    }

@@ -198,6 +198,7 @@ def run_execute_trial(
     seed,
     options: ExecuteOptions,
     loops: tuple[str, ...] = ("open_loop", "closed_loop"),
+    hooks=None,
 ) -> dict:
     """One trial: the plan open loop, then closed loop, on the same needle.
 
@@ -213,6 +214,8 @@ def run_execute_trial(
     options : ExecuteOptions
     loops : tuple of str
         The runs: ``"open_loop"``, ``"closed_loop"`` or both.
+    hooks : LoopHooks, optional
+        Attached to the closed-loop run (a live link, another sensor).
 
     Returns
     -------
@@ -227,7 +230,8 @@ def run_execute_trial(
         closed = name == "closed_loop"
         rep = Replanner(problem, options.policy) if closed and options.replan else None
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=closed, seed=seed,
-                           settings=options.settings, replanner=rep)  # fmt: skip
+                           settings=options.settings, replanner=rep,
+                           hooks=hooks if closed else None)  # fmt: skip
         out[name] = _path_record(run, truth)
         if rep is not None:
             out[name]["replans_refused"] = rep.refused
@@ -245,13 +249,14 @@ def _problems(source):
 
 
 def _run_job(job: tuple) -> dict:
-    source, start, prims, options, seed, trial = job
+    source, start, prims, options, seed, trial, hooks = job
     head = {"trial": trial, "seed": seed, "seed_spawn_key": [trial]}
     try:
         problem, truth = _problems(source)
         plan = SteerablePlan(np.asarray(start), np.asarray(prims))
         worker_cached(("execute warm-up", source), lambda: warm_up_replanner(problem, plan))
-        return {**head, **run_execute_trial(problem, truth, plan, trial_seed(seed, trial), options)}
+        ss = trial_seed(seed, trial)
+        return {**head, **run_execute_trial(problem, truth, plan, ss, options, hooks=hooks)}
     except Exception as exc:  # recorded with its seed; the other trials go on
         last = traceback.extract_tb(exc.__traceback__)[-1]
         where = f"{Path(last.filename).name}:{last.lineno}"
@@ -356,6 +361,7 @@ def run_execute_study(
     progress: Callable[[dict], None] | None = None,
     resume: list[dict] | None = None,
     scenario_name: str = "",
+    hooks=None,
 ) -> ExecuteStudy:
     """Run the trials and write ``out_dir/execute.json`` (atomically).
 
@@ -377,6 +383,8 @@ def run_execute_study(
     resume : list of dict, optional
         Trials an interrupted run finished (:func:`read_partial_execute`).
     scenario_name : str
+    hooks : LoopHooks, optional
+        Attached to every closed-loop run (a live link): trials then run in this process.
 
     Returns
     -------
@@ -395,7 +403,9 @@ def run_execute_study(
     done = {r["trial"]: r for r in resume or ()}
     todo = [k for k in trials if k not in done]
     start, prims = plan.start_pose.tolist(), plan.primitives.tolist()
-    jobs = [(source, start, prims, options, seed, k) for k in todo]
+    jobs = [(source, start, prims, options, seed, k, hooks) for k in todo]
+    if hooks is not None:  # a link or a tracker lives in this process
+        executor = None
     t0 = time.perf_counter()
     try:
         for i, result in as_completed_indexed(executor or SerialExecutor(), _run_job, jobs):

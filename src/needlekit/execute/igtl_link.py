@@ -1,0 +1,278 @@
+"""A live link to 3D Slicer over OpenIGTLink (``needlekit execute --igtl``), through pyigtl.
+
+While a closed-loop insertion runs, every sensor period (40 Hz by default) of simulated
+time, paced to the wall clock (``realtime``: 1 is real time), the link sends
+
+- ``NeedleTip`` (TRANSFORM): the estimated tip pose, the one the navigation knows;
+- ``NeedleTipTrue`` (TRANSFORM): the simulated true tip;
+- ``NeedlePlan`` (POLYDATA): the plan being followed, one polyline of its points;
+- ``NeedleState`` (STRING): ``t=... s inserted=... mm goal=... mm replans=N inserting``
+  (``done`` at the end).
+
+Coordinates are RAS millimetres, as Slicer's scene holds them (a TRANSFORM is the tip's
+pose, its z axis the insertion direction); timestamps are the wall-clock time of the
+simulated instant (``start + t``), so every message of one instant carries the same one.
+Slicer's OpenIGTLinkIF module shows them once connected: needlekit listens on ``PORT``
+(Slicer's connector as client) or connects to ``HOST:PORT`` (Slicer's connector as
+server); the default port is OpenIGTLink's 18944.
+
+With a tip name (``--tip-from-igtl NAME``), :class:`IGTLTipSensor` takes the sensed tip
+from the incoming TRANSFORMs of that name instead of the simulated sensor: a tracker behind
+PLUS sends ``NeedleToTracker``. Each new message is a sample taken at its timestamp.
+
+pyigtl is optional: ``pip install 'needlekit[igtl]'``.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+
+import numpy as np
+
+from needlekit.control.em import EMSample
+from needlekit.errors import InvalidInputError
+
+__all__ = ["DEFAULT_PORT", "IGTLLink", "IGTLTipSensor", "parse_address"]
+
+#: OpenIGTLink's registered port.
+DEFAULT_PORT: int = 18944
+#: Messages left in pyigtl's outgoing queue (it holds 100) before the next instant's go in.
+QUEUE_HIGH: int = 40
+
+
+def parse_address(text: str) -> tuple[str | None, int]:
+    """``[HOST:]PORT`` as (host or None, port).
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    (str or None, int)
+        No host: listen on the port (this machine).
+
+    Raises
+    ------
+    InvalidInputError
+        (named ``--igtl``) Not a port in 1-65535, or an empty host.
+
+    Examples
+    --------
+    >>> parse_address("18944"), parse_address("slicer.local:18945")
+    ((None, 18944), ('slicer.local', 18945))
+    """
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 1 <= number <= 65535 or (":" in text and not host):
+        raise InvalidInputError(
+            "--igtl", f"expected [HOST:]PORT with a port in 1-65535, got {text!r}"
+        )
+    return (host or None), number
+
+
+def _pyigtl():
+    try:
+        import pyigtl
+    except ImportError:
+        raise InvalidInputError("--igtl", "needs pyigtl: pip install 'needlekit[igtl]'") from None
+    return pyigtl
+
+
+class IGTLLink:
+    """One OpenIGTLink connection: a server on ``port`` (no host) or a client to
+    ``host:port``.
+
+    Parameters
+    ----------
+    address : str
+        ``[HOST:]PORT`` (:func:`parse_address`).
+    realtime : float
+        Simulated seconds per wall-clock second (1: real time; 0: as fast as it runs).
+    wait_s : float
+        How long to wait for the other end before the insertion starts.
+
+    Raises
+    ------
+    InvalidInputError
+        pyigtl missing, or nobody connected within ``wait_s`` (named ``--igtl``).
+    """
+
+    def __init__(self, address: str, realtime: float = 1.0, wait_s: float = 30.0) -> None:
+        host, port = parse_address(address)
+        pyigtl = _pyigtl()
+        self._messages = pyigtl
+        if host is None:
+            self.endpoint = pyigtl.OpenIGTLinkServer(port=port, local_server=True)
+        else:
+            self.endpoint = pyigtl.OpenIGTLinkClient(host=host, port=port)
+        self.realtime = float(realtime)
+        self.sent = 0
+        deadline = time.monotonic() + wait_s
+        while not self.endpoint.is_connected():
+            if time.monotonic() > deadline:
+                self.close()
+                raise InvalidInputError(
+                    "--igtl", f"nobody connected to {address} within {wait_s:g} s"
+                )
+            time.sleep(0.01)
+        self.t0_wall = time.time()
+
+    def stamp(self, t_s: float) -> float:
+        """The wall-clock timestamp of simulated time ``t_s``.
+
+        Parameters
+        ----------
+        t_s : float
+
+        Returns
+        -------
+        float
+            Seconds since the epoch.
+        """
+        return self.t0_wall + t_s
+
+    def publish(self, t_s, true_pose, estimated_pose, plan_points_mm, state: dict) -> None:
+        """Send one instant's messages (see the module notes), after waiting for its
+        wall-clock time.
+
+        Parameters
+        ----------
+        t_s : float
+        true_pose, estimated_pose : ndarray, shape (4, 4)
+        plan_points_mm : ndarray, shape (n, 3)
+        state : dict
+            As :class:`~needlekit.execute.run.LoopHooks` gives it.
+
+        Returns
+        -------
+        None
+        """
+        if self.realtime > 0:
+            wait = self.t0_wall + t_s / self.realtime - time.time()
+            if wait > 0:
+                time.sleep(wait)
+        self._drain(QUEUE_HIGH)
+        m, stamp = self._messages, self.stamp(t_s)
+        pts = np.asarray(plan_points_mm, dtype=np.float32)
+        text = (
+            f"t={t_s:.3f} s inserted={state['inserted_mm']:.2f} mm goal="
+            f"{state['goal_distance_mm']:.2f} mm replans={state['replans']} {state['phase']}"
+        )
+        for msg in (
+            m.TransformMessage(np.array(estimated_pose, dtype=float), timestamp=stamp,
+                               device_name="NeedleTip"),
+            m.TransformMessage(np.array(true_pose, dtype=float), timestamp=stamp,
+                               device_name="NeedleTipTrue"),
+            m.PolyDataMessage(points=pts, lines=[len(pts), *range(len(pts))], timestamp=stamp,
+                              device_name="NeedlePlan"),
+            m.StringMessage(text, timestamp=stamp, device_name="NeedleState"),
+        ):  # fmt: skip
+            self.endpoint.send_message(msg, wait=False)
+            self.sent += 1
+
+    def flush(self, timeout_s: float = 5.0) -> None:
+        """Wait until every queued message has gone out (or ``timeout_s`` passed).
+
+        Parameters
+        ----------
+        timeout_s : float
+
+        Returns
+        -------
+        None
+        """
+        self._drain(0, timeout_s)
+
+    def _drain(self, most: int, timeout_s: float = 5.0) -> None:
+        # pyigtl's queue drops its oldest messages when full: wait while it holds more than
+        # ``most`` (a link faster than real time, or a slow reader)
+        deadline = time.monotonic() + timeout_s
+        ep = self.endpoint
+        while time.monotonic() < deadline and ep.is_connected():
+            with ep.lock_outgoing_messages:
+                if len(ep.outgoing_messages) <= most:
+                    return
+            time.sleep(0.001)
+
+    def latest_transform(self, name: str):
+        """The newest TRANSFORM named ``name`` received since the last call.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        pyigtl.TransformMessage or None
+        """
+        msg = self.endpoint.wait_for_message(name, timeout=0)
+        if msg is None or getattr(msg, "_message_type", "") != "TRANSFORM":
+            return None
+        return msg
+
+    def close(self) -> None:
+        """Stop the connection, and give back the signal handlers pyigtl's server took.
+
+        Returns
+        -------
+        None
+        """
+        self.endpoint.stop()
+        for sig, previous in getattr(self.endpoint, "_previous_signal_handlers", {}).items():
+            signal.signal(sig, previous)
+
+
+class IGTLTipSensor:
+    """The sensed tip from incoming TRANSFORMs (:class:`~needlekit.execute.run.LoopHooks`'
+    ``sensor``): each new message named ``name`` is a sample taken at its timestamp.
+
+    Parameters
+    ----------
+    link : IGTLLink
+    name : str
+        The tracker's transform, e.g. ``NeedleToTracker``.
+
+    Attributes
+    ----------
+    received : int
+    """
+
+    def __init__(self, link: IGTLLink, name: str) -> None:
+        self.link = link
+        self.name = name
+        self.received = 0
+        self._last_stamp = -math.inf
+
+    def update(self, t: float, true_pose) -> EMSample | None:
+        """The newest sample that has arrived by simulated time ``t`` (the simulated
+        sensor's interface; ``true_pose`` is not used).
+
+        Parameters
+        ----------
+        t : float
+        true_pose : callable
+
+        Returns
+        -------
+        EMSample or None
+        """
+        msg = self.link.latest_transform(self.name)
+        if msg is None or msg.timestamp <= self._last_stamp:
+            return None
+        pose = np.array(msg.matrix, dtype=np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            return None
+        u, _, vt = np.linalg.svd(pose[:3, :3])  # the nearest rotation (sent as float32)
+        pose[:3, :3] = u @ vt
+        if np.linalg.det(pose[:3, :3]) < 0:  # a reflection is no pose
+            return None
+        self._last_stamp = msg.timestamp
+        self.received += 1
+        taken = min(float(msg.timestamp - self.link.t0_wall), t)
+        return EMSample(taken, t, pose)
