@@ -172,3 +172,25 @@ def test_the_closed_loop_replans_under_a_strong_push_and_says_so(toy_plan, tmp_p
     assert len(closed["replan_latency_s"]) == closed["replan_attempts"] >= closed["replans"]
     assert closed["final_error_mm"] < 1.0
     assert ExecutionSettings().record_mm == 0.25  # the clearance's sample gap, as documented
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_the_page_renders_the_trial_and_the_histograms(
+    toy_plan, tmp_path, browser, rendered, capsys
+):
+    page = tmp_path / "page.html"
+    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--out", str(tmp_path),
+                 "--report", str(page), "--deflection-sd", "0.03", "--cross-track-mm", "0.2",
+                 *REPRODUCIBLE]) == 0  # fmt: skip
+    plots, pngs = rendered(page)
+    assert plots == 2 and len(pngs) == 1  # the animated trial (3D), the histograms
+    (tmp_path / "trial.png").write_bytes(pngs[0])
+    text = page.read_text()
+    for words in ("Open loop beside closed loop", "Published closed-loop errors",
+                  "Vrooijink et al.", "re-plan latency"):  # fmt: skip
+        assert words in text
+    doc = json.loads((tmp_path / "execute.json").read_text())
+    shown = max(doc["trials"], key=lambda t: (t["closed_loop"]["replans"], -t["trial"]))
+    assert f"Trial {shown['trial']} going in" in text and shown["closed_loop"]["replans"] >= 1
+    assert len(shown["closed_loop"]["replan_events"]) == shown["closed_loop"]["replans"]

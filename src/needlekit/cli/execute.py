@@ -15,7 +15,7 @@ from needlekit.cli._common import (
     _positive_int,
     _seed,
 )
-from needlekit.cli._paths import add_input
+from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
 
 #: What ``needlekit execute`` writes in its --out folder.
@@ -216,11 +216,17 @@ def _cmd_execute(args: argparse.Namespace) -> int:
         link.close()
         print(f"OpenIGTLink: {link.sent} messages sent" + (
             f", {hooks.sensor.received} tip poses received" if hooks.sensor else ""))  # fmt: skip
+    if args.report is not None:
+        from needlekit.report.execute_report import write_execute_report
+
+        write_execute_report(args.report, study.document, problem, plan)
     s = study.document["summary"]
     print(_summary_table(s))
     for c in s["crashed"]:
         print(f"  trial {c['trial']} crashed: {c['error']}")
     print(f"-> {study.path}")
+    if args.report is not None:
+        print(f"-> {args.report}")
     crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
     return EXIT_OK if not s["crashed"] and crossed == 0 else 1
 
@@ -316,6 +322,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_input(ex, "scenario", help="scenario file (YAML): anatomy, needle, margin")
     add_input(ex, "plan", help="plan file (plan.json) made for the scenario")
+    add_output(ex, "--report", metavar="PAGE",
+               help="also write a self-contained HTML page: one trial animated in 3D, the "
+               "errors open beside closed loop, the re-plan latency, the literature")  # fmt: skip
     ex.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
     ex.add_argument("--trial", type=_seed, metavar="K", help="run trial K alone (its seed)")
     _flags.SEED.add(ex, default=0, help="root seed (default 0)")

@@ -98,6 +98,9 @@ class ExecutionRun:
     cross_track_mm : ndarray or None
         Closed loop, the true tip's distance from the plan it was following (its nearest
         point), at each recorded point: the deviation a clearance margin has to cover.
+    replan_events : tuple of (float, float, SteerablePlan)
+        Closed loop, every adopted re-plan: the length inserted when its search started
+        and when it applied (the needle went on meanwhile), and the plan.
     """
 
     closed_loop: bool
@@ -109,6 +112,7 @@ class ExecutionRun:
     replans: int = 0
     replan_latency_s: tuple = ()
     cross_track_mm: np.ndarray | None = None
+    replan_events: tuple = ()
 
 
 @dataclass
@@ -237,6 +241,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     index, t, used, pending = 0, 0.0, 0, None
     clock = time.perf_counter
     cross: list[float] = []
+    events: list[tuple] = []
     while needle.inserted_mm < limit:
         sample = sensor.update(t, lambda: needle.pose)
         c0 = clock()
@@ -248,7 +253,8 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
             break
         if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
-            (current, ref), index, pending = pending[0], 0, None
+            (current, ref), index, asked, pending = pending[0], 0, pending[2], None
+            events.append((asked, float(needle.inserted_mm), current))
             limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
         index = ref.nearest(pose[:3, 3], index)
         off = float(np.linalg.norm(ref.points_mm[index] - pose[:3, 3]))
@@ -260,7 +266,8 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
             c1 = clock()
             res, took = replanner.replan(pose, needle.inserted_mm, (current, ref.arc_mm[index]))
             if res is not None:
-                pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took)
+                pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
+                           float(needle.inserted_mm))  # fmt: skip
             c0 += clock() - c1  # the search is not the feedback step
         spin, kappa = pure_pursuit(pose, ref.ahead(index, s.lookahead_mm), kappa_max)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
@@ -288,7 +295,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
-                        adopted, tuple(lat), np.array(cross))  # fmt: skip
+                        adopted, tuple(lat), np.array(cross), tuple(events))  # fmt: skip
 
 
 def _state(needle, est_pose, goal, replanner, phase: str) -> dict:

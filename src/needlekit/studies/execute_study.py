@@ -184,6 +184,14 @@ def _path_record(run, truth) -> dict:
         "cross_track_mm": None
         if run.cross_track_mm is None
         else np.round(run.cross_track_mm, 4).tolist(),
+        "replan_events": [
+            {
+                "asked_at_mm": a,
+                "applied_at_mm": b,
+                "points_mm": np.round(plan.points_mm(1.0), 3).tolist(),
+            }
+            for a, b, plan in run.replan_events
+        ],
     }
 
 
