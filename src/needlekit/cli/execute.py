@@ -38,6 +38,16 @@ example:
 """
 
 
+def _vector3(text: str) -> tuple:
+    try:
+        v = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three numbers), got {text!r}")
+    return v
+
+
 def check_noise_flags(args: argparse.Namespace) -> None:
     """The noise flags' values within :data:`NOISE_LIMITS`, before any work.
 
@@ -59,6 +69,7 @@ def check_noise_flags(args: argparse.Namespace) -> None:
         if v is not None and v > top:
             flag = "--" + name.replace("_", "-")
             raise InvalidInputError(flag, f"expected at most {top:g}, got {v:g}")
+    _breathing(args)  # the breathing values too
 
 
 def _check_flags(args: argparse.Namespace) -> None:
@@ -129,7 +140,37 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
         warm_start=not args.no_warm_start,
     )
     settings = ExecutionSettings(insertion_speed_mm_s=args.speed_mm_s, noise=noise)
-    return ExecuteOptions(settings, policy, replan=not args.no_replan)
+    return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args))
+
+
+#: The breathing flags, by the field of :class:`~needlekit.execute.breathing.Breathing` each
+#: sets.
+BREATHING_FLAGS = {
+    "amplitude_mm": "--breathing-amplitude-mm",
+    "period_s": "--breathing-period-s",
+    "shape": "--breathing-shape",
+    "direction": "--breathing-direction",
+}
+
+
+def _breathing(args: argparse.Namespace):
+    """The breathing the flags ask for (None: none), each value checked and named by its
+    flag."""
+    from dataclasses import replace
+
+    from needlekit.execute.breathing import PRESETS
+
+    given = {f: getattr(args, flag[2:].replace("-", "_")) for f, flag in BREATHING_FLAGS.items()}
+    given = {f: v for f, v in given.items() if v is not None}
+    if args.breathing is None:
+        if given:
+            flag = BREATHING_FLAGS[next(iter(given))]
+            raise InvalidInputError(flag, "changes the breathing: give --breathing lung|liver")
+        return None
+    try:
+        return replace(PRESETS[args.breathing], **given)
+    except InvalidInputError as exc:
+        raise InvalidInputError(BREATHING_FLAGS.get(exc.field, "--breathing"), exc.reason) from None
 
 
 def load_checked_plan(args: argparse.Namespace):
@@ -255,9 +296,32 @@ def _summary_table(s: dict) -> str:
         ])  # fmt: skip
     head = ["run", "error mean", "sd", "max", "% <= 1 mm", "min clearance", "crossed",
             "re-plans", "re-plan p95 ms"]  # fmt: skip
-    return (
-        _fmt_table(head, rows)
-        + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
+    text = _fmt_table(head, rows)
+    if "breathing" in s:
+        text += "\n\n" + breathing_table(s["breathing"])
+    return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
+
+
+def breathing_table(per_policy: dict) -> str:
+    """The closed loop under breathing, a row per policy.
+
+    Parameters
+    ----------
+    per_policy : dict
+        ``summary["breathing"]`` of ``execute.json``.
+
+    Returns
+    -------
+    str
+    """
+    rows = []
+    for name, r in per_policy.items():
+        e, t = r["final_error_mm"], r["procedure_s"]
+        rows.append([f"breathing, {name}", e.get("mean", math.nan), e.get("sd", math.nan),
+                     e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), r["violated"],
+                     t.get("mean", math.nan)])  # fmt: skip
+    return _fmt_table(
+        ["policy", "error mean", "sd", "max", "% <= 1 mm", "crossed", "procedure s"], rows
     )
 
 
@@ -282,6 +346,18 @@ def add_noise_flags(p) -> None:
                        help="SD of the tissue's lateral push per mm inserted (default 0.01)")  # fmt: skip
     noise.add_argument("--speed-mm-s", type=_positive, default=2.0,
                        help="insertion speed (default 2 mm/s)")  # fmt: skip
+    br = p.add_argument_group(
+        "breathing (each trial also runs closed loop under ignore, gate and track)"
+    )
+    br.add_argument("--breathing", choices=["lung", "liver"],
+                    help="the anatomy moves: lung 5 mm or liver 13 mm superior-inferior, 4 s")  # fmt: skip
+    br.add_argument("--breathing-amplitude-mm", type=float, metavar="MM",
+                    help="peak displacement (0-50 mm)")  # fmt: skip
+    br.add_argument("--breathing-period-s", type=float, metavar="S", help="cycle (1-20 s)")
+    br.add_argument("--breathing-shape", type=int, metavar="N",
+                    help="n of sin^(2n): the end-exhale plateau (1-6; default 2)")  # fmt: skip
+    br.add_argument("--breathing-direction", type=_vector3, metavar="X,Y,Z",
+                    help="direction of the inhale displacement, RAS (default 0,0,-1: inferior)")  # fmt: skip
     loop = p.add_argument_group("the closed loop")
     loop.add_argument("--no-replan", action="store_true", help="feedback to the plan only")
     loop.add_argument("--no-warm-start", action="store_true",

@@ -84,9 +84,11 @@ class TipEstimator:
         self.n_updates = 0
 
     def _propagate(self, pose, P, command):
-        spin, kappa, ds, dt = command
+        spin, kappa, ds, dt, shift, shift_sigma = command
         new = arc_end_unchecked(pose, spin, kappa, ds)
         a = new[:3, 3] - pose[:3, 3]
+        if shift is not None:  # a translation of the whole needle (the robot, the tissue)
+            new[:3, 3] += shift
         F = np.eye(6)
         F[:3, 3:] = -hat_unchecked(a)
         n = self.noise
@@ -95,23 +97,38 @@ class TipEstimator:
         spread = kappa * n.radius_sigma_mm / self.r_min_mm * ds * self.bias_scale
         x = new[:3, 0]
         Q = np.zeros((6, 6))
-        Q[:3, :3] = np.eye(3) * (n.deflection_sigma * ds * self.bias_scale) ** 2
+        Q[:3, :3] = np.eye(3) * ((n.deflection_sigma * ds * self.bias_scale) ** 2 + shift_sigma**2)
         Q[3:, 3:] = np.eye(3) * q_rot + np.outer(x, x) * spread**2
         return new, F @ P @ F.T + Q
 
-    def predict(self, spin_rad: float, kappa_per_mm: float, ds_mm: float, dt_s: float) -> None:
+    def predict(
+        self,
+        spin_rad: float,
+        kappa_per_mm: float,
+        ds_mm: float,
+        dt_s: float,
+        shift_mm=None,
+        shift_sigma_mm: float = 0.0,
+    ) -> None:
         """Move the estimate as the model moves the tip for one commanded step.
 
         Parameters
         ----------
         spin_rad, kappa_per_mm, ds_mm, dt_s : float
             The command (as :meth:`SimulatedNeedle.step` takes it).
+        shift_mm : array_like, shape (3,), optional
+            A translation of the whole needle during the step, known to the controller
+            (the robot following the breathing, or the tissue carrying a needle let go).
+        shift_sigma_mm : float
+            SD per axis of what is not known of that translation.
 
         Returns
         -------
         None
         """
-        command = (float(spin_rad), float(kappa_per_mm), float(ds_mm), float(dt_s))
+        shift = None if shift_mm is None else np.asarray(shift_mm, dtype=np.float64)
+        command = (float(spin_rad), float(kappa_per_mm), float(ds_mm), float(dt_s), shift,
+                   float(shift_sigma_mm))  # fmt: skip
         self._steps.append((self.t, self.pose, self.P, command))
         while self._steps and self._steps[0][0] < self.t - HISTORY_S:
             self._steps.popleft()

@@ -30,6 +30,13 @@ from needlekit.planning.steerable.plan import SteerablePlan
 
 __all__ = ["DEFAULT_SENSOR", "ExecutionRun", "ExecutionSettings", "LoopHooks", "execute_plan"]
 
+#: Closed loop, the insertion stops after this many times its nominal duration (plan length
+#: plus overrun at the insertion speed), whatever else: a gate that never opens.
+TIME_CAP_FACTOR: float = 20.0
+
+#: A sample due this close (s) to the loop's time is taken at it (module notes in the loop).
+SENSOR_SLACK_S: float = 1e-9
+
 #: The tip sensor of issue 21: 40 Hz, 0.4 mm and 0.5 deg SD, 5 ms latency.
 DEFAULT_SENSOR = EMSensorSpec(
     rate_hz=40.0, position_sigma_mm=0.4, orientation_sigma_deg=0.5, latency_s=0.005
@@ -101,6 +108,8 @@ class ExecutionRun:
     replan_events : tuple of (float, float, SteerablePlan)
         Closed loop, every adopted re-plan: the length inserted when its search started
         and when it applied (the needle went on meanwhile), and the plan.
+    procedure_s : float
+        Closed loop, the simulated time the insertion took (pauses included).
     """
 
     closed_loop: bool
@@ -113,6 +122,7 @@ class ExecutionRun:
     replan_latency_s: tuple = ()
     cross_track_mm: np.ndarray | None = None
     replan_events: tuple = ()
+    procedure_s: float = 0.0
 
 
 @dataclass
@@ -134,12 +144,17 @@ class LoopHooks:
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
         (``"inserting"`` or ``"done"``).
     observe_every_s : float
+    breathing : needlekit.execute.breathing.Policy or None
+        The anatomy breathing, and the policy the robot inserts with: the recorded path
+        and the final error are then the tip's in the tissue (module notes of
+        :mod:`needlekit.execute.breathing`).
     """
 
     tick_times: list | None = None
     sensor: object | None = None
     observe: Callable | None = None
     observe_every_s: float = 0.025
+    breathing: object | None = None
 
 
 def _open_loop_commands(plan: SteerablePlan, step_mm: float):
@@ -195,11 +210,18 @@ def execute_plan(
     points = [needle.pose[:3, 3].copy()]
     last = 0.0
 
-    def record() -> None:
+    def record(offset=None) -> None:
+        # offset: the tissue's displacement (breathing); the tip then moves in the tissue
+        # while it is not inserted, and is recorded by how far it went there
         nonlocal last
-        if needle.inserted_mm - last >= s.record_mm - 1e-9:
-            points.append(needle.pose[:3, 3].copy())
-            last = needle.inserted_mm
+        if offset is None:
+            if needle.inserted_mm - last >= s.record_mm - 1e-9:
+                points.append(needle.pose[:3, 3].copy())
+                last = needle.inserted_mm
+        else:
+            p = needle.pose[:3, 3] - offset
+            if np.linalg.norm(p - points[-1]) >= s.record_mm - 1e-9:
+                points.append(p)
 
     if not closed_loop:
         for spin, kappa, step in _open_loop_commands(plan, ds):
@@ -238,17 +260,34 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     kappa_max = 1.0 / r_min_mm
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
-    index, t, used, pending = 0, 0.0, 0, None
+    index, t, used, pending, k = 0, 0.0, 0, None, 0
     clock = time.perf_counter
     cross: list[float] = []
     events: list[tuple] = []
-    while needle.inserted_mm < limit:
-        sample = sensor.update(t, lambda: needle.pose)
+    policy = hooks.breathing
+    t_max = TIME_CAP_FACTOR * limit / s.insertion_speed_mm_s
+    while needle.inserted_mm < limit and t < t_max:
+        # a sample due within SENSOR_SLACK_S is due now: the sensor's clock and this loop's
+        # add their periods separately, and a sample read a step late sees a moved tip
+        sample = sensor.update(t + SENSOR_SLACK_S, lambda: needle.pose)
         c0 = clock()
         if sample is not None:
             est.update(sample.taken_s, sample.pose)
             used += 1
+        if policy is not None and not policy.may_advance(t):  # gated: let go, and wait
+            _ride(needle, est, policy, t, s.dt_s)
+            k += 1
+            t = k * s.dt_s
+            record(policy.trace.actual(t))
+            if observe is not None and t - seen >= hooks.observe_every_s - 1e-9:
+                seen = t
+                observe(t, needle.pose, est.pose, ref.points_mm,
+                        _state(needle, est.pose, goal, replanner, "gated"))  # fmt: skip
+            continue
         pose = est.pose
+        if policy is not None:  # the controller's frame: the sensed tip less its offset
+            pose = pose.copy()
+            pose[:3, 3] -= policy.control_offset(t)
         ahead = pose[:3, :3].T @ (goal - pose[:3, 3])
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
             break
@@ -274,28 +313,44 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         c1 = clock()
         needle.step(spin, kappa, step, s.dt_s)
         c2 = clock()
-        est.predict(spin, kappa, step, s.dt_s)
+        if policy is None:
+            est.predict(spin, kappa, step, s.dt_s)
+        else:  # the needle moved with the robot besides (track)
+            shift, known = policy.carried(t, t + s.dt_s, True)
+            needle.pose[:3, 3] += shift
+            est.predict(spin, kappa, step, s.dt_s, known, policy.unknown_sigma_mm(known))
         if tick_times is not None:
             tick_times.append(clock() - c2 + (c1 - c0))
-        t += s.dt_s
+        k += 1
+        t = k * s.dt_s
         if observe is not None and t - seen >= hooks.observe_every_s - 1e-9:
             seen = t
             observe(t, needle.pose, est.pose, ref.points_mm,
                     _state(needle, est.pose, goal, replanner, "inserting"))  # fmt: skip
         n = len(points)
-        record()
+        record(None if policy is None else policy.trace.actual(t))
         if len(points) > n:  # the true tip's deviation, where its path is recorded
             true = points[-1]
             cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
-    points.append(needle.pose[:3, 3].copy())
+    offset = 0.0 if policy is None else policy.trace.actual(t)
+    points.append(needle.pose[:3, 3] - offset)
     if observe is not None:
         observe(t, needle.pose, est.pose, ref.points_mm,
                 _state(needle, est.pose, goal, replanner, "done"))  # fmt: skip
-    err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
+    err = float(np.linalg.norm(points[-1] - goal))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
-                        adopted, tuple(lat), np.array(cross), tuple(events))  # fmt: skip
+                        adopted, tuple(lat), np.array(cross), tuple(events), t)  # fmt: skip
+
+
+def _ride(needle, est, policy, t: float, dt: float) -> None:
+    """A gated step: the needle, let go, rides with the tissue; the estimate follows the
+    predicted motion."""
+    shift, known = policy.carried(t, t + dt, False)
+    needle.step(0.0, 0.0, 0.0, dt)
+    needle.pose[:3, 3] += shift
+    est.predict(0.0, 0.0, 0.0, dt, known, policy.unknown_sigma_mm(known))
 
 
 def _state(needle, est_pose, goal, replanner, phase: str) -> dict:

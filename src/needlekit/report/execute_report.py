@@ -160,6 +160,16 @@ def _summary_rows(summary: dict) -> list[dict]:
     return rows
 
 
+def _policy_rows(per_policy: dict) -> list[dict]:
+    return [
+        {"policy": name, "error_mean_mm": r["final_error_mm"].get("mean"),
+         "error_sd_mm": r["final_error_mm"].get("sd"), "error_max_mm": r["final_error_mm"].get("max"),
+         "within 1 mm": f"{100 * (r['within_1mm'] or 0):.0f} %", "crossed": r["violated"],
+         "procedure_s": r["procedure_s"].get("mean")}
+        for name, r in per_policy.items()
+    ]  # fmt: skip
+
+
 def execute_sections(doc: dict, problem, plan) -> list:
     """The page's sections for an ``execute.json`` document.
 
@@ -181,6 +191,17 @@ def execute_sections(doc: dict, problem, plan) -> list:
         "tip's; a crossing is the scenario's collision model's verdict on the executed path "
         "without the margin.")]  # fmt: skip
     sections.append(TableSection("Open loop beside closed loop", _summary_rows(s)))
+    if "breathing" in s:
+        b = doc["options"]["breathing"]
+        sections.append(TableSection(
+            "Breathing: the closed loop under each policy", _policy_rows(s["breathing"]),
+            caption=f"The anatomy moving {b['amplitude_mm']:g} mm along "
+            f"({', '.join(f'{v:g}' for v in b['direction'])}) every {b['period_s']:g} s "
+            f"(sin^{2 * b['shape']}, each cycle's amplitude and period varying by "
+            f"{100 * b['amplitude_jitter']:g} % and {100 * b['period_jitter']:g} %). Ignore: "
+            "insert as if still; gate: advance only at end-exhale; track: follow the "
+            "predicted motion. Errors and crossings in the tissue.",
+        ))  # fmt: skip
     trial = shown_trial(doc["trials"])
     if trial is not None:
         sections.append(FigureSection(

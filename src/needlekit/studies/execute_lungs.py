@@ -207,6 +207,16 @@ def _run_case(st: _Study, decided: dict, resume: bool) -> dict:
         "status": "done",
         "closed_loop": _brief(c),
         "open_loop": _brief(o),
+        **(
+            {
+                "breathing": {
+                    k: _brief(v) | {"procedure_s": v["procedure_s"].get("mean")}
+                    for k, v in s["breathing"].items()
+                }
+            }
+            if "breathing" in s
+            else {}
+        ),
         "crashed": len(s["crashed"]),
         "verdict": verdict,
         "holds": all(verdict.values()),

@@ -39,8 +39,9 @@ import numpy as np
 from needlekit import __version__
 from needlekit.batch import SerialExecutor, as_completed_indexed, worker_cached
 from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.execute.breathing import POLICIES, Breathing, Policy
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
-from needlekit.execute.run import ExecutionSettings, execute_plan
+from needlekit.execute.run import TIME_CAP_FACTOR, ExecutionSettings, LoopHooks, execute_plan
 from needlekit.io.files import write_json
 from needlekit.io.partial import read_partial, write_partial
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -88,17 +89,23 @@ class ExecuteOptions:
         When and how the closed loop re-plans.
     replan : bool
         Closed loop with re-planning (False: feedback to the original plan only).
+    breathing : Breathing or None
+        The anatomy breathing: each trial also runs closed loop under every policy of
+        :data:`~needlekit.execute.breathing.POLICIES` (``breathing`` in the trial).
     """
 
     settings: ExecutionSettings = field(default_factory=ExecutionSettings)
     policy: ReplanPolicy = field(default_factory=ReplanPolicy)
     replan: bool = True
+    breathing: Breathing | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.settings, ExecutionSettings):
             raise InvalidInputError("settings", "expected an ExecutionSettings")
         if not isinstance(self.policy, ReplanPolicy):
             raise InvalidInputError("policy", "expected a ReplanPolicy")
+        if self.breathing is not None and not isinstance(self.breathing, Breathing):
+            raise InvalidInputError("breathing", "expected a Breathing")
 
 
 def lung_scenario_document(patient: int, margin_mm: float, medrad_dir=None) -> dict:
@@ -244,6 +251,26 @@ def run_execute_trial(
         if rep is not None:
             out[name]["replans_refused"] = rep.refused
             out[name]["warm_start_kept"] = rep.warm_kept
+    if options.breathing is not None and "closed_loop" in loops:
+        out["breathing"] = _breathing_runs(problem, truth, plan, seed, options)
+    return out
+
+
+def _breathing_runs(problem, truth, plan, seed, options: ExecuteOptions) -> dict:
+    """The closed loop under each breathing policy, on the trial's needle and sensor draws
+    and one breathing trace (the trial seed's third child)."""
+    r_min = 1.0 / problem.kappa_max_per_mm
+    s = options.settings
+    horizon = TIME_CAP_FACTOR * (plan.length_mm + s.overrun_mm) / s.insertion_speed_mm_s
+    child = np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, 2))
+    trace = options.breathing.trace(np.random.default_rng(child), horizon)
+    out = {}
+    for name in POLICIES:
+        rep = Replanner(problem, options.policy) if options.replan else None
+        run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=True, seed=seed,
+                           settings=s, replanner=rep,
+                           hooks=LoopHooks(breathing=Policy(name, trace)))  # fmt: skip
+        out[name] = {**_path_record(run, truth), "procedure_s": float(run.procedure_s)}
     return out
 
 
@@ -454,10 +481,26 @@ def study_summary(records: list[dict], margin_mm: float) -> dict:
         "margin_mm": margin_mm,
         "open_loop": loop_summary([r["open_loop"] for r in ok]),
         "closed_loop": loop_summary([r["closed_loop"] for r in ok]),
+        **_breathing_summary(ok),
         "literature": [
             dict(zip(("source", "setting", "mean_mm", "sd_mm", "note"), row, strict=True))
             for row in LITERATURE
         ],
+    }
+
+
+def _breathing_summary(records: list[dict]) -> dict:
+    with_b = [r["breathing"] for r in records if "breathing" in r]
+    if not with_b:
+        return {}
+    return {
+        "breathing": {
+            name: {
+                **loop_summary([b[name] for b in with_b]),
+                "procedure_s": _stats(b[name]["procedure_s"] for b in with_b),
+            }
+            for name in POLICIES
+        }
     }
 
 

@@ -1,0 +1,282 @@
+"""Breathing: the anatomy moving under the needle, and three ways to insert through it.
+
+**The motion.** Targets and obstacles move together, rigidly, by a periodic respiratory
+displacement along ``direction``,
+
+    d(t) = A_k sin^(2n)(pi (t - t_k) / T_k) direction,   t_k <= t < t_k + T_k,
+
+the model of Lujan et al. (1999) with its end-exhale (``d = 0``) at each cycle's start,
+the plateau longer for larger ``n`` (``shape``). Each cycle ``k`` draws its amplitude and
+period around the nominal ones (SD ``amplitude_jitter`` and ``period_jitter``, fractions;
+breath-to-breath variability), from the trial's seed. Presets (:data:`PRESETS`): lung
+5 mm and liver 13 mm superior-inferior (the tissue moving inferior, ``-S`` in RAS, as the
+diaphragm descends), period 4 s, the figures issue 21 gives from published motion studies.
+The plan is made on the anatomy at end-exhale (``d = 0``), as a breath-hold CT shows it.
+
+**The needle in moving tissue.** The robot drives the needle in its own (world) frame; the
+tip's place in the tissue is the world place less ``d(t)``. Errors and crossings are judged
+there, in the tissue, where the plan was made: the error is the tissue-frame tip's distance
+from the target at the end, a crossing the collision model's verdict on the tissue-frame tip
+path (as :mod:`needlekit.planning.steerable.moving` judges the tip, not the shaft the tissue
+carries).
+
+**The policies** (:class:`Policy`):
+
+- ``ignore``: the robot holds and inserts the needle as if nothing moved; the controller
+  takes the sensed (world) tip for the tissue-frame one.
+- ``gate``: the needle advances only in the end-exhale window (the predicted displacement
+  at most ``gate_fraction`` of the amplitude); outside it the robot lets go and the needle
+  rides with the tissue, and is taken up again when the window opens.
+- ``track``: the robot moves the needle with the *predicted* motion (the nominal cycle from
+  each cycle's start, which a respiratory sensor gives) while inserting, and the controller
+  works in the predicted tissue frame (the sensed tip less the predicted displacement):
+  re-planning there is planning against the predicted motion, the moving anatomy's fields
+  translated by the prediction, which for a rigid motion of the whole anatomy are the
+  static fields; what is left is the prediction's error (the cycle's own amplitude and
+  period).
+
+Procedure time is the simulated time from the first step to the end of the insertion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+
+__all__ = ["POLICIES", "PRESETS", "Breathing", "BreathingTrace", "Policy"]
+
+#: The insertion policies under breathing.
+POLICIES: tuple[str, ...] = ("ignore", "gate", "track")
+
+
+def _positive(name: str, v) -> float:
+    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+        raise InvalidInputError(name, f"expected a finite number > 0, got {v!r}")
+    return float(v)
+
+
+@dataclass(frozen=True)
+class Breathing:
+    """A respiratory motion (see the module notes).
+
+    Attributes
+    ----------
+    amplitude_mm : float
+        Nominal peak displacement (end-inhale), 0 to 50 mm.
+    direction : tuple of float
+        The direction of the inhale displacement (RAS; normalised).
+    period_s : float
+        Nominal cycle, 1 to 20 s.
+    shape : int
+        ``n`` of ``sin^(2n)``, 1 to 6.
+    amplitude_jitter, period_jitter : float
+        SD of each cycle's amplitude and period, as fractions of the nominal ones (0-0.3).
+    gate_fraction : float
+        ``gate``: the window where the predicted displacement is at most this fraction of
+        the amplitude (0-1).
+    """
+
+    amplitude_mm: float = 5.0
+    direction: tuple = (0.0, 0.0, -1.0)
+    period_s: float = 4.0
+    shape: int = 2
+    amplitude_jitter: float = 0.1
+    period_jitter: float = 0.1
+    gate_fraction: float = 0.1
+
+    def __post_init__(self) -> None:
+        a = self.amplitude_mm
+        if not (isinstance(a, (int, float)) and math.isfinite(a) and 0.0 <= a <= 50.0):
+            raise InvalidInputError("amplitude_mm", f"expected 0 to 50 mm, got {a!r}")
+        if not 1.0 <= _positive("period_s", self.period_s) <= 20.0:
+            raise InvalidInputError("period_s", f"expected 1 to 20 s, got {self.period_s!r}")
+        if not (isinstance(self.shape, int) and 1 <= self.shape <= 6):
+            raise InvalidInputError("shape", f"expected a whole number 1 to 6, got {self.shape!r}")
+        for name in ("amplitude_jitter", "period_jitter"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 0.3):
+                raise InvalidInputError(name, f"expected 0 to 0.3, got {v!r}")
+        g = self.gate_fraction
+        if not (isinstance(g, (int, float)) and math.isfinite(g) and 0.0 < g <= 1.0):
+            raise InvalidInputError("gate_fraction", f"expected a fraction in (0, 1], got {g!r}")
+        u = np.asarray(self.direction, dtype=float)
+        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-9:
+            raise InvalidInputError(
+                "direction", f"expected a non-zero 3-vector, got {self.direction!r}"
+            )
+        object.__setattr__(self, "direction", tuple((u / np.linalg.norm(u)).tolist()))
+
+    def trace(self, rng: np.random.Generator, duration_s: float) -> BreathingTrace:
+        """The cycles of one run, drawn from ``rng``, covering ``duration_s``.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+        duration_s : float
+
+        Returns
+        -------
+        BreathingTrace
+        """
+        starts, amps, periods = [0.0], [], []
+        while starts[-1] <= duration_s:
+            amps.append(
+                self.amplitude_mm * max(0.0, 1.0 + self.amplitude_jitter * rng.standard_normal())
+            )
+            periods.append(
+                self.period_s * max(0.25, 1.0 + self.period_jitter * rng.standard_normal())
+            )
+            starts.append(starts[-1] + periods[-1])
+        return BreathingTrace(self, np.array(starts[:-1]), np.array(amps), np.array(periods))
+
+
+#: Presets: issue 21's figures (superior-inferior, 4 s).
+PRESETS: dict[str, Breathing] = {
+    "lung": Breathing(amplitude_mm=5.0),
+    "liver": Breathing(amplitude_mm=13.0),
+}
+
+
+@dataclass(frozen=True)
+class BreathingTrace:
+    """One run's breathing: the cycles as they came (start, amplitude, period).
+
+    Attributes
+    ----------
+    breathing : Breathing
+    starts_s, amplitudes_mm, periods_s : ndarray
+    """
+
+    breathing: Breathing
+    starts_s: np.ndarray
+    amplitudes_mm: np.ndarray
+    periods_s: np.ndarray
+
+    def _cycle(self, t: float) -> int:
+        return max(
+            0, min(int(np.searchsorted(self.starts_s, t, "right")) - 1, len(self.starts_s) - 1)
+        )
+
+    def actual(self, t: float) -> np.ndarray:
+        """The displacement at ``t`` (mm, RAS).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        k = self._cycle(t)
+        x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
+        return (
+            self.amplitudes_mm[k]
+            * math.sin(math.pi * x) ** (2 * self.breathing.shape)
+            * np.asarray(self.breathing.direction)
+        )
+
+    def predicted(self, t: float) -> np.ndarray:
+        """The displacement predicted at ``t``: the nominal cycle from the current cycle's
+        start (known, e.g. from a respiratory belt).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        b = self.breathing
+        k = self._cycle(t)
+        x = (t - self.starts_s[k]) / b.period_s
+        s = math.sin(math.pi * x) ** (2 * b.shape) if 0.0 <= x <= 1.0 else 0.0
+        return b.amplitude_mm * s * np.asarray(b.direction)
+
+    def in_window(self, t: float) -> bool:
+        """Whether ``t`` is in the predicted end-exhale window (``gate``).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        bool
+        """
+        b = self.breathing
+        return float(np.linalg.norm(self.predicted(t))) <= b.gate_fraction * b.amplitude_mm + 1e-12
+
+
+class Policy:
+    """How the robot inserts through breathing (see the module notes): what moves the
+    needle in the world besides the insertion, what the controller's frame is, and when
+    the needle may advance.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`POLICIES`.
+    trace : BreathingTrace
+    """
+
+    def __init__(self, name: str, trace: BreathingTrace) -> None:
+        if name not in POLICIES:
+            raise InvalidInputError(
+                "policy", f"expected one of {', '.join(POLICIES)}, got {name!r}"
+            )
+        self.name = name
+        self.trace = trace
+
+    def may_advance(self, t: float) -> bool:
+        """Whether the needle may advance at ``t``."""
+        return self.name != "gate" or self.trace.in_window(t)
+
+    def carried(self, t0: float, t1: float, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The needle's world motion from ``t0`` to ``t1`` besides the insertion, as it
+        happened and as the controller knows it.
+
+        Parameters
+        ----------
+        t0, t1 : float
+        advanced : bool
+            Whether the needle advanced (the robot held it) in that step.
+
+        Returns
+        -------
+        (ndarray, ndarray)
+            The true shift and the known one (mm, RAS).
+        """
+        tr = self.trace
+        if self.name == "track":  # the robot moves it with the prediction
+            shift = tr.predicted(t1) - tr.predicted(t0)
+            return shift, shift
+        if self.name == "gate" and not advanced:  # let go: it rides with the tissue
+            return tr.actual(t1) - tr.actual(t0), tr.predicted(t1) - tr.predicted(t0)
+        zero = np.zeros(3)
+        return zero, zero
+
+    def unknown_sigma_mm(self, known_shift) -> float:
+        """SD per axis of what the controller does not know of a step's shift: a needle
+        riding with the tissue moves with the cycle's own amplitude, not the predicted one.
+
+        Parameters
+        ----------
+        known_shift : ndarray, shape (3,)
+
+        Returns
+        -------
+        float
+        """
+        if self.name != "gate":
+            return 0.0
+        return self.trace.breathing.amplitude_jitter * float(np.linalg.norm(known_shift))
+
+    def control_offset(self, t: float) -> np.ndarray:
+        """What the controller subtracts from the sensed tip to get its frame's tip."""
+        return self.trace.predicted(t) if self.name == "track" else np.zeros(3)
