@@ -222,6 +222,15 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
         ["case", "status", "margin wanted", "kept", "open mean", "closed mean", "sd",
          "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"], rows,
     ))  # fmt: skip
+    brows = [
+        [f"lung {c['patient']}", name, f"{b['mean_error_mm']:.3f}", f"{b['sd_error_mm']:.3f}",
+         f"{100 * b['within_1mm']:.0f}", b["violated"], f"{b['procedure_s']:.1f}"]
+        for c in record["cases"] for name, b in c.get("breathing", {}).items()
+    ]  # fmt: skip
+    if brows:
+        print("\nbreathing, closed loop per policy (errors and crossings in the tissue):")
+        print(_fmt_table(["case", "policy", "mean", "sd", "% <= 1 mm", "crossed", "procedure s"],
+                         brows))  # fmt: skip
     print(
         f"targets: closed-loop mean <= 0.5 mm, >= 95 % within 1 mm, no crossing: "
         f"{'hold' if record['holds'] else 'DO NOT hold'} ({record['wall_s']:.0f} s) -> {args.out}"

@@ -24,16 +24,18 @@ carries).
 
 - ``ignore``: the robot holds and inserts the needle as if nothing moved; the controller
   takes the sensed (world) tip for the tissue-frame one.
-- ``gate``: the needle advances only in the end-exhale window (the predicted displacement
+- ``gate``: the needle advances only in the end-exhale window (the known displacement
   at most ``gate_fraction`` of the amplitude); outside it the robot lets go and the needle
   rides with the tissue, and is taken up again when the window opens.
-- ``track``: the robot moves the needle with the *predicted* motion (the nominal cycle from
-  each cycle's start, which a respiratory sensor gives) while inserting, and the controller
-  works in the predicted tissue frame (the sensed tip less the predicted displacement):
+- ``track``: the robot moves the needle with the *known* motion while inserting, and the
+  controller works in the known tissue frame (the sensed tip less the known displacement):
   re-planning there is planning against the predicted motion, the moving anatomy's fields
-  translated by the prediction, which for a rigid motion of the whole anatomy are the
-  static fields; what is left is the prediction's error (the cycle's own amplitude and
-  period).
+  translated by it, which for a rigid motion of the whole anatomy are the static fields;
+  what is left is the error of what is known.
+
+What is known: a respiratory sensor (a belt) gives each breath's shape and phase as it
+happens, not the organ's own amplitude, which the controller takes to be the nominal one
+(:meth:`BreathingTrace.predicted`): the cycle's amplitude jitter is what it does not know.
 
 Procedure time is the simulated time from the first step to the end of the insertion.
 """
@@ -181,8 +183,9 @@ class BreathingTrace:
         )
 
     def predicted(self, t: float) -> np.ndarray:
-        """The displacement predicted at ``t``: the nominal cycle from the current cycle's
-        start (known, e.g. from a respiratory belt).
+        """The displacement as the controller knows it at ``t``: a respiratory sensor (a
+        belt) gives the breath's shape and phase as it happens, not the organ's own
+        amplitude, taken to be the nominal one.
 
         Parameters
         ----------
@@ -194,12 +197,11 @@ class BreathingTrace:
         """
         b = self.breathing
         k = self._cycle(t)
-        x = (t - self.starts_s[k]) / b.period_s
-        s = math.sin(math.pi * x) ** (2 * b.shape) if 0.0 <= x <= 1.0 else 0.0
-        return b.amplitude_mm * s * np.asarray(b.direction)
+        x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
+        return b.amplitude_mm * math.sin(math.pi * x) ** (2 * b.shape) * np.asarray(b.direction)
 
     def in_window(self, t: float) -> bool:
-        """Whether ``t`` is in the predicted end-exhale window (``gate``).
+        """Whether ``t`` is in the end-exhale window (``gate``), by the known displacement.
 
         Parameters
         ----------
