@@ -924,7 +924,7 @@ ROWS = [
     ),
     (
         ["study", "nope"],
-        "error: argument STUDY: invalid choice: 'nope' (choose from 'livers', 'feng-lungs')",
+        "error: argument STUDY: invalid choice: 'nope' (choose from 'livers', 'feng-lungs', 'execute-lungs')",
     ),
     # -- puncture and bench
     (
@@ -1003,6 +1003,43 @@ ROWS = [
         "error: argument --trials: expected a whole number > 0, got '-1'",
     ),
     (["puncture", "--seed", "x"], "error: argument --seed: expected a whole number >= 0, got 'x'"),
+    # -- execute (issue 21)
+    (
+        ["execute", "{TOY}", "{d}/malformed.json"],
+        "error: {d}/malformed.json: not a JSON plan file (Expecting ',' delimiter: line 1 column 8 (char 7))",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "0"],
+        "error: argument --trials: expected a whole number > 0, got '0'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--trial", "3"],
+        "error: --trial: expected a trial number below --trials (2), got 3",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--igtl", "70000"],
+        "error: --igtl: expected [HOST:]PORT with a port in 1-65535, got '70000'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--tip-from-igtl", "X"],
+        "error: --tip-from-igtl: takes the tip from the --igtl link: give that too",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--breathing", "lung", "--breathing-shape", "9"],
+        "error: --breathing-shape: expected a whole number 1 to 6, got 9",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--orientation-noise-rad", "0.1"],
+        "error: --orientation-noise-rad: expected at most 0.05, got 0.1",
+    ),
+    (
+        ["study", "execute-lungs", "--out", "{d}/el", "--crossing-probability", "0.9"],
+        "error: argument --crossing-probability: expected a probability in (0, 0.5], got '0.9'",
+    ),
+    (
+        ["bench", "execute", "--replans", "0"],
+        "error: argument --replans: expected a whole number > 0, got '0'",
+    ),
     (
         ["puncture", "--stability-radius-mm", "-1"],
         "error: argument --stability-radius-mm: must be a finite number >= 0, got '-1'",
@@ -1066,7 +1103,7 @@ ROWS = [
     ),
     (
         ["bench", "nope"],
-        "error: argument SUITE: invalid choice: 'nope' (choose from 'kinematics', 'fields', 'control', 'steerable', 'approach', 'straight', 'scale')",
+        "error: argument SUITE: invalid choice: 'nope' (choose from 'kinematics', 'fields', 'control', 'steerable', 'execute', 'approach', 'straight', 'scale')",
     ),
 ]
 

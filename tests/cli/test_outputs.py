@@ -20,6 +20,8 @@ from needlekit.cli._parser import (
     REPRODUCE_FILES,
     REPRODUCE_PAPERS,
 )
+from needlekit.cli.execute import EXECUTE_FILES
+from needlekit.cli.study import EXECUTE_LUNGS_FILES
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 TOY = str(EXAMPLES / "toy.yaml")
@@ -98,6 +100,8 @@ FILE_OUTPUTS = [
     (["bench", "approach"], "--out"),
     (["bench", "scale"], "--out"),
     (["report", TOY], "--out"),  # the page is checked before any RESULT is read
+    (["execute", TOY, TOY], "--report"),  # any existing file passes the input checks
+    (["bench", "execute"], "--out"),
 ]
 #: Every output folder flag, and the files the command writes in it.
 FOLDER_OUTPUTS = [
@@ -105,6 +109,8 @@ FOLDER_OUTPUTS = [
     (["demo"], "--out", DEMO_FILES),
     (["study", "feng-lungs"], "--out", FENG_LUNGS_FILES),
     (["reproduce", "lecture"], "--out", REPRODUCE_FILES),
+    (["execute", TOY, TOY], "--out", EXECUTE_FILES),
+    (["study", "execute-lungs"], "--out", EXECUTE_LUNGS_FILES),
 ]
 
 #: Output flags the two tests above leave out, and why.

@@ -236,7 +236,16 @@ class Policy:
         self.trace = trace
 
     def may_advance(self, t: float) -> bool:
-        """Whether the needle may advance at ``t``."""
+        """Whether the needle may advance at ``t``.
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        bool
+        """
         return self.name != "gate" or self.trace.in_window(t)
 
     def carried(self, t0: float, t1: float, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +260,7 @@ class Policy:
 
         Returns
         -------
-        (ndarray, ndarray)
+        (ndarray, ndarray), each shape (3,)
             The true shift and the known one (mm, RAS).
         """
         tr = self.trace
@@ -280,5 +289,15 @@ class Policy:
         return self.trace.breathing.amplitude_jitter * float(np.linalg.norm(known_shift))
 
     def control_offset(self, t: float) -> np.ndarray:
-        """What the controller subtracts from the sensed tip to get its frame's tip."""
+        """What the controller subtracts from the sensed tip to get its frame's tip.
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The known displacement (``track``), or zero.
+        """
         return self.trace.predicted(t) if self.name == "track" else np.zeros(3)

@@ -142,7 +142,7 @@ class LoopHooks:
         Called every ``observe_every_s`` of simulated time, and once at the end, with
         ``(t_s, true_pose, estimated_pose, plan_points_mm, state)``; ``state`` a dict of
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
-        (``"inserting"`` or ``"done"``).
+        (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"done"``).
     observe_every_s : float
     breathing : needlekit.execute.breathing.Policy or None
         The anatomy breathing, and the policy the robot inserts with: the recorded path
@@ -192,7 +192,8 @@ def execute_plan(
     replanner : Replanner, optional
         Closed loop, re-plan from the estimated tip when it drifts from the plan.
     hooks : LoopHooks, optional
-        Closed loop: step timings, another sensor, an observer.
+        Closed loop: step timings, another sensor, an observer, breathing.
+
     Returns
     -------
     ExecutionRun

@@ -30,6 +30,10 @@ the best plan is certified optimal at the finest resolution; with no plan, the p
 infeasible at that resolution. Every node tries the goal connection (RCS*: turn then
 straight, ending tau short; RCS: one arc to the goal).
 
+A warm start (plans given to begin from, e.g. the rest of a plan being executed) is
+checked first: the cheapest that passes the independent check is the first best plan,
+pruned against from the first node and returned when the search finds nothing cheaper.
+
 The primitive scheme, ranking, look-ahead and connections follow the reference
 implementation of RCS* by its authors (notes in ``docs/notes/steerable-reference-planner.md``).
 """
