@@ -149,3 +149,42 @@ def test_the_link_flags_are_checked_before_any_work(toy_plan, tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_client_that_leaves_ends_the_stream_in_one_line_and_the_run_goes_on(
+    toy_plan, tmp_path, capsys, caplog
+):
+    port = _free_port()
+    client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port, start_now=True)
+    threading.Timer(0.3, client.stop).start()  # Slicer closed a moment after connecting
+    code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+                 "--igtl", str(port), "--igtl-realtime", "10", "--speed-mm-s", "10",
+                 "--replan-delay-ms", "5"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0 and "Traceback" not in err
+    said = [r.getMessage() for r in caplog.records if "OpenIGTLink" in r.getMessage()]
+    assert len(said) == 1 and "the connection failed" in said[0]
+    record = json.loads((tmp_path / "execute.json").read_text())["trials"][0]["closed_loop"]
+    assert record["final_error_mm"] < 1.0  # the insertion ran to its end
+
+
+def test_the_link_connects_to_a_server_when_given_a_host(toy_plan, tmp_path, capsys):
+    import signal
+
+    port = _free_port()
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    server = pyigtl.OpenIGTLinkServer(port=port, local_server=True)
+    log: list = []
+    server.incoming_messages = _Every(log)
+    try:
+        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+                     "--igtl", f"127.0.0.1:{port}", "--igtl-realtime", "10", "--speed-mm-s",
+                     "10", "--replan-delay-ms", "5"])  # fmt: skip
+        time.sleep(0.2)
+    finally:
+        server.stop()
+        for s, h in before.items():
+            signal.signal(s, h)
+    sent = int(capsys.readouterr().out.split("OpenIGTLink: ")[1].split()[0])
+    assert code == 0 and sent > 0
+    assert Counter(m.device_name for m in log)["NeedleTip"] == sent // 4

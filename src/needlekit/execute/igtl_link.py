@@ -20,13 +20,22 @@ With a tip name (``--tip-from-igtl NAME``), :class:`IGTLTipSensor` takes the sen
 from the incoming TRANSFORMs of that name instead of the simulated sensor: a tracker behind
 PLUS sends ``NeedleToTracker``. Each new message is a sample taken at its timestamp.
 
+When the other end goes away (Slicer closed, a cable pulled), the link says so in one
+logged line and stops sending; the insertion runs on and its record is written. pyigtl's
+own connection loops would print a traceback there: the link runs its own (the same
+reading and sending, through pyigtl's message code).
+
 pyigtl is optional: ``pip install 'needlekit[igtl]'``.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import signal
+import socket
+import socketserver
+import threading
 import time
 
 import numpy as np
@@ -35,6 +44,8 @@ from needlekit.control.em import EMSample
 from needlekit.errors import InvalidInputError
 
 __all__ = ["DEFAULT_PORT", "IGTLLink", "IGTLTipSensor", "parse_address"]
+
+log = logging.getLogger(__name__)
 
 #: OpenIGTLink's registered port.
 DEFAULT_PORT: int = 18944
@@ -84,6 +95,56 @@ def _pyigtl():
     return pyigtl
 
 
+def _serve(endpoint, sock) -> None:
+    """Read what arrives and send what is queued until asked to stop or the connection
+    fails (then one logged line, and ``endpoint.lost`` says why)."""
+    try:
+        while not endpoint.communication_thread_stop_requested:
+            while endpoint._receive_message_from_socket(sock):
+                if endpoint.communication_thread_stop_requested:
+                    break
+            while endpoint._send_queued_message_from_socket(sock):
+                pass
+    except Exception as exc:  # whatever the peer did: one line, no traceback
+        endpoint.lost = f"{type(exc).__name__}: {exc}"
+        endpoint._connected = False
+        log.warning("OpenIGTLink: the connection failed (%s); streaming stops", endpoint.lost)
+
+
+class _Handler(socketserver.BaseRequestHandler):
+    """The server's loop for its client (:func:`_serve`)."""
+
+    def handle(self) -> None:
+        self.server._connected = True
+        self.request.settimeout(0.01)
+        _serve(self.server, self.request)
+
+
+def _client(pyigtl, host: str, port: int):
+    """A pyigtl client whose connection loop is :func:`_serve` (it connects, then serves
+    until the connection fails, and does not connect again)."""
+
+    class Client(pyigtl.OpenIGTLinkClient):
+        def _client_thread_function(self) -> None:
+            sock = None
+            while not self.communication_thread_stop_requested and sock is None:
+                try:
+                    sock = socket.create_connection((host, port), timeout=0.5)
+                except OSError:
+                    time.sleep(0.01)
+            if sock is not None:
+                sock.settimeout(0.01)
+                self._connected = True
+                _serve(self, sock)
+                sock.close()
+            self.communication_thread_stopped = True
+
+    client = Client(host=host, port=port, start_now=False)
+    client.lost = None
+    client.start()
+    return client
+
+
 class IGTLLink:
     """One OpenIGTLink connection: a server on ``port`` (no host) or a client to
     ``host:port``.
@@ -108,9 +169,12 @@ class IGTLLink:
         pyigtl = _pyigtl()
         self._messages = pyigtl
         if host is None:
-            self.endpoint = pyigtl.OpenIGTLinkServer(port=port, local_server=True)
+            self.endpoint = pyigtl.OpenIGTLinkServer(port=port, local_server=True, start_now=False)
+            self.endpoint.RequestHandlerClass = _Handler
+            self.endpoint.lost = None
+            threading.Thread(target=self.endpoint.serve_forever, daemon=True).start()
         else:
-            self.endpoint = pyigtl.OpenIGTLinkClient(host=host, port=port)
+            self.endpoint = _client(pyigtl, host, port)
         self.realtime = float(realtime)
         self.sent = 0
         deadline = time.monotonic() + wait_s
@@ -153,6 +217,8 @@ class IGTLLink:
         -------
         None
         """
+        if self.endpoint.lost is not None:  # said once, when it happened
+            return
         if self.realtime > 0:
             wait = self.t0_wall + t_s / self.realtime - time.time()
             if wait > 0:
