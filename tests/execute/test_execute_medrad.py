@@ -51,7 +51,8 @@ def test_study_execute_lungs_writes_each_case_as_execute_would(medrad_dir, tmp_p
                  "--pilot-trials", "2", "--medrad", str(medrad_dir), "--out", str(out)])  # fmt: skip
     record = json.loads((out / "execute_lungs.json").read_text())
     (case,) = record["cases"]
-    assert case["status"] == "done" and code == (0 if record["holds"] else 1)
+    # lung 4's path passes 1.4 mm from everything: two closed-loop trials meet the targets
+    assert case["status"] == "done" and record["holds"] and code == 0
     assert 0.0 < case["margin_mm"] <= case["margin_wanted_mm"] + 0.05
     scenario = yaml.safe_load((out / "lung4" / "scenario.yaml").read_text())
     assert scenario["needle"]["safety_margin_mm"] == case["margin_mm"]
