@@ -188,8 +188,9 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
     from needlekit.batch import open_executor
     from needlekit.cli.execute import execute_options
     from needlekit.studies.execute_lungs import run_execute_lungs
+    from needlekit.studies.execute_study import LUNG_R_MIN_MM
 
-    options = execute_options(args, 50.0)  # the lungs' needle: r_min 50 mm
+    options = execute_options(args, LUNG_R_MIN_MM)
     patients = tuple(args.patients)
     with (
         open_executor(

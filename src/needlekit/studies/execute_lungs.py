@@ -44,7 +44,7 @@ from needlekit.io.partial import read_partial, write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
-from needlekit.scenario.problems import ScenarioSource, problem_from_scenario
+from needlekit.scenario.problems import ScenarioSource
 from needlekit.studies.execute_study import (
     EXECUTE_FILE,
     ExecuteOptions,
@@ -151,13 +151,13 @@ class _Study:
 def _decide(st: _Study, patient: int) -> dict:
     """The margin and the plan of one lung (steps 1 and 2), its files written."""
     doc0 = lung_scenario_document(patient, 0.0, st.medrad_dir)
-    sc0, problem0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml").cached()
+    _, problem0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml").cached()
     res0 = solve_rcs(problem0, time_limit_s=PLAN_TIME_LIMIT_S)
     if res0.status.value != "solved":
         return {"patient": patient, "status": res0.status.value,
                 "reason": "no plan without a margin"}  # fmt: skip
-    truth = problem_from_scenario(sc0, safety_margin_mm=0.0)
-    sigma = pilot_deviation(problem0, truth, res0.plan, st.options, st.seed, st.pilot_trials)
+    # no margin: the problem is its own margin-free twin
+    sigma = pilot_deviation(problem0, problem0, res0.plan, st.options, st.seed, st.pilot_trials)
     wanted = noise_margin_mm(sigma, st.crossing_probability)
     margin, doc, _, res = plan_with_margin(patient, wanted, st.medrad_dir)
     if res.status.value != "solved":

@@ -49,6 +49,7 @@ from needlekit.scenario.problems import problem_from_scenario
 
 __all__ = [
     "EXECUTE_FILE",
+    "LUNG_R_MIN_MM",
     "LITERATURE",
     "ExecuteOptions",
     "loop_summary",
@@ -108,6 +109,10 @@ class ExecuteOptions:
             raise InvalidInputError("breathing", "expected a Breathing")
 
 
+#: The needle of the lung scenarios (:func:`lung_scenario_document`): its r_min (mm).
+LUNG_R_MIN_MM: float = 50.0
+
+
 def lung_scenario_document(patient: int, margin_mm: float, medrad_dir=None) -> dict:
     """The scenario of Med-RAD lung ``patient``, start 1, to its target, as
     ``examples/medrad_lung1.yaml`` has it for patient 1 (the reference planner's needle and
@@ -135,7 +140,7 @@ def lung_scenario_document(patient: int, margin_mm: float, medrad_dir=None) -> d
         "base": {"medrad": medrad},
         "needle": {
             "diameter_mm": 1.0,
-            "r_min_mm": 50,
+            "r_min_mm": LUNG_R_MIN_MM,
             "max_length_mm": 150,
             "max_heading_change_deg": 90,
             "start_exclusion_mm": 3,
