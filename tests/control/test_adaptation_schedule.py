@@ -79,7 +79,17 @@ def test_without_a_delay_a_trial_is_the_loop_before_the_schedule_field_by_field(
     assert old.counts["needle_samples"] > 200 and list(old.phase_times_s) == ["adapt", "align"]
     assert old.events and len(old.log["t_s"]) > 200
     for f in dataclasses.fields(TrialResult):
+        if f.name in _AFTER_THE_LEGACY_COPY:
+            continue
         assert _same(getattr(new, f.name), getattr(old, f.name)), f.name
+    # the fields the legacy loop did not have agree with the ones it had
+    miss = float(np.linalg.norm(new.final_tip_pose[:3, 3] - setup.target_mm))
+    assert miss == new.position_error_mm
+    assert math.isnan(new.min_needle_gap_mm)  # no placed needles
+
+
+#: TrialResult fields added after the legacy loop was copied (issue 21 point 5).
+_AFTER_THE_LEGACY_COPY = {"final_tip_pose", "final_estimated_tip_pose", "min_needle_gap_mm"}
 
 
 def test_without_a_delay_every_needle_sample_is_adapted_in_its_own_tick():

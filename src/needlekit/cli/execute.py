@@ -35,6 +35,9 @@ example:
   needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trials 100 --seed 0 \\
       --out out/lung1 --workers 2
   needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trial 17 --out out/t17
+  needlekit multi examples/medrad_liver4.yaml --out out/liver4/multi.json
+  needlekit execute examples/medrad_liver4.yaml out/liver4/multi.json --trials 20 \
+      --out out/liver4 --workers 2
 """
 
 
@@ -226,6 +229,15 @@ def load_checked_plan(args: argparse.Namespace):
 
 
 def _cmd_execute(args: argparse.Namespace) -> int:
+    from needlekit.io.files import read_json_object
+
+    record = read_json_object(args.plan, "plan")
+    if "needles" in record:  # a straight multi-needle plan: the robot inserts it
+        from needlekit.cli.execute_multi import run_multi
+
+        return run_multi(args, record)
+    if args.registration_sd_mm is not None:
+        raise InvalidInputError("--registration-sd-mm", "applies to a multi plan (multi.json)")
     _check_flags(args)
     from tqdm import tqdm
 
@@ -392,7 +404,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Insert a steerable plan with a needle that does not follow its model "
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
         "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle or a "
-        "trial crashed.",
+        "trial crashed. A straight multi plan (multi.json) is inserted by the simulated Panda "
+        "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
+        "VFIs; exit 1 when a needle touched a placed one, left its constraints, or a trial "
+        "crashed.",
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -422,9 +437,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                       "fast as it runs)")  # fmt: skip
     live.add_argument("--igtl-wait-s", type=_non_negative, default=30.0, metavar="S",
                       help="how long to wait for the other end (default 30)")  # fmt: skip
+    robot = ex.add_argument_group("a multi plan (multi.json), inserted by the robot")
+    robot.add_argument("--registration-sd-mm", type=_non_negative, metavar="MM",
+                       help="the anatomy lies offset from where the robot believes it: SD "
+                       "per axis of one offset per trial (default 0, at most 10)")  # fmt: skip
     _flags.add_cache_options(ex)
     _flags.add_executor_options(ex)
     _flags.RESUME.add(
         ex, help="carry on from the partial DIR/execute.json an interrupted run wrote"
     )
-    ex.set_defaults(command_handler=_cmd_execute)
+    from needlekit.cli.execute_multi import STEERABLE_ONLY
+
+    ex.set_defaults(
+        command_handler=_cmd_execute,
+        steerable_defaults={d: ex.get_default(d) for d in STEERABLE_ONLY},
+    )

@@ -215,3 +215,67 @@ def control_qp(task, kind, q, tip, axis, jt, ja, axes, origins, ks, geo, par, p_
     for r in range(n, bl.shape[0]):
         bl[r] = -_INF
     return err, infeasible
+
+
+@nb.njit(cache=True)
+def _segment_params(p0, d1, q0, d2):
+    """The closest points' parameters ``(s, t)`` in [0, 1] of the segments ``p0 + s d1`` and
+    ``q0 + t d2`` (``d2`` of non-zero length; ``d1`` may be zero, a point); for parallel
+    segments, one of the closest pairs."""
+    r0, r1, r2 = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
+    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
+    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
+    b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+    c = d1[0] * r0 + d1[1] * r1 + d1[2] * r2
+    f = d2[0] * r0 + d2[1] * r1 + d2[2] * r2
+    if a <= 1e-12:  # the first is a point
+        return 0.0, min(max(f / e, 0.0), 1.0)
+    denom = a * e - b * b
+    s = 0.0
+    if denom > 1e-12 * a * e:
+        s = min(max((b * f - c * e) / denom, 0.0), 1.0)
+    t = (b * s + f) / e
+    if t < 0.0:
+        t = 0.0
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t = 1.0
+        s = min(max((b - c) / a, 0.0), 1.0)
+    return s, t
+
+
+@nb.njit(cache=True)
+def shaft_rows(tip, axis, jt, ja, length, segs, safe2, gain, A, bu, row0, fill):
+    """The placed-needle VFIs: the held needle's shaft (``tip - s axis``, ``s`` in
+    ``[0, length]``) outside radius ``sqrt(safe2)`` of each placed needle's segment
+    ``segs[i, 0] -> segs[i, 1]`` (OUTSIDE zone on the squared distance ``D``, with
+    ``D_dot = 2 w . (J_tip - s J_axis) q_dot``, ``w`` the closest points' offset).
+
+    With ``fill`` the rows go to ``A[row0 + i]`` and ``bu[n + row0 + i]`` (n = joints);
+    returns the smallest squared distance (mm^2; infinity without segments).
+    """
+    n = jt.shape[1]
+    d1 = np.empty(3)
+    for r in range(3):
+        d1[r] = -length * axis[r]
+    best = np.inf
+    for i in range(segs.shape[0]):
+        q0 = segs[i, 0]
+        d2 = segs[i, 1] - segs[i, 0]
+        s, t = _segment_params(tip, d1, q0, d2)
+        w0 = tip[0] + s * d1[0] - q0[0] - t * d2[0]
+        w1 = tip[1] + s * d1[1] - q0[1] - t * d2[1]
+        w2 = tip[2] + s * d1[2] - q0[2] - t * d2[2]
+        dd = w0 * w0 + w1 * w1 + w2 * w2
+        best = min(best, dd)
+        if fill:
+            sl = s * length
+            for c in range(n):
+                g = (
+                    w0 * (jt[0, c] - sl * ja[0, c])
+                    + w1 * (jt[1, c] - sl * ja[1, c])
+                    + w2 * (jt[2, c] - sl * ja[2, c])
+                )
+                A[row0 + i, c] = -2.0 * g
+            bu[n + row0 + i] = gain * (dd - safe2)
+    return best

@@ -168,6 +168,16 @@ class ControllerSettings:
         PUNCTURE's task also holds the needle on the guide direction (weighted like
         APPROACH); without it (the paper's translation-only task) the redundant arm lets
         the needle drift to the cone's edge, where the cone VFI stops it.
+    needle_radius_mm : float
+        Radius of the held needle and of the needles already placed (the placed-needle
+        VFIs; 1 mm, a 2 mm microwave antenna).
+    needle_gap_mm : float
+        Smallest surface-to-surface gap the placed-needle VFIs keep between the held
+        needle's shaft and a placed needle (the safe distance between the axes is
+        ``2 needle_radius_mm + needle_gap_mm``).
+    eta_needle : float
+        Gain of the placed-needle VFIs. The adaptation does not share their decay rate (its
+        rows are the step's own VFIs), so the joints take all of it.
     """
 
     eta: float = 0.5
@@ -184,6 +194,9 @@ class ControllerSettings:
     eta_plane: float = 5.0
     eta_joints: float = 1.0
     puncture_keeps_axis: bool = True
+    needle_radius_mm: float = 1.0
+    needle_gap_mm: float = 0.5
+    eta_needle: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -198,7 +211,8 @@ class ControlOutput:
     task_error : ndarray
     distances : dict
         The VFI distances of the step (``patient_sq_mm2`` (smallest), ``guide_sq_mm2``,
-        ``cone_f``, ``plane_mm``).
+        ``cone_f``, ``plane_mm``, and with placed needles ``needle_sq_mm2``, the smallest
+        squared distance between the axes).
     """
 
     q_dot: np.ndarray
@@ -334,6 +348,7 @@ def control_step(
     vfis: list[StepVFI] | None = None,
     vfi_share: float = 1.0,
     solver: QPSolver | str | None = None,
+    placed: np.ndarray | None = None,
 ) -> ControlOutput:
     """Joint velocities for one control step (Tang et al.'s Eq. 1 with the step's VFIs).
 
@@ -359,6 +374,11 @@ def control_step(
     solver : QPSolver or str, optional
         The QP solver (an object or a registered name,
         :func:`~needlekit.control.qp_registry.get_qp_solver`; default DAQP).
+    placed : ndarray, shape (k, 2, 3), optional
+        Needles already placed, each as its segment (tip, then the hub end; mm, world),
+        where the controller believes them: one more VFI row each keeps the held needle's
+        shaft (tip to flange, the model's needle length) ``2 needle_radius_mm +
+        needle_gap_mm`` from its axis (:func:`needlekit.control._tick.shaft_rows`).
 
     Returns
     -------
@@ -388,7 +408,8 @@ def control_step(
         m = 3 if kind == _tick.VFI_PUNCTURE else len(ks)
     else:
         kind, m = _tick.VFI_NONE, len(vfis)
-    H, f, A, bu, bl, dist = _buffers(n, m)
+    k = 0 if placed is None else len(placed)
+    H, f, A, bu, bl, dist = _buffers(n, m + k)
     err, infeasible = _tick.control_qp(
         task, kind, s.q, s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian, s.axes,
         s.origins, ks, geo, par, p_d, v_d, model.q_min, model.q_max, model.q_dot_max,
@@ -405,6 +426,13 @@ def control_step(
             A[i], bu[n + i] = vfi_row(v.distance, v.jac_q, v.safe, v.zone, vfi_share * v.gain)
             key = _DIST_KEYS[v.name]
             distances[key] = min(distances.get(key, np.inf), v.distance)
+    if k:
+        gap = 2.0 * cfg.needle_radius_mm + cfg.needle_gap_mm
+        distances["needle_sq_mm2"] = _tick.shaft_rows(
+            s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian,
+            float(np.linalg.norm(model.flange_T_tip[:3, 3])), placed, gap * gap,
+            cfg.eta_needle, A, bu, m, True,
+        )  # fmt: skip
     sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)
     q_dot = sol.x if sol.status is QPStatus.OPTIMAL else np.zeros(n)
     return ControlOutput(q_dot, sol.status, err, distances)

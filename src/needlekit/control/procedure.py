@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.control import _tick
 from needlekit.control.adaptation import AdaptationSettings, MeasurementHistory
 from needlekit.control.controller import ControllerSettings, GuideLine, Step, control_step
 from needlekit.control.em import EMSensor, EMSensorSpec
@@ -285,7 +286,9 @@ class _TrialRun:
         delay = int(ps.adaptation_delay_steps)
         self.mailbox = AdaptationMailbox(delay) if delay else None
         self.scope_sum, self.scope_n = np.zeros(6), 0
-        self.guide = None
+        self.guide = self.true_guide if setup.guide_known else None
+        self.placed, self.placed_true = setup.placed_needles, setup.placed_needles_true
+        self.min_gap2 = np.inf  # the real shaft's smallest squared distance to a placed needle
         self.phase, self.phase_start = Phase.ADAPT, 0.0
         self.times = {Phase.ADAPT.value: 0.0}
         self.counts = dict.fromkeys(
@@ -360,7 +363,11 @@ class _TrialRun:
         if self.mailbox is not None and (update := self.mailbox.due(tick)) is not None:
             self.a, self.est, self.converged = _apply(update, self.converged, self.counts)
             kind = "control+apply"
-        if scope_sample is not None and not (ps.guide_samples and self.scope_n >= ps.guide_samples):
+        if (
+            scope_sample is not None
+            and not self.setup.guide_known
+            and not (ps.guide_samples and self.scope_n >= ps.guide_samples)
+        ):
             pose = scope_sample.pose
             self.scope_sum += np.concatenate([pose[:3, 3], pose[:3, 2]])
             self.scope_n += 1
@@ -416,7 +423,7 @@ class _TrialRun:
         self.p_d = p_d
         out = control_step(
             self.est, self.q, step, guide, self.cs, desired_mm=p_d, desired_velocity_mm_s=v_d,
-            state=state, vfi_share=ps.vfi_share, solver=self.solver,
+            state=state, vfi_share=ps.vfi_share, solver=self.solver, placed=self.placed,
         )  # fmt: skip
         if out.status is not QPStatus.OPTIMAL:
             self.counts["qp_infeasible"] += 1
@@ -445,6 +452,8 @@ class _TrialRun:
         ``(tip, tip - target, distance from the line, angle)``."""
         guide, phase = self.true_guide, self.phase
         tip_true, axis_true = true_tip[:3, 3], true_tip[:3, 2]
+        if self.placed_true is not None and phase is not Phase.ADAPT:
+            self.min_gap2 = min(self.min_gap2, self._shaft_sq_distance(tip_true, axis_true))
         rel = tip_true - guide.target_mm
         to_line = _distance_from_line(tip_true, guide.line)
         angle = _angle_deg(axis_true, guide.insertion_direction)
@@ -466,6 +475,14 @@ class _TrialRun:
             )
             self.min_patient = min(self.min_patient, float(np.sqrt(d2.min())))
         return tip_true, rel, to_line, angle
+
+    def _shaft_sq_distance(self, tip, axis) -> float:
+        """The real shaft's smallest squared distance to a real placed needle's axis."""
+        length = float(np.linalg.norm(self.truth.flange_T_tip[:3, 3]))
+        return _tick.shaft_rows(
+            tip, axis, _NO_JOINTS, _NO_JOINTS, length, self.placed_true, 0.0, 0.0,
+            _NO_ROWS, _NO_BOUNDS, 0, False,
+        )  # fmt: skip
 
     def _log_tick(self, t, state, tip_true, rel, to_line, angle) -> None:
         """One row of the trajectories."""
@@ -514,6 +531,9 @@ class _TrialRun:
                 reason = f"the puncture stopped {short:.1f} mm short of the target"
             elif not reached:  # the robot believes it is there; the real tip is not
                 reason = f"estimated at the target; the real tip ended {miss:.1f} mm from it"
+        gap = math.nan
+        if self.placed_true is not None and math.isfinite(self.min_gap2):
+            gap = math.sqrt(self.min_gap2) - 2.0 * self.cs.needle_radius_mm
         return TrialResult(
             status, reason, miss,
             _angle_deg(final[:3, 2], self.true_guide.insertion_direction),
@@ -521,8 +541,13 @@ class _TrialRun:
             self.start_line, self.start_cone, self.in_line, self.in_cone,
             reached_estimated, reached, self.times, counts,
             {k: np.asarray(v) for k, v in self.log.items()}, self.events,
+            final, self.est.tip_pose(self.q), gap,
         )  # fmt: skip
 
+
+_NO_JOINTS = np.zeros((3, 0))
+_NO_ROWS = np.zeros((0, 0))
+_NO_BOUNDS = np.zeros(0)
 
 _STEP_OF = {
     Phase.ALIGN: Step.ALIGN,

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from needlekit.control.panda import PandaModel
+from needlekit.errors import InvalidInputError
 from needlekit.records import Status
 
 __all__ = ["TrialResult", "TrialSetup"]
@@ -28,6 +29,15 @@ class TrialSetup:
     target_mm : ndarray, shape (3,)
     guide_direction : ndarray, shape (3,)
         ``l_g``, pointing out of the patient.
+    guide_known : bool
+        The robot is given the guide line (``target_mm``, ``guide_direction``: a plan's
+        line through the registration) instead of measuring it with the bronchoscope
+        sensor (Tang et al.'s setup, the default).
+    placed_needles : ndarray, shape (k, 2, 3), optional
+        Needles already placed, as the robot believes them (each its tip and its hub end,
+        mm): the controller keeps the held needle's shaft off them (placed-needle VFIs).
+    placed_needles_true : ndarray, shape (k, 2, 3), optional
+        The same needles where they really are: the trial measures the real gap to them.
     """
 
     arm: PandaModel
@@ -36,6 +46,23 @@ class TrialSetup:
     q0: np.ndarray
     target_mm: np.ndarray
     guide_direction: np.ndarray
+    guide_known: bool = False
+    placed_needles: np.ndarray | None = None
+    placed_needles_true: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("placed_needles", "placed_needles_true"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            arr = np.ascontiguousarray(v, dtype=float)
+            if arr.ndim != 3 or arr.shape[1:] != (2, 3) or not np.isfinite(arr).all():
+                raise InvalidInputError(
+                    name, f"expected finite (k, 2, 3) segments, got {arr.shape}"
+                )
+            if (np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1) <= 1e-9).any():
+                raise InvalidInputError(name, "a segment has no length")
+            object.__setattr__(self, name, arr if len(arr) else None)
 
 
 @dataclass(frozen=True)
@@ -87,6 +114,11 @@ class TrialResult:
         (against the real guide line), and the real ``tip_mm`` (rows of 3).
     events : list of (float, str)
         When the robot stopped because the needle sensor fell silent, and when it resumed.
+    final_tip_pose, final_estimated_tip_pose : ndarray, shape (4, 4), optional
+        The real tip pose at the end, and the robot's estimate of it.
+    min_needle_gap_mm : float
+        With placed needles: the smallest real surface-to-surface gap between the held
+        needle's shaft (tip to flange) and a placed needle, from ALIGN on (NaN without).
     """
 
     status: Status
@@ -107,3 +139,6 @@ class TrialResult:
     counts: dict = field(default_factory=dict)
     log: dict = field(default_factory=dict)
     events: list = field(default_factory=list)
+    final_tip_pose: np.ndarray | None = None
+    final_estimated_tip_pose: np.ndarray | None = None
+    min_needle_gap_mm: float = math.nan
