@@ -1033,6 +1033,10 @@ ROWS = [
         "error: --orientation-noise-rad: expected at most 0.05, got 0.1",
     ),
     (
+        ["execute", "{TOY}", "{d}/malformed.json", "--registration-sd-mm", "1"],
+        "error: --registration-sd-mm: applies to a multi plan (multi.json)",
+    ),
+    (
         ["study", "execute-lungs", "--out", "{d}/el", "--crossing-probability", "0.9"],
         "error: argument --crossing-probability: expected a probability in (0, 0.5], got '0.9'",
     ),

@@ -66,3 +66,26 @@ def test_study_execute_lungs_writes_each_case_as_execute_would(medrad_dir, tmp_p
     for t in trials:  # lung 4's path passes 1.4 mm from everything: nothing is crossed
         assert not t["open_loop"]["violated"] and not t["closed_loop"]["violated"]
         assert t["closed_loop"]["final_error_mm"] < 1.0
+
+
+def test_liver4_multi_plan_inserted_by_the_robot_touches_nothing_and_keeps_its_constraints(
+    medrad_dir, tmp_path, capsys, monkeypatch
+):
+    """Issue 21 point 5 on Med-RAD liver 4: its six-needle coverage plan inserted once;
+    no needle touches a placed one or leaves its constraints, and the zones at the
+    executed tips still cover the tumour (the 20-trial figures: docs/execute.md)."""
+    from pathlib import Path
+
+    monkeypatch.setenv("NEEDLEKIT_MEDRAD", str(medrad_dir))
+    scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_liver4.yaml"
+    plan = tmp_path / "multi.json"
+    assert main(["multi", str(scenario), "--out", str(plan)]) == 0
+    assert main(["execute", str(scenario), str(plan), "--trials", "1",
+                 "--out", str(tmp_path / "x")]) == 0  # fmt: skip
+    doc = json.loads((tmp_path / "x" / "execute.json").read_text())
+    s = doc["summary"]
+    assert s["needles"] == 6 and s["statuses"] == {"solved": 6}
+    assert s["touched"] == [] and s["min_needle_gap_mm"] > 0.0
+    assert s["constraints"]["total"] == 0
+    assert s["coverage"]["tumour_coverage"]["min"] == 1.0
+    assert "6 needles in 1 trials: 0 touched" in capsys.readouterr().out

@@ -231,7 +231,10 @@ def load_checked_plan(args: argparse.Namespace):
 def _cmd_execute(args: argparse.Namespace) -> int:
     from needlekit.io.files import read_json_object
 
-    record = read_json_object(args.plan, "plan")
+    try:
+        record = read_json_object(args.plan, "plan")
+    except InvalidInputError:
+        record = {}  # the plan's reader says what is wrong, after the flags
     if "needles" in record:  # a straight multi-needle plan: the robot inserts it
         from needlekit.cli.execute_multi import run_multi
 

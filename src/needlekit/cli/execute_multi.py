@@ -36,20 +36,16 @@ def check_multi_flags(args: argparse.Namespace) -> None:
     Raises
     ------
     InvalidInputError
-        A steerable-only flag given, ``--resume``, ``--report``, or a bad value; named by
-        its flag.
+        A steerable-only flag given, ``--resume`` with ``--trial``, or a bad value; named
+        by its flag.
     """
     defaults = args.steerable_defaults
     for dest in STEERABLE_ONLY:
         if getattr(args, dest) != defaults[dest]:
             flag = "--" + dest.replace("_", "-")
             raise InvalidInputError(flag, "applies to a steerable plan; the plan is a multi plan")
-    if args.resume:
-        raise InvalidInputError("--resume", "not for a multi plan yet: run the trials again")
-    if args.report is not None:
-        raise InvalidInputError(
-            "--report", "not for a multi plan yet: the figures are in DIR/execute.json"
-        )
+    if args.trial is not None and args.resume:
+        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
     if args.trial is not None and args.trial >= args.trials:
         raise InvalidInputError(
             "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
@@ -170,12 +166,19 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
             registration_sd_mm=args.registration_sd_mm or 0.0,
             executor=None if args.executor == "serial" else ex,
             progress=lambda _: bar.update(1), scenario_name=sc.name or args.scenario.name,
+            resume=args.resume,
         )  # fmt: skip
+    if args.report is not None:
+        from needlekit.report.execute_multi_report import write_multi_execute_report
+
+        write_multi_execute_report(args.report, run.document, multi.problem.scene, record)
     s = run.document["summary"]
     print(multi_table(s))
     for c in s["crashed"]:
         print(f"  trial {c['trial']} crashed: {c['error']}")
     print(f"-> {run.path}")
+    if args.report is not None:
+        print(f"-> {args.report}")
     bad = s["touched"] or s["constraints"]["total"] or s["crashed"]
     return EXIT_OK if not bad else 1
 

@@ -44,7 +44,7 @@ from needlekit import __version__
 from needlekit.batch import SerialExecutor, as_completed_indexed
 from needlekit.errors import Interrupted
 from needlekit.io.files import write_json
-from needlekit.io.partial import write_partial
+from needlekit.io.partial import read_partial, write_partial
 from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, trial_settings
 from needlekit.studies.puncture_summary import _Bounds, _violations
 from needlekit.studies.robot_registration import place_patient
@@ -240,6 +240,7 @@ def run_multi_execution(
     executor=None,
     progress=None,
     scenario_name: str = "",
+    resume: bool = False,
 ) -> MultiExecution:
     """Insert a checked multi-needle plan ``len(trials)`` times and write
     ``out_dir/execute.json`` (atomically; Ctrl-C writes the trials done, marked partial).
@@ -267,6 +268,9 @@ def run_multi_execution(
     progress : callable, optional
         Called with each finished trial.
     scenario_name : str
+    resume : bool
+        Carry on from the partial ``execute.json`` an interrupted run with the same
+        settings wrote (checked before any trial).
 
     Returns
     -------
@@ -275,7 +279,9 @@ def run_multi_execution(
     Raises
     ------
     InvalidInputError
-        A needle the robot cannot start (:func:`start_distances`).
+        A needle the robot cannot start
+        (:func:`~needlekit.studies.robot_registration.start_distances`), or (named
+        ``--resume``) no partial file of this run to carry on.
     Interrupted
         Ctrl-C.
     """
@@ -300,25 +306,35 @@ def run_multi_execution(
             "nominal_base": list(scenario.nominal_base),
             "nominal_needle": list(scenario.nominal_needle),
         },
+        "plan_needles": [
+            {"order": o, "target_mm": a.tolist(), "entry_mm": e.tolist()}
+            for o, a, e in zip(lines["order"], lines["aimed_mm"], lines["entry_mm"], strict=True)
+        ],
     }
+    path = Path(out_dir) / "execute.json"
+    done: dict = {}
+    if resume:
+        want = {k: v for k, v in head.items() if k != "needlekit_version"}
+        for r in read_partial(path, "execute", want).get("trials_done") or []:
+            done[r["trial"]] = r
     job = (lines, multi.deformation, radius, reg, float(registration_sd_mm), starts, scenario,
            options, seed)  # fmt: skip
-    jobs = [(*job, k) for k in trials]
-    done: dict = {}
-    path = Path(out_dir) / "execute.json"
+    todo = [k for k in trials if k not in done]
+    jobs = [(*job, k) for k in todo]
     t0 = time.perf_counter()
     try:
         for i, result in as_completed_indexed(executor or SerialExecutor(), multi_trial, jobs):
             if coverage is not None and "needles" in result:
                 result["coverage"] = executed_coverage(result["needles"], *coverage)
-            done[trials[i]] = result
+            done[todo[i]] = result
             if progress is not None:
                 progress(result)
     except KeyboardInterrupt:
         kept = [done[k] for k in trials if k in done]
         write_partial(path, {**head, "trials_done": kept})
         raise Interrupted(
-            f"{len(kept)} of {len(trials)} trials done; written to {path} marked partial"
+            f"{len(kept)} of {len(trials)} trials done; written to {path} marked partial; the "
+            "same command with --resume carries on"
         ) from None
     records = [done[k] for k in trials]
     planned = (record.get("coverage") or {}).get("planned")

@@ -1,0 +1,210 @@
+"""``needlekit execute`` on a straight multi-needle plan (issue 21 point 5): the simulated
+Panda inserts the needles in the planned order under Tang et al.'s controller, the placed
+needles kept off by VFIs, the plan's deformation model moving the remaining targets.
+
+On the liver phantom's three needles with the needle-drag deformation: every needle
+solved, within the guide cylinder's radius of its real target, no needle touching a placed
+one, no constraint left, the targets moved as the plan predicted, one trial replayed alone
+to the bit. The registration's geometry against closed forms; bad input refused in one
+line with exit 2 before any trial."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from needlekit.cli import main
+from needlekit.control.controller import ControllerSettings
+from needlekit.studies.guide_filter import GuideFilter
+from needlekit.studies.puncture_study import PunctureScenario
+from needlekit.studies.robot_registration import register_plan, start_distances
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+PHANTOM = EXAMPLES / "liver_phantom_multi.yaml"
+
+
+def test_registration_turns_the_needles_up_and_back():
+    rng = np.random.default_rng(1)
+    targets = rng.uniform(-30, 30, (4, 3))
+    out = np.array([[0.5, -0.4, -0.8], [0.4, -0.5, -0.7], [0.8, 0.0, -0.5], [0.2, -0.8, -0.5]])
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    sc = PunctureScenario()
+    for yaw in (0.0, 35.0):
+        reg = register_plan(targets, out, sc, yaw)
+        r = reg.world_T_ras[:3, :3]
+        assert np.allclose(r.T @ r, np.eye(3), atol=1e-12) and np.linalg.det(r) > 0
+        mean = reg.direction(out.sum(axis=0))
+        assert np.allclose(mean / np.linalg.norm(mean), [0, 0, 1], atol=1e-12)  # up
+        assert np.allclose(reg.point(targets).mean(axis=0), sc.target_center_mm, atol=1e-9)
+        assert np.allclose(reg.to_ras(reg.point(targets)), targets, atol=1e-9)
+        assert np.allclose(reg.patient_axis, r @ [0, 0, 1])
+        # the superior axis, seen from above, points along +y turned by the yaw
+        s = reg.patient_axis[:2] / np.linalg.norm(reg.patient_axis[:2])
+        assert math.degrees(math.atan2(-s[0], s[1])) == pytest.approx(yaw, abs=1e-9)
+
+
+def test_a_start_inside_the_patient_cylinder_moves_out_to_the_first_step_clear_of_it():
+    # l_g 40 deg off the patient axis: the start point d out lies d sin 40 deg from the
+    # axis; R_p = 200 mm -> 300 (192.8) and 310 (199.3) are inside, 320 (205.7) is clear
+    sc, cs = PunctureScenario(), ControllerSettings()
+    lg = np.array([0.0, math.cos(math.radians(40)), math.sin(math.radians(40))])
+    target = np.asarray(sc.target_center_mm, float)
+    reg = register_plan(target[None], -lg[None], sc)  # any: only its patient axis is read
+    reg = type(reg)(reg.world_T_ras, np.array([0.0, 1.0, 0.0]))
+    assert start_distances(target[None], lg[None], reg, sc, cs) == [320.0]
+    f = GuideFilter.from_scenario(sc, cs)
+    from dataclasses import replace
+
+    assert replace(f, start_distance_mm=310.0).verdict(target, lg) == "inside_patient_cylinder"
+
+
+@pytest.fixture(scope="module")
+def drag(tmp_path_factory):
+    """The phantom's three needles planned with the needle-drag deformation, inserted in
+    two trials (two workers), and trial 1 replayed alone."""
+    d = tmp_path_factory.mktemp("multi")
+    text = PHANTOM.read_text().replace(
+        "  objective: min_length", "  objective: min_length\n  deformation: needle_drag"
+    )
+    scenario = d / "drag.yaml"
+    scenario.write_text(text)
+    plan = d / "multi.json"
+    assert main(["multi", str(scenario), "--out", str(plan)]) == 0
+    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--workers", "2",
+                 "--out", str(d / "two")]) == 0  # fmt: skip
+    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--trial", "1",
+                 "--out", str(d / "one"), "--report", str(d / "one" / "page.html")]) == 0  # fmt: skip
+    return {
+        "scenario": scenario,
+        "plan": plan,
+        "record": json.loads(plan.read_text()),
+        "two": json.loads((d / "two" / "execute.json").read_text()),
+        "one": json.loads((d / "one" / "execute.json").read_text()),
+        "dir": d,
+    }
+
+
+def test_every_needle_reaches_its_moved_target_without_touching_a_placed_one(drag):
+    doc, cs = drag["two"], ControllerSettings()
+    assert doc["kind"] == "multi" and [t["trial"] for t in doc["trials"]] == [0, 1]
+    planned = {n["order"]: n for n in drag["record"]["needles"]}
+    for t in doc["trials"]:
+        assert t["seed"] == 0 and t["seed_spawn_key"] == [t["trial"]]
+        assert t["registration_error_mm"] == [0.0, 0.0, 0.0]
+        rows = t["needles"]
+        assert [n["order"] for n in rows] == [1, 2, 3]
+        for n in rows:
+            assert n["status"] == "solved" and n["qp_infeasible"] == 0
+            # the line is known: the tip ends inside the guide cylinder around the target
+            assert n["error_mm"] <= cs.guide_radius_mm
+            p = planned[n["order"]]
+            predicted = np.linalg.norm(np.subtract(p["target_mm"], p["planned_target_mm"]))
+            # the plan's deformation, applied to the needles where they really went
+            assert n["target_shift_mm"] == pytest.approx(predicted, abs=0.3)
+            assert n["aim_off_target_mm"] < 0.3
+        assert rows[0]["target_shift_mm"] == 0.0 and rows[0]["min_needle_gap_mm"] is None
+        assert all(n["target_shift_mm"] > 0.5 for n in rows[1:])  # drag moved them
+        assert all(n["min_needle_gap_mm"] > 0.0 for n in rows[1:])  # no touch
+    s = doc["summary"]
+    assert s["needles"] == 6 and s["touched"] == [] and s["constraints"]["total"] == 0
+    assert s["crashed"] == [] and s["statuses"] == {"solved": 6}
+    assert s["literature"][0]["mean_mm"] == 2.1 and s["literature"][0]["sd_mm"] == 0.6
+    assert s["error_mm"]["n"] == 6 and set(s["by_needle"]) == {"1", "2", "3"}
+
+
+def test_one_trial_replays_alone_to_the_bit(drag):
+    assert drag["one"]["trials"] == [drag["two"]["trials"][1]]
+
+
+def _err(capsys) -> str:
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("error:")]
+    assert len(lines) == 1
+    return lines[0]
+
+
+def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsys):
+    plan, scenario = drag["plan"], drag["scenario"]
+    out = tmp_path / "out"
+    cases = [
+        (["--breathing", "lung"], "error: --breathing: applies to a steerable plan; the plan is "
+         "a multi plan"),
+        (["--cross-track-mm", "1"], "error: --cross-track-mm: applies to a steerable plan; the "
+         "plan is a multi plan"),
+        (["--resume", "--trial", "0"], "error: --resume: carries on a whole study, not one "
+         "--trial"),
+        (["--registration-sd-mm", "11"], "error: --registration-sd-mm: expected at most 10, "
+         "got 11"),
+        (["--trials", "2", "--trial", "2"], "error: --trial: expected a trial number below "
+         "--trials (2), got 2"),
+    ]  # fmt: skip
+    for extra, line in cases:
+        assert main(["execute", str(scenario), str(plan), "--out", str(out), *extra]) == 2
+        assert _err(capsys) == line
+    # the plan aimed for the drag, against the same anatomy without it
+    assert main(["execute", str(PHANTOM), str(plan), "--out", str(out)]) == 2
+    assert re.fullmatch(
+        r"error: plan: multi\.json: needle 2 is aimed \d+\.\d{3} mm from where "
+        r"liver_phantom_multi\.yaml's deformation model moves its target",
+        _err(capsys),
+    )
+    # an entry moved off the skin: fails its check
+    rec = json.loads(plan.read_text())
+    rec["needles"][1]["entry_mm"][2] += 5.0
+    bad = tmp_path / "moved.json"
+    bad.write_text(json.dumps(rec))
+    assert main(["execute", str(scenario), str(bad), "--out", str(out)]) == 2
+    assert _err(capsys).startswith("error: plan: moved.json fails its check against drag.yaml")
+    # made for other targets (Liu et al.'s three-needle case: its first target is the
+    # phantom's first, the others are not)
+    liu = Path(__file__).resolve().parents[2] / "src/needlekit/data/liu2016_three_needles.yaml"
+    assert main(["execute", str(liu), str(plan), "--out", str(out)]) == 2
+    assert _err(capsys) == (
+        "error: plan: multi.json was made for another scenario: needle 2's target is not one "
+        "of liu2016_three_needles.yaml's"
+    )
+    # not solved: the budget stopped it before the last needle
+    rec = json.loads(plan.read_text())
+    rec["needles"] = rec["needles"][:2]
+    rec["status"], rec["reason"] = "approximate", "the budget ran out before needle 3"
+    unsolved = tmp_path / "unsolved.json"
+    unsolved.write_text(json.dumps(rec))
+    assert main(["execute", str(scenario), str(unsolved), "--out", str(out)]) == 2
+    assert _err(capsys) == (
+        "error: plan: unsolved.json is not a solved plan (the budget ran out before needle 3)"
+    )
+    # a status that does not go with the needles (an edited plan)
+    rec["status"] = "solved"
+    unsolved.write_text(json.dumps(rec))
+    assert main(["execute", str(scenario), str(unsolved), "--out", str(out)]) == 2
+    assert _err(capsys) == (
+        "error: unsolved.json: status: solved does not go with the needles' trajectories"
+    )
+    assert not out.exists()  # nothing written
+
+
+def test_registration_flag_is_refused_for_a_steerable_plan(tmp_path, capsys):
+    plan = tmp_path / "plan.json"
+    plan.write_text('{"goal_mm": [0, 0, 0]}')
+    toy = EXAMPLES / "toy.yaml"
+    code = main(["execute", str(toy), str(plan), "--registration-sd-mm", "1", "--out",
+                 str(tmp_path / "o")])  # fmt: skip
+    assert code == 2
+    assert _err(capsys) == "error: --registration-sd-mm: applies to a multi plan (multi.json)"
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_the_page_shows_the_needles_planned_and_placed(drag, browser, rendered, tmp_path):
+    page = drag["dir"] / "one" / "page.html"
+    plots, pngs = rendered(page)
+    assert plots == 2 and len(pngs) == 1  # the needles in the anatomy (3D), the histogram
+    (tmp_path / "needles.png").write_bytes(pngs[0])
+    text = page.read_text()
+    for words in ("Per-needle error beside Liu et al.", "Needles and constraints",
+                  "Trial 1: the needles as planned and as placed", "needle 3 placed"):  # fmt: skip
+        assert words in text
