@@ -148,3 +148,11 @@ def test_setup_refuses_bad_segments():
             m, a, a, Q0, np.zeros(3), np.array([0, 0, 1.0]),
             placed_needles_true=np.zeros((1, 2, 3)),
         )  # fmt: skip
+
+
+def test_control_step_refuses_placed_needles_that_are_not_segments():
+    m = _arm()
+    st = m.state(Q0)
+    g = GuideLine(st.tip_mm - 300.0 * st.needle_axis, -st.needle_axis)
+    with pytest.raises(InvalidInputError, match="placed"):
+        control_step(m, Q0, Step.ALIGN, g, placed=[[0.0, 0.0, 0.0]])

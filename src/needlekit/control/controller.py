@@ -387,7 +387,7 @@ def control_step(
     Raises
     ------
     InvalidInputError
-        A step that needs a desired position without one.
+        A step that needs a desired position without one, or ``placed`` not segments.
     """
     cfg = settings or _DEFAULT_SETTINGS
     s = model.state(q) if state is None else state
@@ -408,7 +408,12 @@ def control_step(
         m = 3 if kind == _tick.VFI_PUNCTURE else len(ks)
     else:
         kind, m = _tick.VFI_NONE, len(vfis)
-    k = 0 if placed is None else len(placed)
+    k = 0
+    if placed is not None:
+        placed = np.asarray(placed, dtype=float)
+        if placed.ndim != 3 or placed.shape[1:] != (2, 3):
+            raise InvalidInputError("placed", f"expected (k, 2, 3) segments, got {placed.shape}")
+        k = len(placed)
     H, f, A, bu, bl, dist = _buffers(n, m + k)
     err, infeasible = _tick.control_qp(
         task, kind, s.q, s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian, s.axes,

@@ -192,7 +192,6 @@ def _needle_row(k, lines, r, tip, axis, target, rest, aimed, start) -> dict:
     return {
         "order": lines["order"][k],
         "target_index": lines["target_index"][k],
-        "trial": k,  # the key _violations reports by
         "status": r.status.value,
         "reason": r.reason,
         "error_mm": float(np.linalg.norm(tip - target)),
