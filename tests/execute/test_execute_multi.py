@@ -208,3 +208,57 @@ def test_the_page_shows_the_needles_planned_and_placed(drag, browser, rendered, 
     for words in ("Per-needle error beside Liu et al.", "Needles and constraints",
                   "Trial 1: the needles as planned and as placed", "needle 3 placed"):  # fmt: skip
         assert words in text
+
+
+def _problem(scenario):
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.scenario.straight import multi_problem_from_scenario
+
+    return multi_problem_from_scenario(load_scenario(scenario))[0]
+
+
+def test_ctrl_c_keeps_the_trials_done_resume_carries_on_and_a_crash_is_recorded(
+    drag, tmp_path, monkeypatch
+):
+    """The study's bookkeeping, with each trial's physics replaced by the rows of a real
+    trial shifted by a draw from the trial's own seeds (a real trial takes ~12 s)."""
+    from needlekit.errors import Interrupted
+    from needlekit.studies import execute_multi
+
+    template = drag["two"]["trials"][0]["needles"]
+
+    def quick(lines, model, radius, reg, truth, starts, scenario, options, seeds):
+        if seeds[0].spawn_key[0] == 3:
+            raise FloatingPointError("the arm froze")
+        shift = np.random.default_rng(seeds[0]).uniform(0.0, 1.0)
+        return [dict(n, error_mm=n["error_mm"] + shift) for n in template]
+
+    monkeypatch.setattr(execute_multi, "_insert_all", quick)
+    multi, record = _problem(drag["scenario"]), drag["record"]
+
+    def run(out, **kw):
+        return execute_multi.run_multi_execution(out, record, multi, trials=[0, 1, 2, 3],
+                                                 seed=5, **kw)  # fmt: skip
+
+    whole = run(tmp_path / "whole").document
+    crashed = whole["summary"]["crashed"]
+    assert crashed == [{"trial": 3, "error": crashed[0]["error"]}]
+    assert crashed[0]["error"].startswith("FloatingPointError: the arm froze (")
+    assert whole["trials"][3]["seed"] == 5 and "needles" not in whole["trials"][3]
+    assert whole["summary"]["needles"] == 9  # the three trials that ran
+    seen = []
+
+    def stop_after_two(trial):
+        seen.append(trial["trial"])
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(Interrupted, match="2 of 4 trials done"):
+        run(tmp_path / "cut", progress=stop_after_two)
+    partial = json.loads((tmp_path / "cut" / "execute.json").read_text())
+    assert partial["partial"] is True and [t["trial"] for t in partial["trials_done"]] == seen
+    with pytest.raises(Exception, match="--resume"):  # another seed: refused
+        execute_multi.run_multi_execution(tmp_path / "cut", record, multi, trials=[0, 1, 2, 3],
+                                          seed=6, resume=True)  # fmt: skip
+    resumed = run(tmp_path / "cut", resume=True).document
+    assert resumed["trials"] == whole["trials"] and resumed["summary"] == whole["summary"]
