@@ -23,6 +23,7 @@ import numpy as np
 
 from needlekit.control.panda import _points_line_sq_distances
 from needlekit.control.qp import NO_BOUND
+from needlekit.geometry.segments import closest_segment_params
 
 #: Task kinds: the needle axis (ALIGN), tip and weighted axis, the tip alone.
 TASK_AXIS, TASK_TIP_AXIS, TASK_TIP = 0, 1, 2
@@ -218,33 +219,6 @@ def control_qp(task, kind, q, tip, axis, jt, ja, axes, origins, ks, geo, par, p_
 
 
 @nb.njit(cache=True)
-def _segment_params(p0, d1, q0, d2):
-    """The closest points' parameters ``(s, t)`` in [0, 1] of the segments ``p0 + s d1`` and
-    ``q0 + t d2`` (``d2`` of non-zero length; ``d1`` may be zero, a point); for parallel
-    segments, one of the closest pairs."""
-    r0, r1, r2 = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
-    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
-    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
-    b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
-    c = d1[0] * r0 + d1[1] * r1 + d1[2] * r2
-    f = d2[0] * r0 + d2[1] * r1 + d2[2] * r2
-    if a <= 1e-12:  # the first is a point
-        return 0.0, min(max(f / e, 0.0), 1.0)
-    denom = a * e - b * b
-    s = 0.0
-    if denom > 1e-12 * a * e:
-        s = min(max((b * f - c * e) / denom, 0.0), 1.0)
-    t = (b * s + f) / e
-    if t < 0.0:
-        t = 0.0
-        s = min(max(-c / a, 0.0), 1.0)
-    elif t > 1.0:
-        t = 1.0
-        s = min(max((b - c) / a, 0.0), 1.0)
-    return s, t
-
-
-@nb.njit(cache=True)
 def shaft_rows(tip, axis, jt, ja, length, segs, safe2, gain, A, bu, row0, fill):
     """The placed-needle VFIs: the held needle's shaft (``tip - s axis``, ``s`` in
     ``[0, length]``) outside radius ``sqrt(safe2)`` of each placed needle's segment
@@ -255,17 +229,17 @@ def shaft_rows(tip, axis, jt, ja, length, segs, safe2, gain, A, bu, row0, fill):
     returns the smallest squared distance (mm^2; infinity without segments).
     """
     n = jt.shape[1]
-    d1 = np.empty(3)
-    for r in range(3):
-        d1[r] = -length * axis[r]
+    d1x, d1y, d1z = -length * axis[0], -length * axis[1], -length * axis[2]
     best = np.inf
     for i in range(segs.shape[0]):
-        q0 = segs[i, 0]
-        d2 = segs[i, 1] - segs[i, 0]
-        s, t = _segment_params(tip, d1, q0, d2)
-        w0 = tip[0] + s * d1[0] - q0[0] - t * d2[0]
-        w1 = tip[1] + s * d1[1] - q0[1] - t * d2[1]
-        w2 = tip[2] + s * d1[2] - q0[2] - t * d2[2]
+        q0x, q0y, q0z = segs[i, 0, 0], segs[i, 0, 1], segs[i, 0, 2]
+        d2x, d2y, d2z = segs[i, 1, 0] - q0x, segs[i, 1, 1] - q0y, segs[i, 1, 2] - q0z
+        s, t = closest_segment_params(
+            tip[0] - q0x, tip[1] - q0y, tip[2] - q0z, d1x, d1y, d1z, d2x, d2y, d2z
+        )
+        w0 = tip[0] + s * d1x - q0x - t * d2x
+        w1 = tip[1] + s * d1y - q0y - t * d2y
+        w2 = tip[2] + s * d1z - q0z - t * d2z
         dd = w0 * w0 + w1 * w1 + w2 * w2
         best = min(best, dd)
         if fill:

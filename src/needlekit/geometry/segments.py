@@ -2,9 +2,52 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-__all__ = ["segment_distances"]
+__all__ = ["closest_segment_params", "segment_distances"]
+
+
+@numba.njit(cache=True, inline="always")
+def closest_segment_params(rx, ry, rz, d1x, d1y, d1z, d2x, d2y, d2z):  # pragma: no cover
+    """The closest points' parameters ``(s, t)`` in [0, 1] of the segments ``p0 + s d1``
+    and ``q0 + t d2``, one pair (for the numba kernels, scalars in so that nothing is
+    allocated; :func:`segment_distances` is the batch form): the unconstrained optimum
+    clamped, then each re-optimised against the other's clamp. Either segment may have no
+    length (a point); for parallel segments one of the closest pairs.
+
+    Parameters
+    ----------
+    rx, ry, rz : float
+        ``p0 - q0``.
+    d1x, d1y, d1z, d2x, d2y, d2z : float
+        The directions (ends minus starts).
+
+    Returns
+    -------
+    s, t : float
+    """
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    if a <= 1e-18 and e <= 1e-18:
+        return 0.0, 0.0
+    if a <= 1e-18:
+        return 0.0, min(max(f / e, 0.0), 1.0)
+    c = d1x * rx + d1y * ry + d1z * rz
+    if e <= 1e-18:
+        return min(max(-c / a, 0.0), 1.0), 0.0
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    denom = a * e - b * b
+    s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t = 0.0
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t = 1.0
+        s = min(max((b - c) / a, 0.0), 1.0)
+    return s, t
 
 
 def segment_distances(p0, p1, q0, q1) -> np.ndarray:

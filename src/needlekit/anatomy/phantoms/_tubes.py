@@ -19,7 +19,7 @@ import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
 from needlekit.anatomy.phantoms._shapes import round_cone
-from needlekit.geometry.segments import segment_distances
+from needlekit.geometry.segments import closest_segment_params, segment_distances
 
 __all__ = ["CollisionWorld", "Tree", "chain_atoms", "rotate", "sample_in_region", "segment_ok"]
 
@@ -69,12 +69,11 @@ def _any_perpendicular(u: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True)
 def _capsule_clearance(p0, p1, r, q0, q1, rq, n, exempt):  # pragma: no cover - compiled
     """min over ``i < n`` not in ``exempt`` of ``dist(p0-p1, q0[i]-q1[i]) - rq[i] - r``
-    (the closest-points logic of :func:`segment_distances`, one pair at a time)."""
+    (:func:`~needlekit.geometry.segments.closest_segment_params`, one pair at a time)."""
     best = np.inf
     d1x = p1[0] - p0[0]
     d1y = p1[1] - p0[1]
     d1z = p1[2] - p0[2]
-    a = d1x * d1x + d1y * d1y + d1z * d1z
     for i in range(n):
         skip = False
         for j in range(exempt.shape[0]):
@@ -88,30 +87,7 @@ def _capsule_clearance(p0, p1, r, q0, q1, rq, n, exempt):  # pragma: no cover - 
         rx = p0[0] - q0[i, 0]
         ry = p0[1] - q0[i, 1]
         rz = p0[2] - q0[i, 2]
-        e = d2x * d2x + d2y * d2y + d2z * d2z
-        f = d2x * rx + d2y * ry + d2z * rz
-        if a <= 1e-18 and e <= 1e-18:
-            s = 0.0
-            t = 0.0
-        elif a <= 1e-18:
-            s = 0.0
-            t = min(max(f / e, 0.0), 1.0)
-        else:
-            c = d1x * rx + d1y * ry + d1z * rz
-            if e <= 1e-18:
-                t = 0.0
-                s = min(max(-c / a, 0.0), 1.0)
-            else:
-                b = d1x * d2x + d1y * d2y + d1z * d2z
-                denom = a * e - b * b
-                s = min(max((b * f - c * e) / denom, 0.0), 1.0) if denom > 1e-12 * a * e else 0.0
-                t = (b * s + f) / e
-                if t < 0.0:
-                    t = 0.0
-                    s = min(max(-c / a, 0.0), 1.0)
-                elif t > 1.0:
-                    t = 1.0
-                    s = min(max((b - c) / a, 0.0), 1.0)
+        s, t = closest_segment_params(rx, ry, rz, d1x, d1y, d1z, d2x, d2y, d2z)
         cx = p0[0] + s * d1x - q0[i, 0] - t * d2x
         cy = p0[1] + s * d1y - q0[i, 1] - t * d2y
         cz = p0[2] + s * d1z - q0[i, 2] - t * d2z
