@@ -77,13 +77,10 @@ def check_noise_flags(args: argparse.Namespace) -> None:
 
 def _check_flags(args: argparse.Namespace) -> None:
     """Every flag's value, before the anatomy loads."""
+    from needlekit.cli.execute_multi import check_trial_flags
+
     check_noise_flags(args)
-    if args.trial is not None and args.trial >= args.trials:
-        raise InvalidInputError(
-            "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
-        )
-    if args.trial is not None and args.resume:
-        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
+    check_trial_flags(args)
     if args.tip_from_igtl is not None and args.igtl is None:
         raise InvalidInputError(
             "--tip-from-igtl", "takes the tip from the --igtl link: give that too"

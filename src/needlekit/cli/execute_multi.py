@@ -22,6 +22,30 @@ STEERABLE_ONLY = (
 REGISTRATION_SD_MAX_MM = 10.0
 
 
+def check_trial_flags(args: argparse.Namespace) -> None:
+    """``--trial`` below ``--trials``, and not with ``--resume`` (both kinds of plan).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Named by the flag.
+    """
+    if args.trial is not None and args.trial >= args.trials:
+        raise InvalidInputError(
+            "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
+        )
+    if args.trial is not None and args.resume:
+        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
+
+
 def check_multi_flags(args: argparse.Namespace) -> None:
     """The flags of a multi plan's insertion, before any work.
 
@@ -44,12 +68,7 @@ def check_multi_flags(args: argparse.Namespace) -> None:
         if getattr(args, dest) != defaults[dest]:
             flag = "--" + dest.replace("_", "-")
             raise InvalidInputError(flag, "applies to a steerable plan; the plan is a multi plan")
-    if args.trial is not None and args.resume:
-        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
-    if args.trial is not None and args.trial >= args.trials:
-        raise InvalidInputError(
-            "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
-        )
+    check_trial_flags(args)
     sd = args.registration_sd_mm
     if sd is not None and sd > REGISTRATION_SD_MAX_MM:
         raise InvalidInputError(
