@@ -158,10 +158,13 @@ class BreathingTrace:
     amplitudes_mm: np.ndarray
     periods_s: np.ndarray
 
-    def _cycle(self, t: float) -> int:
-        return max(
+    def _wave(self, t: float) -> tuple[int, float]:
+        """The cycle at ``t`` and its ``sin^(2n)`` of the phase (the shape, 0 to 1)."""
+        k = max(
             0, min(int(np.searchsorted(self.starts_s, t, "right")) - 1, len(self.starts_s) - 1)
         )
+        x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
+        return k, math.sin(math.pi * x) ** (2 * self.breathing.shape)
 
     def actual(self, t: float) -> np.ndarray:
         """The displacement at ``t`` (mm, RAS).
@@ -174,13 +177,8 @@ class BreathingTrace:
         -------
         ndarray, shape (3,)
         """
-        k = self._cycle(t)
-        x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
-        return (
-            self.amplitudes_mm[k]
-            * math.sin(math.pi * x) ** (2 * self.breathing.shape)
-            * np.asarray(self.breathing.direction)
-        )
+        k, wave = self._wave(t)
+        return self.amplitudes_mm[k] * wave * np.asarray(self.breathing.direction)
 
     def predicted(self, t: float) -> np.ndarray:
         """The displacement as the controller knows it at ``t``: a respiratory sensor (a
@@ -196,9 +194,7 @@ class BreathingTrace:
         ndarray, shape (3,)
         """
         b = self.breathing
-        k = self._cycle(t)
-        x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
-        return b.amplitude_mm * math.sin(math.pi * x) ** (2 * b.shape) * np.asarray(b.direction)
+        return b.amplitude_mm * self._wave(t)[1] * np.asarray(b.direction)
 
     def in_window(self, t: float) -> bool:
         """Whether ``t`` is in the end-exhale window (``gate``), by the known displacement.

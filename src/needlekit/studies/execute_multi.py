@@ -41,13 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from needlekit import __version__
-from needlekit.batch import SerialExecutor, as_completed_indexed
-from needlekit.errors import Interrupted
 from needlekit.io.files import write_json
-from needlekit.io.partial import read_partial, write_partial
+from needlekit.io.partial import read_partial
 from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, trial_settings
 from needlekit.studies.puncture_summary import _Bounds, _violations
 from needlekit.studies.robot_registration import place_patient
+from needlekit.studies.trial_runs import collect_trials
 
 __all__ = [
     "LIU_IN_VITRO",
@@ -318,24 +317,18 @@ def run_multi_execution(
             done[r["trial"]] = r
     job = (lines, multi.deformation, radius, reg, float(registration_sd_mm), starts, scenario,
            options, seed)  # fmt: skip
-    todo = [k for k in trials if k not in done]
-    jobs = [(*job, k) for k in todo]
+
+    def with_coverage(result: dict) -> dict:
+        if coverage is not None and "needles" in result:
+            result["coverage"] = executed_coverage(result["needles"], *coverage)
+        return result
+
     t0 = time.perf_counter()
-    try:
-        for i, result in as_completed_indexed(executor or SerialExecutor(), multi_trial, jobs):
-            if coverage is not None and "needles" in result:
-                result["coverage"] = executed_coverage(result["needles"], *coverage)
-            done[todo[i]] = result
-            if progress is not None:
-                progress(result)
-    except KeyboardInterrupt:
-        kept = [done[k] for k in trials if k in done]
-        write_partial(path, {**head, "trials_done": kept})
-        raise Interrupted(
-            f"{len(kept)} of {len(trials)} trials done; written to {path} marked partial; the "
-            "same command with --resume carries on"
-        ) from None
-    records = [done[k] for k in trials]
+    records = collect_trials(
+        list(trials), done, multi_trial, lambda k: (*job, k), executor=executor,
+        partial_path=path, head=head, done_key="trials_done", progress=progress,
+        finish=with_coverage,
+    )  # fmt: skip
     planned = (record.get("coverage") or {}).get("planned")
     doc = {**head, "summary": multi_summary(records, cs, options, planned),
            "wall_s": time.perf_counter() - t0, "trials": records}  # fmt: skip

@@ -37,15 +37,16 @@ from pathlib import Path
 import numpy as np
 
 from needlekit import __version__
-from needlekit.batch import SerialExecutor, as_completed_indexed, worker_cached
-from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.batch import worker_cached
+from needlekit.errors import InvalidInputError
 from needlekit.execute.breathing import POLICIES, Breathing, Policy
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
 from needlekit.execute.run import TIME_CAP_FACTOR, ExecutionSettings, LoopHooks, execute_plan
 from needlekit.io.files import write_json
-from needlekit.io.partial import read_partial, write_partial
+from needlekit.io.partial import read_partial
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.scenario.problems import problem_from_scenario
+from needlekit.studies.trial_runs import collect_trials
 
 __all__ = [
     "EXECUTE_FILE",
@@ -441,25 +442,15 @@ def run_execute_study(
     head = _settings_record(scenario_name, plan, seed, list(trials), options, margin)
     path = Path(out_dir) / EXECUTE_FILE
     done = {r["trial"]: r for r in resume or ()}
-    todo = [k for k in trials if k not in done]
     start, prims = plan.start_pose.tolist(), plan.primitives.tolist()
-    jobs = [(source, start, prims, options, seed, k, hooks) for k in todo]
     if hooks is not None:  # a link or a tracker lives in this process
         executor = None
     t0 = time.perf_counter()
-    try:
-        for i, result in as_completed_indexed(executor or SerialExecutor(), _run_job, jobs):
-            done[todo[i]] = result
-            if progress is not None:
-                progress(result)
-    except KeyboardInterrupt:
-        kept = [done[k] for k in trials if k in done]
-        write_partial(path, {**head, "trials_done": kept})
-        raise Interrupted(
-            f"{len(kept)} of {len(trials)} trials done; written to {path} marked partial; the "
-            "same command with --resume carries on"
-        ) from None
-    records = [done[k] for k in trials]
+    records = collect_trials(
+        list(trials), done, _run_job, lambda k: (source, start, prims, options, seed, k, hooks),
+        executor=executor, partial_path=path, head=head, done_key="trials_done",
+        progress=progress,
+    )  # fmt: skip
     doc = {**head, "summary": study_summary(records, margin), "wall_s": time.perf_counter() - t0}
     doc["trials"] = records
     write_json(path, doc)

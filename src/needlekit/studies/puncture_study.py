@@ -40,10 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from needlekit import __version__
-from needlekit.batch import SerialExecutor, as_completed_indexed
-from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.errors import InvalidInputError
 from needlekit.io.files import staged_outputs, write_text
-from needlekit.io.partial import read_partial, write_partial
+from needlekit.io.partial import read_partial
 from needlekit.records import trial_solved
 from needlekit.studies.guide_filter import (
     ACCEPTABLE,
@@ -54,6 +53,7 @@ from needlekit.studies.guide_filter import (
     redraw_summary,
 )
 from needlekit.studies.puncture_summary import _Bounds, _violations, summary_stats
+from needlekit.studies.trial_runs import collect_trials
 
 __all__ = [
     "PAPER_RESULTS",
@@ -451,29 +451,15 @@ def run_puncture_study(
     seeds = np.random.SeedSequence(seed).spawn(trials)
     # the guide-line filter on its own (no simulation: a few ms)
     filter_rates = redraw_filter_rates(scenario, seed=seed)
-    ex = executor or SerialExecutor()
     t0 = time.perf_counter()
     head = _settings_record(trials, seed, scenario, options)
-    results: list[dict | None] = [None] * trials
-    for r in resume or ():
-        results[r["trial"]] = r
-    todo = [i for i in range(trials) if results[i] is None]
-    jobs = [(scenario, options, i, seeds[i], i < example_trials) for i in todo]
-    try:
-        for k, result in as_completed_indexed(ex, _run_job, jobs):
-            results[todo[k]] = result
-            if progress is not None:
-                progress(result)
-    except KeyboardInterrupt:  # keep what is done, and say so
-        path = out_dir / "puncture.json"
-        done = [r for r in results if r is not None]
-        write_partial(path, {**head, "per_trial": done})
-        raise Interrupted(
-            f"{len(done)} of {trials} trials done; written to {path} marked partial; the "
-            "same command with --resume carries on"
-        ) from None
+    done = collect_trials(
+        list(range(trials)), {r["trial"]: r for r in resume or ()}, _run_job,
+        lambda i: (scenario, options, i, seeds[i], i < example_trials), executor=executor,
+        partial_path=out_dir / "puncture.json", head=head, done_key="per_trial",
+        progress=progress,
+    )  # fmt: skip
     wall = time.perf_counter() - t0
-    done = [r for r in results if r is not None]
     completed = [r for r in done if trial_solved(r["status"])]
     cs, spec = ControllerSettings(), EMSensorSpec()
     bounds = _Bounds(
