@@ -21,7 +21,7 @@ def no_work(monkeypatch):
 
 
 @pytest.mark.parametrize("command", [["puncture"], ["bench", "control"]])
-@pytest.mark.parametrize("value", ["2.5", "-1", "abc", "nan", "inf", "0.5"])
+@pytest.mark.parametrize("value", ["2.5", "-1", "abc", "nan", "inf", "0.5", "1e308", "2e6"])
 def test_a_delay_that_is_not_whole_control_periods_is_one_error_line(
     capsys, no_work, command, value
 ):
@@ -31,7 +31,7 @@ def test_a_delay_that_is_not_whole_control_periods_is_one_error_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
         "error: argument --adaptation-delay-ms: expected a whole number >= 0 of control "
-        f"periods (1 ms), got '{value}'"
+        f"periods (1 ms), at most 1e+06 ms, got '{value}'"
     ]
 
 

@@ -155,7 +155,12 @@ def test_a_field_replaces_only_that_field_of_the_scenario_s():
             ["rcs"],
             "--option resolution.max_length_mm: rcs: expected a number, got 'x'",
         ),
-        ([("resolution.max_length_mm", "inf")], ["rcs"], "expected a finite number"),
+        (
+            [("resolution.max_length_mm", "inf")],
+            ["rcs"],
+            "expected a number in [-1e+06, 1e+06] mm, got 'inf'",
+        ),
+        ([("seed", "1" + "0" * 30)], ["rrt"], "expected a whole number in ["),
         ([("resolution", "8")], ["rcs"], "give resolution.FIELD=VALUE"),
         ([("resolution.nope", "1")], ["rcs"], "unknown: nope"),
         ([("connection.x", "1")], ["rrt"], "rrt's connection has no fields"),

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from concurrent.futures import BrokenExecutor
 
 from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
-from needlekit.cli._flags import check_dashboard, check_lengths
+from needlekit.cli._flags import check_dashboard
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import Interrupted, NeedlekitError
@@ -94,7 +94,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         check_paths(args)
         check_dashboard(args)
-        check_lengths(args)
         warn(flag_warnings(vars(args)))
         from needlekit.io.files import staged_outputs
 

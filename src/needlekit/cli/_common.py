@@ -8,6 +8,8 @@ import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
+from needlekit._numbers import ANY_MM, ANY_REAL, MAX_ABS_INT, MAX_ABS_MM, MAX_ABS_NUMBER, Bounds
+
 EXIT_OK = 0
 EXIT_USAGE = 2
 #: The work ran but did not produce a result that passes its checks.
@@ -46,70 +48,108 @@ class _Formatter(argparse.HelpFormatter):
         return super()._fill_text(text, width, indent)
 
 
-def _numbers(count: int, what: str):
-    """The type of a flag of ``count`` numbers; a point in millimetres (``what`` says
-    "(mm)") keeps each coordinate within the scenario files' bound (a kilometre)."""
-    from needlekit.io.scenario_schema import MAX_ABS_MM
+class _Number:
+    """The argparse type of a numeric flag: the text read as one number (or ``count``
+    comma-separated ones) and passed through the gate (:class:`needlekit._numbers.Bounds`),
+    so that the parser refuses a value out of range, naming the flag, before any work.
 
-    bound = MAX_ABS_MM if "(mm)" in what else math.inf
+    Parameters
+    ----------
+    bounds : Bounds or sequence of Bounds
+        The range of the value, or of each of ``count`` values.
+    what : str
+        What the flag takes, for several values (``"three numbers x,y,z"``).
+    container : type
+        What several values are returned as (``list`` or ``tuple``).
+    """
 
-    def parse(text: str) -> list[float]:
-        parts = [p for p in text.replace(",", " ").split() if p]
-        try:
-            values = [float(p) for p in parts]
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if len(values) != count:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
-        if not all(math.isfinite(v) for v in values):
-            raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
-        if any(abs(v) > bound for v in values):
-            raise argparse.ArgumentTypeError(
-                f"{text!r} is past {bound:g} mm (a kilometre): not a position in a body"
-            )
-        return values
+    def __init__(self, bounds, what: str = "", container: type = list) -> None:
+        self.each = tuple(bounds) if isinstance(bounds, (tuple, list)) else (bounds,)
+        self.what = what
+        self.container = container
+        self.__name__ = "number"
 
-    return parse
+    @property
+    def bounds(self):
+        """The first (or only) value's :class:`~needlekit._numbers.Bounds`."""
+        return self.each[0]
 
+    def _expected(self) -> str:
+        if len(self.each) == 1:
+            return f"expected {self.each[0]}"
+        if len(set(self.each)) == 1:
+            return f"expected {self.what}, each {self.each[0]}"
+        return f"expected {self.what} ({'; '.join(str(b) for b in self.each)})"
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return v
+    def __call__(self, text: str):
+        parts = [p for p in text.replace(",", " ").split() if p] if len(self.each) > 1 else [text]
+        values = []
+        if len(parts) == len(self.each):
+            for part, b in zip(parts, self.each, strict=True):
+                try:
+                    v = int(part) if b.integer else float(part)
+                except ValueError:
+                    break
+                if not b.contains(v):
+                    break
+                values.append(v)
+        if len(values) != len(self.each):
+            raise argparse.ArgumentTypeError(f"{self._expected()}, got {text!r}")
+        return self.container(values) if len(self.each) > 1 else values[0]
 
-
-def _non_negative(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}") from None
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number > 0, got {text!r}")
-    return v
+    def __repr__(self) -> str:
+        return f"number({self._expected()[9:]})"
 
 
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if v < 0:  # numpy's SeedSequence takes only non-negative entropy
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
-    return v
+def number(low: float, high: float, *, low_open: bool = False, integer: bool = False,
+           unit: str = "") -> _Number:  # fmt: skip
+    """The argparse type of a flag of one number in ``[low, high]`` (``(low, high]`` with
+    ``low_open``): see :class:`_Number`.
+
+    Parameters
+    ----------
+    low, high : float
+    low_open : bool
+    integer : bool
+        A whole number.
+    unit : str
+        Shown in the message.
+
+    Returns
+    -------
+    _Number
+    """
+    return _Number(Bounds(low, high, low_open=low_open, integer=integer, unit=unit))
+
+
+def _numbers(count: int, what: str, bounds=None, container: type = list) -> _Number:
+    """The type of a flag of ``count`` numbers (each within ``bounds``, one or one per
+    number); by default a point in millimetres (``what`` says "(mm)") keeps each coordinate
+    within :data:`~needlekit._numbers.MAX_ABS_MM`, other numbers the general bound."""
+    if bounds is None:
+        bounds = ANY_MM if "(mm)" in what else ANY_REAL
+    each = bounds if isinstance(bounds, (tuple, list)) else (bounds,) * count
+    return _Number(each, what, container)
+
+
+#: Largest count a flag takes (trials, iterations, cells...): a billion; past it no run
+#: ends on this kind of machine.
+MAX_COUNT = 10**9
+
+#: A real number > 0 (a time, a speed, a factor).
+_positive = number(0.0, MAX_ABS_NUMBER, low_open=True)
+#: A real number >= 0.
+_non_negative = number(0.0, MAX_ABS_NUMBER)
+#: A length > 0 (mm).
+_positive_mm = number(0.0, MAX_ABS_MM, low_open=True, unit="mm")
+#: A length >= 0 (mm).
+_non_negative_mm = number(0.0, MAX_ABS_MM, unit="mm")
+#: A count > 0.
+_positive_int = number(1, MAX_COUNT, integer=True)
+#: A count that may be 0.
+_count = number(0, MAX_COUNT, integer=True)
+#: A seed (what numpy's generators take: a whole number >= 0), or an index that may be 0.
+_seed = number(0, MAX_ABS_INT, integer=True)
 
 
 def _start_pose(path):

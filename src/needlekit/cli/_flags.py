@@ -320,32 +320,3 @@ SHARED_FLAGS: dict[str, Flag] = {
     )
 }  # fmt: skip
 
-
-def check_lengths(args) -> None:
-    """Every length flag (the millimetre flags of :data:`needlekit.plausibility.QUANTITIES`)
-    within the bound the scenario files keep
-    (:data:`needlekit.io.scenario_schema.MAX_ABS_MM`, a kilometre), before any work: past
-    it, distances, squares and sample counts made from it are no longer finite.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    InvalidInputError
-        Named by the flag.
-    """
-    from needlekit.io.scenario_schema import MAX_ABS_MM
-    from needlekit.plausibility import flag_values
-
-    for q, flag, v in flag_values(vars(args)):
-        numeric = isinstance(v, (int, float)) and not isinstance(v, bool)
-        if q.unit == "mm" and numeric and abs(v) > MAX_ABS_MM:
-            raise InvalidInputError(
-                flag, f"{v:g} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a size in a body"
-            )

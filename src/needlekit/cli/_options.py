@@ -14,40 +14,48 @@ when it is built.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 
+from needlekit._numbers import ANY_INT, ANY_REAL, Bounds, field_bounds
 from needlekit.errors import InvalidInputError
 
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
 
 
-def _typed(kind, text: str):
-    """``text`` read as ``kind``; ValueError saying what was expected."""
+def _typed(kind, text: str, name: str = ""):
+    """``text`` read as ``kind``; ValueError saying what was expected. A number passes the
+    gate (:mod:`needlekit._numbers`): finite, within the bound of its unit (``name``'s
+    ending, e.g. ``max_length_mm``) or the general one."""
     if kind is bool:
         if text.lower() in _TRUE + _FALSE:
             return text.lower() in _TRUE
         raise ValueError(f"expected true or false, got {text!r}")
     if kind is int:
         try:
-            return int(text)
+            v = int(text)
         except ValueError:
             raise ValueError(f"expected a whole number, got {text!r}") from None
+        return _gated(v, ANY_INT, text)
     if kind is float:
         try:
             v = float(text)
         except ValueError:
             raise ValueError(f"expected a number, got {text!r}") from None
-        if not math.isfinite(v):
-            raise ValueError(f"expected a finite number, got {text!r}")
-        return v
+        return _gated(v, field_bounds(name) or ANY_REAL, text)
     if kind is tuple:
         try:
-            return tuple(int(p) for p in text.replace(",", " ").split())
+            return tuple(_gated(int(p), ANY_INT, text) for p in text.replace(",", " ").split())
         except ValueError:
             raise ValueError(f"expected whole numbers separated by commas, got {text!r}") from None
     return text
+
+
+def _gated(value, bounds: Bounds, text: str):
+    """``value`` if the gate lets it through; ValueError saying the range otherwise."""
+    if not bounds.contains(value):
+        raise ValueError(f"expected {bounds}, got {text!r}")
+    return value
 
 
 def _one(planner: str, types: Mapping, name: str, text: str):
@@ -72,7 +80,7 @@ def _one(planner: str, types: Mapping, name: str, text: str):
     elif dot:
         raise InvalidInputError(flag, f"{planner}'s {head} has no fields")
     try:
-        value = _typed(kind, text)
+        value = _typed(kind, text, field or head)
     except ValueError as exc:
         raise InvalidInputError(flag, f"{planner}: {exc}") from None
     return head, ({field: value} if dot else value)

@@ -9,9 +9,12 @@ from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
     _non_negative,
+    _non_negative_mm,
     _Parser,
     _positive,
     _positive_int,
+    _positive_mm,
+    _count,
     _seed,
 )
 from needlekit.cli._paths import add_input
@@ -270,7 +273,7 @@ def _register_steerable(bench_sub) -> None:
     )
     bs.add_argument(
         "--patients",
-        type=_seed,
+        type=_count,
         nargs="+",
         default=[1, 2, 3, 4, 5],
         help="lung patients (default 1-5; 0 for none)",
@@ -285,7 +288,7 @@ def _register_steerable(bench_sub) -> None:
     )
     bs.add_argument(
         "--radii",
-        type=_positive,
+        type=_positive_mm,
         nargs="+",
         default=[50.0, 100.0],
         help="r_min values in mm (default 50 100)",
@@ -342,11 +345,11 @@ def _register_execute(bench_sub) -> None:
         "and the feedback step",
     )
     be.add_argument(
-        "--patients", type=_seed, nargs="+", default=[1, 2, 3, 4, 5],
+        "--patients", type=_count, nargs="+", default=[1, 2, 3, 4, 5],
         help="lung patients (default 1-5)",
     )  # fmt: skip
     be.add_argument(
-        "--margin-mm", type=_non_negative, default=0.0,
+        "--margin-mm", type=_non_negative_mm, default=0.0,
         help="the scenarios' clearance margin (default 0)",
     )  # fmt: skip
     be.add_argument(
@@ -379,7 +382,7 @@ def _register_liver_suites(bench_sub) -> None:
     _repeat(bt, 3, "timed runs per stage (median, min)")
     bt.add_argument(
         "--livers",
-        type=_seed,
+        type=_count,
         nargs="+",
         default=[4],
         help="Med-RAD livers, each from examples/medrad_liverN.yaml (default 4; 0 for none)",
@@ -402,7 +405,7 @@ def _register_scale(bench_sub) -> None:
     )
     _flags.QUICK.add(bsc, help="lung 1, 34 and 68 directions, 1 and 2 trials in this process")
     bsc.add_argument(
-        "--patients", type=_seed, nargs="+", help="Med-RAD lungs (default 1-5; 0 for none)"
+        "--patients", type=_count, nargs="+", help="Med-RAD lungs (default 1-5; 0 for none)"
     )
     bsc.add_argument(
         "--planners",
@@ -413,7 +416,7 @@ def _register_scale(bench_sub) -> None:
     # the sizes of the series: lists, not the one sweep's or executor's flags of the same name
     bsc.add_argument(
         "--directions",
-        type=_seed,
+        type=_count,
         nargs="+",
         help="sweep sizes (default 34 68 136 272 544; 0 for no sweep)",
     )
@@ -425,14 +428,14 @@ def _register_scale(bench_sub) -> None:
     )
     bsc.add_argument(
         "--dask-workers",
-        type=_seed,
+        type=_count,
         nargs="+",
         metavar="N",
         help="local Dask clusters of the sweeps (default 4, more than the cores on a "
         "2-core machine; 0 for none)",
     )
     bsc.add_argument(
-        "--trials", type=_seed, nargs="+", help="study sizes (default 1 2 5 10; 0 for none)"
+        "--trials", type=_count, nargs="+", help="study sizes (default 1 2 5 10; 0 for none)"
     )
     _flags.MAX_ITERATIONS.add(bsc, help="iteration budget per planner run (default 1000)")
     _flags.TIME_LIMIT_S.add(

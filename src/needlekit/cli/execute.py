@@ -11,9 +11,13 @@ from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
     _non_negative,
+    _non_negative_mm,
+    _numbers,
     _positive,
     _positive_int,
+    _positive_mm,
     _seed,
+    number,
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
@@ -41,14 +45,12 @@ example:
 """
 
 
-def _vector3(text: str) -> tuple:
-    try:
-        v = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        v = ()
-    if len(v) != 3 or not all(math.isfinite(x) for x in v):
-        raise argparse.ArgumentTypeError(f"expected X,Y,Z (three numbers), got {text!r}")
-    return v
+#: ``--breathing-direction``: a direction, three numbers (made a unit vector by Breathing).
+_vector3 = _numbers(3, "X,Y,Z (three numbers)", container=tuple)
+#: The ranges :class:`needlekit.execute.breathing.Breathing` keeps, refused at the parser.
+_BREATHING_AMPLITUDE = number(0.0, 50.0, unit="mm")
+_BREATHING_PERIOD = number(1.0, 20.0, unit="s")
+_BREATHING_SHAPE = number(1, 6, integer=True)
 
 
 def check_noise_flags(args: argparse.Namespace) -> None:
@@ -352,7 +354,7 @@ def add_noise_flags(p) -> None:
     noise = p.add_argument_group("the needle and the tissue (defaults: docs/execute.md)")
     noise.add_argument("--orientation-noise-rad", type=_non_negative, metavar="RAD",
                        help="orientation noise SD per 0.1 s of insertion (default pi/2000)")  # fmt: skip
-    noise.add_argument("--radius-sd-mm", type=_non_negative, metavar="MM",
+    noise.add_argument("--radius-sd-mm", type=_non_negative_mm, metavar="MM",
                        help="SD of the needle's radius of curvature (default 3)")  # fmt: skip
     noise.add_argument("--deflection-sd", type=_non_negative, metavar="MM_PER_MM",
                        help="SD of the tissue's lateral push per mm inserted (default 0.01)")  # fmt: skip
@@ -363,10 +365,10 @@ def add_noise_flags(p) -> None:
     )
     br.add_argument("--breathing", choices=["lung", "liver"],
                     help="the anatomy moves: lung 5 mm or liver 13 mm superior-inferior, 4 s")  # fmt: skip
-    br.add_argument("--breathing-amplitude-mm", type=float, metavar="MM",
+    br.add_argument("--breathing-amplitude-mm", type=_BREATHING_AMPLITUDE, metavar="MM",
                     help="peak displacement (0-50 mm)")  # fmt: skip
-    br.add_argument("--breathing-period-s", type=float, metavar="S", help="cycle (1-20 s)")
-    br.add_argument("--breathing-shape", type=int, metavar="N",
+    br.add_argument("--breathing-period-s", type=_BREATHING_PERIOD, metavar="S", help="cycle (1-20 s)")
+    br.add_argument("--breathing-shape", type=_BREATHING_SHAPE, metavar="N",
                     help="n of sin^(2n): the end-exhale plateau (1-6; default 2)")  # fmt: skip
     br.add_argument("--breathing-direction", type=_vector3, metavar="X,Y,Z",
                     help="direction of the inhale displacement, RAS (default 0,0,-1: inferior)")  # fmt: skip
@@ -374,7 +376,7 @@ def add_noise_flags(p) -> None:
     loop.add_argument("--no-replan", action="store_true", help="feedback to the plan only")
     loop.add_argument("--no-warm-start", action="store_true",
                       help="re-plan without the rest of the plan as RCS*'s first best")  # fmt: skip
-    loop.add_argument("--cross-track-mm", type=_positive, default=0.5,
+    loop.add_argument("--cross-track-mm", type=_positive_mm, default=0.5,
                       help="re-plan when the estimate is this far off the plan (default 0.5)")  # fmt: skip
     loop.add_argument("--replan-time-limit-s", type=_positive, default=0.025,
                       help="RCS*'s budget per re-plan (default 0.025)")  # fmt: skip
@@ -438,7 +440,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     live.add_argument("--igtl-wait-s", type=_non_negative, default=30.0, metavar="S",
                       help="how long to wait for the other end (default 30)")  # fmt: skip
     robot = ex.add_argument_group("a multi plan (multi.json), inserted by the robot")
-    robot.add_argument("--registration-sd-mm", type=_non_negative, metavar="MM",
+    robot.add_argument("--registration-sd-mm", type=_non_negative_mm, metavar="MM",
                        help="the anatomy lies offset from where the robot believes it: SD "
                        "per axis of one offset per trial (default 0, at most 10)")  # fmt: skip
     _flags.add_cache_options(ex)

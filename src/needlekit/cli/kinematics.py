@@ -6,19 +6,35 @@ import argparse
 import json
 import math
 
+from needlekit._numbers import MAX_ABS_MM, MAX_ABS_NUMBER, MAX_CURVATURE_PER_MM, Bounds
 from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
-    _non_negative,
     _numbers,
     _Parser,
     _positive,
+    _positive_mm,
     _start_pose,
+    number,
 )
 from needlekit.cli._paths import add_input
 from needlekit.constants import MAX_TRAJECTORY_SAMPLES
 from needlekit.errors import InvalidInputError, NeedlekitError
+
+#: ``--kappa-per-mm``: a curvature, at most a radius of a micrometre.
+_curvature = number(0.0, MAX_CURVATURE_PER_MM, unit="1/mm")
+#: ``--segment u1,u2,T``: an insertion speed within a kilometre a second, a spin rate, and
+#: a duration >= 0.
+_segment = _numbers(
+    3,
+    "three numbers u1_mm_s,u2_rad_s,duration_s",
+    (
+        Bounds(-MAX_ABS_MM, MAX_ABS_MM, unit="mm/s"),
+        Bounds(-MAX_ABS_NUMBER, MAX_ABS_NUMBER, unit="rad/s"),
+        Bounds(0.0, MAX_ABS_NUMBER, unit="s"),
+    ),
+)
 
 
 def _check_sample_count(durations_s, dt_s: float) -> None:
@@ -151,11 +167,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     fwd.add_argument(
-        "--kappa-per-mm", type=_non_negative, required=True, help="needle curvature (1/mm)"
+        "--kappa-per-mm", type=_curvature, required=True, help="needle curvature (1/mm)"
     )
     fwd.add_argument(
         "--segment",
-        type=_numbers(3, "three numbers u1_mm_s,u2_rad_s,duration_s"),
+        type=_segment,
         action="append",
         required=True,
         metavar="U1,U2,T",
@@ -187,7 +203,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_input(inv, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
     inv.add_argument(
-        "--r-min-mm", type=_positive, help="minimum radius of curvature; tighter arcs are an error"
+        "--r-min-mm", type=_positive_mm, help="minimum radius of curvature; tighter arcs are an error"
     )
     _flags.JSON.add(inv, help="print JSON instead of a table")
     inv.set_defaults(command_handler=_cmd_inverse)

@@ -14,6 +14,7 @@ from needlekit.cli._common import (
     _numbers,
     _positive,
     _positive_int,
+    _positive_mm,
     sweep_progress,
 )
 from needlekit.cli._paths import add_input, add_output
@@ -398,8 +399,8 @@ def _problem_overrides(p) -> None:
         metavar="X,Y,Z",
         help="goal point (RAS mm)",
     )
-    p.add_argument("--r-min-mm", type=_positive, help="minimum radius of curvature (mm)")
-    p.add_argument("--needle-diameter-mm", type=_positive, help="needle diameter (mm)")
+    p.add_argument("--r-min-mm", type=_positive_mm, help="minimum radius of curvature (mm)")
+    p.add_argument("--needle-diameter-mm", type=_positive_mm, help="needle diameter (mm)")
 
 
 def _rrt_connection(p) -> None:
@@ -468,7 +469,7 @@ def _plan_mode_groups(planp: argparse.ArgumentParser) -> None:
     )
     dyn.add_argument(
         "--step-mm",
-        type=_positive,
+        type=_positive_mm,
         help="with --dynamic: advance between re-plans (default: the scenario's, else 5 mm)",
     )
     dyn.add_argument(

@@ -3,10 +3,18 @@
 from __future__ import annotations
 
 import argparse
-import math
 
+from needlekit._numbers import Bounds
 from needlekit.cli import _flags
-from needlekit.cli._common import EXIT_OK, _fmt_table, _non_negative, _positive_int
+from needlekit.cli._common import (
+    EXIT_OK,
+    _fmt_table,
+    _non_negative,
+    _count,
+    _non_negative_mm,
+    _Number,
+    _positive_int,
+)
 from needlekit.errors import InvalidInputError
 
 #: What ``needlekit puncture`` writes in its --out folder.
@@ -20,33 +28,30 @@ CONTROL_PERIOD_MS = 1.0
 DEFAULT_ADAPTATION_DELAY_MS = 2.0
 
 
-def adaptation_delay_ms(text: str) -> float:
-    """``--adaptation-delay-ms``: a whole number >= 0 of control periods, in ms.
+class _ControlPeriods(_Number):
+    """``--adaptation-delay-ms``: the gate's range (:data:`MAX_DELAY_MS`), and a whole
+    number of control periods (:data:`CONTROL_PERIOD_MS`)."""
 
-    Parameters
-    ----------
-    text : str
-        The flag's value.
+    def _expected(self) -> str:
+        return (
+            f"expected a whole number >= 0 of control periods ({CONTROL_PERIOD_MS:g} ms), "
+            f"at most {self.bounds.high:g} ms"
+        )
 
-    Returns
-    -------
-    float
-        The delay (ms).
+    def __call__(self, text: str) -> float:
+        v = super().__call__(text)
+        periods = v / CONTROL_PERIOD_MS
+        if abs(periods - round(periods)) > 1e-9 * (1 + periods):
+            raise argparse.ArgumentTypeError(f"{self._expected()}, got {text!r}")
+        return v
 
-    Raises
-    ------
-    argparse.ArgumentTypeError
-        Not a number, negative, or not a whole number of periods.
-    """
-    expected = f"expected a whole number >= 0 of control periods ({CONTROL_PERIOD_MS:g} ms)"
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}") from None
-    periods = v / CONTROL_PERIOD_MS
-    if not (math.isfinite(v) and v >= 0 and abs(periods - round(periods)) <= 1e-9 * (1 + periods)):
-        raise argparse.ArgumentTypeError(f"{expected}, got {text!r}")
-    return v
+
+#: Longest adaptation delay (ms): 1000 s, longer than any trial (the adaptation then never
+#: runs).
+MAX_DELAY_MS = 1e6
+#: The type of ``--adaptation-delay-ms``: a whole number >= 0 of control periods, in ms;
+#: argparse.ArgumentTypeError when not.
+adaptation_delay_ms = _ControlPeriods(Bounds(0.0, MAX_DELAY_MS, unit="ms"))
 
 
 #: ``--adaptation-delay-ms`` of ``puncture`` and ``bench control``.
@@ -185,21 +190,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     pu.add_argument(
         "--stability-radius-mm",
-        type=_non_negative,
+        type=_non_negative_mm,
         default=1.5,
         help="ball in which the adaptation may grow the task error (0: the paper's row; "
         "default 1.5)",
     )
     pu.add_argument(
         "--history",
-        type=int,
+        type=_count,
         default=40,
         metavar="KEYFRAMES",
         help="measurement keyframes in the adaptation objective (0: the newest alone; default 40)",
     )
     pu.add_argument(
         "--guide-samples",
-        type=int,
+        type=_count,
         default=1,
         metavar="N",
         help="bronchoscope samples averaged into the guide line (default 1: one noisy "

@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 
 from needlekit.cli import _flags
-from needlekit.cli._common import EXIT_OK, _positive, _positive_int
+from needlekit.cli._common import (
+    EXIT_OK,
+    _positive,
+    _positive_int,
+    _positive_mm,
+)
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import scenario_reference
@@ -348,7 +353,7 @@ def _register_cfrw(sub) -> None:
     )
     cf.add_argument(
         "--layers",
-        type=_positive,
+        type=_positive_mm,
         nargs="+",
         default=[150.0, 160.0, 170.0],
         metavar="H_MM",

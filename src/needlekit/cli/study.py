@@ -9,9 +9,11 @@ from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
     _non_negative,
+    _non_negative_mm,
     _Parser,
     _positive,
     _positive_int,
+    number,
 )
 
 #: What ``needlekit study feng-lungs`` writes in its --out folder (as
@@ -276,16 +278,8 @@ def _register_execute_lungs(study_sub) -> None:
     se.set_defaults(command_handler=_cmd_study_execute_lungs)
 
 
-def _probability(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a probability in (0, 0.5], got {text!r}"
-        ) from None
-    if not 0.0 < v <= 0.5:
-        raise argparse.ArgumentTypeError(f"expected a probability in (0, 0.5], got {text!r}")
-    return v
+#: ``--crossing-probability``: a probability in (0, 0.5].
+_probability = number(0.0, 0.5, low_open=True)
 
 
 def _register_livers(study_sub) -> None:
@@ -301,7 +295,7 @@ def _register_livers(study_sub) -> None:
     sl.add_argument("--livers", type=_positive_int, nargs="+", help="patients (default every one)")
     sl.add_argument(
         "--gamma",
-        type=_non_negative,
+        type=_non_negative_mm,
         nargs="+",
         default=[1.5, 3.0],
         metavar="MM",

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from needlekit._numbers import check_document
 from needlekit.errors import Interrupted, InvalidInputError
 
 __all__ = [
@@ -423,4 +424,5 @@ def read_json_object(path: str | os.PathLike, what: str) -> dict:
         raise InvalidInputError(str(p), "nested too deeply to be a needlekit file") from None
     if not isinstance(data, dict):
         raise InvalidInputError(str(p), "expected a JSON object at the top level")
+    check_document(data, p.name)
     return data

@@ -14,13 +14,13 @@ a bad scenario file at once.
 
 from __future__ import annotations
 
-import math
 import os
 from functools import cache
 from pathlib import Path
 from typing import Any
 
 from needlekit.anatomy.collision_registry import check_collision_model
+from needlekit._numbers import MAX_ABS_MM, check_document
 from needlekit.errors import InvalidInputError
 from needlekit.io import safe_yaml
 from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-exported
@@ -39,6 +39,7 @@ from needlekit.io.files import _undecodable, without_content
 from needlekit.plausibility import document_warnings, warn
 
 __all__ = [
+    "MAX_ABS_MM",
     "PRIMITIVE_KINDS",
     "SCENARIO_SCHEMA",
     "SCENARIO_VERSION",
@@ -218,45 +219,12 @@ def _check_relations(data: Any, source: str) -> None:
             )
 
 
-#: Largest length or coordinate a scenario may give (mm): a kilometre, far past any
-#: anatomy or robot, and far enough from the float range that distances, squares and
-#: sample counts computed from it stay finite.
-MAX_ABS_MM: float = 1e6
-
-
-def _magnitude(value: float) -> str:
-    """A large number in a few characters (an int past the float range too)."""
-    try:
-        return f"{float(value):g}"
-    except OverflowError:
-        return f"{'-' if value < 0 else ''}10^{int(abs(value).bit_length() * math.log10(2))}"
-
-
 def _refuse_non_finite(data: Any, source: str) -> None:
     """No NaN or infinity anywhere in a document (YAML's ``.nan``, ``.inf``; numbers past
-    the float range such as ``1e999``), and no length (a field named ``*_mm``, or a value
-    inside one) past :data:`MAX_ABS_MM`: named by its field, before the schema looks."""
-    stack = [(data, "", False)]
-    while stack:
-        value, where, mm = stack.pop()
-        if isinstance(value, float) and not math.isfinite(value):
-            raise InvalidInputError(
-                f"{source}: {where or '(top level)'}", f"expected a finite number, got {value}"
-            )
-        if mm and isinstance(value, (int, float)) and not isinstance(value, bool):
-            if abs(value) > MAX_ABS_MM:
-                raise InvalidInputError(
-                    f"{source}: {where}",
-                    f"{_magnitude(value)} mm is past {MAX_ABS_MM:g} mm (a kilometre): not a "
-                    "size or position in a body",
-                )
-        if isinstance(value, dict):
-            stack.extend(
-                (v, f"{where}.{_key(k)}" if where else _key(k), mm or str(k).endswith("_mm"))
-                for k, v in value.items()
-            )
-        elif isinstance(value, list):
-            stack.extend((v, f"{where}[{i}]", mm) for i, v in enumerate(value))
+    the float range such as ``1e999``), and every number within its field's bound (a length
+    within :data:`MAX_ABS_MM`): the one gate, :func:`needlekit._numbers.check_document`,
+    before the schema looks."""
+    check_document(data, source)
 
 
 class ScenarioDocument(dict):
