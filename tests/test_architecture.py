@@ -40,12 +40,13 @@ LAYERS: dict[str, int] = {
 }
 
 #: The base floor, one block (its modules import one another): errors, constants,
-#: conventions, validation, the result contract, provenance, the batch executor, the
-#: memory estimate, the units' plausible ranges.
+#: conventions, validation (and its numeric gate), the result contract, provenance, the
+#: batch executor, the memory estimate, the units' plausible ranges.
 BASE = {
     "errors",
     "constants",
     "conventions",
+    "_numbers",
     "_validation",
     "_validation_kernels",
     "records",

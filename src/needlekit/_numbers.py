@@ -108,7 +108,7 @@ class Bounds:
     def __str__(self) -> str:
         what = "a whole number" if self.integer else "a number"
         lo, hi = (
-            f"{int(v)}" if self.integer and abs(v) < 1e12 else f"{v:.3g}"
+            f"{v:g}" if not self.integer else f"{int(v)}" if abs(v) < 1e12 else f"{v:.3g}"
             for v in (self.low, self.high)
         )
         text = f"{what} in {'(' if self.low_open else '['}{lo}, {hi}]"

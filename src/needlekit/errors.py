@@ -12,6 +12,7 @@ __all__ = [
     "Interrupted",
     "InvalidInputError",
     "NeedlekitError",
+    "OutputError",
     "SingularityError",
     "UnreachableTargetError",
 ]
@@ -40,6 +41,24 @@ class InvalidInputError(NeedlekitError, ValueError):
 
 class UnreachableTargetError(NeedlekitError, ValueError):
     """A target point cannot be reached under the given kinematic limits."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")
+
+
+class OutputError(NeedlekitError):
+    """A result cannot be written as it is (a computed number that is not finite, where the
+    format holds finite numbers only); nothing was written.
+
+    Parameters
+    ----------
+    field : str
+        The file (or output) and the field at fault, e.g. ``"plan.json: cost_mm"``.
+    message : str
+        What was wrong.
+    """
 
     def __init__(self, field: str, message: str) -> None:
         self.field = field

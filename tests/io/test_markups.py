@@ -375,7 +375,8 @@ CP = ("markups", 0, "controlPoints", 0)
         ),
         (
             _malformed(_set([*CP, "position"], [1.0, float("nan"), 2.0])),
-            r"^bad\.mrk\.json: markups\[0\]\.controlPoints\[0\]\.position: must be finite, got NaN",
+            r"^bad\.mrk\.json: markups\[0\]\.controlPoints\[0\]\.position\[1\]: expected a number "
+            r"in \[-1e\+12, 1e\+12\], got nan$",
         ),
         (
             _malformed(_set([*CP, "position"], [1.0, 2.0])),

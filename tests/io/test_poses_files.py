@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, OutputError
 from needlekit.geometry.se3 import se3_exp
 from needlekit.io.files import atomic_write, write_json
 from needlekit.io.poses import read_point_txt, read_pose_txt, write_pose_txt
@@ -59,6 +59,6 @@ def test_atomic_write_leaves_old_content_on_failure(tmp_path):
         atomic_write(dest, boom)
     assert json.loads(dest.read_text()) == {"a": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
-    with pytest.raises(ValueError):
+    with pytest.raises(OutputError, match=r"^out.json: x: computed value is nan"):
         write_json(dest, {"x": float("nan")})
     assert json.loads(dest.read_text()) == {"a": 1}

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from needlekit.errors import NeedlekitError
+from needlekit.io.files import json_text
 
 __all__ = ["COLD_TARGET_S", "PEAK_TARGET_MB", "WARM_TARGET_S", "prepare_in_subprocess"]
 
@@ -195,7 +196,7 @@ def _main(argv: list[str] | None = None) -> int:
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(record))
+    print(json_text(record, "record"))
     return 0
 
 

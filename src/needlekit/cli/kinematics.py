@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 from needlekit._numbers import MAX_ABS_MM, MAX_ABS_NUMBER, MAX_CURVATURE_PER_MM, Bounds
@@ -21,6 +20,7 @@ from needlekit.cli._common import (
 from needlekit.cli._paths import add_input
 from needlekit.constants import MAX_TRAJECTORY_SAMPLES
 from needlekit.errors import InvalidInputError, NeedlekitError
+from needlekit.io.files import json_text
 
 #: ``--kappa-per-mm``: a curvature, at most a radius of a micrometre.
 _curvature = number(0.0, MAX_CURVATURE_PER_MM, unit="1/mm")
@@ -79,7 +79,7 @@ def _cmd_forward(args: argparse.Namespace) -> int:
             "directions": poses[:, :3, 2].tolist(),
             "final_pose": poses[-1].tolist(),
         }
-        print(json.dumps(out, indent=2))
+        print(json_text(out, "--json", indent=2))
         return EXIT_OK
     rows = [
         [float(t), *(float(v) for v in g[:3, 3]), *(float(v) for v in g[:3, 2])]
@@ -118,7 +118,7 @@ def _cmd_inverse(args: argparse.Namespace) -> int:
             rec["shortest_arc_line_mm"] = float(arcline.length_mm[i])
         records.append(rec)
     if args.json:
-        print(json.dumps({"r_min_mm": args.r_min_mm, "arcs": records}, indent=2))
+        print(json_text({"r_min_mm": args.r_min_mm, "arcs": records}, "--json", indent=2))
         return EXIT_OK
     headers = ["target", "alpha_deg", "spin_deg", "radius_mm", "phi_deg", "length_mm"]
     if arcline is not None:

@@ -19,6 +19,7 @@ from needlekit.cli._common import (
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError, NeedlekitError
+from needlekit.io.files import json_text
 from needlekit.io.results import scenario_reference
 
 
@@ -348,12 +349,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         problem = problem.with_free_start_direction()
     check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
-        print(
-            json.dumps(
-                {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics},
-                indent=2,
-            )
-        )
+        out = {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics}
+        print(json_text(out, "--json", indent=2))
     else:
         m = check.metrics
         print(

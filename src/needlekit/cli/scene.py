@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 from needlekit.cli import _flags
 from needlekit.cli._common import EXIT_OK, _fmt_table, _Parser, _positive_int
 from needlekit.cli._paths import add_input
+from needlekit.io.files import json_text
 
 
 def _cmd_schema(args: argparse.Namespace | None = None) -> int:
     from needlekit.io.scenario_schema import SCENARIO_SCHEMA
 
-    print(json.dumps(SCENARIO_SCHEMA, indent=2))
+    print(json_text(SCENARIO_SCHEMA, "schema", indent=2))
     return EXIT_OK
 
 
@@ -45,7 +45,7 @@ def _cmd_scene(args: argparse.Namespace) -> int:
                 "name": sc.name,
                 "structures": [r.to_dict() for r in rows],
             }
-            print(json.dumps(out, indent=2))
+            print(json_text(out, "--json", indent=2))
             return EXIT_OK
         print(
             f"scene: {sc.scene.name or sc.name or args.scenario.name}  ({len(rows)} structures, RAS mm)"

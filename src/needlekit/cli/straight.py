@@ -13,6 +13,7 @@ from needlekit.cli._common import (
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import json_text
 from needlekit.io.results import scenario_reference
 
 
@@ -221,8 +222,7 @@ def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
     int
         0 when every needle passes, else 1.
     """
-    import json
-
+    
     doc = _document(args)
     from needlekit.planning.straight.verify import verify_multi
 
@@ -230,8 +230,10 @@ def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
     check = verify_multi(multi.problem, data)
     if args.json:
         print(
-            json.dumps(
-                {"ok": check.ok, "violations": list(check.violations), **check.metrics}, indent=2
+            json_text(
+                {"ok": check.ok, "violations": list(check.violations), **check.metrics},
+                "--json",
+                indent=2,
             )
         )
     else:

@@ -62,6 +62,7 @@ import numpy as np
 
 import needlekit
 from needlekit.io.cache_key import cache_key, file_mac, mac, same_mac
+from needlekit.io.files import json_text
 
 __all__ = [
     "CACHE_DIR_ENV",
@@ -158,7 +159,7 @@ def file_digest(path: str | os.PathLike) -> str:
 
 
 def _canonical(data: Any) -> bytes:
-    return json.dumps(data, sort_keys=True, separators=(",", ":")).encode()
+    return json_text(data, "cache key", sort_keys=True, separators=(",", ":")).encode()
 
 
 def entry_key(inputs: dict) -> str:
@@ -212,7 +213,7 @@ def _temp_file(folder: Path, name: str) -> Path:
 def _replace_json(folder: Path, filename: str, data: dict) -> None:
     tmp = _temp_file(folder, filename)
     try:
-        tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
+        tmp.write_text(json_text(data, filename, indent=1), encoding="utf-8")
         os.replace(tmp, folder / filename)
     except BaseException:
         tmp.unlink(missing_ok=True)

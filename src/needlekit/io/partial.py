@@ -29,7 +29,7 @@ from pathlib import Path
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.cache_key import CacheKeyError, cache_key, mac, same_mac
-from needlekit.io.files import read_json_object, write_json
+from needlekit.io.files import json_text, read_json_object, write_json
 
 __all__ = ["PARTIAL_SIGNATURE", "read_partial", "write_partial"]
 
@@ -40,7 +40,7 @@ _VERSION = "needlekit_version"
 
 
 def _canonical(data) -> bytes:
-    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+    return json_text(data, "partial record", sort_keys=True, separators=(",", ":")).encode()
 
 
 def _signature(key: bytes, record: dict) -> str:

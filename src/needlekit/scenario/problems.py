@@ -26,6 +26,7 @@ import numpy as np
 from needlekit.batch import worker_cached
 from needlekit.constants import DEFAULT_GOAL_TOLERANCE_MM
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import json_text
 from needlekit.scenario.dynamic import (  # re-exported (they lived here)
     DYNAMIC_SETTINGS,
     checked_dynamic_settings,
@@ -330,7 +331,7 @@ class ScenarioSource:
                 "document", f"expected a mapping, got {type(document).__name__}"
             )
         try:
-            text = json.dumps(document, sort_keys=True, separators=(",", ":"), allow_nan=False)
+            text = json_text(document, "document", sort_keys=True, separators=(",", ":"))
         except (TypeError, ValueError) as exc:
             raise InvalidInputError("document", f"not a JSON document ({exc})") from None
         path = Path(base_dir).expanduser().resolve() / name

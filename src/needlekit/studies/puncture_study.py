@@ -29,7 +29,6 @@ and a report page, both atomically.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -41,7 +40,7 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
-from needlekit.io.files import staged_outputs, write_text
+from needlekit.io.files import json_text, staged_outputs, write_text
 from needlekit.io.partial import read_partial
 from needlekit.records import trial_solved
 from needlekit.studies.guide_filter import (
@@ -505,7 +504,7 @@ def run_puncture_study(
     doc = dict(summary)
     doc["per_trial"] = done
     files = {"json": out_dir / "puncture.json"}
-    text = json.dumps(doc, indent=1, allow_nan=False) + "\n"
+    text = json_text(doc, "puncture.json", indent=1) + "\n"
     with staged_outputs():  # both files or neither: a failed report keeps the old json
         write_text(files["json"], text)
         if report:
