@@ -40,6 +40,7 @@ __all__ = [
     "MAX_ABS_NUMBER",
     "MAX_CURVATURE_PER_MM",
     "Bounds",
+    "check_array",
     "check_document",
     "check_number",
     "field_bounds",
@@ -255,3 +256,35 @@ def check_document(data: Any, source: str) -> None:
         elif isinstance(value, (int, float)) and not isinstance(value, bool):
             kind = bounds or (ANY_INT if isinstance(value, int) else ANY_REAL)
             kind.check(value, f"{source}: {where or '(top level)'}")
+
+
+def check_array(values: Any, name: str, bounds: Bounds) -> None:
+    """Every entry of an array (a pose, the points of a file) finite and within ``bounds``.
+
+    Parameters
+    ----------
+    values : ndarray
+        Any shape, real.
+    name : str
+        The file or field, shown first in the message.
+    bounds : Bounds
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        ``"<name>: entry [i, j]: expected <range>, got <value>"`` for the first entry out of
+        range.
+    """
+    import numpy as np
+
+    arr = np.asarray(values, dtype=np.float64)
+    above = arr > bounds.low if bounds.low_open else arr >= bounds.low
+    bad = ~(np.isfinite(arr) & above & (arr <= bounds.high))
+    if bad.any():
+        at = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = f"entry [{', '.join(map(str, at))}]: " if at else ""
+        raise InvalidInputError(name, f"{where}expected {bounds}, got {magnitude(float(arr[at]))}")

@@ -169,12 +169,12 @@ def _bad_files(tmp_path):
         "singular": (tmp_path / "singular.nii", "singular or degenerate"),
         "coplanar": (tmp_path / "coplanar.nii", "singular or degenerate"),
         "empty": (tmp_path / "empty.nii.gz", "empty mask"),
-        "corrupt": (tmp_path / "corrupt.nii.gz", "cannot read as NIfTI"),
+        "corrupt": (tmp_path / "corrupt.nii.gz", "not a readable NIfTI file"),
         "no_orientation": (tmp_path / "analyze.nii", "neither sform nor qform"),
         "nrrd_no_space": (tmp_path / "nospace.nrrd", "no 'space' field"),
         "nrrd_scanner": (tmp_path / "scanner.nrrd", "unsupported NRRD space 'scanner-xyz'"),
         "nrrd_no_origin": (tmp_path / "noorigin.nrrd", "no 'space origin' field"),
-        "nrrd_corrupt": (tmp_path / "corrupt.nrrd", "cannot read as NRRD"),
+        "nrrd_corrupt": (tmp_path / "corrupt.nrrd", "not a readable NRRD file"),
     }
     cases["ext"][0].write_bytes(b"")
     nib.save(nib.Nifti1Image(m[:, :, 0], eye), cases["two_d"][0])

@@ -96,11 +96,13 @@ def _check_closed(mesh, name: str = "mesh") -> trimesh.Trimesh:
         raise InvalidInputError(
             name,
             f"not watertight ({open_edges} edges belong to one triangle only): inside and "
-            "outside are undefined; close the surface (e.g. trimesh.repair.fill_holes)",
+            "outside are undefined; close the surface (fill its holes)",
         )
     if not mesh.is_winding_consistent:
         raise InvalidInputError(
-            name, "triangle orientations are inconsistent (trimesh.repair.fix_winding)"
+            name,
+            "triangle orientations are inconsistent: inside and outside are undefined; orient "
+            "every triangle the same way (fix the winding)",
         )
     return mesh
 

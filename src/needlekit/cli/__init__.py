@@ -17,7 +17,8 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from concurrent.futures import BrokenExecutor
 
 from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
@@ -51,6 +52,48 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+#: Libraries that log on their own (nibabel even adds its own handler): quiet unless -v.
+_CHATTY_LOGGERS = ("nibabel", "nibabel.global", "trimesh", "numba", "py.warnings")
+
+
+class _OwnRecords(logging.Filter):
+    """Pass needlekit's own records only: a library's log line (nibabel's header notes,
+    trimesh's, a numpy or numba warning) never precedes needlekit's one error line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.name == "needlekit" or record.name.startswith("needlekit.")
+
+
+@contextmanager
+def _logging(verbose: int) -> Iterator[None]:
+    """needlekit's warnings on stderr while a command runs; the libraries' log lines and
+    Python warnings (numpy, numba) only with ``-v`` (``-vv``: debug). Everything is put
+    back on leaving (``main`` may run inside another program, or a test)."""
+    logging.basicConfig(
+        level=logging.WARNING - 10 * min(verbose, 2),
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if verbose:
+        yield
+        return
+    own = _OwnRecords()
+    handlers = list(logging.getLogger().handlers)
+    chatty = {name: logging.getLogger(name).level for name in _CHATTY_LOGGERS}
+    logging.captureWarnings(True)  # Python warnings become records of "py.warnings"
+    for handler in handlers:
+        handler.addFilter(own)
+    for name in chatty:  # a library's own handler (nibabel's) is beyond the root's filter
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        logging.captureWarnings(False)
+        for handler in handlers:
+            handler.removeFilter(own)
+        for name, level in chatty.items():
+            logging.getLogger(name).setLevel(level)
+
+
 def _run(command: str, args) -> int:
     """Run the command's handler (its heavy modules are imported inside it)."""
     return args.command_handler(args)
@@ -77,10 +120,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.WARNING - 10 * min(args.verbose, 2),
-        format="%(levelname)s %(name)s: %(message)s",
-    )
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE if argv else EXIT_OK
@@ -91,6 +130,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    with _logging(args.verbose):
+        return _checked_run(command, args)
+
+
+def _checked_run(command: str, args) -> int:
+    """Check the arguments, run the command, and turn what can go wrong into one line."""
     try:
         check_paths(args)
         check_dashboard(args)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from needlekit._numbers import ANY_MM, check_array
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write, without_content
 
@@ -127,8 +128,9 @@ def read_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     Raises
     ------
     InvalidInputError
-        Naming the file: missing, unsupported extension, unreadable, no triangles, or
-        non-finite coordinates.
+        Naming the file: missing, unsupported extension, unreadable, no triangles, or a
+        coordinate that is not finite or past a kilometre (the numeric gate,
+        :mod:`needlekit._numbers`).
 
     Examples
     --------
@@ -148,16 +150,32 @@ def read_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     if ext == ".vtk":
         mesh = _read_vtk_polydata(p)
     else:
-        try:
-            mesh = trimesh.load(p, file_type=_TRIMESH_TYPES[ext], force="mesh")
-        except Exception as exc:  # trimesh raises many types on bad files
-            raise InvalidInputError(str(p), f"cannot read mesh: {without_content(exc)}") from exc
-        if not isinstance(mesh, trimesh.Trimesh):
-            raise InvalidInputError(str(p), f"expected a triangle mesh, got {type(mesh).__name__}")
+        mesh = _read_trimesh(p, _TRIMESH_TYPES[ext])
     if len(mesh.faces) == 0:
         raise InvalidInputError(str(p), "mesh has no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
-        raise InvalidInputError(str(p), "mesh has non-finite vertex coordinates")
+    check_array(mesh.vertices, f"{p}: vertex coordinates", ANY_MM)
+    if ext != ".vtk":
+        mesh.process()  # merge duplicate vertices (as trimesh.load does), now on finite data
+    return mesh
+
+
+#: What a file of each kind is, for the message when it is not one.
+_FORMAT_NAMES = {"stl": "STL (ASCII or binary)", "obj": "Wavefront OBJ", "ply": "PLY"}
+
+
+def _read_trimesh(p: Path, file_type: str) -> trimesh.Trimesh:
+    """The triangles of an STL, OBJ or PLY file as trimesh reads them (not yet processed),
+    or one error naming the file and the format expected."""
+    expected = f"not a readable {_FORMAT_NAMES[file_type]} triangle mesh"
+    try:
+        mesh = trimesh.load(p, file_type=file_type, force="mesh", process=False)
+    except (ValueError, EOFError, UnicodeDecodeError) as exc:  # a parser's own verdict
+        why = without_content(str(exc)).strip().rstrip("!.")
+        raise InvalidInputError(str(p), f"{expected} ({why})" if why else expected) from None
+    except Exception:  # trimesh falls over in other ways on garbage (an import, an index)
+        raise InvalidInputError(str(p), expected) from None
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(str(p), f"{expected} (it holds no triangles)")
     return mesh
 
 

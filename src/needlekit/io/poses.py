@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit._numbers import ANY_MM, check_array
 from needlekit._validation import as_poses
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
@@ -74,6 +75,7 @@ def read_pose_txt(path: str | os.PathLike) -> np.ndarray:
     arr = _load(path)
     if arr.size != 16:
         raise InvalidInputError(str(path), f"expected a 4x4 matrix (16 numbers), got {arr.size}")
+    check_array(arr.reshape(4, 4), str(path), ANY_MM)
     pose, _ = as_poses(arr.reshape(4, 4), str(path))
     return pose[0]
 
@@ -92,8 +94,7 @@ def read_point_txt(path: str | os.PathLike) -> np.ndarray:
     arr = _load(path).reshape(-1)
     if arr.size != 3:
         raise InvalidInputError(str(path), f"expected 3 numbers (x y z), got {arr.size}")
-    if not np.all(np.isfinite(arr)):
-        raise InvalidInputError(str(path), "must be finite, got NaN or infinity")
+    check_array(arr.reshape(3), str(path), ANY_MM)
     return arr
 
 

@@ -26,6 +26,7 @@ import nrrd
 import numpy as np
 from isal import igzip
 
+from needlekit._numbers import ANY_MM, check_array
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write, without_content
 
@@ -107,8 +108,9 @@ def _kind(path: Path) -> str:
 
 def _check_affine(affine: np.ndarray, where: str) -> np.ndarray:
     a = np.asarray(affine, dtype=np.float64)
-    if a.shape != (4, 4) or not np.all(np.isfinite(a)):
-        raise InvalidInputError(where, f"voxel->world affine must be a finite 4x4, got {a}")
+    if a.shape != (4, 4):
+        raise InvalidInputError(where, f"voxel->world affine must be a 4x4, got shape {a.shape}")
+    check_array(a, f"{where}: voxel->world affine", ANY_MM)
     if np.abs(a[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9:
         raise InvalidInputError(where, f"affine's last row must be [0, 0, 0, 1], got {a[3]}")
     norms = np.linalg.norm(a[:3, :3], axis=0)
@@ -250,13 +252,21 @@ def _stream_mask_gz(path: Path) -> tuple[np.ndarray, int, np.ndarray] | None:
     return got[0], got[2], header.get_best_affine()
 
 
+def _unreadable(kind: str, exc: BaseException) -> str:
+    """Why a file is not a readable volume of ``kind``: the reader's own reason when it
+    says one (without the file's content), never an internal name (an import, a key)."""
+    why = without_content(str(exc)).strip().rstrip(".!")
+    said = isinstance(exc, (ValueError, OSError, EOFError)) and why and "'...'" not in why
+    return f"not a readable {kind} file ({why})" if said else f"not a readable {kind} file"
+
+
 def _read_nifti(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         img = _load_nifti_gz(path) if path.name.lower().endswith(".gz") else nib.load(path)
     except InvalidInputError:
         raise
     except Exception as exc:  # nibabel raises several types for corrupt files
-        raise InvalidInputError(str(path), f"cannot read as NIfTI: {without_content(exc)}") from exc
+        raise InvalidInputError(str(path), _unreadable("NIfTI", exc)) from None
     header = img.header
     if int(header["sform_code"]) == 0 and int(header["qform_code"]) == 0:
         raise InvalidInputError(
@@ -271,7 +281,7 @@ def _read_nrrd(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         data, header = nrrd.read(str(path))
     except Exception as exc:  # pynrrd raises NRRDError, OSError, ValueError...
-        raise InvalidInputError(str(path), f"cannot read as NRRD: {without_content(exc)}") from exc
+        raise InvalidInputError(str(path), _unreadable("NRRD", exc)) from None
     space = header.get("space")
     if space is None:
         raise InvalidInputError(

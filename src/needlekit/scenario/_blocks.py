@@ -120,7 +120,12 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
         mesh = read_mesh(path)
         kw = {k: src[k] for k in ("padding_mm",) if k in src}
         voxel = src.get("voxel_size_mm", default_voxel_size_mm(mesh))
-        field_ = ctx.placed(voxelize_mesh_sdf(mesh, voxel, **kw))
+        try:
+            field_ = ctx.placed(voxelize_mesh_sdf(mesh, voxel, **kw))
+        except InvalidInputError as exc:  # the mesh itself (not closed): name its file
+            if exc.field != "mesh":
+                raise
+            raise ctx.error(f"{sub}.path", f"{path}: mesh {exc.reason}") from None
         source = str(path)
     else:
         field_ = _primitive(kind, src, ctx, sub)
