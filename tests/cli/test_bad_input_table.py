@@ -640,7 +640,7 @@ ROWS = [
         ["cfrw", "{d}/malformed.yaml"],
         "error: {d}/malformed.yaml: invalid YAML at line 3, column 1: expected ',' or '}', but got '<stream end>'",
     ),
-    (["cfrw", "{TOY}"], "error: straight: the scenario has no straight block"),
+    (["cfrw", "{TOY}"], "error: toy.yaml: straight: the scenario has no straight block"),
     (
         ["cfrw", "{MULTI}", "--target", "0"],
         "error: argument --target: expected a whole number in [1, 1000000000], got '0'",
@@ -649,7 +649,7 @@ ROWS = [
         ["multi", "{d}/invalid.yaml"],
         "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
     ),
-    (["multi", "{TOY}"], "error: straight: the scenario has no straight block"),
+    (["multi", "{TOY}"], "error: toy.yaml: straight: the scenario has no straight block"),
     (
         ["multi", "{MULTI}", "--planner", "nope"],
         "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
@@ -662,7 +662,7 @@ ROWS = [
         ["approach", "{d}/invalid.yaml"],
         "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
     ),
-    (["approach", "{TOY}"], "error: straight: the scenario has no straight block"),
+    (["approach", "{TOY}"], "error: toy.yaml: straight: the scenario has no straight block"),
     (
         ["approach", "{MULTI}", "--report", "/proc/a.html"],
         "error: --report: /proc/a.html: folder /proc is read-only",

@@ -120,7 +120,10 @@ def test_a_scenario_without_a_straight_block_is_an_input_error(tmp_path, capsys)
     path = tmp_path / "plain.yaml"
     path.write_text(SCENARIO.split("straight:")[0])
     assert main(["multi", str(path), "--out", str(tmp_path / "m.json")]) == 2
-    assert capsys.readouterr().err.strip() == "error: straight: the scenario has no straight block"
+    assert (
+        capsys.readouterr().err.strip()
+        == "error: plain.yaml: straight: the scenario has no straight block"
+    )
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from needlekit.cli import _flags
 from needlekit.cli._common import (
@@ -24,7 +25,9 @@ def _document(args: argparse.Namespace) -> dict:
 
     doc = read_scenario_document(args.scenario)
     if not doc.get("straight"):
-        raise InvalidInputError("straight", "the scenario has no straight block")
+        raise InvalidInputError(
+            f"{Path(args.scenario).name}: straight", "the scenario has no straight block"
+        )
     return doc
 
 
