@@ -585,7 +585,7 @@ def test_sampled_targets_need_the_reference_app(capsys, tmp_path, monkeypatch, n
         "error: --target-seed: seeds --sample-targets: give that too"
     )
     assert _one_error_line(capsys, [*bench, "--sample-targets", "0"]).startswith(
-        "error: argument --sample-targets: expected a whole number > 0"
+        "error: argument --sample-targets: expected a whole number in [1, "
     )
     with pytest.raises(InvalidInputError, match=r"^--sample-targets: screens sampled"):
         run_steerable_benchmark(patients=(1,), planners=("rcs_star",), sample_targets=3)

@@ -18,6 +18,8 @@ curvature). Past them the answer is one line, ``<field>: expected <range>, got <
 - Lengths and coordinates (``*_mm``): :data:`MAX_ABS_MM`, a kilometre.
 - Curvatures (``*_per_mm``): :data:`MAX_CURVATURE_PER_MM`, a radius of a micrometre.
 - Any other real number: :data:`MAX_ABS_NUMBER`; whole numbers: :data:`MAX_ABS_INT`.
+- A quantity that must be positive (a size, a time, a step): at least
+  :data:`MIN_POSITIVE` of its unit.
 
 This module is light (no numpy): the command line imports it to build its parser.
 """
@@ -39,8 +41,10 @@ __all__ = [
     "MAX_ABS_MM",
     "MAX_ABS_NUMBER",
     "MAX_CURVATURE_PER_MM",
+    "MIN_POSITIVE",
+    "MIN_SPEED_MM_S",
+    "MIN_STEP_MM",
     "Bounds",
-    "check_array",
     "check_document",
     "check_number",
     "field_bounds",
@@ -55,6 +59,16 @@ MAX_CURVATURE_PER_MM: float = 1e3
 #: Largest magnitude of any other real number (a time, an angle, a speed, a ratio): a
 #: product of two such numbers is still far inside the float range.
 MAX_ABS_NUMBER: float = 1e12
+#: Smallest value of a quantity that must be positive (a size, a time, a speed, a step), in
+#: its own unit: a nanometre, a microsecond. Below it, quotients made from it (a curvature
+#: 1/r, a sample count length/step) overflow or lose all precision.
+MIN_POSITIVE: float = 1e-6
+#: Smallest sampling step along a path (mm): a micrometre; finer gives tens of millions of
+#: samples on a needle's length (a curve's control points, a re-planning cycle).
+MIN_STEP_MM: float = 1e-3
+#: Slowest insertion speed (mm/s): a simulated insertion of 100 mm at it already takes
+#: hours of simulated time, each control period a step.
+MIN_SPEED_MM_S: float = 1e-2
 #: Largest magnitude of a whole number (a count, an index, a seed): what a signed 64-bit
 #: integer holds, as numpy stores it.
 MAX_ABS_INT: int = 2**63 - 1
@@ -256,35 +270,3 @@ def check_document(data: Any, source: str) -> None:
         elif isinstance(value, (int, float)) and not isinstance(value, bool):
             kind = bounds or (ANY_INT if isinstance(value, int) else ANY_REAL)
             kind.check(value, f"{source}: {where or '(top level)'}")
-
-
-def check_array(values: Any, name: str, bounds: Bounds) -> None:
-    """Every entry of an array (a pose, the points of a file) finite and within ``bounds``.
-
-    Parameters
-    ----------
-    values : ndarray
-        Any shape, real.
-    name : str
-        The file or field, shown first in the message.
-    bounds : Bounds
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    InvalidInputError
-        ``"<name>: entry [i, j]: expected <range>, got <value>"`` for the first entry out of
-        range.
-    """
-    import numpy as np
-
-    arr = np.asarray(values, dtype=np.float64)
-    above = arr > bounds.low if bounds.low_open else arr >= bounds.low
-    bad = ~(np.isfinite(arr) & above & (arr <= bounds.high))
-    if bad.any():
-        at = tuple(int(i) for i in np.argwhere(bad)[0])
-        where = f"entry [{', '.join(map(str, at))}]: " if at else ""
-        raise InvalidInputError(name, f"{where}expected {bounds}, got {magnitude(float(arr[at]))}")

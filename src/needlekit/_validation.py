@@ -13,10 +13,12 @@ from typing import Any
 import numpy as np
 
 from needlekit.constants import ROTATION_ORTHONORMAL_TOL
+from needlekit._numbers import Bounds, magnitude
 from needlekit.errors import InvalidInputError
 
 __all__ = [
     "as_batch",
+    "check_array",
     "as_points",
     "as_poses",
     "as_positive",
@@ -238,3 +240,33 @@ def unbatch(arr: np.ndarray, single: bool) -> np.ndarray:
         ``arr[0]`` (shape ``(...)``) when ``single``, else ``arr``.
     """
     return arr[0] if single else arr
+
+
+def check_array(values: Any, name: str, bounds: Bounds) -> None:
+    """Every entry of an array (a pose, the points of a file) finite and within ``bounds``.
+
+    Parameters
+    ----------
+    values : ndarray
+        Any shape, real.
+    name : str
+        The file or field, shown first in the message.
+    bounds : Bounds
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        ``"<name>: entry [i, j]: expected <range>, got <value>"`` for the first entry out of
+        range.
+    """
+    arr = np.asarray(values, dtype=np.float64)
+    above = arr > bounds.low if bounds.low_open else arr >= bounds.low
+    bad = ~(np.isfinite(arr) & above & (arr <= bounds.high))
+    if bad.any():
+        at = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = f"entry [{', '.join(map(str, at))}]: " if at else ""
+        raise InvalidInputError(name, f"{where}expected {bounds}, got {magnitude(float(arr[at]))}")

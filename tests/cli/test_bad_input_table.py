@@ -144,7 +144,7 @@ ROWS = [
     ),
     (
         ["plan", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (["plan", "{d}/version2.yaml"], "error: version2.yaml: version: expected 1, got 2"),
     (
@@ -182,7 +182,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--r-min-mm", "1e300"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got '1e300'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got '1e300'",
     ),
     (
         ["study", "livers", "--gamma", "2e6"],
@@ -220,7 +220,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--time-limit-s", "-1"],
-        "error: argument --time-limit-s: expected a number in (0, 1e+12], got '-1'",
+        "error: argument --time-limit-s: expected a number in [1e-06, 1e+12], got '-1'",
     ),
     (
         ["plan", "{TOY}", "--seed", "x"],
@@ -232,7 +232,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--r-min-mm", "nan"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got 'nan'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got 'nan'",
     ),
     (
         ["plan", "{TOY}", "--rrt-connection", "nope"],
@@ -286,23 +286,23 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--r-min-mm", "0"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got '0'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
     ),
     (
         ["plan", "{TOY}", "--r-min-mm", "-5"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got '-5'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got '-5'",
     ),
     (
         ["plan", "{TOY}", "--needle-diameter-mm", "0"],
-        "error: argument --needle-diameter-mm: expected a number in (0, 1e+06] mm, got '0'",
+        "error: argument --needle-diameter-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
     ),
     (
         ["plan", "{TOY}", "--time-limit-s", "nan"],
-        "error: argument --time-limit-s: expected a number in (0, 1e+12], got 'nan'",
+        "error: argument --time-limit-s: expected a number in [1e-06, 1e+12], got 'nan'",
     ),
     (
         ["plan", "{TOY}", "--time-limit-s", "inf"],
-        "error: argument --time-limit-s: expected a number in (0, 1e+12], got 'inf'",
+        "error: argument --time-limit-s: expected a number in [1e-06, 1e+12], got 'inf'",
     ),
     (
         ["plan", "{TOY}", "--max-iterations", "1.5"],
@@ -319,7 +319,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--insertion-speed-mm-s", "0", "--dynamic"],
-        "error: argument --insertion-speed-mm-s: expected a number in (0, 1e+12], got '0'",
+        "error: argument --insertion-speed-mm-s: expected a number in [1e-06, 1e+12], got '0'",
     ),
     (
         ["plan", "{TOY}", "--predict", "nope"],
@@ -374,7 +374,7 @@ ROWS = [
     ),
     (
         ["plan", "{d}/neg_radius.yaml"],
-        "error: neg_radius.yaml: structures[0].sphere.radius_mm: expected a number > 0, got -1",
+        "error: neg_radius.yaml: structures[0].sphere.radius_mm: expected a number >= 1e-06, got -1",
     ),
     (
         ["plan", "{d}/string_radius.yaml"],
@@ -406,7 +406,7 @@ ROWS = [
     ),
     (
         ["plan", "{d}/tolerance_0.yaml"],
-        "error: tolerance_0.yaml: goal.tolerance_mm: expected a number > 0, got 0",
+        "error: tolerance_0.yaml: goal.tolerance_mm: expected a number >= 1e-06, got 0",
     ),
     (
         ["plan", "{d}/bad_pose.yaml"],
@@ -418,7 +418,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--start-pose", "{d}/nan_pose.txt"],
-        "error: {d}/nan_pose.txt: must be finite, got NaN",
+        "error: {d}/nan_pose.txt: entry [0, 3]: expected a number in [-1e+06, 1e+06] mm, got nan",
     ),
     (
         ["plan", "{TOY}", "--start-pose", "{d}/secret.txt"],
@@ -447,7 +447,7 @@ ROWS = [
     ),
     (
         ["sweep", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (
         ["sweep", "{d}/block_option.yaml"],
@@ -499,7 +499,7 @@ ROWS = [
     ),
     (
         ["sweep", "{TOY}", "--time-limit-s", "0"],
-        "error: argument --time-limit-s: expected a number in (0, 1e+12], got '0'",
+        "error: argument --time-limit-s: expected a number in [1e-06, 1e+12], got '0'",
     ),
     (
         ["sweep", "{TOY}", "--dashboard"],
@@ -545,7 +545,7 @@ ROWS = [
     ),
     (
         ["verify", "{d}/invalid.yaml", "{d}/goal_only.json"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (
         ["verify", "{d}/malformed.yaml", "{d}/goal_only.json"],
@@ -577,7 +577,7 @@ ROWS = [
     ),
     (
         ["verify", "{TOY}", "{d}/goal_only.json", "--r-min-mm", "0"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got '0'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
     ),
     # -- scene
     (["schema", "--bogus"], "error: unrecognized arguments: --bogus"),
@@ -588,11 +588,11 @@ ROWS = [
     ),
     (
         ["scene", "info", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (
         ["scene", "render", "{d}/invalid.yaml", "--out", "{d}/s.html"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (
         ["scene", "render", "{TOY}", "--out", "/proc/s.html"],
@@ -634,7 +634,7 @@ ROWS = [
     # -- straight
     (
         ["cfrw", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (
         ["cfrw", "{d}/malformed.yaml"],
@@ -647,7 +647,7 @@ ROWS = [
     ),
     (
         ["multi", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (["multi", "{TOY}"], "error: toy.yaml: straight: the scenario has no straight block"),
     (
@@ -660,7 +660,7 @@ ROWS = [
     ),
     (
         ["approach", "{d}/invalid.yaml"],
-        "error: invalid.yaml: needle.r_min_mm: expected a number > 0, got -3",
+        "error: invalid.yaml: needle.r_min_mm: expected a number >= 1e-06, got -3",
     ),
     (["approach", "{TOY}"], "error: toy.yaml: straight: the scenario has no straight block"),
     (
@@ -669,7 +669,7 @@ ROWS = [
     ),
     (
         ["cfrw", "{MULTI}", "--resolution-deg", "0"],
-        "error: argument --resolution-deg: expected a number in (0, 1e+12], got '0'",
+        "error: argument --resolution-deg: expected a number in [1e-06, 1e+12], got '0'",
     ),
     (
         ["cfrw", "{MULTI}", "--resolution-deg", "0.00001"],
@@ -677,7 +677,7 @@ ROWS = [
     ),
     (
         ["cfrw", "{MULTI}", "--layers", "x"],
-        "error: argument --layers: expected a number in (0, 1e+06] mm, got 'x'",
+        "error: argument --layers: expected a number in [1e-06, 1e+06] mm, got 'x'",
     ),
     (["cfrw", "{MULTI}", "--target", "99"], "error: --target: expected 1 to 3, got 99"),
     (
@@ -698,11 +698,11 @@ ROWS = [
     ),
     (
         ["multi", "{MULTI}", "--resolution-deg", "-1"],
-        "error: argument --resolution-deg: expected a number in (0, 1e+12], got '-1'",
+        "error: argument --resolution-deg: expected a number in [1e-06, 1e+12], got '-1'",
     ),
     (
         ["multi", "{MULTI}", "--time-limit-s", "0"],
-        "error: argument --time-limit-s: expected a number in (0, 1e+12], got '0'",
+        "error: argument --time-limit-s: expected a number in [1e-06, 1e+12], got '0'",
     ),
     (
         ["multi", "{d}/straight_up.yaml"],
@@ -743,11 +743,11 @@ ROWS = [
     ),
     (
         ["markups", "{d}/goal_only.json", "--out", "{d}/x.mrk.json", "--spacing-mm", "0"],
-        "error: argument --spacing-mm: expected a number in (0, 1e+06] mm, got '0'",
+        "error: argument --spacing-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
     ),
     (
         ["markups", "{d}/goal_only.json", "--out", "{d}/x.mrk.json", "--spacing-mm", "0.000000001"],
-        "error: {d}/goal_only.json: holds no path (status 'unknown'): nothing to export",
+        "error: argument --spacing-mm: expected a number in [1e-06, 1e+06] mm, got '0.000000001'",
     ),
     (
         ["markups", "{d}/deep.json", "--out", "{d}/x.mrk.json"],
@@ -761,7 +761,7 @@ ROWS = [
     ),
     (
         ["kinematics", "forward", "--kappa-per-mm", "x", "--segment", "1,2,3"],
-        "error: argument --kappa-per-mm: expected a number in [0, 1e+03] 1/mm, got 'x'",
+        "error: argument --kappa-per-mm: expected a number in [0, 1000] 1/mm, got 'x'",
     ),
     (
         ["kinematics", "forward", "--kappa-per-mm", "0.02", "--segment", "1,2,-3"],
@@ -799,15 +799,15 @@ ROWS = [
     ),
     (
         ["kinematics", "inverse", "--target", "1,2,3", "--r-min-mm", "0"],
-        "error: argument --r-min-mm: expected a number in (0, 1e+06] mm, got '0'",
+        "error: argument --r-min-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
     ),
     (
         ["kinematics", "forward", "--kappa-per-mm", "-1", "--segment", "1,2,3"],
-        "error: argument --kappa-per-mm: expected a number in [0, 1e+03] 1/mm, got '-1'",
+        "error: argument --kappa-per-mm: expected a number in [0, 1000] 1/mm, got '-1'",
     ),
     (
         ["kinematics", "forward", "--kappa-per-mm", "0.02", "--segment", "1,2,3", "--dt-s", "0"],
-        "error: argument --dt-s: expected a number in (0, 1e+12], got '0'",
+        "error: argument --dt-s: expected a number in [1e-06, 1e+12], got '0'",
     ),
     (
         ["kinematics", "forward", "--kappa-per-mm", "0.02", "--segment", "nan,2,3"],
@@ -1099,7 +1099,7 @@ ROWS = [
     ),
     (
         ["bench", "steerable", "--radii", "-1"],
-        "error: argument --radii: expected a number in (0, 1e+06] mm, got '-1'",
+        "error: argument --radii: expected a number in [1e-06, 1e+06] mm, got '-1'",
     ),
     (
         ["bench", "steerable", "--planners", "nope"],

@@ -5,8 +5,8 @@ Each numeric flag's type is the gate (:class:`needlekit.cli._common._Number` ove
 with huge (1e308), tiny (1e-308), negative, zero and non-finite values (nan, inf, -inf) and
 whole numbers past any count. A value the gate refuses gives exit 2 and one line
 ``error: argument FLAG: expected ...``, from the parser, before any work; a value it takes
-is run (on the cheap commands, with small examples) and gives exit 0 or 1 with finite
-output, or exit 2 and one error line naming the flag.
+is run (on the cheap commands, with small examples), and so are the ends of each flag's
+range: exit 0 or 1 with finite output, or exit 2 and one error line naming the flag.
 """
 
 from __future__ import annotations
@@ -146,6 +146,15 @@ def _base(command: str, plan: str, tmp: Path) -> list[str]:
     }[command]  # fmt: skip
 
 
+def _ends(action: argparse.Action) -> tuple[str, ...]:
+    """The gate's own ends for a flag: its smallest and largest value (each number of a
+    flag of several)."""
+    each = action.type.each
+    low = ",".join(f"{b.low:g}" if not b.low_open else f"{b.low + 1e-6:g}" for b in each)
+    high = ",".join(f"{b.high:g}" for b in each)
+    return low, high
+
+
 def _finite_output(out: str, tmp: Path) -> bool:
     texts = [out, *(p.read_text() for p in tmp.glob("*.json"))]
     return not any(re.search(r"\b(nan|NaN|-?inf|-?Infinity)\b", t) for t in texts) and all(
@@ -160,8 +169,8 @@ def test_a_value_the_gate_takes_gives_a_finite_answer_or_one_line(
     command, plan_file, tmp_path_factory, capsys
 ):
     actions = _numeric(command)
-    taken = [(a, t) for a in actions for t in HOSTILE if _gate_takes(a, t)]
-    assert taken  # 0 and the tiny values are in range of several flags
+    taken = [(a, t) for a in actions for t in (*HOSTILE, *_ends(a)) if _gate_takes(a, t)]
+    assert taken
 
     @settings(max_examples=12 if command == "plan" else 25, deadline=None, derandomize=True,
               suppress_health_check=[HealthCheck.function_scoped_fixture])  # fmt: skip

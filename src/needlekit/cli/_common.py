@@ -8,7 +8,17 @@ import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from needlekit._numbers import ANY_MM, ANY_REAL, MAX_ABS_INT, MAX_ABS_MM, MAX_ABS_NUMBER, Bounds
+from needlekit._numbers import (
+    ANY_MM,
+    ANY_REAL,
+    MAX_ABS_INT,
+    MAX_ABS_MM,
+    MAX_ABS_NUMBER,
+    MIN_POSITIVE,
+    MIN_SPEED_MM_S,
+    MIN_STEP_MM,
+    Bounds,
+)
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -136,12 +146,16 @@ def _numbers(count: int, what: str, bounds=None, container: type = list) -> _Num
 #: ends on this kind of machine.
 MAX_COUNT = 10**9
 
-#: A real number > 0 (a time, a speed, a factor).
-_positive = number(0.0, MAX_ABS_NUMBER, low_open=True)
+#: A real number > 0 (a time, a speed, a factor): at least MIN_POSITIVE.
+_positive = number(MIN_POSITIVE, MAX_ABS_NUMBER)
 #: A real number >= 0.
 _non_negative = number(0.0, MAX_ABS_NUMBER)
-#: A length > 0 (mm).
-_positive_mm = number(0.0, MAX_ABS_MM, low_open=True, unit="mm")
+#: A length > 0 (mm): at least MIN_POSITIVE (a nanometre).
+_positive_mm = number(MIN_POSITIVE, MAX_ABS_MM, unit="mm")
+#: A sampling step along a path (mm).
+_step_mm = number(MIN_STEP_MM, MAX_ABS_MM, unit="mm")
+#: An insertion speed (mm/s).
+_speed_mm_s = number(MIN_SPEED_MM_S, MAX_ABS_MM, unit="mm/s")
 #: A length >= 0 (mm).
 _non_negative_mm = number(0.0, MAX_ABS_MM, unit="mm")
 #: A count > 0.

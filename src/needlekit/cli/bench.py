@@ -8,13 +8,13 @@ from pathlib import Path
 from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
+    _count,
     _non_negative,
     _non_negative_mm,
     _Parser,
     _positive,
     _positive_int,
     _positive_mm,
-    _count,
     _seed,
 )
 from needlekit.cli._paths import add_input

@@ -12,12 +12,13 @@ from needlekit.cli._common import (
     _fmt_table,
     _non_negative,
     _non_negative_mm,
+    number,
     _numbers,
     _positive,
     _positive_int,
     _positive_mm,
     _seed,
-    number,
+    _speed_mm_s,
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
@@ -358,7 +359,7 @@ def add_noise_flags(p) -> None:
                        help="SD of the needle's radius of curvature (default 3)")  # fmt: skip
     noise.add_argument("--deflection-sd", type=_non_negative, metavar="MM_PER_MM",
                        help="SD of the tissue's lateral push per mm inserted (default 0.01)")  # fmt: skip
-    noise.add_argument("--speed-mm-s", type=_positive, default=2.0,
+    noise.add_argument("--speed-mm-s", type=_speed_mm_s, default=2.0,
                        help="insertion speed (default 2 mm/s)")  # fmt: skip
     br = p.add_argument_group(
         "breathing (each trial also runs closed loop under ignore, gate and track)"

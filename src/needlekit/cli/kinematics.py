@@ -10,16 +10,16 @@ from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
+    number,
     _numbers,
     _Parser,
     _positive,
     _positive_mm,
     _start_pose,
-    number,
 )
 from needlekit.cli._paths import add_input
 from needlekit.constants import MAX_TRAJECTORY_SAMPLES
-from needlekit.errors import InvalidInputError, NeedlekitError
+from needlekit.errors import InvalidInputError, NeedlekitError, UnreachableTargetError
 from needlekit.io.files import json_text
 
 #: ``--kappa-per-mm``: a curvature, at most a radius of a micrometre.
@@ -99,7 +99,11 @@ def _cmd_inverse(args: argparse.Namespace) -> int:
 
     g0 = _start_pose(args.start_pose)
     targets = np.array(args.target, dtype=float)
-    sol = tm_inverse(targets, g0, r_min_mm=args.r_min_mm)
+    try:
+        sol = tm_inverse(targets, g0, r_min_mm=args.r_min_mm)
+    except UnreachableTargetError as exc:  # the library's names, as the flags say them
+        reason = exc.reason.replace("below r_min_mm =", "below --r-min-mm")
+        raise UnreachableTargetError("--target", reason) from None
     spin = sol.alpha_rad + 0.5 * np.pi  # twist-model spin, see needlekit.conventions
     spin = np.mod(spin + np.pi, 2 * np.pi) - np.pi
     arcline = shortest_arc_line(g0, targets, args.r_min_mm) if args.r_min_mm else None

@@ -7,8 +7,7 @@ import argparse
 from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
-    _positive,
-    _positive_mm,
+    _step_mm,
 )
 from needlekit.cli._paths import add_input
 from needlekit.errors import InvalidInputError
@@ -72,7 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _flags.OUT.add(mk, required=True, help="markups file to write (.mrk.json)")
     mk.add_argument(
         "--spacing-mm",
-        type=_positive_mm,
+        type=_step_mm,
         help="largest spacing of the curve's control points along the path (default 2 mm)",
     )
     mk.set_defaults(command_handler=_cmd_markups)

@@ -12,9 +12,10 @@ from needlekit.cli._common import (
     _Formatter,
     _non_negative,
     _numbers,
-    _positive,
     _positive_int,
     _positive_mm,
+    _speed_mm_s,
+    _step_mm,
     sweep_progress,
 )
 from needlekit.cli._paths import add_input, add_output
@@ -461,12 +462,12 @@ def _plan_mode_groups(planp: argparse.ArgumentParser) -> None:
     )
     dyn.add_argument(
         "--insertion-speed-mm-s",
-        type=_positive,
+        type=_speed_mm_s,
         help="with --dynamic: insertion speed (default: the scenario's dynamic block)",
     )
     dyn.add_argument(
         "--step-mm",
-        type=_positive_mm,
+        type=_step_mm,
         help="with --dynamic: advance between re-plans (default: the scenario's, else 5 mm)",
     )
     dyn.add_argument(

@@ -8,9 +8,9 @@ from needlekit._numbers import Bounds
 from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
+    _count,
     _fmt_table,
     _non_negative,
-    _count,
     _non_negative_mm,
     _Number,
     _positive_int,

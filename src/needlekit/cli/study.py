@@ -10,10 +10,10 @@ from needlekit.cli._common import (
     _fmt_table,
     _non_negative,
     _non_negative_mm,
+    number,
     _Parser,
     _positive,
     _positive_int,
-    number,
 )
 
 #: What ``needlekit study feng-lungs`` writes in its --out folder (as

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from needlekit._numbers import MIN_POSITIVE
+
 from needlekit.constants import (
     DEFAULT_MAX_HEADING_CHANGE_DEG,
     DEFAULT_MAX_LENGTH_MM,
@@ -30,7 +32,9 @@ __all__ = [
 ]
 
 _NUM: dict[str, Any] = {"type": "number"}
-_POS: dict[str, Any] = {"type": "number", "exclusiveMinimum": 0}
+#: A positive quantity (a size, a time, a speed): at least MIN_POSITIVE of its unit (the
+#: numeric gate's floor, needlekit._numbers).
+_POS: dict[str, Any] = {"type": "number", "minimum": MIN_POSITIVE}
 _NONNEG: dict[str, Any] = {"type": "number", "minimum": 0}
 _VEC3: dict[str, Any] = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
 _POS3: dict[str, Any] = {"type": "array", "items": _POS, "minItems": 3, "maxItems": 3}

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from needlekit._numbers import ANY_MM, check_array
+from needlekit._numbers import ANY_MM
+from needlekit._validation import check_array
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write, without_content
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit._numbers import ANY_MM, check_array
-from needlekit._validation import as_poses
+from needlekit._numbers import ANY_MM
+from needlekit._validation import as_poses, check_array
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
 

@@ -26,7 +26,8 @@ import nrrd
 import numpy as np
 from isal import igzip
 
-from needlekit._numbers import ANY_MM, check_array
+from needlekit._numbers import ANY_MM
+from needlekit._validation import check_array
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write, without_content
 
