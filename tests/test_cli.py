@@ -134,7 +134,7 @@ def test_inverse_table(capsys):
         (["kinematics", "inverse", "--target", "1,2"], "--target"),
         (["kinematics", "inverse", "--target", "1,2,3", "--r-min-mm", "0"], "--r-min-mm"),
         (["kinematics", "inverse", "--target", "1,2,3", "--r-min-mm", "-3"], "--r-min-mm"),
-        (["kinematics", "inverse", "--target", "30,0,5", "--r-min-mm", "30"], "r_min_mm"),
+        (["kinematics", "inverse", "--target", "30,0,5", "--r-min-mm", "30"], "below --r-min-mm 30"),
         (["kinematics", "inverse", "--target", "0,0,-5"], "behind"),
         (
             ["kinematics", "inverse", "--target", "1,2,3", "--start-pose", "/no/such/file.txt"],

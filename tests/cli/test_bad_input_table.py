@@ -319,7 +319,7 @@ ROWS = [
     ),
     (
         ["plan", "{TOY}", "--insertion-speed-mm-s", "0", "--dynamic"],
-        "error: argument --insertion-speed-mm-s: expected a number in [1e-06, 1e+12], got '0'",
+        "error: argument --insertion-speed-mm-s: expected a number in [0.01, 1e+06] mm/s, got '0'",
     ),
     (
         ["plan", "{TOY}", "--predict", "nope"],
@@ -743,11 +743,11 @@ ROWS = [
     ),
     (
         ["markups", "{d}/goal_only.json", "--out", "{d}/x.mrk.json", "--spacing-mm", "0"],
-        "error: argument --spacing-mm: expected a number in [1e-06, 1e+06] mm, got '0'",
+        "error: argument --spacing-mm: expected a number in [0.001, 1e+06] mm, got '0'",
     ),
     (
         ["markups", "{d}/goal_only.json", "--out", "{d}/x.mrk.json", "--spacing-mm", "0.000000001"],
-        "error: argument --spacing-mm: expected a number in [1e-06, 1e+06] mm, got '0.000000001'",
+        "error: argument --spacing-mm: expected a number in [0.001, 1e+06] mm, got '0.000000001'",
     ),
     (
         ["markups", "{d}/deep.json", "--out", "{d}/x.mrk.json"],
