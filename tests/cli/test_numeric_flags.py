@@ -208,3 +208,41 @@ def test_the_kinds_reported_are_closed(tmp_path, capsys):
         "got 1e+308\n",
     )
     assert math.isfinite(MAX_ABS_MM)
+
+
+#: Runs each argv through main() in one fresh interpreter and reports, per argv, the exit
+#: status, stderr and the heavy modules imported so far.
+_WRAPPER = """
+import contextlib, io, json, sys
+from needlekit.cli import main
+heavy = ("numba", "scipy", "matplotlib", "plotly", "dask", "trimesh", "nibabel")
+out = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        try:
+            rc = main(argv)
+        except SystemExit as exc:
+            rc = exc.code
+    out.append({"rc": rc, "stderr": err.getvalue(),
+                "heavy": [m for m in heavy if m in sys.modules]})
+print(json.dumps(out))
+"""
+
+
+def test_a_refused_number_loads_no_heavy_module():
+    import subprocess
+    import sys
+
+    cases = [
+        [*command.split(), _numeric(command)[0].option_strings[0], "nan"]
+        for command in COMMANDS
+        if _numeric(command)
+    ]
+    done = subprocess.run(
+        [sys.executable, "-c", _WRAPPER, json.dumps(cases)],
+        capture_output=True, text=True, check=True, timeout=300,
+    )  # fmt: skip
+    for argv, r in zip(cases, json.loads(done.stdout.splitlines()[-1]), strict=True):
+        assert r["rc"] == 2 and r["heavy"] == [], (argv, r)
+        assert r["stderr"].startswith(f"error: argument {argv[-2]}") and r["stderr"].count("\n") == 1
