@@ -1,7 +1,12 @@
 """The ``needlekit`` command line: a thin layer over the library.
 
 Every command returns an exit status; errors in the input print one line
-``error: <message>`` on stderr and exit with status 2.
+``error: <message>`` on stderr, naming the flag or the file and what was expected, and exit
+with status 2. Every numeric flag's type is the one numeric gate (:mod:`needlekit._numbers`),
+so a number out of range is refused by the parser. While a command runs, only needlekit's
+own log records reach stderr: a library's log lines (nibabel's header notes, trimesh's) and
+Python warnings (numpy, numba) are shown with ``-v`` only, so nothing precedes the error
+line.
 
 Each command declares its flags beside its handler (the ``register`` of its module,
 assembled by :mod:`needlekit.cli._parser`); flags several commands share are defined once
