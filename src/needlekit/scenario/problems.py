@@ -25,7 +25,7 @@ import numpy as np
 
 from needlekit.batch import worker_cached
 from needlekit.constants import DEFAULT_GOAL_TOLERANCE_MM
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, OutputError
 from needlekit.io.files import json_text
 from needlekit.scenario.dynamic import (  # re-exported (they lived here)
     DYNAMIC_SETTINGS,
@@ -332,6 +332,8 @@ class ScenarioSource:
             )
         try:
             text = json_text(document, "document", sort_keys=True, separators=(",", ":"))
+        except OutputError as exc:  # NaN or infinity: named by its field
+            raise InvalidInputError(exc.field, "expected a finite number") from None
         except (TypeError, ValueError) as exc:
             raise InvalidInputError("document", f"not a JSON document ({exc})") from None
         path = Path(base_dir).expanduser().resolve() / name
