@@ -217,4 +217,5 @@ def test_a_library_log_line_never_precedes_the_error(bad, capsys):
     code = main(["scene", "info", str(files["with-weird.nii.yaml"])])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "pixdim" not in err
-    assert err.startswith("error: ") and "weird.nii: NIfTI header has neither sform nor qform" in err
+    assert err.startswith("error: ")
+    assert "weird.nii: NIfTI header has neither sform nor qform" in err

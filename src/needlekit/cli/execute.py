@@ -368,7 +368,8 @@ def add_noise_flags(p) -> None:
                     help="the anatomy moves: lung 5 mm or liver 13 mm superior-inferior, 4 s")  # fmt: skip
     br.add_argument("--breathing-amplitude-mm", type=_BREATHING_AMPLITUDE, metavar="MM",
                     help="peak displacement (0-50 mm)")  # fmt: skip
-    br.add_argument("--breathing-period-s", type=_BREATHING_PERIOD, metavar="S", help="cycle (1-20 s)")
+    br.add_argument("--breathing-period-s", type=_BREATHING_PERIOD, metavar="S",
+                    help="cycle (1-20 s)")  # fmt: skip
     br.add_argument("--breathing-shape", type=_BREATHING_SHAPE, metavar="N",
                     help="n of sin^(2n): the end-exhale plateau (1-6; default 2)")  # fmt: skip
     br.add_argument("--breathing-direction", type=_vector3, metavar="X,Y,Z",

@@ -207,7 +207,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_input(inv, "--start-pose", help="4x4 start pose text file (RAS mm); default identity")
     inv.add_argument(
-        "--r-min-mm", type=_positive_mm, help="minimum radius of curvature; tighter arcs are an error"
+        "--r-min-mm",
+        type=_positive_mm,
+        help="minimum radius of curvature; tighter arcs are an error",
     )
     _flags.JSON.add(inv, help="print JSON instead of a table")
     inv.set_defaults(command_handler=_cmd_inverse)
