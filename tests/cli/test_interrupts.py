@@ -105,8 +105,10 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert done.returncode == 130, done.stderr
     assert len(lines) == 1 and lines[0].startswith("interrupted: "), done.stderr
-    assert f"written to {out} marked partial; the same command with --resume carries on" in lines[0]
-    partial = json.loads(out.read_text())
+    beside = tmp_path / "sweep.partial.json"
+    assert f"written to {beside} marked partial; the same command with --resume carries on" in lines[0]
+    assert not out.exists()  # a partial record is never written over sweep.json
+    partial = json.loads(beside.read_text())
     assert partial["partial"] is True
     rows = [r for r in partial["directions"] if r["effective"]]
     n_done = sum(r["status"][p] is not None for r in rows for p in ("rcs_star", "rrt"))
@@ -118,7 +120,7 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
                              text=True, timeout=600)  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     a = json.loads(out.read_text())
-    assert "partial" not in a and a["resumed"] is True
+    assert "partial" not in a and a["resumed"] is True and not beside.exists()
     key = [(r["status"], r["cost_mm"]) for r in a["directions"]]
     assert key == [(r["status"], r["cost_mm"]) for r in whole["directions"]]
     for p in ("rcs_star", "rrt"):
@@ -135,16 +137,20 @@ def test_resume_refuses_a_file_that_is_not_a_partial_sweep(tmp_path, capsys):
     from needlekit.cli import main
 
     out = tmp_path / "sweep.json"
-    out.write_text(json.dumps({"planners": ["rcs_star"], "directions": []}))
+    beside = tmp_path / "sweep.partial.json"  # where an interrupted run keeps its work
+    beside.write_text(json.dumps({"planners": ["rcs_star"], "directions": []}))
     code = main(["sweep", str(TOY), "--out", str(out), "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [
-        f"error: --resume: {out} is not a partial sweep: nothing to carry on"
+        f"error: --resume: {beside} is not a partial sweep: nothing to carry on"
     ]
     missing = tmp_path / "none.json"
     code = main(["sweep", str(TOY), "--out", str(missing), "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and err == [f"error: {missing}: sweep file not found"]
+    assert code == 2 and err == [
+        f"error: --resume: no {tmp_path / 'none.partial.json'} to carry on from (an "
+        "interrupted run writes it)"
+    ]
 
 
 def _puncture(argv, capsys):
@@ -178,7 +184,7 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     monkeypatch.setattr(ps, "_run_job", fake)
     out = tmp_path / "study"
     code, err = _puncture(["--out", str(out)], capsys)
-    path = out / "puncture.json"
+    path = out / "puncture.partial.json"  # beside puncture.json, never over it
     assert code == 130 and err == [
         f"interrupted: 2 of 3 trials done; written to {path} marked partial; the same "
         "command with --resume carries on"
@@ -209,11 +215,12 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     path.write_text(text)
     code, _ = _puncture(["--out", str(out), "--resume"], capsys)
     assert ran == [0, 1, 2, 2]  # only the trial not done
-    doc = json.loads(path.read_text())
+    doc = json.loads((out / "puncture.json").read_text())
     assert "partial" not in doc and code == 0, doc["constraint_violations"]
+    assert not path.exists()  # the run finished: its partial record is gone
     assert [t["trial"] for t in doc["per_trial"]] == [0, 1, 2]
     assert doc["position_error_mm"]["mean"] == pytest.approx(2.0)
     code, err = _puncture(["--out", str(out), "--resume"], capsys)
     assert code == 2 and err == [
-        f"error: --resume: {path} is not a partial puncture: nothing to carry on"
+        f"error: --resume: no {path} to carry on from (an interrupted run writes it)"
     ]

@@ -9,14 +9,23 @@ assembled by :mod:`needlekit.cli._parser`); flags several commands share are def
 checked (:mod:`needlekit.cli._paths`), and only then does its handler import the heavy
 modules: a bad argument is answered at once, without loading numba, scipy or plotly. A command's
 output files are written as one unit (:func:`needlekit.io.files.staged_outputs`): if
-it fails, every file that was there before is left as it was.
+it fails (an error, exit 2; a verdict that fails, exit 1; Ctrl-C, exit 130), every file
+that was there before is left as it was, and the run's own record goes beside it
+(``X.failed.json``, ``X.partial.json``).
+
+Ctrl-C is recognised here once for every command, wherever it landed
+(:func:`needlekit.errors.is_interrupt`: inside a numba kernel it surfaces as a
+``SystemError``): one line, exit 130. Once the command's result is decided and its files
+are being put in place, a late Ctrl-C is ignored: the outcome reported is the one on disk.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from concurrent.futures import BrokenExecutor
 
@@ -24,7 +33,7 @@ from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_U
 from needlekit.cli._flags import check_dashboard, check_lengths
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
-from needlekit.errors import Interrupted, NeedlekitError
+from needlekit.errors import Interrupted, NeedlekitError, is_interrupt
 from needlekit.plausibility import flag_warnings, warn
 
 __all__ = ["main"]
@@ -62,6 +71,17 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
+def _ignore_interrupts(program: bool):
+    """From now on Ctrl-C changes nothing (the files are being put in place): returns what
+    puts the previous handling back when ``main`` was called in a process that goes on
+    (``program`` false); the program itself keeps ignoring it to its exit, so that a late
+    Ctrl-C cannot interrupt the interpreter's shutdown with a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return (lambda: None) if program else (lambda: signal.signal(signal.SIGINT, previous))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -73,7 +93,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 1 when the result fails its check, 2 on bad input.
+        0 on success, 1 when the result fails its check (its files then replace no file
+        that exists: :meth:`needlekit.io.files.Outputs.keep_earlier`), 2 on bad input, 130
+        when interrupted.
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -91,6 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    restore = lambda: None  # noqa: E731
     try:
         check_paths(args)
         check_dashboard(args)
@@ -98,19 +121,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         warn(flag_warnings(vars(args)))
         from needlekit.io.files import staged_outputs
 
-        with staged_outputs():
+        with staged_outputs() as outputs:
             try:
-                return _run(command, args)
+                code = _run(command, args)
             except BrokenPipeError:  # the work is done: keep its files
                 _quiet_stdout()
-                return EXIT_OK
+                code = EXIT_OK
+            if code != EXIT_OK:  # a verdict that fails replaces no earlier output
+                outputs.keep_earlier()
+            restore = _ignore_interrupts(program=argv is None)
+        _say_where(outputs)
+        return code
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except Interrupted as exc:  # the partial result is written: the message says where
         print(f"interrupted: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:  # SystemError: inside a numba kernel
+        if not is_interrupt(exc):
+            raise
         print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
@@ -125,3 +155,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"error: {where}{exc.strerror or exc}; no output was changed", file=sys.stderr)
         return EXIT_USAGE
+    finally:
+        restore()
+
+
+def _say_where(outputs) -> None:
+    """One line per file a failing verdict did not replace (logged: the command's own
+    output names the destination it asked for)."""
+    for kept, written in outputs.diverted:
+        logging.getLogger("needlekit").warning(
+            "%s: an earlier output, kept; this run's result (it did not succeed) is in %s",
+            kept, written,
+        )
