@@ -119,6 +119,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         check_dashboard(args)
         check_lengths(args)
         warn(flag_warnings(vars(args)))
+        if getattr(args, "sizes", None) is not None:  # memory asked for, before any work
+            from needlekit.memory import refuse_sizes
+
+            refuse_sizes(args.sizes(args))
         from needlekit.io.files import staged_outputs
 
         with staged_outputs() as outputs:

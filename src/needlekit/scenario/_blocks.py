@@ -120,7 +120,13 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
         mesh = read_mesh(path)
         kw = {k: src[k] for k in ("padding_mm",) if k in src}
         voxel = src.get("voxel_size_mm", default_voxel_size_mm(mesh))
-        field_ = ctx.placed(voxelize_mesh_sdf(mesh, voxel, **kw))
+        try:
+            sdf = voxelize_mesh_sdf(mesh, voxel, **kw)
+        except InvalidInputError as exc:  # a grid too big for memory: name the field
+            if exc.field != "voxel_size_mm":
+                raise
+            raise ctx.error(f"{sub}.voxel_size_mm", exc.reason) from None
+        field_ = ctx.placed(sdf)
         source = str(path)
     else:
         field_ = _primitive(kind, src, ctx, sub)
