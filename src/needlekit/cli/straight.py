@@ -83,7 +83,6 @@ def _cmd_multi(args: argparse.Namespace) -> int:
 
     doc = _document(args)
     check_planner_options(args.planner)  # its name, before numba; its options below
-    _refuse_big_grid(args, doc)
     from needlekit.io.files import staged_outputs, write_json
 
     sc, multi, options = _multi_problem(args, doc)
