@@ -82,6 +82,15 @@ def _ignore_interrupts(program: bool):
     return (lambda: None) if program else (lambda: signal.signal(signal.SIGINT, previous))
 
 
+def _interrupt_handled() -> None:
+    """Tell CPython the Ctrl-C was handled. A ``KeyboardInterrupt`` that passed through
+    ``exec`` of a string (imports run some: scipy's array-API shim) is marked unhandled
+    even when caught, and the interpreter then ends by SIGINT instead of with the status
+    ``main`` returns; running any string clears the mark (``run_eval_code_obj`` resets it
+    before it evaluates)."""
+    exec("None")  # noqa: S102 - a constant: the reset is the point
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -140,11 +149,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except Interrupted as exc:  # the partial result is written: the message says where
+        _interrupt_handled()
         print(f"interrupted: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except (KeyboardInterrupt, SystemError) as exc:  # SystemError: inside a numba kernel
         if not is_interrupt(exc):
             raise
+        _interrupt_handled()
         print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
