@@ -224,3 +224,101 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     assert code == 2 and err == [
         f"error: --resume: no {path} to carry on from (an interrupted run writes it)"
     ]
+
+
+def _compiled_interrupt() -> SystemError:
+    """What Ctrl-C inside a numba kernel raises: a SystemError per compiled frame, caused
+    by the KeyboardInterrupt (as CPython reports a C call returning with it set)."""
+    try:
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as ki:
+                raise SystemError("<function _numba_unpickle> returned a result with an "
+                                  "exception set") from ki  # fmt: skip
+        except SystemError as inner:
+            raise SystemError(
+                "CPUDispatcher(<function chain_kinematics>) returned a result with an "
+                "exception set"
+            ) from inner
+    except SystemError as exc:
+        return exc
+
+
+def test_ctrl_c_inside_a_compiled_kernel_is_one_line_and_exit_130(tmp_path, monkeypatch, capsys):
+    import needlekit.cli as cli
+
+    def handler(command, args):
+        raise _compiled_interrupt()
+
+    monkeypatch.setattr(cli, "_run", handler)
+    assert cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")]) == 130
+    assert capsys.readouterr().err.splitlines() == [
+        "interrupted: stopped before any result; no output was changed"
+    ]
+    monkeypatch.setattr(cli, "_run", lambda c, a: (_ for _ in ()).throw(SystemError("a bug")))
+    with pytest.raises(SystemError, match="a bug"):  # any other SystemError is a bug: shown
+        cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")])
+
+
+def test_ctrl_c_inside_a_kernel_keeps_the_trials_done_serial_and_in_a_trial_catch_all(tmp_path):
+    """The places that keep work or record a task's failure see the same interrupt: the
+    serial executor, the trials' loop, a trial's own catch-all (execute)."""
+    from needlekit.batch import SerialExecutor
+    from needlekit.errors import Interrupted
+    from needlekit.studies import execute_study
+    from needlekit.studies.trial_runs import collect_trials
+
+    with pytest.raises(KeyboardInterrupt):
+        SerialExecutor().submit(lambda: (_ for _ in ()).throw(_compiled_interrupt()))
+
+    def run(job):
+        if job == 2:
+            raise _compiled_interrupt()
+        return {"trial": job}
+
+    with pytest.raises(Interrupted, match="2 of 4 trials done"):
+        collect_trials([0, 1, 2, 3], {}, run, lambda k: k, partial_path=tmp_path / "t.json",
+                       head={"seed": 0}, done_key="done")  # fmt: skip
+    kept = json.loads((tmp_path / "t.partial.json").read_text())
+    assert [t["trial"] for t in kept["done"]] == [0, 1] and not (tmp_path / "t.json").exists()
+
+    def problems(source):
+        raise _compiled_interrupt()
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(execute_study, "_problems", problems)
+        with pytest.raises(KeyboardInterrupt):  # not recorded as the trial's error
+            execute_study._run_job((None, None, None, None, 0, 1, None))
+
+
+def test_ctrl_c_in_a_real_numba_kernel_at_seeded_moments(tmp_path, monkeypatch, capsys):
+    """The kernel of the measured traceback (``chain_kinematics``), called in a loop as a
+    serial puncture does, and SIGINT at seeded moments: exit 130 and one line each time,
+    whether it surfaced as KeyboardInterrupt or as the kernel's SystemError."""
+    import signal
+    import threading
+
+    import numpy as np
+
+    import needlekit.cli as cli
+    from needlekit.control.panda import PANDA_MDH_MM, chain_kinematics
+
+    dq = np.array([1.0, 0, 0, 0, 0, 0, 0, 0])
+    chain_kinematics(np.zeros(7), PANDA_MDH_MM, dq, dq)  # compiled (or loaded) before
+
+    def handler(command, args):
+        while True:
+            chain_kinematics(np.zeros(7), PANDA_MDH_MM, dq, dq)
+
+    monkeypatch.setattr(cli, "_run", handler)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for delay in np.random.default_rng(7).uniform(0.05, 0.3, 3):
+            threading.Timer(delay, os.kill, (os.getpid(), signal.SIGINT)).start()
+            assert cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")]) == 130
+            assert capsys.readouterr().err.splitlines() == [
+                "interrupted: stopped before any result; no output was changed"
+            ]
+    finally:
+        signal.signal(signal.SIGINT, previous)
