@@ -132,7 +132,7 @@ def atomic_write(
     dest = Path(path)
     stage = _STAGE.get()
     if stage is not None:
-        stage.make_parents(dest)
+        stage._make_parents(dest)
     else:
         dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = _temp_beside(dest, "tmp")
@@ -141,7 +141,7 @@ def atomic_write(
         # mkstemp creates 0600 files; give the result the mode a plain open() would.
         os.chmod(tmp, 0o666 & ~_umask())
         if stage is not None:
-            stage.hold(dest, tmp, partial)
+            stage._hold(dest, tmp, partial)
         else:
             os.replace(tmp, dest)
             if not partial:  # the complete result: an interrupted run's record is stale
@@ -192,7 +192,7 @@ class Outputs:
         """
         self.failed = True
 
-    def make_parents(self, dest: Path) -> None:
+    def _make_parents(self, dest: Path) -> None:
         missing = []
         d = dest.parent
         while not d.exists() and d != d.parent:
@@ -201,7 +201,7 @@ class Outputs:
         dest.parent.mkdir(parents=True, exist_ok=True)
         self.new_dirs.extend(reversed(missing))
 
-    def hold(self, dest: Path, tmp: Path, partial: bool = False) -> None:
+    def _hold(self, dest: Path, tmp: Path, partial: bool = False) -> None:
         key = Path(os.path.abspath(dest))
         earlier = self.pending.pop(key, None)
         if earlier is not None:  # the same file written twice: the last version wins
@@ -214,7 +214,7 @@ class Outputs:
             return beside(dest, "failed")
         return dest
 
-    def commit(self, *, interrupted: bool = False) -> None:
+    def _commit(self, *, interrupted: bool = False) -> None:
         """Move the files into place (when ``interrupted``, the partial records and the
         new files only); if one move fails, put back what was there."""
         if interrupted:
@@ -242,7 +242,7 @@ class Outputs:
                     os.replace(backup, dest)
                 else:
                     dest.unlink(missing_ok=True)
-            self.discard()
+            self._discard()
             raise
         for _, backup in moved:
             if backup is not None:
@@ -251,7 +251,7 @@ class Outputs:
             for dest in complete:
                 beside(dest, "partial").unlink(missing_ok=True)
 
-    def discard(self) -> None:
+    def _discard(self) -> None:
         """Remove the files not yet in place and the folders made for them (if empty)."""
         for tmp, _ in self.pending.values():
             tmp.unlink(missing_ok=True)
@@ -334,14 +334,14 @@ def staged_outputs() -> Iterator[Outputs]:
         yield stage
     except Interrupted:  # the partial record written for the stopped run is kept
         _STAGE.reset(token)
-        stage.commit(interrupted=True)
+        stage._commit(interrupted=True)
         raise
     except BaseException:
         _STAGE.reset(token)
-        stage.discard()
+        stage._discard()
         raise
     _STAGE.reset(token)
-    stage.commit()
+    stage._commit()
 
 
 def _read_only(mode: int) -> bool:
