@@ -41,6 +41,8 @@ COMMANDS = {
     "execute": (["execute", TOY, "{plan}", "--trials", "3", "--out", "{d}"], 2),
     "multi": (["multi", MULTI, "--out", "{d}/multi.json"], 2),
     "cfrw": (["cfrw", MULTI, "--out", "{d}/cfrw.json"], 2),
+    "bench": (["bench", "kinematics", "--arcs", "20000", "--samples", "8", "--repeat", "1",
+               "--out", "{d}/bench.json"], 2),  # fmt: skip
 }
 
 

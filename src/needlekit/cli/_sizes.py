@@ -80,7 +80,9 @@ def cfrw_sizes(args: argparse.Namespace) -> list[Size]:
     """
     from needlekit.io.scenario_schema import read_scenario_document
 
-    block = read_scenario_document(args.scenario).get("straight") or {}
+    # kept for the command, which reads it once (its warnings said once)
+    args.scenario_document = read_scenario_document(args.scenario)
+    block = args.scenario_document.get("straight") or {}
     flag, res = "--resolution-deg", getattr(args, "resolution_deg", None)
     if res is None:
         flag, res = "straight.resolution_deg", block.get("resolution_deg")

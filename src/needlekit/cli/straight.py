@@ -16,7 +16,8 @@ def _document(args: argparse.Namespace) -> dict:
     any heavy module (numba) is imported."""
     from needlekit.io.scenario_schema import read_scenario_document
 
-    doc = read_scenario_document(args.scenario)
+    # read once: the memory estimate (cli._sizes.cfrw_sizes) may have read it already
+    doc = getattr(args, "scenario_document", None) or read_scenario_document(args.scenario)
     if not doc.get("straight"):
         raise InvalidInputError("straight", "the scenario has no straight block")
     return doc
