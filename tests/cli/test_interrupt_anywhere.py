@@ -38,6 +38,7 @@ COMMANDS = {
     "sweep-workers": (["sweep", TOY, "--directions", "200", "--max-iterations", "300",
                        "--workers", "2", "--out", "{d}/sweep.json"], 2),  # fmt: skip
     "puncture": (["puncture", "--trials", "1", "--out", "{d}"], 3),
+    "puncture-workers": (["puncture", "--trials", "2", "--workers", "2", "--out", "{d}"], 1),
     "execute": (["execute", TOY, "{plan}", "--trials", "3", "--out", "{d}"], 2),
     "multi": (["multi", MULTI, "--out", "{d}/multi.json"], 2),
     "cfrw": (["cfrw", MULTI, "--out", "{d}/cfrw.json"], 2),
