@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from needlekit.constants import ROTATION_ORTHONORMAL_TOL
 from needlekit._numbers import Bounds, magnitude
+from needlekit.constants import ROTATION_ORTHONORMAL_TOL
 from needlekit.errors import InvalidInputError
 
 __all__ = [

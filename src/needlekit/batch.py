@@ -37,7 +37,7 @@ from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_complet
 from contextlib import contextmanager
 from typing import Any
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, raise_if_interrupt
 
 __all__ = [
     "EXECUTORS",
@@ -62,7 +62,9 @@ class SerialExecutor(Executor):
     """An executor that runs every task at submission, in the calling thread.
 
     A task's exception is stored in the returned future, as with a pool; Ctrl-C
-    (``KeyboardInterrupt``) is not a task's failure and stops the caller at once.
+    (``KeyboardInterrupt``, or the ``SystemError`` a compiled kernel turns it into:
+    :func:`~needlekit.errors.is_interrupt`) is not a task's failure and stops the caller
+    at once, as ``KeyboardInterrupt``.
     """
 
     #: Tasks run in the caller's process: they need not be picklable.
@@ -86,6 +88,7 @@ class SerialExecutor(Executor):
         try:
             fut.set_result(fn(*args, **kwargs))
         except Exception as exc:
+            raise_if_interrupt(exc)  # Ctrl-C inside a compiled kernel (a SystemError)
             fut.set_exception(exc)
         return fut
 

@@ -15,6 +15,8 @@ __all__ = [
     "OutputError",
     "SingularityError",
     "UnreachableTargetError",
+    "is_interrupt",
+    "raise_if_interrupt",
 ]
 
 
@@ -93,3 +95,66 @@ class Interrupted(Exception):
     def __init__(self, message: str, partial=None) -> None:
         super().__init__(message)
         self.partial = partial
+
+
+def is_interrupt(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is Ctrl-C: a ``KeyboardInterrupt``, or the ``SystemError`` a
+    compiled (numba) function turns one into.
+
+    Python runs the SIGINT handler at the next bytecode it executes. When that bytecode
+    belongs to a helper a numba kernel calls back (``_numba_unpickle``), the kernel returns
+    with the ``KeyboardInterrupt`` pending and the interpreter reports ``SystemError:
+    CPUDispatcher(...) returned a result with an exception set``, caused (through one
+    ``SystemError`` per compiled frame) by the ``KeyboardInterrupt``. Every place that
+    keeps work on Ctrl-C, or records a task's failure and goes on, asks this instead of
+    matching ``KeyboardInterrupt`` alone.
+
+    Parameters
+    ----------
+    exc : BaseException or None
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> try:
+    ...     try:
+    ...         raise KeyboardInterrupt
+    ...     except KeyboardInterrupt as ki:
+    ...         raise SystemError("CPUDispatcher(f) returned a result with an exception set") from ki
+    ... except SystemError as exc:
+    ...     is_interrupt(exc), is_interrupt(SystemError("other"))
+    (True, False)
+    """
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        if not isinstance(exc, SystemError):
+            return False
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def raise_if_interrupt(exc: BaseException) -> None:
+    """Raise ``KeyboardInterrupt`` when ``exc`` is Ctrl-C (:func:`is_interrupt`); a
+    catch-all that records a failure and goes on calls this first.
+
+    Parameters
+    ----------
+    exc : BaseException
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    KeyboardInterrupt
+        ``exc`` is an interrupt, whatever its type.
+    """
+    if is_interrupt(exc):
+        raise KeyboardInterrupt from None

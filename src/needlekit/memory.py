@@ -7,15 +7,70 @@ it is certain to hold, never more), and refuse it in one line when that is more 
 memory available now: ``--directions: 1000000000 directions would need at least 478 GiB;
 this machine has 21.3 GiB available``. A request that fits the estimate may still be
 slow: the estimate is a floor, not a promise.
+
+Every command that sizes arrays from its input says so in one table
+(:mod:`needlekit.cli._sizes`): per flag, a :class:`Size`, checked by
+:func:`refuse_sizes` before the command's handler runs, so before any anatomy loads or
+any array is made.
 """
 
 from __future__ import annotations
 
 import os
+from typing import NamedTuple
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["available_bytes", "format_bytes", "refuse_if_too_big"]
+__all__ = ["Size", "available_bytes", "format_bytes", "refuse_if_too_big", "refuse_sizes"]
+
+
+class Size(NamedTuple):
+    """What one flag asks for, in memory: at least ``count * bytes_each`` bytes.
+
+    Parameters
+    ----------
+    flag : str
+        The flag (or file field) that sets it, named in the error (``"--trials"``).
+    count : float
+        How many items it asks for (a float: a request may pass any integer's range).
+    bytes_each : float
+        The least memory one item holds (bytes): the arrays it is certain to need.
+    what : str
+        The request in words (``"1e+12 trials"``).
+    """
+
+    flag: str
+    count: float
+    bytes_each: float
+    what: str
+
+
+def refuse_sizes(sizes) -> None:
+    """Refuse the first request of ``sizes`` that needs more memory than is available.
+
+    Parameters
+    ----------
+    sizes : iterable of Size
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Named by the request's flag (:func:`refuse_if_too_big`).
+
+    Examples
+    --------
+    >>> refuse_sizes([Size("--trials", 3, 64, "3 trials")])
+    >>> refuse_sizes([Size("--trials", 1e18, 64, "1e+18 trials")])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    needlekit.errors.InvalidInputError: --trials: 1e+18 trials would need at least 5.68e+04 PiB; ...
+    """
+    for s in sizes:
+        refuse_if_too_big(float(s.count) * float(s.bytes_each), s.flag, s.what)
 
 
 def available_bytes() -> int:

@@ -190,11 +190,13 @@ ROWS = [
     ),
     (
         ["sweep", "{TOY}", "--out", "{d}/none.json", "--resume"],
-        "error: {d}/none.json: sweep file not found",
+        "error: --resume: no {d}/none.partial.json to carry on from (an interrupted run "
+        "writes it)",
     ),
     (
         ["puncture", "--out", "{d}/nothing", "--resume"],
-        "error: {d}/nothing/puncture.json: puncture file not found",
+        "error: --resume: no {d}/nothing/puncture.partial.json to carry on from (an "
+        "interrupted run writes it)",
     ),
     (
         ["plan", "{TOY}", "--goals", "1,2,3", "--goal", "1,2,3"],

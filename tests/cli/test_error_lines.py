@@ -170,7 +170,7 @@ _POSES = ("pose.txt", "garbage.yaml", "missing.txt")
 def _kinds(slot: list[str]) -> tuple[str, ...]:
     if "--start-pose" in slot:
         return _POSES
-    if slot[0] in ("markups", "report") or slot[-1] == "X" and slot[0] == "verify":
+    if slot[0] in ("markups", "report") or (slot[-1] == "X" and slot[0] == "verify"):
         return _RECORDS
     if slot[0] == "execute":
         return _RECORDS

@@ -105,8 +105,10 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert done.returncode == 130, done.stderr
     assert len(lines) == 1 and lines[0].startswith("interrupted: "), done.stderr
-    assert f"written to {out} marked partial; the same command with --resume carries on" in lines[0]
-    partial = json.loads(out.read_text())
+    beside = tmp_path / "sweep.partial.json"
+    assert f"written to {beside} marked partial; the same command with --resume carries on" in lines[0]
+    assert not out.exists()  # a partial record is never written over sweep.json
+    partial = json.loads(beside.read_text())
     assert partial["partial"] is True
     rows = [r for r in partial["directions"] if r["effective"]]
     n_done = sum(r["status"][p] is not None for r in rows for p in ("rcs_star", "rrt"))
@@ -118,7 +120,7 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
                              text=True, timeout=600)  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr
     a = json.loads(out.read_text())
-    assert "partial" not in a and a["resumed"] is True
+    assert "partial" not in a and a["resumed"] is True and not beside.exists()
     key = [(r["status"], r["cost_mm"]) for r in a["directions"]]
     assert key == [(r["status"], r["cost_mm"]) for r in whole["directions"]]
     for p in ("rcs_star", "rrt"):
@@ -135,16 +137,20 @@ def test_resume_refuses_a_file_that_is_not_a_partial_sweep(tmp_path, capsys):
     from needlekit.cli import main
 
     out = tmp_path / "sweep.json"
-    out.write_text(json.dumps({"planners": ["rcs_star"], "directions": []}))
+    beside = tmp_path / "sweep.partial.json"  # where an interrupted run keeps its work
+    beside.write_text(json.dumps({"planners": ["rcs_star"], "directions": []}))
     code = main(["sweep", str(TOY), "--out", str(out), "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err == [
-        f"error: --resume: {out} is not a partial sweep: nothing to carry on"
+        f"error: --resume: {beside} is not a partial sweep: nothing to carry on"
     ]
     missing = tmp_path / "none.json"
     code = main(["sweep", str(TOY), "--out", str(missing), "--resume"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and err == [f"error: {missing}: sweep file not found"]
+    assert code == 2 and err == [
+        f"error: --resume: no {tmp_path / 'none.partial.json'} to carry on from (an "
+        "interrupted run writes it)"
+    ]
 
 
 def _puncture(argv, capsys):
@@ -178,7 +184,7 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     monkeypatch.setattr(ps, "_run_job", fake)
     out = tmp_path / "study"
     code, err = _puncture(["--out", str(out)], capsys)
-    path = out / "puncture.json"
+    path = out / "puncture.partial.json"  # beside puncture.json, never over it
     assert code == 130 and err == [
         f"interrupted: 2 of 3 trials done; written to {path} marked partial; the same "
         "command with --resume carries on"
@@ -209,11 +215,110 @@ def test_an_interrupted_puncture_study_keeps_its_trials_and_resume_runs_only_the
     path.write_text(text)
     code, _ = _puncture(["--out", str(out), "--resume"], capsys)
     assert ran == [0, 1, 2, 2]  # only the trial not done
-    doc = json.loads(path.read_text())
+    doc = json.loads((out / "puncture.json").read_text())
     assert "partial" not in doc and code == 0, doc["constraint_violations"]
+    assert not path.exists()  # the run finished: its partial record is gone
     assert [t["trial"] for t in doc["per_trial"]] == [0, 1, 2]
     assert doc["position_error_mm"]["mean"] == pytest.approx(2.0)
     code, err = _puncture(["--out", str(out), "--resume"], capsys)
     assert code == 2 and err == [
-        f"error: --resume: {path} is not a partial puncture: nothing to carry on"
+        f"error: --resume: no {path} to carry on from (an interrupted run writes it)"
     ]
+
+
+def _compiled_interrupt() -> SystemError:
+    """What Ctrl-C inside a numba kernel raises: a SystemError per compiled frame, caused
+    by the KeyboardInterrupt (as CPython reports a C call returning with it set)."""
+    try:
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as ki:
+                raise SystemError("<function _numba_unpickle> returned a result with an "
+                                  "exception set") from ki  # fmt: skip
+        except SystemError as inner:
+            raise SystemError(
+                "CPUDispatcher(<function chain_kinematics>) returned a result with an "
+                "exception set"
+            ) from inner
+    except SystemError as exc:
+        return exc
+
+
+def test_ctrl_c_inside_a_compiled_kernel_is_one_line_and_exit_130(tmp_path, monkeypatch, capsys):
+    import needlekit.cli as cli
+
+    def handler(command, args):
+        raise _compiled_interrupt()
+
+    monkeypatch.setattr(cli, "_run", handler)
+    assert cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")]) == 130
+    assert capsys.readouterr().err.splitlines() == [
+        "interrupted: stopped before any result; no output was changed"
+    ]
+    monkeypatch.setattr(cli, "_run", lambda c, a: (_ for _ in ()).throw(SystemError("a bug")))
+    with pytest.raises(SystemError, match="a bug"):  # any other SystemError is a bug: shown
+        cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")])
+
+
+def test_ctrl_c_inside_a_kernel_keeps_the_trials_done_serial_and_in_a_trial_catch_all(tmp_path):
+    """The places that keep work or record a task's failure see the same interrupt: the
+    serial executor, the trials' loop, a trial's own catch-all (execute)."""
+    from needlekit.batch import SerialExecutor
+    from needlekit.errors import Interrupted
+    from needlekit.studies import execute_study
+    from needlekit.studies.trial_runs import collect_trials
+
+    with pytest.raises(KeyboardInterrupt):
+        SerialExecutor().submit(lambda: (_ for _ in ()).throw(_compiled_interrupt()))
+
+    def run(job):
+        if job == 2:
+            raise _compiled_interrupt()
+        return {"trial": job}
+
+    with pytest.raises(Interrupted, match="2 of 4 trials done"):
+        collect_trials([0, 1, 2, 3], {}, run, lambda k: k, partial_path=tmp_path / "t.json",
+                       head={"seed": 0}, done_key="done")  # fmt: skip
+    kept = json.loads((tmp_path / "t.partial.json").read_text())
+    assert [t["trial"] for t in kept["done"]] == [0, 1] and not (tmp_path / "t.json").exists()
+
+    def problems(source):
+        raise _compiled_interrupt()
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(execute_study, "_problems", problems)
+        with pytest.raises(KeyboardInterrupt):  # not recorded as the trial's error
+            execute_study._run_job((None, None, None, None, 0, 1, None))
+
+
+def test_ctrl_c_in_a_real_numba_kernel_at_seeded_moments(tmp_path, monkeypatch, capsys):
+    """The kernel of the measured traceback (``chain_kinematics``), called in a loop as a
+    serial puncture does, and SIGINT at seeded moments: exit 130 and one line each time,
+    whether it surfaced as KeyboardInterrupt or as the kernel's SystemError."""
+    import signal
+    import threading
+
+    import numpy as np
+
+    import needlekit.cli as cli
+    from needlekit.control.panda import PANDA_MDH_MM, chain_kinematics
+
+    dq = np.array([1.0, 0, 0, 0, 0, 0, 0, 0])
+    chain_kinematics(np.zeros(7), PANDA_MDH_MM, dq, dq)  # compiled (or loaded) before
+
+    def handler(command, args):
+        while True:
+            chain_kinematics(np.zeros(7), PANDA_MDH_MM, dq, dq)
+
+    monkeypatch.setattr(cli, "_run", handler)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for delay in np.random.default_rng(7).uniform(0.05, 0.3, 3):
+            threading.Timer(delay, os.kill, (os.getpid(), signal.SIGINT)).start()
+            assert cli.main(["plan", str(TOY), "--out", str(tmp_path / "plan.json")]) == 130
+            assert capsys.readouterr().err.splitlines() == [
+                "interrupted: stopped before any result; no output was changed"
+            ]
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -377,3 +377,23 @@ def test_the_cli_shows_the_millimetre_warning_on_stderr(tmp_path):
         "WARNING needlekit.scenario.loading: tiny.yaml: the anatomy is only 2 mm across; lengths "
         "in scenario files are millimetres (was it written in cm or m?)\n"
     )
+
+
+def test_a_plan_whose_verdict_fails_leaves_the_solved_plan_and_writes_beside_it(tmp_path, caplog):
+    """The verdict rule: a run that fails (exit 1: infeasible, invalid, timeout; 2: an
+    error; 130: interrupted) replaces no output that exists; its record goes beside."""
+    plan = tmp_path / "plan.json"
+    assert main(["plan", TOY, "--out", str(plan)]) == 0
+    solved = plan.read_bytes()
+    for goal, status in (("0,-40,0", "infeasible"), ("0,10,0", "invalid_input")):
+        caplog.clear()
+        assert main(["plan", TOY, "--goal", goal, "--out", str(plan)]) == 1
+        assert plan.read_bytes() == solved
+        failed = json.loads((tmp_path / "plan.failed.json").read_text())
+        assert failed["status"] == status
+        assert f"{plan}: an earlier output, kept; this run's result (it did not succeed) is in " \
+            f"{tmp_path / 'plan.failed.json'}" in caplog.text  # fmt: skip
+    fresh = tmp_path / "fresh.json"  # nothing there before: the record goes where asked
+    assert main(["plan", TOY, "--goal", "0,-40,0", "--out", str(fresh)]) == 1
+    assert json.loads(fresh.read_text())["status"] == "infeasible"
+    assert not (tmp_path / "fresh.failed.json").exists()

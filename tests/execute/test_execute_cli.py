@@ -153,7 +153,7 @@ def test_ctrl_c_keeps_the_trials_done_and_resume_carries_on_to_the_same_record(
 
     with pytest.raises(Interrupted, match="1 of 3 trials done"):
         _study(tmp_path, plan, trials=[0, 1, 2], progress=stop_after_one)
-    partial = json.loads((tmp_path / "execute.json").read_text())
+    partial = json.loads((tmp_path / "execute.partial.json").read_text())
     assert partial["partial"] is True and [t["trial"] for t in partial["trials_done"]] == seen
     options = ExecuteOptions(policy=ReplanPolicy(max_iterations=500, delay_s=0.005))
     kept = read_partial_execute(tmp_path, "", plan, 3, [0, 1, 2], options)

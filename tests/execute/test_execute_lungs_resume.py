@@ -32,7 +32,7 @@ def test_ctrl_c_keeps_the_lungs_done_and_resume_goes_on_from_the_one_under_way(
     monkeypatch.setattr(execute_lungs, "_run_case", run_case)
     with pytest.raises(Interrupted, match="1 of 3 lungs done"):
         execute_lungs.run_execute_lungs(tmp_path, patients=(1, 2, 3), trials=4)
-    partial = json.loads((tmp_path / "execute_lungs.json").read_text())
+    partial = json.loads((tmp_path / "execute_lungs.partial.json").read_text())
     assert partial["partial"] is True and [c["patient"] for c in partial["cases"]] == [1]
     assert partial["current"]["patient"] == 2 and partial["current"]["margin_mm"] == 0.2
     with pytest.raises(Exception, match="--resume"):  # other trials: refused
@@ -42,3 +42,4 @@ def test_ctrl_c_keeps_the_lungs_done_and_resume_goes_on_from_the_one_under_way(
     assert ran == [(1, False), (2, False), (2, True), (3, False)]
     assert [c["patient"] for c in record["cases"]] == [1, 2, 3] and record["holds"]
     assert record["resumed"] is True and "partial" not in record
+    assert not (tmp_path / "execute_lungs.partial.json").exists()  # finished: now stale

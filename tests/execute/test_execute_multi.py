@@ -255,7 +255,7 @@ def test_ctrl_c_keeps_the_trials_done_resume_carries_on_and_a_crash_is_recorded(
 
     with pytest.raises(Interrupted, match="2 of 4 trials done"):
         run(tmp_path / "cut", progress=stop_after_two)
-    partial = json.loads((tmp_path / "cut" / "execute.json").read_text())
+    partial = json.loads((tmp_path / "cut" / "execute.partial.json").read_text())
     assert partial["partial"] is True and [t["trial"] for t in partial["trials_done"]] == seen
     with pytest.raises(Exception, match="--resume"):  # another seed: refused
         execute_multi.run_multi_execution(tmp_path / "cut", record, multi, trials=[0, 1, 2, 3],

@@ -109,3 +109,52 @@ def test_output_path_problem(places, rel, folder, reason):
 
 def test_output_path_problem_refuses_devices():
     assert output_path_problem(os.devnull) == "is not a regular file (a device, pipe or socket)"
+
+
+# ---------------------------------------------------------------------------------------
+# what a failing verdict and an interrupted run leave (the README's contract)
+
+
+def test_a_failing_verdict_replaces_no_file_that_exists_and_writes_beside_it(tmp_path):
+    write_text(tmp_path / "plan.json", "solved plan")
+    with staged_outputs() as outputs:
+        write_text(tmp_path / "plan.json", "infeasible plan")
+        write_text(tmp_path / "report.html", "new page")  # no file there: written in place
+        outputs.keep_earlier()
+    assert (tmp_path / "plan.json").read_text() == "solved plan"
+    assert (tmp_path / "plan.failed.json").read_text() == "infeasible plan"
+    assert (tmp_path / "report.html").read_text() == "new page"
+    assert outputs.diverted == [(tmp_path / "plan.json", tmp_path / "plan.failed.json")]
+    assert sorted(_tree(tmp_path)) == ["plan.failed.json", "plan.json", "report.html"]
+
+
+def test_an_interrupted_block_puts_only_its_partial_record_and_new_files_in_place(tmp_path):
+    from needlekit.errors import Interrupted
+
+    write_text(tmp_path / "sweep.json", "complete sweep")
+    with pytest.raises(Interrupted), staged_outputs():
+        write_text(tmp_path / "sweep.json", "a sweep half done")  # never over the complete one
+        write_text(tmp_path / "case1" / "execute.json", "a finished case")  # new: kept
+        write_json(tmp_path / "sweep.partial.json", {"partial": True}, partial=True)
+        raise Interrupted("stopped")
+    assert (tmp_path / "sweep.json").read_text() == "complete sweep"
+    assert (tmp_path / "case1" / "execute.json").read_text() == "a finished case"
+    assert sorted(_tree(tmp_path)) == ["case1", "case1/execute.json", "sweep.json",
+                                       "sweep.partial.json"]  # fmt: skip
+
+
+def test_a_finished_run_removes_the_partial_record_it_carried_on_from(tmp_path):
+    from needlekit.io.partial import write_partial
+
+    write_partial(tmp_path / "sweep.json", {"done": [1]}, key_file=tmp_path / "key")
+    assert (tmp_path / "sweep.partial.json").exists() and not (tmp_path / "sweep.json").exists()
+    with staged_outputs() as outputs:  # a failing verdict keeps it (nothing earlier changes)
+        write_text(tmp_path / "sweep.json", "complete, but no plan found")
+        outputs.keep_earlier()
+    assert (tmp_path / "sweep.partial.json").exists()
+    with staged_outputs():
+        write_text(tmp_path / "sweep.json", "complete")
+    assert not (tmp_path / "sweep.partial.json").exists()
+    write_partial(tmp_path / "sweep.json", {"done": [1]}, key_file=tmp_path / "key")
+    write_text(tmp_path / "sweep.json", "complete, outside a block")  # the same rule
+    assert not (tmp_path / "sweep.partial.json").exists()

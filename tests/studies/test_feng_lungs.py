@@ -268,7 +268,7 @@ def test_an_interrupted_study_keeps_its_sweeps_and_resume_gives_the_whole_tables
     capsys.readouterr()
     assert main(["study", "feng-lungs", "--out", str(out), *small]) == 130
     (line,) = capsys.readouterr().err.strip().splitlines()
-    paths = [out / g / "sweep.json" for g in ("goal1", "goal2")]
+    paths = [out / g / "sweep.partial.json" for g in ("goal1", "goal2")]
     assert line.endswith(
         f"written to {paths[0]} and {paths[1]} marked partial; the same command with "
         "--resume carries on"
@@ -294,7 +294,7 @@ def test_an_interrupted_study_keeps_its_sweeps_and_resume_gives_the_whole_tables
             assert {**got["goals"][g]["table4"][name], "time_s": 0} == {**t, "time_s": 0}
         assert got["goals"][g]["checks"] == want["goals"][g]["checks"]
         a, b = (json.loads((d / g / "sweep.json").read_text()) for d in (out, ref))
-        assert "partial" not in a
+        assert "partial" not in a and not (out / g / "sweep.partial.json").exists()
         assert [(r["status"], r["cost_mm"]) for r in a["directions"]] == [
             (r["status"], r["cost_mm"]) for r in b["directions"]
         ]

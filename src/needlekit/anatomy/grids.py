@@ -11,6 +11,7 @@ import numpy as np
 
 from needlekit._validation import as_positive, as_scalar
 from needlekit.errors import InvalidInputError
+from needlekit.memory import refuse_if_too_big
 
 __all__ = [
     "AFFINE_ORTHOGONALITY_TOL",
@@ -146,6 +147,13 @@ def grid_for_bounds(bounds, voxel_size_mm: float, padding_mm: float):
     shape : tuple of int
         Grid shape ``(i, j, k)``, at least 2 along every axis.
 
+    Raises
+    ------
+    InvalidInputError
+        A grid whose voxels (a byte each, at least: any grid holds a mask) would need more
+        memory than the machine has, named ``voxel_size_mm``
+        (:func:`~needlekit.memory.refuse_if_too_big`).
+
     Examples
     --------
     >>> affine, shape = grid_for_bounds([[0, 0, 0], [10, 5, 1]], 1.0, 2.0)
@@ -160,7 +168,9 @@ def grid_for_bounds(bounds, voxel_size_mm: float, padding_mm: float):
     if pad < 0:
         raise InvalidInputError("padding_mm", f"must be >= 0, got {pad}")
     lo = b[0] - pad
-    n = np.maximum(np.ceil((b[1] + pad - lo) / h).astype(np.int64) + 1, 2)
+    n = np.maximum(np.ceil((b[1] + pad - lo) / h) + 1, 2)  # float: no overflow
+    cells = float(np.prod(n))
+    refuse_if_too_big(cells, "voxel_size_mm", f"a {h:g} mm grid ({cells:.3g} voxels)")
     affine = np.diag([h, h, h, 1.0])
     affine[:3, 3] = lo
     return affine, tuple(int(v) for v in n)

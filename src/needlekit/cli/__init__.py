@@ -14,23 +14,32 @@ assembled by :mod:`needlekit.cli._parser`); flags several commands share are def
 checked (:mod:`needlekit.cli._paths`), and only then does its handler import the heavy
 modules: a bad argument is answered at once, without loading numba, scipy or plotly. A command's
 output files are written as one unit (:func:`needlekit.io.files.staged_outputs`): if
-it fails, every file that was there before is left as it was.
+it fails (an error, exit 2; a verdict that fails, exit 1; Ctrl-C, exit 130), every file
+that was there before is left as it was, and the run's own record goes beside it
+(``X.failed.json``, ``X.partial.json``).
+
+Ctrl-C is recognised here once for every command, wherever it landed
+(:func:`needlekit.errors.is_interrupt`: inside a numba kernel it surfaces as a
+``SystemError``): one line, exit 130. Once the command's result is decided and its files
+are being put in place, a late Ctrl-C is ignored: the outcome reported is the one on disk.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
+import threading
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from concurrent.futures import BrokenExecutor
+from contextlib import contextmanager
 
 from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from needlekit.cli._flags import check_dashboard
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
-from needlekit.errors import Interrupted, NeedlekitError
+from needlekit.errors import Interrupted, NeedlekitError, is_interrupt
 from needlekit.plausibility import flag_warnings, warn
 
 __all__ = ["main"]
@@ -110,6 +119,26 @@ def _quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
+def _ignore_interrupts(program: bool):
+    """From now on Ctrl-C changes nothing (the files are being put in place): returns what
+    puts the previous handling back when ``main`` was called in a process that goes on
+    (``program`` false); the program itself keeps ignoring it to its exit, so that a late
+    Ctrl-C cannot interrupt the interpreter's shutdown with a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return (lambda: None) if program else (lambda: signal.signal(signal.SIGINT, previous))
+
+
+def _interrupt_handled() -> None:
+    """Tell CPython the Ctrl-C was handled. A ``KeyboardInterrupt`` that passed through
+    ``exec`` of a string (imports run some: scipy's array-API shim) is marked unhandled
+    even when caught, and the interpreter then ends by SIGINT instead of with the status
+    ``main`` returns; running any string clears the mark (``run_eval_code_obj`` resets it
+    before it evaluates)."""
+    exec("None")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -121,7 +150,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        0 on success, 1 when the result fails its check, 2 on bad input.
+        0 on success, 1 when the result fails its check (its files then replace no file
+        that exists: :meth:`needlekit.io.files.Outputs.keep_earlier`), 2 on bad input, 130
+        when interrupted.
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -136,30 +167,44 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return EXIT_USAGE
     with _logging(args.verbose):
-        return _checked_run(command, args)
+        return _checked_run(command, args, program=argv is None)
 
 
-def _checked_run(command: str, args) -> int:
+def _checked_run(command: str, args, *, program: bool) -> int:
     """Check the arguments, run the command, and turn what can go wrong into one line."""
+    restore = lambda: None  # noqa: E731
     try:
         check_paths(args)
         check_dashboard(args)
         warn(flag_warnings(vars(args)))
+        if getattr(args, "sizes", None) is not None:  # memory asked for, before any work
+            from needlekit.memory import refuse_sizes
+
+            refuse_sizes(args.sizes(args))
         from needlekit.io.files import staged_outputs
 
-        with staged_outputs():
+        with staged_outputs() as outputs:
             try:
-                return _run(command, args)
+                code = _run(command, args)
             except BrokenPipeError:  # the work is done: keep its files
                 _quiet_stdout()
-                return EXIT_OK
+                code = EXIT_OK
+            if code != EXIT_OK:  # a verdict that fails replaces no earlier output
+                outputs.keep_earlier()
+            restore = _ignore_interrupts(program=program)
+        _say_where(outputs)
+        return code
     except NeedlekitError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except Interrupted as exc:  # the partial result is written: the message says where
+        _interrupt_handled()
         print(f"interrupted: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:  # SystemError: inside a numba kernel
+        if not is_interrupt(exc):
+            raise
+        _interrupt_handled()
         print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
@@ -174,3 +219,15 @@ def _checked_run(command: str, args) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"error: {where}{exc.strerror or exc}; no output was changed", file=sys.stderr)
         return EXIT_USAGE
+    finally:
+        restore()
+
+
+def _say_where(outputs) -> None:
+    """One line per file a failing verdict did not replace (logged: the command's own
+    output names the destination it asked for)."""
+    for kept, written in outputs.diverted:
+        logging.getLogger("needlekit").warning(
+            "%s: an earlier output, kept; this run's result (it did not succeed) is in %s",
+            kept, written,
+        )

@@ -5,14 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _count,
-    _non_negative,
     _non_negative_mm,
     _Parser,
-    _positive,
     _positive_int,
     _positive_mm,
     _seed,
@@ -61,10 +59,6 @@ def _fields(args: argparse.Namespace) -> dict:
 
     if args.grid < 8:
         raise NeedlekitError("--grid: expected a whole number >= 8")
-    from needlekit.memory import refuse_if_too_big
-
-    # the test grids are float64 (and a mask and an EDT beside each): 8 bytes a voxel at least
-    refuse_if_too_big(8 * args.grid**3, "--grid", f"a {args.grid}^3 grid")
     return run_fields_benchmark(
         grid_size=args.grid,
         n_queries=args.queries,
@@ -201,7 +195,7 @@ def _suite(bench_sub, name: str, run, **kwargs) -> argparse.ArgumentParser:
     """A benchmark suite's parser, with ``--out`` (its record), run by ``run(args)``."""
     p = bench_sub.add_parser(name, **kwargs)
     _flags.add_record_out(p)
-    p.set_defaults(command_handler=_cmd_bench, bench_suite=run)
+    p.set_defaults(command_handler=_cmd_bench, bench_suite=run, sizes=_sizes.bench_sizes)
     return p
 
 

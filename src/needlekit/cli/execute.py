@@ -6,19 +6,19 @@ from __future__ import annotations
 import argparse
 import math
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
     _non_negative,
     _non_negative_mm,
-    number,
     _numbers,
     _positive,
     _positive_int,
     _positive_mm,
     _seed,
     _speed_mm_s,
+    number,
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.errors import InvalidInputError
@@ -448,11 +448,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     _flags.add_cache_options(ex)
     _flags.add_executor_options(ex)
     _flags.RESUME.add(
-        ex, help="carry on from the partial DIR/execute.json an interrupted run wrote"
+        ex, help="carry on from the DIR/execute.partial.json an interrupted run wrote"
     )
     from needlekit.cli.execute_multi import STEERABLE_ONLY
 
     ex.set_defaults(
         command_handler=_cmd_execute,
+        sizes=_sizes.execute_sizes,
         steerable_defaults={d: ex.get_default(d) for d in STEERABLE_ONLY},
     )

@@ -10,12 +10,12 @@ from needlekit.cli import _flags
 from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
-    number,
     _numbers,
     _Parser,
     _positive,
     _positive_mm,
     _start_pose,
+    number,
 )
 from needlekit.cli._paths import add_input
 from needlekit.constants import MAX_TRAJECTORY_SAMPLES

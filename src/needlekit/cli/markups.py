@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _step_mm,
@@ -31,11 +31,6 @@ def _cmd_markups(args: argparse.Namespace) -> int:
         raise InvalidInputError(
             str(args.plan), f"holds no path (status {status!r}): nothing to export"
         )
-    from needlekit.memory import refuse_if_too_big
-
-    # a curve point is three float64s and about 80 characters of JSON
-    points = plan.length_mm / spacing + 2
-    refuse_if_too_big(100 * points, "--spacing-mm", f"{points:.3g} curve points")
     planner = data.get("planner", "planner")
     write_plan_curve(
         out,
@@ -74,4 +69,4 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=_step_mm,
         help="largest spacing of the curve's control points along the path (default 2 mm)",
     )
-    mk.set_defaults(command_handler=_cmd_markups)
+    mk.set_defaults(command_handler=_cmd_markups, sizes=_sizes.markups_sizes)

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _Formatter,
@@ -250,22 +249,9 @@ def _plan_goals(args: argparse.Namespace, doc: dict, settings, planner_instance)
     return EXIT_OK if solved == len(results) else 1
 
 
-#: The least memory one swept direction holds per planner: its result (status, cost,
-#: statistics and the primitives of a plan), far below what a solved one keeps.
-SWEEP_BYTES_PER_DIRECTION = 512
-
-
 def _cmd_sweep(args: argparse.Namespace) -> int:
     doc = _document(args)
     settings = _settings(args, doc)
-    from needlekit.memory import refuse_if_too_big
-
-    if args.healpix is not None:
-        n, flag = 12 * args.healpix**2, "--healpix"
-    else:
-        n, flag = args.directions, "--directions"
-    per = 24 + SWEEP_BYTES_PER_DIRECTION * len(settings.names)
-    refuse_if_too_big(n * per, flag, f"{n} directions")
     # every check on the input done: now the planners (numba)
     from needlekit.batch import open_executor
     from needlekit.planning.steerable.sweep import healpix_directions, sphere_directions
@@ -555,9 +541,10 @@ def _register_sweep(sub) -> None:
     _rrt_connection(sw)
     _flags.RESUME.add(
         sw,
-        help="carry on from the partial --out an interrupted run wrote: only the rest is planned",
+        help="carry on from the record an interrupted run wrote beside --out "
+        "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
-    sw.set_defaults(command_handler=_cmd_sweep)
+    sw.set_defaults(command_handler=_cmd_sweep, sizes=_sizes.sweep_sizes)
 
 
 def _register_verify(sub) -> None:

@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 
 from needlekit._numbers import Bounds
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _count,
     _fmt_table,
-    _non_negative,
     _non_negative_mm,
     _Number,
     _positive_int,
@@ -237,7 +236,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _flags.add_executor_options(pu)
     _flags.RESUME.add(
         pu,
-        help="carry on from the partial DIR/puncture.json an interrupted run wrote (Ctrl-C "
+        help="carry on from the DIR/puncture.partial.json an interrupted run wrote (Ctrl-C "
         "keeps the trials done): the same trials, seed and settings; only the rest run",
     )
-    pu.set_defaults(command_handler=_cmd_puncture)
+    pu.set_defaults(command_handler=_cmd_puncture, sizes=_sizes.puncture_sizes)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import EXIT_OK, _fmt_table, _Parser, _positive_int
 from needlekit.cli._paths import add_input
 from needlekit.io.files import json_text
@@ -126,4 +126,4 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=160,
         help="surface resolution: samples per axis (default 160)",
     )
-    render.set_defaults(command_handler=_cmd_scene)
+    render.set_defaults(command_handler=_cmd_scene, sizes=_sizes.cells_sizes)

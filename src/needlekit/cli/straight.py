@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _positive,
@@ -23,41 +23,13 @@ def _document(args: argparse.Namespace) -> dict:
     any heavy module (numba) is imported."""
     from needlekit.io.scenario_schema import read_scenario_document
 
-    doc = read_scenario_document(args.scenario)
+    # read once: the memory estimate (cli._sizes.cfrw_sizes) may have read it already
+    doc = getattr(args, "scenario_document", None) or read_scenario_document(args.scenario)
     if not doc.get("straight"):
         raise InvalidInputError(
             f"{Path(args.scenario).name}: straight", "the scenario has no straight block"
         )
     return doc
-
-
-#: The least memory one cell of a CFRW map holds: its float64 ray length and its
-#: feasibility, counts and angles beside it (two float64s is far below all of them).
-CFRW_BYTES_PER_CELL = 16
-
-
-def _refuse_big_grid(args: argparse.Namespace, doc: dict) -> None:
-    """``--resolution-deg`` (or the scenario's ``straight.resolution_deg``) whose CFRW
-    grid would not fit in memory, before the anatomy loads: the grid's cells over the
-    scenario's angle ranges, as the map will build them."""
-    from needlekit.memory import refuse_if_too_big
-    from needlekit.planning.straight import angle_grid as grid
-
-    block = doc.get("straight") or {}
-    flag, res = "--resolution-deg", getattr(args, "resolution_deg", None)
-    if res is None:
-        flag, res = "straight.resolution_deg", block.get("resolution_deg")
-    if not isinstance(res, (int, float)) or isinstance(res, bool) or not res > 0:
-        return  # the default, or a value the loader refuses with its own message
-    m, k = grid.grid_shape(
-        block.get("theta_range_deg", grid.DEFAULT_THETA_RANGE_DEG),
-        block.get("phi_range_deg", grid.DEFAULT_PHI_RANGE_DEG),
-        res,
-    )
-    cells = m * k
-    refuse_if_too_big(
-        cells * CFRW_BYTES_PER_CELL, flag, f"a {res:g}-degree grid ({cells:.3g} cells)"
-    )
 
 
 def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
@@ -71,7 +43,6 @@ def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
 
 def _cmd_cfrw(args: argparse.Namespace) -> int:
     doc = _document(args)
-    _refuse_big_grid(args, doc)
     import numpy as np
 
     from needlekit.io.files import write_json
@@ -122,7 +93,6 @@ def _cmd_multi(args: argparse.Namespace) -> int:
 
     doc = _document(args)
     check_planner_options(args.planner)  # its name, before numba; its options below
-    _refuse_big_grid(args, doc)
     from needlekit.io.files import staged_outputs, write_json
 
     sc, multi, options = _multi_problem(args, doc)
@@ -225,7 +195,7 @@ def verify_multi_file(args: argparse.Namespace, data: dict) -> int:
     int
         0 when every needle passes, else 1.
     """
-    
+
     doc = _document(args)
     from needlekit.planning.straight.verify import verify_multi
 
@@ -365,7 +335,7 @@ def _register_cfrw(sub) -> None:
         help="heights of the boundary layers above the target (default 150 160 170, Fig. 11)",
     )
     _flags.add_cache_options(cf)
-    cf.set_defaults(command_handler=_cmd_cfrw)
+    cf.set_defaults(command_handler=_cmd_cfrw, sizes=_sizes.cfrw_sizes)
 
 
 def _register_multi(sub) -> None:
@@ -402,7 +372,7 @@ def _register_multi(sub) -> None:
     )
     _flags.TIME_LIMIT_S.add(mu, default=3600.0, help="budget (default 3600 s)")
     _flags.add_cache_options(mu)
-    mu.set_defaults(command_handler=_cmd_multi)
+    mu.set_defaults(command_handler=_cmd_multi, sizes=_sizes.cfrw_sizes)
 
 
 def _register_approach(sub) -> None:
@@ -426,7 +396,7 @@ def _register_approach(sub) -> None:
     )
     ap.add_argument("--summary-only", action="store_true", help="leave the per-triangle arrays out")
     _flags.add_cache_options(ap)
-    ap.set_defaults(command_handler=_cmd_approach)
+    ap.set_defaults(command_handler=_cmd_approach, sizes=_sizes.cells_sizes)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

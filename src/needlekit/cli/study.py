@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import argparse
 
-from needlekit.cli import _flags
+from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
     _fmt_table,
-    _non_negative,
     _non_negative_mm,
-    number,
     _Parser,
     _positive,
     _positive_int,
+    number,
 )
 
 #: What ``needlekit study feng-lungs`` writes in its --out folder (as
@@ -272,10 +271,10 @@ def _register_execute_lungs(study_sub) -> None:
     _flags.add_executor_options(se)
     _flags.RESUME.add(
         se,
-        help="carry on from the partial DIR/execute_lungs.json an interrupted run wrote (the "
+        help="carry on from the DIR/execute_lungs.partial.json an interrupted run wrote (the "
         "lungs done kept, the one under way from its margin, plan and trials done)",
     )
-    se.set_defaults(command_handler=_cmd_study_execute_lungs)
+    se.set_defaults(command_handler=_cmd_study_execute_lungs, sizes=_sizes.execute_lungs_sizes)
 
 
 #: ``--crossing-probability``: a probability in (0, 0.5].
@@ -306,10 +305,11 @@ def _register_livers(study_sub) -> None:
     _flags.add_cache_options(sl)
     _flags.RESUME.add(
         sl,
-        help="carry on from the partial --out an interrupted run wrote (Ctrl-C keeps the "
-        "cases done): the same livers, gammas and settings; only the rest is planned",
+        help="carry on from the record an interrupted run wrote beside --out "
+        "(X.partial.json: Ctrl-C keeps the cases done): the same livers, gammas and "
+        "settings; only the rest is planned",
     )
-    sl.set_defaults(command_handler=_cmd_study_livers)
+    sl.set_defaults(command_handler=_cmd_study_livers, sizes=_sizes.livers_sizes)
 
 
 def _register_feng_lungs(study_sub) -> None:
@@ -342,10 +342,10 @@ def _register_feng_lungs(study_sub) -> None:
     _flags.add_executor_options(sf)
     _flags.RESUME.add(
         sf,
-        help="carry on from the partial goal1/ and goal2/sweep.json an interrupted run wrote "
+        help="carry on from the goal1/ and goal2/sweep.partial.json an interrupted run wrote "
         "(Ctrl-C keeps the directions done): the same settings; only the rest is planned",
     )
-    sf.set_defaults(command_handler=_cmd_study_feng_lungs)
+    sf.set_defaults(command_handler=_cmd_study_feng_lungs, sizes=_sizes.feng_lungs_sizes)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

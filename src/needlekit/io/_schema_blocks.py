@@ -9,7 +9,6 @@ from __future__ import annotations
 from typing import Any
 
 from needlekit._numbers import MIN_POSITIVE
-
 from needlekit.constants import (
     DEFAULT_MAX_HEADING_CHANGE_DEG,
     DEFAULT_MAX_LENGTH_MM,

@@ -4,7 +4,9 @@
   temporary file beside the destination and renames it into place.
 - :func:`staged_outputs` makes several files one unit: inside the block every
   :func:`atomic_write` is held back, and only when the whole block succeeds are all the
-  files moved into place; on any error every destination is left as it was.
+  files moved into place; on any error every destination is left as it was. A run that
+  ends with a failing verdict (:meth:`Outputs.keep_earlier`) or is interrupted replaces
+  no file that exists: its record goes beside it (:func:`beside`).
 - :func:`output_path_problem` says, before any work, why a path could not be written.
 """
 
@@ -27,7 +29,9 @@ from needlekit._numbers import check_document
 from needlekit.errors import Interrupted, InvalidInputError, OutputError
 
 __all__ = [
+    "Outputs",
     "atomic_write",
+    "beside",
     "json_text",
     "read_json_object",
     "output_path_problem",
@@ -83,7 +87,32 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
+def beside(path: str | os.PathLike, tag: str) -> Path:
+    """The file beside ``path`` that holds a run's record of kind ``tag`` (``"partial"``:
+    an interrupted run's, ``"failed"``: a failing verdict's) instead of ``path``.
+
+    Parameters
+    ----------
+    path : path-like
+    tag : str
+
+    Returns
+    -------
+    Path
+        ``tag`` inserted before the last suffix.
+
+    Examples
+    --------
+    >>> beside("out/sweep.json", "partial").as_posix(), beside("plan", "failed").name
+    ('out/sweep.partial.json', 'plan.failed')
+    """
+    p = Path(path)
+    return p.with_name(f"{p.stem}.{tag}{p.suffix}" if p.stem else f"{p.name}.{tag}")
+
+
+def atomic_write(
+    path: str | os.PathLike, write: Callable[[Path], None], *, partial: bool = False
+) -> Path:
     """Call ``write(tmp_path)`` on a temporary file beside ``path``, then rename it over
     ``path``. On any error the temporary file is removed and ``path`` is untouched.
 
@@ -93,6 +122,10 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
         Destination; its directory is created if missing.
     write : callable
         Writes the whole content to the path it is given.
+    partial : bool
+        The file is the record of an interrupted run (``X.partial.json``): inside
+        :func:`staged_outputs` an interrupted block puts only such files in place. A
+        complete file, once in place, removes the partial record beside it (now stale).
 
     Returns
     -------
@@ -102,7 +135,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
     dest = Path(path)
     stage = _STAGE.get()
     if stage is not None:
-        stage.make_parents(dest)
+        stage._make_parents(dest)
     else:
         dest.parent.mkdir(parents=True, exist_ok=True)
     tmp = _temp_beside(dest, "tmp")
@@ -111,9 +144,11 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> Path
         # mkstemp creates 0600 files; give the result the mode a plain open() would.
         os.chmod(tmp, 0o666 & ~_umask())
         if stage is not None:
-            stage.hold(dest, tmp)
+            stage._hold(dest, tmp, partial)
         else:
             os.replace(tmp, dest)
+            if not partial:  # the complete result: an interrupted run's record is stale
+                beside(dest, "partial").unlink(missing_ok=True)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -126,14 +161,41 @@ def _temp_beside(dest: Path, kind: str) -> Path:
     return Path(name)
 
 
-class _Stage:
-    """Files written inside one :func:`staged_outputs` block, not yet in place."""
+class Outputs:
+    """Files written inside one :func:`staged_outputs` block, not yet in place.
+
+    What the block's end does with them:
+
+    - the block ends normally: every file goes into place, and the record an interrupted
+      run left beside each (``X.partial.json``, :func:`beside`) is removed, now stale;
+    - the block ends normally after :meth:`keep_earlier` (a verdict that fails: a plan
+      infeasible, a study whose checks fail): a file that does not exist yet goes into
+      place, one that exists is left as it was and this run's version is written beside
+      it (``X.failed.json``);
+    - the block raises :class:`~needlekit.errors.Interrupted`: the partial records
+      (``atomic_write(..., partial=True)``) go into place, and the complete files of
+      the work finished (a study's finished case) where no file exists yet; a file that
+      exists is left as it was;
+    - the block raises anything else: nothing goes into place.
+    """
 
     def __init__(self) -> None:
-        self.pending: dict[Path, Path] = {}  # destination -> its temporary file
+        self.pending: dict[Path, tuple[Path, bool]] = {}  # destination -> (temp, partial)
         self.new_dirs: list[Path] = []  # folders this block created, outermost first
+        self.failed = False
+        #: (destination kept, where this run's version went), after a failing verdict
+        self.diverted: list[tuple[Path, Path]] = []
 
-    def make_parents(self, dest: Path) -> None:
+    def keep_earlier(self) -> None:
+        """The run's verdict fails: it replaces no file that exists (see the class).
+
+        Returns
+        -------
+        None
+        """
+        self.failed = True
+
+    def _make_parents(self, dest: Path) -> None:
         missing = []
         d = dest.parent
         while not d.exists() and d != d.parent:
@@ -142,42 +204,59 @@ class _Stage:
         dest.parent.mkdir(parents=True, exist_ok=True)
         self.new_dirs.extend(reversed(missing))
 
-    def hold(self, dest: Path, tmp: Path) -> None:
+    def _hold(self, dest: Path, tmp: Path, partial: bool = False) -> None:
         key = Path(os.path.abspath(dest))
         earlier = self.pending.pop(key, None)
         if earlier is not None:  # the same file written twice: the last version wins
-            earlier.unlink(missing_ok=True)
-        self.pending[key] = tmp
+            earlier[0].unlink(missing_ok=True)
+        self.pending[key] = (tmp, partial)
 
-    def commit(self) -> None:
-        """Move every file into place; if one move fails, put back what was there."""
+    def _target(self, dest: Path, partial: bool) -> Path:
+        if self.failed and not partial and os.path.lexists(dest):
+            self.diverted.append((dest, beside(dest, "failed")))
+            return beside(dest, "failed")
+        return dest
+
+    def _commit(self, *, interrupted: bool = False) -> None:
+        """Move the files into place (when ``interrupted``, the partial records and the
+        new files only); if one move fails, put back what was there."""
+        if interrupted:
+            for dest, (tmp, partial) in list(self.pending.items()):
+                if not partial and os.path.lexists(dest):
+                    tmp.unlink(missing_ok=True)
+                    del self.pending[dest]
+        complete = [d for d, (_, partial) in self.pending.items() if not partial]
         moved: list[tuple[Path, Path | None]] = []
         try:
-            for dest, tmp in list(self.pending.items()):
-                backup = _keep_copy(dest)
+            for dest, (tmp, partial) in list(self.pending.items()):
+                target = self._target(dest, partial)
+                backup = _keep_copy(target)
                 try:
-                    os.replace(tmp, dest)
+                    os.replace(tmp, target)
                 except BaseException:
                     if backup is not None:
                         backup.unlink(missing_ok=True)
                     raise
                 del self.pending[dest]
-                moved.append((dest, backup))
+                moved.append((target, backup))
         except BaseException:
             for dest, backup in reversed(moved):
                 if backup is not None:
                     os.replace(backup, dest)
                 else:
                     dest.unlink(missing_ok=True)
-            self.discard()
+            self._discard()
             raise
         for _, backup in moved:
             if backup is not None:
                 backup.unlink(missing_ok=True)
+        if not (interrupted or self.failed):  # the run finished: its partial records are stale
+            for dest in complete:
+                beside(dest, "partial").unlink(missing_ok=True)
 
-    def discard(self) -> None:
+    def _discard(self) -> None:
         """Remove the files not yet in place and the folders made for them (if empty)."""
-        for tmp in self.pending.values():
+        for tmp, _ in self.pending.values():
             tmp.unlink(missing_ok=True)
         self.pending.clear()
         for d in reversed(self.new_dirs):
@@ -201,13 +280,13 @@ def _keep_copy(dest: Path) -> Path | None:
     return backup
 
 
-_STAGE: contextvars.ContextVar[_Stage | None] = contextvars.ContextVar(
+_STAGE: contextvars.ContextVar[Outputs | None] = contextvars.ContextVar(
     "needlekit_output_stage", default=None
 )
 
 
 @contextmanager
-def staged_outputs() -> Iterator[None]:
+def staged_outputs() -> Iterator[Outputs]:
     """Write several files as one unit: all of them, or none.
 
     Inside the block, every :func:`atomic_write` (and so :func:`write_text`,
@@ -215,14 +294,18 @@ def staged_outputs() -> Iterator[None]:
     the destination but does not rename it yet. When the block ends normally, all files
     are moved into place together; if the block raises (or a move fails), the temporary
     files and the folders made for them are removed and every file that was already
-    there is left (or put back) as it was, except when the block raises
-    :class:`~needlekit.errors.Interrupted`: the files of the partial result written for the
-    stopped run are moved into place. Blocks nest: an inner block joins the outer one,
-    whose end decides.
+    there is left (or put back) as it was. Two outcomes replace no file that exists
+    (:class:`Outputs`): a block that raises :class:`~needlekit.errors.Interrupted` puts
+    only the partial record written for the stopped run in place (``X.partial.json``
+    beside ``X.json``), and a block whose run called :meth:`Outputs.keep_earlier` (a
+    failing verdict) writes its version of an existing file beside it
+    (``X.failed.json``). Blocks nest: an inner block joins the outer one, whose end
+    decides.
 
     Yields
     ------
-    None
+    Outputs
+        The files held (the outermost block's).
 
     Examples
     --------
@@ -238,24 +321,30 @@ def staged_outputs() -> Iterator[None]:
     ...     pass
     >>> (d / "a.txt").read_text(), sorted(p.name for p in d.iterdir())
     ('old', ['a.txt'])
+    >>> with staged_outputs() as outputs:
+    ...     _ = write_text(d / "a.txt", "infeasible")
+    ...     outputs.keep_earlier()
+    >>> (d / "a.txt").read_text(), (d / "a.failed.txt").read_text()
+    ('old', 'infeasible')
     """
-    if _STAGE.get() is not None:  # an outer block commits
-        yield
+    outer = _STAGE.get()
+    if outer is not None:  # an outer block commits
+        yield outer
         return
-    stage = _Stage()
+    stage = Outputs()
     token = _STAGE.set(stage)
     try:
-        yield
-    except Interrupted:  # the partial result written for the stopped run is kept
+        yield stage
+    except Interrupted:  # the partial record written for the stopped run is kept
         _STAGE.reset(token)
-        stage.commit()
+        stage._commit(interrupted=True)
         raise
     except BaseException:
         _STAGE.reset(token)
-        stage.discard()
+        stage._discard()
         raise
     _STAGE.reset(token)
-    stage.commit()
+    stage._commit()
 
 
 def _read_only(mode: int) -> bool:
@@ -343,19 +432,21 @@ def output_path_problem(path: str | os.PathLike, *, folder: bool = False) -> str
     return _folder_problem(base)
 
 
-def write_text(path: str | os.PathLike, text: str) -> Path:
+def write_text(path: str | os.PathLike, text: str, *, partial: bool = False) -> Path:
     """Write text atomically (UTF-8).
 
     Parameters
     ----------
     path : path-like
     text : str
+    partial : bool
+        An interrupted run's record (:func:`atomic_write`).
 
     Returns
     -------
     Path
     """
-    return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"))
+    return atomic_write(path, lambda p: p.write_text(text, encoding="utf-8"), partial=partial)
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
@@ -373,7 +464,7 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     return atomic_write(path, lambda p: p.write_bytes(data))
 
 
-def write_json(path: str | os.PathLike, data: Any) -> Path:
+def write_json(path: str | os.PathLike, data: Any, *, partial: bool = False) -> Path:
     """Write JSON atomically (UTF-8, indented, trailing newline).
 
     Parameters
@@ -382,6 +473,8 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     data : object
         JSON-serialisable; NaN and infinity are refused (:func:`json_text`) before anything
         is written.
+    partial : bool
+        An interrupted run's record (:func:`atomic_write`).
 
     Returns
     -------
@@ -393,7 +486,7 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
         A number in ``data`` is not finite (named by its field).
     """
     text = json_text(data, Path(path).name, indent=2, ensure_ascii=False) + "\n"
-    return write_text(path, text)
+    return write_text(path, text, partial=partial)
 
 
 #: Fields whose +infinity means "no obstacle within reach" (every sample of the path lies

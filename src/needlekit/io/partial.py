@@ -1,8 +1,10 @@
 """Partial results: what a long run stopped by Ctrl-C writes, and what ``--resume`` reads.
 
-A sweep, a study or a puncture run that is interrupted writes the work it finished as its
-usual result file with ``"partial": true``, and the same command with ``--resume`` plans
-or runs only the rest. The finished part is taken as it is: it is not recomputed, so a
+A sweep, a study or a puncture run that is interrupted writes the work it finished beside
+its usual result file, never over it (``sweep.partial.json`` beside ``sweep.json``: a
+complete result an earlier run wrote stays as it was), marked ``"partial": true``; the
+same command with ``--resume`` reads it from there and plans or runs only the rest, and
+a run that completes removes it (:func:`needlekit.io.files.staged_outputs`). The finished part is taken as it is: it is not recomputed, so a
 resumed run trusts the partial file. That trust is earned the way the prepared-anatomy
 cache earns it (:mod:`needlekit.io.cache_key`): the file carries a keyed BLAKE3 hash of
 its whole content under the user's secret, and ``--resume`` refuses a file whose hash
@@ -16,8 +18,8 @@ Examples
 >>> from pathlib import Path
 >>> d = Path(tempfile.mkdtemp())
 >>> p = write_partial(d / "run.json", {"seed": 1, "done": [3]}, key_file=d / "key")
->>> read_partial(p, "run", {"seed": 1}, key_file=d / "key")["done"]
-[3]
+>>> p.name, read_partial(d / "run.json", "run", {"seed": 1}, key_file=d / "key")["done"]
+('run.partial.json', [3])
 """
 
 from __future__ import annotations
@@ -29,9 +31,9 @@ from pathlib import Path
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.cache_key import CacheKeyError, cache_key, mac, same_mac
-from needlekit.io.files import json_text, read_json_object, write_json
+from needlekit.io.files import beside, json_text, read_json_object, write_json
 
-__all__ = ["PARTIAL_SIGNATURE", "read_partial", "write_partial"]
+__all__ = ["PARTIAL_SIGNATURE", "partial_path", "read_partial", "write_partial"]
 
 #: The field holding a partial record's keyed hash.
 PARTIAL_SIGNATURE: str = "partial_signature"
@@ -47,12 +49,30 @@ def _signature(key: bytes, record: dict) -> str:
     return mac(key, b"needlekit partial result\0" + _canonical(record))
 
 
-def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Path:
-    """Write ``record`` marked ``"partial": true`` and signed (atomically).
+def partial_path(path: str | os.PathLike) -> Path:
+    """Where an interrupted run whose complete result is ``path`` keeps its work.
 
     Parameters
     ----------
     path : path-like
+        The complete result (``sweep.json``).
+
+    Returns
+    -------
+    Path
+        Beside it (``sweep.partial.json``).
+    """
+    return beside(path, "partial")
+
+
+def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Path:
+    """Write ``record`` marked ``"partial": true`` and signed (atomically), beside the
+    complete result ``path`` (:func:`partial_path`), never over it.
+
+    Parameters
+    ----------
+    path : path-like
+        The complete result the run would have written.
     record : dict
         JSON-ready (NaN and infinity are refused, as by
         :func:`~needlekit.io.files.write_json`).
@@ -62,6 +82,7 @@ def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Pa
     Returns
     -------
     Path
+        The file written (:func:`partial_path`).
 
     Notes
     -----
@@ -76,7 +97,7 @@ def write_partial(path: str | os.PathLike, record: dict, *, key_file=None) -> Pa
         data[PARTIAL_SIGNATURE] = _signature(cache_key(key_file), data)
     except CacheKeyError:
         data[PARTIAL_SIGNATURE] = None
-    return write_json(path, data)
+    return write_json(partial_path(path), data, partial=True)
 
 
 def read_partial(
@@ -87,6 +108,7 @@ def read_partial(
     Parameters
     ----------
     path : path-like
+        The complete result; the record is read from beside it (:func:`partial_path`).
     what : str
         What the file is, for messages (``"sweep"``, ``"puncture"``).
     expect : dict
@@ -104,9 +126,12 @@ def read_partial(
     Raises
     ------
     InvalidInputError
-        Missing or not JSON (named by the path); not partial, its signature missing or
-        not matching, or a setting of ``expect`` different (named ``flag``).
+        Not JSON (named by the path); missing, not partial, its signature missing or not
+        matching, or a setting of ``expect`` different (named ``flag``).
     """
+    path = partial_path(path)
+    if not path.is_file():
+        raise InvalidInputError(flag, f"no {path} to carry on from (an interrupted run writes it)")
     data = read_json_object(path, what)
     if data.get("partial") is not True:
         raise InvalidInputError(flag, f"{path} is not a partial {what}: nothing to carry on")

@@ -19,8 +19,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from needlekit.anatomy.collision_registry import check_collision_model
 from needlekit._numbers import MAX_ABS_MM, check_document
+from needlekit.anatomy.collision_registry import check_collision_model
 from needlekit.errors import InvalidInputError
 from needlekit.io import safe_yaml
 from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-exported

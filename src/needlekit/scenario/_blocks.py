@@ -121,11 +121,14 @@ def _structure(i: int, spec: dict, ctx: _Ctx, names: set[str]) -> Structure:
         kw = {k: src[k] for k in ("padding_mm",) if k in src}
         voxel = src.get("voxel_size_mm", default_voxel_size_mm(mesh))
         try:
-            field_ = ctx.placed(voxelize_mesh_sdf(mesh, voxel, **kw))
-        except InvalidInputError as exc:  # the mesh itself (not closed): name its file
-            if exc.field != "mesh":
-                raise
-            raise ctx.error(f"{sub}.path", f"{path}: mesh {exc.reason}") from None
+            sdf = voxelize_mesh_sdf(mesh, voxel, **kw)
+        except InvalidInputError as exc:
+            if exc.field == "voxel_size_mm":  # a grid too big for memory: name the field
+                raise ctx.error(f"{sub}.voxel_size_mm", exc.reason) from None
+            if exc.field == "mesh":  # the mesh itself (not closed): name its file
+                raise ctx.error(f"{sub}.path", f"{path}: mesh {exc.reason}") from None
+            raise
+        field_ = ctx.placed(sdf)
         source = str(path)
     else:
         field_ = _primitive(kind, src, ctx, sub)

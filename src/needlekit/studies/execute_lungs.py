@@ -37,10 +37,10 @@ import numpy as np
 import yaml
 
 from needlekit import __version__
-from needlekit.errors import Interrupted
+from needlekit.errors import Interrupted, is_interrupt
 from needlekit.execute.replan import noise_margin_mm
 from needlekit.io.files import write_json, write_text
-from needlekit.io.partial import read_partial, write_partial
+from needlekit.io.partial import partial_path, read_partial, write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
@@ -189,7 +189,7 @@ def _run_case(st: _Study, decided: dict, resume: bool) -> dict:
     case_dir = st.out / f"lung{patient}"
     trials = list(range(st.trials))
     kept = None
-    if resume and (case_dir / EXECUTE_FILE).exists():
+    if resume and partial_path(case_dir / EXECUTE_FILE).exists():
         kept = read_partial_execute(case_dir, doc["name"], plan, st.seed, trials, st.options)
     study = run_execute_study(case_dir, source, plan, trials=trials, seed=st.seed,
                               options=st.options, executor=st.executor, progress=st.progress,
@@ -326,10 +326,13 @@ def run_execute_lungs(
             write_partial(path, {**head, "cases": cases, "current": decided})
             cases.append(_run_case(st, decided, resume=carried))
             write_partial(path, {**head, "cases": cases})
-    except (Interrupted, KeyboardInterrupt):
+    except (Interrupted, KeyboardInterrupt, SystemError) as exc:
+        if not isinstance(exc, Interrupted) and not is_interrupt(exc):
+            raise
         raise Interrupted(
             f"{len(cases)} of {len(patients)} lungs done (the trials of the one under way kept "
-            f"in its execute.json); written to {path} marked partial; the same command with "
+            f"in its execute.partial.json); written to {partial_path(path)} marked partial; the "
+            "same command with "
             "--resume carries on"
         ) from None
     record = {

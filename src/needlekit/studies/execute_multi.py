@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from needlekit import __version__
+from needlekit.errors import raise_if_interrupt
 from needlekit.io.files import write_json
 from needlekit.io.partial import read_partial
 from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, trial_settings
@@ -132,6 +133,7 @@ def multi_trial(job: tuple) -> dict:
         needles = _insert_all(lines, model, radius, reg, truth, starts, scenario, options, seeds)
         return {**head, "registration_error_mm": np.round(offset, 6).tolist(), "needles": needles}
     except Exception as exc:  # recorded with its seed; the other trials go on
+        raise_if_interrupt(exc)  # Ctrl-C is no trial's failure
         last = traceback.extract_tb(exc.__traceback__)[-1]
         return {**head, "error": f"{type(exc).__name__}: {exc} ({Path(last.filename).name}:"
                 f"{last.lineno})"}  # fmt: skip
@@ -241,7 +243,8 @@ def run_multi_execution(
     resume: bool = False,
 ) -> MultiExecution:
     """Insert a checked multi-needle plan ``len(trials)`` times and write
-    ``out_dir/execute.json`` (atomically; Ctrl-C writes the trials done, marked partial).
+    ``out_dir/execute.json`` (atomically; Ctrl-C writes the trials done, marked partial,
+    to ``execute.partial.json`` beside it).
 
     Parameters
     ----------
@@ -267,7 +270,7 @@ def run_multi_execution(
         Called with each finished trial.
     scenario_name : str
     resume : bool
-        Carry on from the partial ``execute.json`` an interrupted run with the same
+        Carry on from the ``execute.partial.json`` an interrupted run with the same
         settings wrote (checked before any trial).
 
     Returns

@@ -38,7 +38,7 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.batch import worker_cached
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, raise_if_interrupt
 from needlekit.execute.breathing import POLICIES, Breathing, Policy
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
 from needlekit.execute.run import TIME_CAP_FACTOR, ExecutionSettings, LoopHooks, execute_plan
@@ -299,6 +299,7 @@ def _run_job(job: tuple) -> dict:
         ss = trial_seed(seed, trial)
         return {**head, **run_execute_trial(problem, truth, plan, ss, options, hooks=hooks)}
     except Exception as exc:  # recorded with its seed; the other trials go on
+        raise_if_interrupt(exc)  # Ctrl-C is no trial's failure
         last = traceback.extract_tb(exc.__traceback__)[-1]
         where = f"{Path(last.filename).name}:{last.lineno}"
         return {**head, "error": f"{type(exc).__name__}: {exc} ({where})"}
@@ -502,7 +503,7 @@ def _breathing_summary(records: list[dict]) -> dict:
 
 def read_partial_execute(out_dir, scenario_name, plan, seed, trials, options) -> list[dict]:
     """The trials an interrupted run finished (``execute --resume``), from its signed
-    partial ``execute.json`` (:func:`needlekit.io.partial.read_partial`).
+    ``execute.partial.json`` beside ``execute.json`` (:func:`needlekit.io.partial.read_partial`).
 
     Parameters
     ----------

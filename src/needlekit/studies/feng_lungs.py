@@ -535,14 +535,13 @@ def _sweep_head(settings: dict, seed: int, options: dict) -> dict:
 
 
 def _write_partial(out: Path, docs: dict, head: dict, batch) -> None:
-    """An interrupted study: each target's scenario and its sweeps so far, marked partial
-    (raises :class:`~needlekit.errors.Interrupted` saying so)."""
+    """An interrupted study: each target's sweeps so far, marked partial, beside the
+    complete ``sweep.json`` (raises :class:`~needlekit.errors.Interrupted` saying so)."""
     found = iter(batch.sweeps)
     paths = []
     n_done = n_all = 0
     for g in _GOALS:
         sweeps = {name: next(found) for name in FENG_PLANNERS}
-        _write_scenario(out / g / "scenario.yaml", docs[g], g)
         paths.append(write_partial_sweep(out / g / "sweep.json", head, sweeps))
         for sw in sweeps.values():
             n_all += int(sw.effective.sum())

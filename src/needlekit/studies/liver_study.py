@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.errors import Interrupted, InvalidInputError, is_interrupt
 from needlekit.io.files import write_json
 from needlekit.io.medrad_paths import chosen_patients, patient_folder
 from needlekit.io.partial import read_partial, write_partial
@@ -300,10 +300,12 @@ def run_liver_study(
                 rows.append(row)
                 if progress is not None:
                     progress(row)
-    except KeyboardInterrupt:  # keep what is done, and say so
-        write_partial(out, {**head, "rows": rows})
+    except (KeyboardInterrupt, SystemError) as exc:  # keep what is done, and say so
+        if not is_interrupt(exc):  # Ctrl-C, also inside a compiled kernel
+            raise
+        written = write_partial(out, {**head, "rows": rows})
         raise Interrupted(
-            f"{len(rows)} of {len(cases) * len(gammas_mm)} cases done; written to {out} "
+            f"{len(rows)} of {len(cases) * len(gammas_mm)} cases done; written to {written} "
             "marked partial; the same command with --resume carries on"
         ) from None
     record = {

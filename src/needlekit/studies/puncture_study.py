@@ -433,7 +433,7 @@ def run_puncture_study(
     Raises
     ------
     Interrupted
-        Ctrl-C during the trials: the trials finished are written to ``puncture.json``
+        Ctrl-C during the trials: the trials finished are written to ``puncture.partial.json``
         marked partial (no page), which ``resume`` carries on from.
     """
     from needlekit.control.controller import ControllerSettings
@@ -529,7 +529,7 @@ def read_partial_puncture(
     out_dir, *, trials: int, seed: int, scenario: PunctureScenario, options: TrialOptions
 ) -> list[dict]:
     """The trials an interrupted run finished (``puncture --resume``), from its
-    ``puncture.json`` marked partial (signed: :func:`needlekit.io.partial.read_partial`).
+    ``puncture.partial.json`` (signed: :func:`needlekit.io.partial.read_partial`).
 
     Parameters
     ----------

@@ -211,14 +211,14 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
             res = list((resume or {}).get(name) or [None] * n)
             stats = sweep_stats(first.directions, first.effective, res)
             sweeps[name] = SweepResult(first.directions, first.effective, res, name, stats)
-    write_partial_sweep(sweep_path, head, sweeps)
+    written = write_partial_sweep(sweep_path, head, sweeps)
     total = int(first.effective.sum()) * len(built)
     done = sum(
         r is not None for s in sweeps.values() for i, r in enumerate(s.results) if s.effective[i]
     )
     raise Interrupted(
         f"{done} of {total} effective directions done ({', '.join(built)}); written to "
-        f"{sweep_path} marked partial; the same command with --resume carries on",
+        f"{written} marked partial; the same command with --resume carries on",
         partial=sweeps,
     )
 
@@ -226,12 +226,13 @@ def _write_partial(sweep_path, head: dict, sweeps: dict, built: dict, resume) ->
 def write_partial_sweep(path, head: dict, sweeps: dict):
     """An interrupted sweep's record: ``head`` (:func:`sweep_settings` and the scenario),
     the sweeps so far as ``sweep.json`` holds them and every plan found so far, marked
-    partial and signed (:func:`needlekit.io.partial.write_partial`); what
-    :func:`read_partial_sweep` reads back.
+    partial and signed (:func:`needlekit.io.partial.write_partial`), beside ``path``
+    (``sweep.partial.json``); what :func:`read_partial_sweep` reads back.
 
     Parameters
     ----------
     path : path-like
+        The complete sweep's file.
     head : dict
     sweeps : dict of str to SweepResult
 
@@ -276,8 +277,9 @@ def read_partial_sweep(path, planners, directions, settings: dict | None = None)
     Parameters
     ----------
     path : path-like
-        Its ``sweep.json``, marked ``"partial": true`` and signed
-        (:func:`needlekit.io.partial.write_partial`).
+        The complete sweep's file (``sweep.json``); the record is read from beside it
+        (``sweep.partial.json``, marked ``"partial": true`` and signed:
+        :func:`needlekit.io.partial.write_partial`).
     planners : sequence of str
         The planners of the run to resume: the file's, in its order.
     directions : ndarray, shape (n, 3)

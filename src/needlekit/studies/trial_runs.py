@@ -7,7 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from needlekit.batch import SerialExecutor, as_completed_indexed
-from needlekit.errors import Interrupted
+from needlekit.errors import Interrupted, is_interrupt
 from needlekit.io.partial import write_partial
 
 __all__ = ["collect_trials"]
@@ -41,7 +41,8 @@ def collect_trials(
     executor : concurrent.futures.Executor, optional
         Default: one after another in this process.
     partial_path : Path
-        Where Ctrl-C writes the trials done.
+        The complete record's file: Ctrl-C writes the trials done beside it
+        (:func:`needlekit.io.partial.partial_path`).
     head : dict
         The run's settings, written with them.
     done_key : str
@@ -69,11 +70,13 @@ def collect_trials(
             done[todo[i]] = result
             if progress is not None:
                 progress(result)
-    except KeyboardInterrupt:  # keep what is done, and say so
+    except (KeyboardInterrupt, SystemError) as exc:  # keep what is done, and say so
+        if not is_interrupt(exc):  # Ctrl-C, also inside a compiled kernel
+            raise
         kept = [done[k] for k in trials if k in done]
-        write_partial(partial_path, {**head, done_key: kept})
+        written = write_partial(partial_path, {**head, done_key: kept})
         raise Interrupted(
-            f"{len(kept)} of {len(trials)} trials done; written to {partial_path} marked "
+            f"{len(kept)} of {len(trials)} trials done; written to {written} marked "
             "partial; the same command with --resume carries on"
         ) from None
     return [done[k] for k in trials]
