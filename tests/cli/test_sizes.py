@@ -18,99 +18,99 @@ E = str(Path(__file__).resolve().parents[2] / "examples")
 CASES = [
     (
         ["study","livers","--resolution-deg","1e-6"],
-        'error: --resolution-deg: a 1e-06-degree grid (3.24e+16 cells) would need at least 460 PiB; this machine has 16 GiB available',
+        'error: --resolution-deg: a 1e-06-degree grid (3.24e+16 cells) would need at least 460 PiB; this machine has 2 GiB available',
     ),
     (
         ["cfrw","{E}/liver_phantom_multi.yaml","--resolution-deg","1e-6","--out","{T}/c.json"],
-        'error: --resolution-deg: a 1e-06-degree grid (2.16e+16 cells) would need at least 307 PiB; this machine has 16 GiB available',
+        'error: --resolution-deg: a 1e-06-degree grid (2.16e+16 cells) would need at least 307 PiB; this machine has 2 GiB available',
     ),
     (
         ["multi","{E}/liver_phantom_multi.yaml","--resolution-deg","1e-6","--out","{T}/multi.json"],
-        'error: --resolution-deg: a 1e-06-degree grid (2.16e+16 cells) would need at least 307 PiB; this machine has 16 GiB available',
+        'error: --resolution-deg: a 1e-06-degree grid (2.16e+16 cells) would need at least 307 PiB; this machine has 2 GiB available',
     ),
     (
         ["sweep","{E}/toy.yaml","--directions","1000000000","--out","{T}/s.json"],
-        'error: --directions: 1000000000 directions would need at least 499 GiB; this machine has 16 GiB available',
+        'error: --directions: 1000000000 directions would need at least 499 GiB; this machine has 2 GiB available',
     ),
     (
         ["sweep","{E}/toy.yaml","--healpix","10000000","--planner","rcs_star","rrt","--out","{T}/s.json"],
-        'error: --healpix: 1200000000000000 directions would need at least 1.12e+03 PiB; this machine has 16 GiB available',
+        'error: --healpix: 1200000000000000 directions would need at least 1.12e+03 PiB; this machine has 2 GiB available',
     ),
     (
         ["study","feng-lungs","--directions","1000000000","--out","{T}/f"],
-        'error: --directions: 1000000000 directions would need at least 1.88 TiB; this machine has 16 GiB available',
+        'error: --directions: 1000000000 directions would need at least 1.88 TiB; this machine has 2 GiB available',
     ),
     (
-        ["puncture","--trials","1000000000000","--out","{T}/p"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["puncture","--trials","1000000000","--out","{T}/p"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["puncture","--history","1000000000000","--out","{T}/p"],
-        'error: --history: 1000000000000 keyframes would need at least 7.28 TiB; this machine has 16 GiB available',
+        ["puncture","--history","1000000000","--out","{T}/p"],
+        'error: --history: 1000000000 keyframes would need at least 7.45 GiB; this machine has 2 GiB available',
     ),
     (
-        ["puncture","--guide-samples","1000000000000","--out","{T}/p"],
-        'error: --guide-samples: 1000000000000 samples would need at least 7.28 TiB; this machine has 16 GiB available',
+        ["puncture","--guide-samples","1000000000","--out","{T}/p"],
+        'error: --guide-samples: 1000000000 samples would need at least 7.45 GiB; this machine has 2 GiB available',
     ),
     (
-        ["execute","{E}/toy.yaml","{T}/plan.json","--trials","1000000000000","--out","{T}/e"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["execute","{E}/toy.yaml","{T}/plan.json","--trials","1000000000","--out","{T}/e"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["study","execute-lungs","--trials","1000000000000","--out","{T}/el"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["study","execute-lungs","--trials","1000000000","--out","{T}/el"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["study","execute-lungs","--pilot-trials","1000000000000","--out","{T}/el"],
-        'error: --pilot-trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["study","execute-lungs","--pilot-trials","1000000000","--out","{T}/el"],
+        'error: --pilot-trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","kinematics","--arcs","1000000000000","--out","{T}/b.json"],
-        'error: --arcs: 1000000000000 arcs would need at least 138 TiB; this machine has 16 GiB available',
+        ["bench","kinematics","--arcs","1000000000","--out","{T}/b.json"],
+        'error: --arcs: 1000000000 arcs would need at least 142 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","kinematics","--samples","1000000000000","--out","{T}/b.json"],
-        'error: --samples: 2e+17 arc points would need at least 4.26e+03 PiB; this machine has 16 GiB available',
+        ["bench","kinematics","--samples","1000000000","--out","{T}/b.json"],
+        'error: --samples: 2e+14 arc points would need at least 4.26 PiB; this machine has 2 GiB available',
     ),
     (
         ["bench","fields","--grid","100000","--out","{T}/b.json"],
-        'error: --grid: a 100000^3 grid would need at least 7.11 PiB; this machine has 16 GiB available',
+        'error: --grid: a 100000^3 grid would need at least 7.11 PiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","fields","--queries","1000000000000","--out","{T}/b.json"],
-        'error: --queries: 1000000000000 queries would need at least 21.8 TiB; this machine has 16 GiB available',
+        ["bench","fields","--queries","1000000000","--out","{T}/b.json"],
+        'error: --queries: 1000000000 queries would need at least 22.4 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","control","--trials","1000000000000","--out","{T}/b.json"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["bench","control","--trials","1000000000","--out","{T}/b.json"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","steerable","--sample-targets","1000000000000","--out","{T}/b.json"],
-        'error: --sample-targets: 1000000000000 targets would need at least 21.8 TiB; this machine has 16 GiB available',
+        ["bench","steerable","--sample-targets","1000000000","--out","{T}/b.json"],
+        'error: --sample-targets: 1000000000 targets would need at least 22.4 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","execute","--trials","1000000000000","--out","{T}/b.json"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["bench","execute","--trials","1000000000","--out","{T}/b.json"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","execute","--replans","1000000000000","--out","{T}/b.json"],
-        'error: --replans: 1000000000000 re-plans would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["bench","execute","--replans","1000000000","--out","{T}/b.json"],
+        'error: --replans: 1000000000 re-plans would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","scale","--directions","1000000000000","--out","{T}/b.json"],
-        'error: --directions: 1000000000000 directions would need at least 487 TiB; this machine has 16 GiB available',
+        ["bench","scale","--directions","1000000000","--out","{T}/b.json"],
+        'error: --directions: 1000000000 directions would need at least 499 GiB; this machine has 2 GiB available',
     ),
     (
-        ["bench","scale","--trials","1000000000000","--out","{T}/b.json"],
-        'error: --trials: 1000000000000 trials would need at least 58.2 TiB; this machine has 16 GiB available',
+        ["bench","scale","--trials","1000000000","--out","{T}/b.json"],
+        'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["scene","render","{E}/toy.yaml","--max-cells","1000000000000","--out","{T}/r.html"],
-        'error: --max-cells: 1000000000000 samples per axis would need at least 7.28 TiB; this machine has 16 GiB available',
+        ["scene","render","{E}/toy.yaml","--max-cells","1000000000","--out","{T}/r.html"],
+        'error: --max-cells: 1000000000 samples per axis would need at least 7.45 GiB; this machine has 2 GiB available',
     ),
     (
-        ["approach","{E}/medrad_liver4.yaml","--max-cells","1000000000000","--out","{T}/a.json"],
-        'error: --max-cells: 1000000000000 samples per axis would need at least 7.28 TiB; this machine has 16 GiB available',
+        ["approach","{E}/medrad_liver4.yaml","--max-cells","1000000000","--out","{T}/a.json"],
+        'error: --max-cells: 1000000000 samples per axis would need at least 7.45 GiB; this machine has 2 GiB available',
     ),
 ]
 
@@ -123,7 +123,7 @@ def refused_before_running(monkeypatch):
     def ran(command, args):
         raise AssertionError(f"{command} ran: its request was not refused first")
 
-    monkeypatch.setattr(memory, "available_bytes", lambda: 16 * 2**30)
+    monkeypatch.setattr(memory, "available_bytes", lambda: 2 * 2**30)
     monkeypatch.setattr(cli, "_run", ran)
 
 
