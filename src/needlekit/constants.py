@@ -66,9 +66,32 @@ DEFAULT_MAX_HEADING_CHANGE_DEG: float = 90.0
 #: airway through its wall (the reference planner's whitelist radius).
 DEFAULT_START_EXCLUSION_MM: float = 3.0
 
+# -- the clearance rule (one for every steerable planner's search and for the plan check) --
+#
+# A sampled motion is clear when, at every sample outside the start exclusion,
+#
+#     model distance - needle radius - model error bound - half the sample gap >= margin,
+#
+# where the collision model's distance is 1-Lipschitz (the obstacle field; for
+# ``voxel_centres`` the distance to the obstacle voxel balls, exact in that model), so that
+# every point between two samples is clear too. The search applies it to each motion with
+# MOTION_SPACING_MM (the gap is the spacing, whatever the motion's length) plus
+# CLEARANCE_ROUNDING_MM; the plan check re-derives the same samples from the plan's
+# primitives and certifies them with the same rule, so every plan a search accepts passes
+# the check and both report the same clearance. The check's denser samples
+# (VERIFY_SPACING_MM) are a second certificate: the plan is clear when either proves it.
+
 #: Spacing of the collision samples along the planners' motions (mm), as in the reference
 #: steerable-needle planner (its 0.5 mm sample points).
 MOTION_SPACING_MM: float = 0.5
+#: Spacing of the plan check's dense samples (mm): half the motion spacing, so that its
+#: certificate loses only 0.125 mm to the gaps and the check sees between the search's
+#: samples.
+VERIFY_SPACING_MM: float = 0.25
+#: How far above the rule's threshold (mm) the search wants a sample: the plan check
+#: re-derives the search's samples from the primitives with other kernels, which move a
+#: point by ~1e-12 mm on a 150 mm path, so a sample the search accepts passes the check.
+CLEARANCE_ROUNDING_MM: float = 1e-9
 #: Goal tolerance tau (mm), Feng et al.'s and the reference planner's.
 DEFAULT_GOAL_TOLERANCE_MM: float = 1.0
 #: Planning budget per run (s): Feng et al.'s 1 s per start direction.

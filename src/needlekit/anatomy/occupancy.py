@@ -32,6 +32,7 @@ __all__ = [
     "VoxelObstacles",
     "any_collides_unchecked",
     "box_half_widths",
+    "colliding_samples",
     "nearest_obstacle_distance_reference",
     "voxel_centre",
 ]
@@ -126,6 +127,32 @@ def any_collides_unchecked(
         if out[0]:
             return True
     return False
+
+
+def colliding_samples(
+    obstacles: VoxelObstacles, points: np.ndarray, min_distance_mm: float, excl_point, excl_r
+) -> np.ndarray:
+    """Which points lie closer than ``min_distance_mm`` to an obstacle voxel centre (beyond
+    the exclusion), or outside the image: :meth:`VoxelObstacles.collides` at another
+    threshold (the certified rule's, which adds half the sample gap).
+
+    Parameters
+    ----------
+    obstacles : VoxelObstacles
+    points : ndarray, shape (n, 3), float64, C-contiguous
+    min_distance_mm : float
+    excl_point : ndarray, shape (3,)
+    excl_r : float
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    o = obstacles
+    out = np.empty(points.shape[0], dtype=np.bool_)
+    ex = np.ascontiguousarray(excl_point, dtype=np.float64).reshape(3)
+    _collides(o.occupancy, o.inv_affine, o.affine, float(min_distance_mm), ex, float(excl_r), points, out)
+    return out
 
 
 class VoxelObstacles:
