@@ -22,7 +22,7 @@ REFERENCE = {
     (1, 100): None, (3, 100): 54.83, (4, 100): None, (5, 100): 58.41,
 }  # fmt: skip
 #: The reference's plans from start 5 pass its test at their 0.5 mm samples but keep only
-#: 0.0008 mm (r_min 50) and 0.028 mm (r_min 100) from the obstacle voxel balls between
+#: 0.0008 mm (r_min 50) and 0.023 mm (r_min 100) from the obstacle voxel balls between
 #: them (measured every 0.01 mm): less than half the sample gap, so the certified rule
 #: (docs/steerable.md, "Certified clearance") cannot vouch for them.
 NOT_CERTIFIABLE = {(5, 50), (5, 100)}
