@@ -364,7 +364,7 @@ class VoxelCentresChecker(CollisionChecker):
         # the reference's threshold plus half the sample gap (every point between samples
         # keeps the margin from the voxel balls), plus the rounding allowance
         self.threshold_mm = self._threshold(self.spacing_mm) + CLEARANCE_ROUNDING_MM
-        self._args = (o.occupancy, o.inv_affine, o.affine, self.threshold_mm)
+        self._args = (o.occupancy, o.blocks, o.inv_affine, o.affine, self.threshold_mm)
 
     def _threshold(self, spacing_mm: float) -> float:
         """The smallest distance (mm) a sample must keep from every obstacle voxel centre."""
