@@ -15,7 +15,9 @@ from needlekit.constants import (
     STRAIGHT_CHECK_STEP_MM,
     STRAIGHT_NEAR_STEP_MM,
 )
+from needlekit.planning.interface import Termination
 from needlekit.planning.straight.certify import certify_needle, record_point
+from needlekit.planning.straight.planner import LiuOptions, LiuPlanner, MultiNeedleProblem
 from needlekit.planning.straight.problem import StraightNeedle, StraightProblem
 from needlekit.planning.straight.sequence import plan_needles
 from needlekit.planning.straight.verify import verify_multi
@@ -120,7 +122,10 @@ def test_every_solved_multi_plan_passes_verify_with_the_same_clearance():
     solved = needles = 0
     for seed in range(8):
         problem, targets = _random_problem(seed)
-        plan = plan_needles(problem, targets, resolution_deg=4.0)
+        # through the planner interface, as ``needlekit multi`` plans (a generous budget:
+        # a budget stop would only leave the plan unsolved, never unverified)
+        planner = LiuPlanner(LiuOptions(resolution_deg=4.0))
+        plan = planner.solve(MultiNeedleProblem(problem, targets), Termination(600.0))
         if not plan.solved:
             continue
         solved += 1
