@@ -66,9 +66,32 @@ DEFAULT_MAX_HEADING_CHANGE_DEG: float = 90.0
 #: airway through its wall (the reference planner's whitelist radius).
 DEFAULT_START_EXCLUSION_MM: float = 3.0
 
+# -- the clearance rule (one for every steerable planner's search and for the plan check) --
+#
+# A sampled motion is clear when, at every sample outside the start exclusion,
+#
+#     model distance - needle radius - model error bound - half the sample gap >= margin,
+#
+# where the collision model's distance is 1-Lipschitz (the obstacle field; for
+# ``voxel_centres`` the distance to the obstacle voxel balls, exact in that model), so that
+# every point between two samples is clear too. The search applies it to each motion with
+# MOTION_SPACING_MM (the gap is the spacing, whatever the motion's length) plus
+# CLEARANCE_ROUNDING_MM; the plan check re-derives the same samples from the plan's
+# primitives and certifies them with the same rule, so every plan a search accepts passes
+# the check and both report the same clearance. The check's denser samples
+# (VERIFY_SPACING_MM) are a second certificate: the plan is clear when either proves it.
+
 #: Spacing of the collision samples along the planners' motions (mm), as in the reference
 #: steerable-needle planner (its 0.5 mm sample points).
 MOTION_SPACING_MM: float = 0.5
+#: Spacing of the plan check's dense samples (mm): half the motion spacing, so that its
+#: certificate loses only 0.125 mm to the gaps and the check sees between the search's
+#: samples.
+VERIFY_SPACING_MM: float = 0.25
+#: How far above the rule's threshold (mm) the search wants a sample: the plan check
+#: re-derives the search's samples from the primitives with other kernels, which move a
+#: point by ~1e-12 mm on a 150 mm path, so a sample the search accepts passes the check.
+CLEARANCE_ROUNDING_MM: float = 1e-9
 #: Goal tolerance tau (mm), Feng et al.'s and the reference planner's.
 DEFAULT_GOAL_TOLERANCE_MM: float = 1.0
 #: Planning budget per run (s): Feng et al.'s 1 s per start direction.
@@ -79,3 +102,42 @@ DEFAULT_TIME_LIMIT_S: float = 1.0
 #: (e.g. a sphere's centre) central differences give a much shorter one, and interpolated
 #: grids stay above ~0.7 away from it. Below this the normal counts as undefined.
 MIN_NORMAL_GRADIENT: float = 0.5
+
+# -- the clearance rule of the straight (multi-needle) planners and of verify_multi ---------
+#
+# A straight needle (the segment target-entry, its tube of the needle's radius) is clear
+# when
+#
+#     certified distance of the axis to the obstacles - needle radius >= gamma,
+#
+# where the certified distance is, over consecutive samples t_i < t_j of the axis, the
+# smallest ``(d_i + d_j - (t_j - t_i)) / 2`` (a signed distance is 1-Lipschitz, so no
+# point between two samples is nearer), capped at radius + gamma + STRAIGHT_CAP_ABOVE_GAMMA_MM,
+# less the field's stated error bound; a placed needle's tube counts in closed form, its
+# head by the tangent bound of a convex solid. The planner samples by sphere tracing with
+# STRAIGHT_NEAR_STEP_MM near obstacles (so its bound is at most half of it below the
+# sampled minimum); the check adds a dense certificate (STRAIGHT_CHECK_STEP_MM). A plan is
+# written rounded to RECORD_DECIMALS, so the planner certifies the segment exactly as the
+# record holds it (both certificates, the better counts) before it accepts a direction,
+# and its map keeps RECORD_ROUNDING_ALLOWANCE_MM above gamma so that rounding the chosen
+# direction's points seldom costs it; verify_multi re-derives the same numbers from the
+# record, so every needle a plan holds passes the check, with the same clearance.
+
+#: Largest sphere-tracing step (mm) of the straight planners near obstacles (the CFRW map,
+#: the entry search, the placed needles' heads): their certificate loses at most 0.25 mm
+#: to the gaps, and a 1-degree map of a liver phantom stays under a second.
+STRAIGHT_NEAR_STEP_MM: float = 0.5
+#: Clearances above gamma by more than this (mm) are certified as "at least" this: it
+#: bounds the sphere tracing's work (steps of d - cap far from obstacles).
+STRAIGHT_CAP_ABOVE_GAMMA_MM: float = 10.0
+#: Spacing (mm) of the check's dense certificate: at most 0.025 mm below the sampled
+#: minimum, so it sees between the planner's samples.
+STRAIGHT_CHECK_STEP_MM: float = 0.05
+#: Decimals (of a mm) of the points a multi-needle record holds (``multi.json``).
+RECORD_DECIMALS: int = 6
+#: How far above gamma (mm) the straight planners' map wants a direction's clearance:
+#: rounding both ends to RECORD_DECIMALS moves every point of the segment by at most
+#: sqrt(3) * 0.5e-6 = 0.87e-6 mm, so the rounded segment's true clearance stays above
+#: gamma (its sphere-traced certificate is re-computed on the rounded points by the
+#: planner before it accepts, since the trace's samples may move by more than that).
+RECORD_ROUNDING_ALLOWANCE_MM: float = 1e-6

@@ -88,3 +88,20 @@ def test_the_smallest_distance_over_points_is_the_per_point_minimum():
         assert got == pytest.approx(oracle.min(), abs=1e-12)
     outside = np.array([[5.0, 5.0, 5.0], [-3.0, 5.0, 5.0]])
     assert smallest_obstacle_distance(obs, outside, cap_mm=3.0) == -np.inf
+
+
+def test_occupied_blocks_and_the_block_skip_agree_with_the_oracles():
+    from needlekit.anatomy.occupancy import BLOCK_VOXELS, occupied_blocks
+
+    rng = np.random.default_rng(3)
+    occ = rng.random((23, 18, 30)) < 0.002  # sparse: most blocks empty, shape not a multiple
+    b = BLOCK_VOXELS
+    padded = np.pad(occ, [(0, -n % b) for n in occ.shape])
+    ni, nj, nk = (n // b for n in padded.shape)
+    expected = padded.reshape(ni, b, nj, b, nk, b).any(axis=(1, 3, 5))
+    np.testing.assert_array_equal(occupied_blocks(occ), expected)
+    affine = np.diag([0.55, 0.55, 0.7, 1.0])
+    obs = VoxelObstacles(occ, affine, needle_diameter_mm=1.0, safety_margin_mm=0.3)
+    pts = rng.uniform([0, 0, 0], [12.0, 9.5, 20.5], size=(4000, 3))
+    d = nearest_obstacle_distance_reference(obs, pts)
+    np.testing.assert_array_equal(obs.collides(pts), d < obs.min_distance_mm)

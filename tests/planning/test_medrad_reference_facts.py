@@ -21,6 +21,11 @@ REFERENCE = {
     (1, 50): 58.26, (3, 50): 53.24, (4, 50): 58.12, (5, 50): 58.09,
     (1, 100): None, (3, 100): 54.83, (4, 100): None, (5, 100): 58.41,
 }  # fmt: skip
+#: The reference's plans from start 5 pass its test at their 0.5 mm samples but keep only
+#: 0.0008 mm (r_min 50) and 0.023 mm (r_min 100) from the obstacle voxel balls between
+#: them (measured every 0.01 mm): less than half the sample gap, so the certified rule
+#: (docs/steerable.md, "Certified clearance") cannot vouch for them.
+NOT_CERTIFIABLE = {(5, 50), (5, 100)}
 
 
 @pytest.fixture(scope="module")
@@ -50,9 +55,17 @@ def test_direct_connection_reproduces_the_reference(lung1, start, r_min):
         assert conn is None
         return
     assert conn.length_mm == pytest.approx(expected, abs=0.005)
+    plan = SteerablePlan(s.world_T_tip, conn.primitives)
+    # the reference's own test at its samples: clear
+    hits = obstacles.collides(plan.points_mm(0.5), exclude_near=s.world_T_tip[:3, 3], exclusion_mm=3.0)
+    assert not hits.any()
     prob = _problem(case, obstacles, start, r_min)
-    v = verify_plan(prob, SteerablePlan(s.world_T_tip, conn.primitives), spacing_mm=0.5)
-    assert v.ok, v.violations
+    v = verify_plan(prob, plan)
+    if (start, r_min) in NOT_CERTIFIABLE:
+        assert not v.ok and v.violations[0].startswith("collision")
+        assert 0.0 < v.metrics["min_clearance_mm"] < 0.125
+    else:
+        assert v.ok, v.violations
 
 
 @pytest.mark.parametrize("r_min", [50, 100])
@@ -86,10 +99,12 @@ def test_rcs_star_reproduces_the_reference_verdicts_and_costs(lung1, start, r_mi
     res = solve_rcs(prob, time_limit_s=1.0)  # the reference's budget; these certify
     if expected is None:
         assert res.status is PlanStatus.INFEASIBLE
+    elif (start, r_min) in NOT_CERTIFIABLE:  # no plan it can certify clear: the nearest
+        assert res.status is not PlanStatus.SOLVED
     else:
         assert res.status is PlanStatus.SOLVED and res.stats["certified"]
         assert res.cost_mm <= expected + 0.5
-        assert verify_plan(prob, res.plan, spacing_mm=0.5).ok
+        assert verify_plan(prob, res.plan).ok
 
 
 def test_bench_steerable_records_cases_and_the_reference(tmp_path):
@@ -121,7 +136,9 @@ def test_bench_steerable_records_cases_and_the_reference(tmp_path):
     by_start = {r["start"]: r for r in rec["results"]}
     assert by_start[3]["status"] == "solved" and by_start[3]["certified"]
     assert by_start[1]["status"] == "infeasible"
-    assert rec["summary"]["lung1_reference_agreement"] == "5/5"
+    # start 5: the reference's plan is not certifiable (NOT_CERTIFIABLE)
+    assert by_start[5]["status"] != "solved"
+    assert rec["summary"]["lung1_reference_agreement"] == "4/5"
 
 
 @pytest.mark.parametrize("planner", ["rcs_star", "rcs", "rrt"])

@@ -7,8 +7,18 @@ implementations that are peers:
   clear only when the field, grown by the needle radius plus margin, exceeds the field's
   stated error bound plus half the sample spacing, so every point between samples is
   clear too (the field is 1-Lipschitz), whatever the field's error;
-- ``voxel_centres`` (:class:`VoxelCentresChecker`): the reference planner's exact test
-  against obstacle voxel centres (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`).
+- ``voxel_centres`` (:class:`VoxelCentresChecker`): the reference planner's test against
+  obstacle voxel centres (:class:`~needlekit.anatomy.occupancy.VoxelObstacles`), certified
+  the same way: a sample is clear only when no obstacle voxel centre lies closer than the
+  reference's threshold (needle radius, half a voxel diagonal, margin) plus half the
+  sample spacing, so the needle keeps the margin from every obstacle voxel ball along the
+  whole motion, not only at its samples.
+
+Both apply the one clearance rule of :mod:`needlekit.constants`: ``collides`` (the
+search's question, at the checker's spacing) refuses a sample that ``certify`` (the plan
+check's, at the same spacing) would refuse, and a little more
+(:data:`~needlekit.constants.CLEARANCE_ROUNDING_MM`), so that what a search accepts the
+check accepts.
 
 A checker is bound to one needle and one start: obstacles within the start exclusion of
 the start point are ignored (a transbronchial needle leaves the airway through its wall).
@@ -46,10 +56,11 @@ from needlekit.anatomy.collision_registry import (
     register_collision_checker,
     unregister_collision_checker,
 )
-from needlekit.anatomy.occupancy import VoxelObstacles, any_collides_unchecked
+from needlekit.anatomy.occupancy import VoxelObstacles, any_collides_unchecked, colliding_samples
 from needlekit.anatomy.scene import Scene
 from needlekit.anatomy.voxel_clearance import smallest_obstacle_distance
 from needlekit.anatomy.voxel_connectivity import goal_connected, warm_up
+from needlekit.constants import CLEARANCE_ROUNDING_MM
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -155,7 +166,9 @@ class CollisionChecker(Protocol):
         Returns
         -------
         bool
-            True unless the needle is certainly clear along the whole motion.
+            True unless the needle is certainly clear along the whole motion: at least
+            whenever :meth:`certify` at the checker's spacing finds a violation on them
+            (the search never accepts what the plan check refuses).
         """
 
     def goal_collides(self, goal_mm: np.ndarray) -> bool:
@@ -264,9 +277,12 @@ class FieldChecker(CollisionChecker):
 
     @property
     def threshold_mm(self) -> float:
-        """The smallest grown-field value a sample must exceed: the field's error bound
-        plus half the sample spacing."""
-        return float(self.grown.error_bound_mm) + 0.5 * self.spacing_mm
+        """The smallest grown-field value a motion sample must reach: the field's error
+        bound plus half the sample spacing (and the rounding allowance)."""
+        return self._threshold(self.spacing_mm) + CLEARANCE_ROUNDING_MM
+
+    def _threshold(self, spacing_mm: float) -> float:
+        return float(self.grown.error_bound_mm) + 0.5 * float(spacing_mm)
 
     def _far(self, points: np.ndarray) -> np.ndarray:
         if self.exclusion <= 0.0:
@@ -285,15 +301,15 @@ class FieldChecker(CollisionChecker):
         return bool(self.grown.signed_distance(g)[0] < -self.grown.error_bound_mm)
 
     def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
-        field = self.scene.obstacle_field(0.0)
+        # the grown field the search reads, with its own error bound: one rule for both
         far = self._far(points)
-        d = field.signed_distance(far) if len(far) else np.array([np.inf])
-        half_gap, bound = 0.5 * float(spacing_mm), float(field.error_bound_mm)
-        sampled = float(d.min()) - self.radius
+        g = self.grown.signed_distance(far) if len(far) else np.array([np.inf])
+        half_gap, bound = 0.5 * float(spacing_mm), float(self.grown.error_bound_mm)
+        sampled = float(g.min()) + self.margin  # distance from the needle's surface
         certified = sampled - half_gap - bound
-        hits = int(np.count_nonzero(d - self.radius - half_gap - bound < self.margin))
+        hits = int(np.count_nonzero(g < self._threshold(spacing_mm)))
         violation = None
-        if certified < self.margin:
+        if hits:
             violation = (
                 f"collision: certified clearance {certified:.4f} mm (sampled {sampled:.4f} mm, "
                 f"less half the {spacing_mm:g} mm sample gap and the field's "
@@ -310,7 +326,6 @@ class FieldChecker(CollisionChecker):
         # the search calls are the ones compiled (or loaded) here
         p = self.start[None] + 1e-3 * np.arange(1, 33)[:, None]
         self.grown.signed_distance(p)
-        self.scene.obstacle_field(0.0).signed_distance(p)
 
 
 class VoxelCentresChecker(CollisionChecker):
@@ -346,7 +361,14 @@ class VoxelCentresChecker(CollisionChecker):
         self.exclusion = float(exclusion_mm)
         self.spacing_mm = float(spacing_mm)
         o = obstacles
-        self._args = (o.occupancy, o.inv_affine, o.affine, o.min_distance_mm)
+        # the reference's threshold plus half the sample gap (every point between samples
+        # keeps the margin from the voxel balls), plus the rounding allowance
+        self.threshold_mm = self._threshold(self.spacing_mm) + CLEARANCE_ROUNDING_MM
+        self._args = (o.occupancy, o.blocks, o.inv_affine, o.affine, self.threshold_mm)
+
+    def _threshold(self, spacing_mm: float) -> float:
+        """The smallest distance (mm) a sample must keep from every obstacle voxel centre."""
+        return self.obstacles.min_distance_mm + 0.5 * float(spacing_mm)
 
     def collides(self, points: np.ndarray) -> bool:
         return bool(any_collides_unchecked(*self._args, self.start, self.exclusion, points))
@@ -357,14 +379,17 @@ class VoxelCentresChecker(CollisionChecker):
     def certify(self, points: np.ndarray, spacing_mm: float) -> ClearanceCertificate:
         o = self.obstacles
         pts = np.ascontiguousarray(points, dtype=np.float64)
-        hits = o.collides(pts, exclude_near=self.start, exclusion_mm=self.exclusion)
+        threshold = self._threshold(spacing_mm)
+        hits = colliding_samples(o, pts, threshold, self.start, self.exclusion)
         n_hits = int(np.count_nonzero(hits))
         violation = None
         if n_hits:
             first = pts[np.flatnonzero(hits)[0]]
             violation = (
-                f"collision: {n_hits} samples within {o.min_distance_mm:.4f} mm of an "
-                f"obstacle voxel centre or outside the image, first at {np.round(first, 2).tolist()}"
+                f"collision: {n_hits} samples within {threshold:.4f} mm of an obstacle voxel "
+                f"centre (the reference's {o.min_distance_mm:.4f} mm and half the "
+                f"{float(spacing_mm):g} mm sample gap) or outside the image, first at "
+                f"{np.round(first, 2).tolist()}"
             )
         ball = o.voxel_radius_mm + self.radius
         nearest = smallest_obstacle_distance(

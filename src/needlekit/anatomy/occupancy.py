@@ -30,9 +30,12 @@ from needlekit.errors import InvalidInputError
 
 __all__ = [
     "VoxelObstacles",
+    "BLOCK_VOXELS",
     "any_collides_unchecked",
     "box_half_widths",
+    "colliding_samples",
     "nearest_obstacle_distance_reference",
+    "occupied_blocks",
     "voxel_centre",
 ]
 
@@ -56,8 +59,61 @@ def voxel_centre(affine, i, j, k):  # pragma: no cover - compiled
     return x, y, z
 
 
+#: Edge (voxels) of the blocks of :attr:`VoxelObstacles.blocks`: a point whose search box
+#: meets only empty blocks is clear after a few block reads instead of a read of every
+#: voxel in its box (7 x 7 x 7 on a Med-RAD lung with the certified threshold).
+BLOCK_VOXELS: int = 4
+
+
 @numba.njit(cache=True)
-def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # pragma: no cover
+def _mark_blocks(occ, out):  # pragma: no cover - compiled
+    b = BLOCK_VOXELS
+    ni, nj, nk = occ.shape
+    for i in range(ni):
+        for j in range(nj):
+            for k in range(nk):
+                if occ[i, j, k]:
+                    out[i // b, j // b, k // b] = True
+
+
+def occupied_blocks(occupancy: np.ndarray) -> np.ndarray:
+    """Whether each block of :data:`BLOCK_VOXELS` voxels a side holds an obstacle voxel
+    (one pass over the mask: 0.05 s for a Med-RAD lung's 84 M voxels).
+
+    Parameters
+    ----------
+    occupancy : ndarray of bool, shape (i, j, k), C-contiguous
+
+    Returns
+    -------
+    ndarray of bool, shape (ceil(i / 4), ceil(j / 4), ceil(k / 4)), C-contiguous
+
+    Examples
+    --------
+    >>> occ = np.zeros((5, 4, 4), bool); occ[4, 0, 0] = True
+    >>> occupied_blocks(occ)[:, 0, 0].tolist()
+    [False, True]
+    """
+    b = BLOCK_VOXELS
+    out = np.zeros(tuple(-(-n // b) for n in occupancy.shape), dtype=np.bool_)
+    _mark_blocks(occupancy, out)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _blocks_empty(blocks, i0, i1, j0, j1, k0, k1):  # pragma: no cover - compiled
+    """Whether every block meeting voxels ``[i0, i1) x [j0, j1) x [k0, k1)`` is empty."""
+    b = BLOCK_VOXELS
+    for bi in range(i0 // b, (i1 - 1) // b + 1):
+        for bj in range(j0 // b, (j1 - 1) // b + 1):
+            for bk in range(k0 // b, (k1 - 1) // b + 1):
+                if blocks[bi, bj, bk]:
+                    return False
+    return True
+
+
+@numba.njit(cache=True)
+def _collides(occ, blocks, inv, affine, min_dist, excl_point, excl_r, points, out):  # pragma: no cover
     ni, nj, nk = occ.shape
     # the box of voxels around a point that can hold a centre within min_dist
     r0, r1, r2 = box_half_widths(affine, min_dist)
@@ -73,10 +129,16 @@ def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # p
             out[n] = True
             continue
         ci, cj, ck = int(round(u)), int(round(v)), int(round(w))
+        i0, i1 = max(ci - r0, 0), min(ci + r0 + 1, ni)
+        j0, j1 = max(cj - r1, 0), min(cj + r1 + 1, nj)
+        k0, k1 = max(ck - r2, 0), min(ck + r2 + 1, nk)
         hit = False
-        for i in range(max(ci - r0, 0), min(ci + r0 + 1, ni)):
-            for j in range(max(cj - r1, 0), min(cj + r1 + 1, nj)):
-                for k in range(max(ck - r2, 0), min(ck + r2 + 1, nk)):
+        if _blocks_empty(blocks, i0, i1, j0, j1, k0, k1):
+            out[n] = hit
+            continue
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                for k in range(k0, k1):
                     if not occ[i, j, k]:
                         continue
                     cx, cy, cz = voxel_centre(affine, i, j, k)
@@ -101,16 +163,16 @@ def _collides(occ, inv, affine, min_dist, excl_point, excl_r, points, out):  # p
 
 @numba.njit(cache=True)
 def any_collides_unchecked(
-    occ, inv, affine, min_dist, excl_point, excl_r, points
+    occ, blocks, inv, affine, min_dist, excl_point, excl_r, points
 ):  # pragma: no cover
     """Whether any of the points collides (:meth:`VoxelObstacles.collides` ``.any()``,
     stopping at the first hit, without checks): the search loops' call.
 
     Parameters
     ----------
-    occ, inv, affine, min_dist
-        A :class:`VoxelObstacles`' ``occupancy``, ``inv_affine``, ``affine`` and
-        ``min_distance_mm``.
+    occ, blocks, inv, affine, min_dist
+        A :class:`VoxelObstacles`' ``occupancy``, ``blocks``, ``inv_affine``, ``affine``
+        and a threshold (its ``min_distance_mm``, or the certified rule's).
     excl_point : ndarray, shape (3,)
     excl_r : float
         Obstacle centres closer than this to ``excl_point`` are ignored.
@@ -122,10 +184,37 @@ def any_collides_unchecked(
     """
     out = np.empty(1, dtype=np.bool_)
     for n in range(points.shape[0]):
-        _collides(occ, inv, affine, min_dist, excl_point, excl_r, points[n : n + 1], out)
+        _collides(occ, blocks, inv, affine, min_dist, excl_point, excl_r, points[n : n + 1], out)
         if out[0]:
             return True
     return False
+
+
+def colliding_samples(
+    obstacles: VoxelObstacles, points: np.ndarray, min_distance_mm: float, excl_point, excl_r
+) -> np.ndarray:
+    """Which points lie closer than ``min_distance_mm`` to an obstacle voxel centre (beyond
+    the exclusion), or outside the image: :meth:`VoxelObstacles.collides` at another
+    threshold (the certified rule's, which adds half the sample gap).
+
+    Parameters
+    ----------
+    obstacles : VoxelObstacles
+    points : ndarray, shape (n, 3), float64, C-contiguous
+    min_distance_mm : float
+    excl_point : ndarray, shape (3,)
+    excl_r : float
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    o = obstacles
+    out = np.empty(points.shape[0], dtype=np.bool_)
+    ex = np.ascontiguousarray(excl_point, dtype=np.float64).reshape(3)
+    args = (o.occupancy, o.blocks, o.inv_affine, o.affine, float(min_distance_mm))
+    _collides(*args, ex, float(excl_r), points, out)
+    return out
 
 
 class VoxelObstacles:
@@ -166,6 +255,7 @@ class VoxelObstacles:
         if occ.ndim != 3:
             raise InvalidInputError("occupancy", f"expected a 3-D mask, got shape {occ.shape}")
         self.occupancy = np.ascontiguousarray(occ, dtype=np.bool_)
+        self._blocks = None
         a, spacing, _ = _orthogonal_affine(affine, "affine")
         self.affine = np.ascontiguousarray(a)
         self.inv_affine = np.ascontiguousarray(np.linalg.inv(a))
@@ -178,6 +268,13 @@ class VoxelObstacles:
             )
         self.voxel_radius_mm = 0.5 * float(np.linalg.norm(spacing))
         self.min_distance_mm = 0.5 * d + self.voxel_radius_mm + m
+
+    @property
+    def blocks(self) -> np.ndarray:
+        """:func:`occupied_blocks` of the occupancy (built on first use)."""
+        if self._blocks is None:
+            self._blocks = occupied_blocks(self.occupancy)
+        return self._blocks
 
     def collides(self, points, *, exclude_near=None, exclusion_mm: float = 0.0):
         """Whether points collide with the obstacle voxels (or lie outside the image).
@@ -203,7 +300,8 @@ class VoxelObstacles:
         )
         r = 0.0 if exclude_near is None else float(exclusion_mm)
         out = np.empty(p.shape[0], dtype=np.bool_)
-        _collides(self.occupancy, self.inv_affine, self.affine, self.min_distance_mm, ex, r, p, out)
+        args = (self.occupancy, self.blocks, self.inv_affine, self.affine, self.min_distance_mm)
+        _collides(*args, ex, r, p, out)
         return unbatch(out, single)
 
 

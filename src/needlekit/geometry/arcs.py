@@ -432,17 +432,20 @@ def arc_points_unchecked(pose, spin, kappa, length, n_samples):  # pragma: no co
 
 
 @numba.njit(cache=True)
-def min_tangent_dot_unchecked(pose, spin, kappa, length, n_samples, direction):  # pragma: no cover
-    """The smallest ``tangent . direction`` over the samples of an arc, its start left
-    out (the heading check of the planners: samples ``1..n_samples-1`` of
-    ``linspace(0, length, n_samples)``).
+def min_tangent_dot_unchecked(pose, spin, kappa, length, direction):  # pragma: no cover
+    """The smallest ``tangent . direction`` along a whole arc, in closed form (the heading
+    check of the planners and of the plan check, exact between any samples).
+
+    Along the arc the tangent is ``sin(phi) u + cos(phi) z`` with ``phi = kappa s``, ``z``
+    the pose's z axis and ``u`` its bending direction, so ``tangent . direction`` is
+    ``A sin(phi) + B cos(phi) = C cos(phi - psi)``: its minimum over ``phi`` between 0 and
+    ``kappa * length`` is ``-C`` where ``phi = psi + pi (mod 2 pi)`` lies in that range,
+    else the smaller end.
 
     Parameters
     ----------
     pose : ndarray, shape (4, 4), float64, C-contiguous
     spin, kappa, length : float
-    n_samples : int
-        At least 2.
     direction : ndarray, shape (3,)
         A unit vector (the start direction).
 
@@ -452,17 +455,16 @@ def min_tangent_dot_unchecked(pose, spin, kappa, length, n_samples, direction): 
     """
     cs, ss = math.cos(spin), math.sin(spin)
     # the tangent Rz(spin) Rx(phi) e_z = (ss sp, -cs sp, cp) in the pose's frame
-    best = math.inf
-    step = length / (n_samples - 1)
-    for q in range(1, n_samples):
-        s = length if q == n_samples - 1 else q * step
-        phi = kappa * s
-        sp, cp = math.sin(phi), math.cos(phi)
-        a, b, c = ss * sp, -cs * sp, cp
-        d = 0.0
-        for i in range(3):
-            t = pose[i, 0] * a + pose[i, 1] * b + pose[i, 2] * c
-            d += t * direction[i]
-        if d < best:
-            best = d
+    a = 0.0
+    b = 0.0
+    for i in range(3):
+        a += (pose[i, 0] * ss - pose[i, 1] * cs) * direction[i]
+        b += pose[i, 2] * direction[i]
+    end = kappa * length
+    lo, hi = min(0.0, end), max(0.0, end)
+    best = min(b, a * math.sin(end) + b * math.cos(end))
+    psi = math.atan2(a, b)
+    k = math.ceil((lo - psi - math.pi) / (2.0 * math.pi))
+    if psi + math.pi + 2.0 * math.pi * k <= hi:
+        best = min(best, -math.hypot(a, b))
     return best

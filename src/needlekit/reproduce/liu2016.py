@@ -318,9 +318,10 @@ def _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
         TableSection(
             "The three needles (rigid anatomy)",
             rigid_rows,
-            "clearance: the planner's certified lower bound to the anatomy; verify "
-            "clearance: needlekit verify's finer re-measurement; from earlier needles: "
-            "closed form between the placed tubes.",
+            "clearance: the certified lower bound to the anatomy (the better of the "
+            "planner's samples and dense ones); verify clearance: needlekit verify's, "
+            "re-derived from the record by the same rule (equal by construction); from "
+            "earlier needles: closed form between the placed tubes.",
         ),
         TableSection(
             "The three needles with the targets moved (needle drag)",

@@ -45,10 +45,11 @@ class CollisionModel(enum.StrEnum):
         less the field's stated error bound and half the sampling gap, is at least the
         needle radius plus margin (certified: never clear when the truth is not).
     VOXEL_CENTRES
-        The reference planner's exact test (``docs/notes/steerable-reference-planner.md``,
-        section 7): a sample collides when an obstacle voxel centre lies closer than the
-        needle radius plus half a voxel diagonal (plus margin), or it leaves the image.
-        Needs the problem's ``voxel_obstacles``; reproduces the reference's verdicts.
+        The reference planner's test (``docs/notes/steerable-reference-planner.md``,
+        section 7), certified: a sample collides when an obstacle voxel centre lies closer
+        than the needle radius plus half a voxel diagonal (plus margin) plus half the
+        sample gap, or it leaves the image. Needs the problem's ``voxel_obstacles``;
+        reproduces the reference's verdicts wherever its plans can be certified.
     """
 
     FIELD = "field"

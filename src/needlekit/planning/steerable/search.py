@@ -39,6 +39,7 @@ import time
 import numpy as np
 
 from needlekit._validation_kernels import rotation_errors
+from needlekit.constants import MOTION_SPACING_MM
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import propagate_arcs
 from needlekit.needle.reachability import arc_line_lengths_from, is_reachable
@@ -213,8 +214,8 @@ def warm_up(problem: SteerableProblem, validator: MotionValidator) -> None:
     prims = np.array([[0.0, kappa, 1.0], [0.0, 0.0, 1.0]])
     chain_cost(problem, start, prims)
     tiny = SteerablePlan(start, prims)
-    verify_plan(problem, tiny, spacing_mm=validator.spacing_mm)
-    verify_approximate(problem, tiny, spacing_mm=validator.spacing_mm)
+    verify_plan(problem, tiny)
+    verify_approximate(problem, tiny)
     # long plans check their poses' rotations in the numba kernel (a tiny plan's few poses
     # go through numpy): load it here too
     rotation_errors(np.ascontiguousarray(start[None, :3, :3]))
@@ -248,7 +249,6 @@ class SteerableSearch:
         self.validator = MotionValidator(problem)
         warm_up(problem, self.validator)  # compiling kernels is set-up, not search
         self.refused = 0
-        self._last_check: tuple | None = None  # (plan, Verification) of the last candidate
         self._late_done = False  # the finer proof has been asked for (late_due)
         self.setup_s = time.perf_counter() - t0
         self.run: SearchRun = termination.start()
@@ -308,8 +308,9 @@ class SteerableSearch:
         bool
         """
         problem = self.problem if goal_mm is None else _with_goal(self.problem, goal_mm)
-        check = verify_plan(problem, plan, spacing_mm=self.validator.spacing_mm)
-        self._last_check = (plan, check)
+        # the search's own samples certify the clearance here (cheap, once per candidate);
+        # the returned plan gets the full check of `needlekit verify` in result()
+        check = verify_plan(problem, plan, spacing_mm=MOTION_SPACING_MM)
         if not check.ok:  # never report a path the independent check refuses
             self.refused += 1
             log.warning(
@@ -352,11 +353,9 @@ class SteerableSearch:
                 )
             if len(plan.primitives):
                 ranked.append((chain_cost(self.problem, self.start, plan.primitives), k, plan))
-        spacing = self.validator.spacing_mm
         for cost, _, plan in sorted(ranked, key=lambda c: c[:2]):
-            check = verify_plan(self.problem, plan, spacing_mm=spacing)
+            check = verify_plan(self.problem, plan, spacing_mm=MOTION_SPACING_MM)
             if check.ok:
-                self._last_check = (plan, check)
                 self.run.improved(cost)
                 return cost, plan
         return math.inf, None
@@ -386,15 +385,28 @@ class SteerableSearch:
         -------
         PlanResult
         """
+        goal = self.problem.goal_mm if goal_mm is None else goal_mm
+        if plan is not None:
+            # the check `needlekit verify` runs, once, on the returned plan: its figures
+            # are the ones reported. It passes whenever the candidate check passed (its
+            # clearance certificate includes the search's samples); a failure is a bug,
+            # and the plan is then withheld, never reported
+            problem = self.problem if goal_mm is None else _with_goal(self.problem, goal_mm)
+            approx = status is PlanStatus.APPROXIMATE
+            full = (verify_approximate if approx else verify_plan)(problem, plan)
+            if not full.ok:
+                self.refused += 1
+                log.error("%s: the returned plan fails the full check: %s", self.planner,
+                          "; ".join(full.violations))  # fmt: skip
+                stats["reason"] = "the plan failed the full check: " + "; ".join(full.violations)
+                status, plan, cost = PlanStatus.TIMEOUT, None, math.inf
+            else:
+                m = full.metrics
+                stats["certified_clearance_mm"] = m["certified_clearance_mm"]
+                stats["min_clearance_mm"] = m["min_clearance_mm"]
+                stats["collision_model"] = m["collision_model"]
         run = self.run.stats()
         merged = {**run, "setup_s": self.setup_s, "refused_by_check": self.refused, **stats}
-        checked = self._last_check if plan is not None else None
-        if checked is not None and checked[0] is plan:  # the returned plan's own check
-            m = checked[1].metrics
-            merged["certified_clearance_mm"] = m["certified_clearance_mm"]
-            merged["min_clearance_mm"] = m["min_clearance_mm"]
-            merged["collision_model"] = m["collision_model"]
-        goal = self.problem.goal_mm if goal_mm is None else goal_mm
         return PlanResult(
             status, self.planner, plan, cost, run["planner_wall_s"], goal, merged, self.start
         )
@@ -418,8 +430,7 @@ class SteerableSearch:
         if prims:
             plan = SteerablePlan(self.start, np.array(prims, dtype=float).reshape(-1, 3))
             problem = self.problem if goal_mm is None else _with_goal(self.problem, goal_mm)
-            check = verify_approximate(problem, plan, spacing_mm=self.validator.spacing_mm)
-            self._last_check = (plan, check)
+            check = verify_approximate(problem, plan, spacing_mm=MOTION_SPACING_MM)
             if check.ok:
                 stats["goal_distance_mm"] = check.metrics["goal_distance_mm"]
                 return self.result(PlanStatus.APPROXIMATE, plan, cost, goal_mm, **stats)

@@ -2,7 +2,11 @@
 
 A motion is valid when every sample along it (every ``spacing_mm`` of arc length, end
 included) is collision-free, outside the start exclusion ball where obstacles are ignored,
-and the direction stays within the heading limit. Collisions are the problem's collision
+and the direction stays within the heading limit. Collision-free is the one clearance rule
+of :mod:`needlekit.constants` (half the sample spacing counted against the clearance), and
+the samples are the ones :func:`~needlekit.planning.steerable.verify.motion_samples`
+re-derives from a plan's primitives: the plan check certifies exactly what the search
+accepted. Collisions are the problem's collision
 checker's to decide (:mod:`needlekit.anatomy.collision`: the certified ``field`` model, the
 reference's exact ``voxel_centres`` test, or a user's own); this module never asks which.
 
@@ -106,10 +110,12 @@ class MotionValidator:
         """
         if length <= 0.0:
             return True
-        m = max(2, math.ceil(length / self.spacing_mm - 1e-9) + 1)
+        # samples_for_spacing's count (inline: the hot path), so that the plan check
+        # re-derives these very samples from the primitives
+        m = max(2, math.ceil(length / self.spacing_mm - 1e-12) + 1)
         if self._check_heading:
             if kappa != 0.0:
-                dot = min_tangent_dot_unchecked(pose, spin, kappa, length, m, self.start_dir)
+                dot = min_tangent_dot_unchecked(pose, spin, kappa, length, self.start_dir)
             else:
                 d = self.start_dir
                 dot = pose[0, 2] * d[0] + pose[1, 2] * d[1] + pose[2, 2] * d[2]

@@ -10,21 +10,25 @@ plan files. It re-derives the path from the plan's primitives alone and checks:
 - curvature: every primitive's ``|curvature| <= 1 / r_min``;
 - length: total insertion ``<= l_max``;
 - goal: the end lies within tau of the goal;
-- heading: the angle between the start direction and every later direction (sampled
-  densely) stays within the limit;
+- heading: the angle between the start direction and every later direction stays within
+  the limit (its largest value along each arc in closed form, as the searches check it,
+  not only at samples);
 - puncture angle: the angle between the start direction and the entry surface (90 degrees
   minus the angle to its outward normal) is at least alpha;
 - cost: when the caller states the plan's cost (a plan file's ``cost_mm``), it matches
   the cost recomputed from the primitives (path length, or the clearance cost map's
   integral);
-- clearance, certified: ``certified_clearance_mm`` is a lower bound on the distance from the
-  needle's surface to every obstacle outside the start exclusion, for the whole path, not
-  only its samples: the smallest sampled distance less half the sample gap, the field's
-  stated error bound and the needle radius. With the ``field`` collision model the plan
-  fails when it is below the safety margin. With ``voxel_centres`` the verdict is the
-  reference planner's exact test at every sample (an obstacle voxel centre closer than the
-  needle radius plus half a voxel diagonal, or a sample outside the image), and the bound is
-  the distance to the obstacle voxel balls, reported beside it.
+- clearance, certified, by the one rule the searches apply (:mod:`needlekit.constants`):
+  ``certified_clearance_mm`` is a lower bound on the distance from the needle's surface to
+  every obstacle outside the start exclusion (for ``voxel_centres``, to the obstacle voxel
+  balls), for the whole path, not only its samples: the smallest sampled distance less half
+  the sample gap, the model's stated error bound and the needle radius. The plan fails
+  when it is below the safety margin. Two samplings certify it, and the path is clear when
+  either does (each is a proof; the bound reported is the better one): the search's own
+  samples, re-derived from the primitives (:func:`motion_samples`, every
+  :data:`~needlekit.constants.MOTION_SPACING_MM` of each primitive), so that every plan a
+  search accepted passes; and samples every ``spacing_mm``
+  (:data:`~needlekit.constants.VERIFY_SPACING_MM` by default), which see between them.
 
 A rule that cannot be checked (e.g. a puncture angle whose surface normal is undefined at
 the start) counts as broken.
@@ -36,7 +40,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from needlekit.geometry.arcs import propagate_arcs, samples_for_spacing
+from needlekit.anatomy.collision import ClearanceCertificate
+from needlekit.constants import MOTION_SPACING_MM, VERIFY_SPACING_MM
+from needlekit.geometry.arcs import arc_points_unchecked, propagate_arcs, samples_for_spacing
 from needlekit.planning.result import Verification
 from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -46,6 +52,7 @@ __all__ = [
     "START_TOLERANCE_MM",
     "START_TOLERANCE_RAD",
     "Verification",
+    "motion_samples",
     "verify_approximate",
     "verify_plan",
 ]
@@ -71,11 +78,55 @@ def _dense_poses(plan: SteerablePlan, spacing_mm: float) -> np.ndarray:
     return np.concatenate(out)
 
 
+def motion_samples(plan: SteerablePlan, spacing_mm: float = MOTION_SPACING_MM) -> np.ndarray:
+    """The collision samples a search tested along a plan: each primitive sampled as
+    :meth:`~needlekit.planning.steerable.validity.MotionValidator.motion_valid` samples a
+    motion (its start left out, the same count and kernel), the start point first.
+
+    Parameters
+    ----------
+    plan : SteerablePlan
+    spacing_mm : float
+        The search's motion spacing.
+
+    Returns
+    -------
+    ndarray, shape (k, 3), float64, C-contiguous
+        World points (mm).
+    """
+    poses = plan.poses()
+    chunks = [poses[0, :3, 3][None]]
+    for i, (spin, kappa, length) in enumerate(plan.primitives):
+        if length <= 0:
+            continue
+        m = samples_for_spacing(length, spacing_mm)
+        pose = np.ascontiguousarray(poses[i])
+        chunks.append(arc_points_unchecked(pose, float(spin), float(kappa), float(length), m)[1:])
+    return np.ascontiguousarray(np.concatenate(chunks))
+
+
+def _certified_clearance(
+    problem: SteerableProblem, start: np.ndarray, plan: SteerablePlan, dense: np.ndarray,
+    spacing_mm: float,
+) -> tuple[ClearanceCertificate, str, float]:
+    """The better of the two certificates (module notes): the search's samples and the
+    dense ones. Returns it, the checker's name and the smallest distance any sample saw."""
+    own = not np.array_equal(start[:3, 3], problem.start_point_mm)
+    source = replace(problem, start_pose=start, start_point_mm=None) if own else problem
+    checker = source.collision_checker(MOTION_SPACING_MM)
+    certs = [checker.certify(motion_samples(plan, MOTION_SPACING_MM), MOTION_SPACING_MM)]
+    if float(spacing_mm) != MOTION_SPACING_MM:
+        dense_checker = source.collision_checker(spacing_mm)
+        certs.append(dense_checker.certify(dense, spacing_mm))
+    best = max(certs, key=lambda c: (c.violation is None, c.certified_clearance_mm))
+    return best, checker.name, min(c.sampled_clearance_mm for c in certs)
+
+
 def verify_plan(
     problem: SteerableProblem,
     plan: SteerablePlan,
     *,
-    spacing_mm: float = 0.25,
+    spacing_mm: float = VERIFY_SPACING_MM,
     expected_cost_mm: float | None = None,
 ) -> Verification:
     """Check a plan against every constraint of its problem.
@@ -86,7 +137,8 @@ def verify_plan(
         Its collision model decides the clearance rule.
     plan : SteerablePlan
     spacing_mm : float
-        Largest spacing of the samples along the path (the certified bound subtracts half).
+        Largest spacing of the dense samples along the path (their certificate subtracts
+        half); the search's own samples are certified besides.
     expected_cost_mm : float, optional
         The cost the plan claims; a violation when the recomputed cost differs by more
         than 1e-6 mm (relative 1e-9).
@@ -112,9 +164,7 @@ def verify_plan(
         bad.append(
             f"goal: ends {goal_dist:.4f} mm from the goal, tolerance {problem.goal_tolerance_mm:g} mm"
         )
-    d0 = start[:3, 2]
-    cosines = np.clip(poses[:, :3, 2] @ d0, -1.0, 1.0)
-    heading = float(np.degrees(np.arccos(cosines.min())))
+    heading = _heading_deg(plan)
     if heading > problem.max_heading_change_deg + 1e-7:
         bad.append(
             f"heading: turns {heading:.3f} deg from the start direction, limit {problem.max_heading_change_deg:g} deg"
@@ -129,19 +179,10 @@ def verify_plan(
         )
     points = np.ascontiguousarray(poses[:, :3, 3])
     # the problem's collision checker, bound to the plan's own start (its exclusion)
-    checker = problem.collision_checker(spacing_mm)
-    if not np.array_equal(start[:3, 3], problem.start_point_mm):
-        checker = replace(problem, start_pose=start, start_point_mm=None).collision_checker(
-            spacing_mm
-        )
-    cert = checker.certify(points, spacing_mm)
+    cert, model, sampled = _certified_clearance(problem, start, plan, points, spacing_mm)
     if cert.violation is not None:
         bad.append(cert.violation)
-    sampled, certified, n_hits = (
-        cert.sampled_clearance_mm,
-        cert.certified_clearance_mm,
-        cert.colliding_samples,
-    )
+    certified, n_hits = cert.certified_clearance_mm, cert.colliding_samples
     cost = plan_cost(problem, plan)
     if expected_cost_mm is not None and not (
         abs(float(expected_cost_mm) - cost) <= 1e-6 + 1e-9 * abs(cost)
@@ -156,10 +197,32 @@ def verify_plan(
         "puncture_angle_deg": puncture,
         "min_clearance_mm": sampled,
         "certified_clearance_mm": certified,
-        "collision_model": checker.name,
+        "collision_model": model,
         "colliding_samples": n_hits,
     }
     return Verification(not bad, tuple(bad), metrics)
+
+
+def _heading_deg(plan: SteerablePlan) -> float:
+    """The largest angle (deg) between the start direction and the tangent anywhere along
+    the plan: along an arc ``tangent . d0 = A sin(phi) + B cos(phi)`` (``phi = kappa s``),
+    whose minimum is ``-hypot(A, B)`` where ``phi = atan2(A, B) + pi (mod 2 pi)`` falls
+    within the arc, else at an end."""
+    poses = plan.poses()
+    d0 = plan.start_pose[:3, 2]
+    lowest = 1.0
+    for pose, (spin, kappa, length) in zip(poses[:-1], plan.primitives, strict=True):
+        if length <= 0:
+            continue
+        bend = pose[:3, :2] @ np.array([np.sin(spin), -np.cos(spin)])
+        a, b = float(bend @ d0), float(pose[:3, 2] @ d0)
+        end = float(kappa * length)
+        lowest = min(lowest, b, a * np.sin(end) + b * np.cos(end))
+        psi = np.arctan2(a, b)
+        turns = np.ceil((min(0.0, end) - psi - np.pi) / (2 * np.pi))
+        if psi + np.pi + 2 * np.pi * turns <= max(0.0, end):
+            lowest = min(lowest, -float(np.hypot(a, b)))
+    return float(np.degrees(np.arccos(np.clip(lowest, -1.0, 1.0))))
 
 
 def _start_violations(problem: SteerableProblem, start: np.ndarray) -> list[str]:
@@ -191,7 +254,7 @@ def verify_approximate(
     problem: SteerableProblem,
     plan: SteerablePlan,
     *,
-    spacing_mm: float = 0.25,
+    spacing_mm: float = VERIFY_SPACING_MM,
 ) -> Verification:
     """Check a path that stops short of the goal (an approximate solution): every rule of
     :func:`verify_plan` except the goal tolerance, which becomes the distance it reaches.

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from needlekit.constants import RECORD_ROUNDING_ALLOWANCE_MM
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.cfrw import CFRWMap, inside_polylines
 from needlekit.planning.straight.problem import angles_of
@@ -299,7 +300,7 @@ def grid_refinement_entry(
         elif ok.any():
             c = np.full(len(d), -np.inf)
             c[ok] = cfrw.clearance_of(theta[ok], phi[ok])
-            ok &= c >= pr.gamma_mm
+            ok &= c >= pr.gamma_mm + RECORD_ROUNDING_ALLOWANCE_MM  # as the map's
         return ok, p, length, n, theta, phi
 
     u0 = 0.5 * (surface.u_range[0] + surface.u_range[1])

@@ -24,13 +24,8 @@ import numpy as np
 from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.segments import segment_distances
-from needlekit.planning.straight.cfrw import (
-    Blocked,
-    CFRWMap,
-    cfrw_map,
-    obstacle_segment_bound,
-    segment_clearance_bound,
-)
+from needlekit.planning.straight.certify import certify_needle, record_point
+from needlekit.planning.straight.cfrw import Blocked, CFRWMap, cfrw_map
 from needlekit.planning.straight.entry import Entry, Objective, best_on_map
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.records import Status, enum_of, field_of
@@ -39,6 +34,12 @@ __all__ = ["EXHAUSTIVE_ORDER_MAX", "MultiNeedlePlan", "NeedleRecord", "plan_need
 
 #: Up to this many needles every insertion order is tried (6! = 720 orders).
 EXHAUSTIVE_ORDER_MAX: int = 6
+
+#: Most directions of a needle's CFRW the planner certifies as recorded before it gives
+#: up on the needle: the map keeps RECORD_ROUNDING_ALLOWANCE_MM above gamma, so the best
+#: one passes but where rounding moves the sphere tracing's samples (none seen in the
+#: tests' and benchmarks' plans); each costs one segment's certificate (~ms).
+RECORD_CHECK_MAX_DIRECTIONS: int = 32
 
 
 @dataclass(frozen=True)
@@ -379,6 +380,7 @@ def plan_needles(
             self.tip_mm, self.entry_mm, self.radius_mm = tip, entry, r
 
     placed: list = []
+    placed_axes: list = []
     bodies: list = []
     records = []
     kept: list = []
@@ -399,39 +401,21 @@ def plan_needles(
         # the anatomy's map less what the placed needles block (CFRWMap.with_obstacles)
         m = base.with_obstacles(*bodies)
         kept.append(m)
-        e = best_on_map(m, obj)
-        needle_clear = np.inf
-        if e is not None and bodies:
-            u = ((e.entry_mm - e.target_mm) / e.length_mm)[None]
-            needle_clear = min(
-                float(
-                    obstacle_segment_bound(
-                        b, e.target_mm[None], u, np.array([e.length_mm]),
-                        cap_mm=radius + gamma + 10.0,
-                    )[0]
-                )
-                for b in bodies
-            ) - radius  # fmt: skip
-            anatomy = problem.with_target(target)
-            e = Entry(
-                e.entry_mm,
-                e.target_mm,
-                e.theta_rad,
-                e.phi_rad,
-                e.length_mm,
-                float(_anatomy_clearance(anatomy, e)),
-                e.normal_angle_deg,
-                e.iterations,
-            )
+        e, cert, why = _certified_best(
+            problem.with_target(target), m, obj, tuple(placed_axes), tuple(bodies)
+        )
+        needle_clear = np.inf if cert is None else cert.needle_clearance_mm
         records.append(
             NeedleRecord(rank, j, targets[j].copy(), target, e, needle_clear, m.counts())
         )
         if e is None:
-            reason = (
-                f"needle {rank} (target {j}): no trajectory in its CFRW; {m.blocking_summary()}"
+            reason = f"needle {rank} (target {j}): no trajectory in its CFRW; " + (
+                why or m.blocking_summary()
             )
             break
+        # the needle as recorded (rounded) is the obstacle the next ones see and verify builds
         placed.append(_Placed(e.target_mm, e.entry_mm, radius))
+        placed_axes.append((e.target_mm, e.entry_mm))
         bodies.append(body_factory(e.target_mm, e.entry_mm, radius))
     return MultiNeedlePlan(
         tuple(records),
@@ -452,15 +436,38 @@ def _stopped(radius: float, gamma: float) -> MultiNeedlePlan:
     return MultiNeedlePlan((), (), False, 0, gamma, radius, reason, status=Status.TIMEOUT)
 
 
-def _anatomy_clearance(problem: StraightProblem, e: Entry) -> float:
-    b, _ = segment_clearance_bound(
-        problem.obstacle_field(),
-        e.target_mm[None],
-        ((e.entry_mm - e.target_mm) / e.length_mm)[None],
-        np.array([e.length_mm]),
-        cap_mm=problem.clearance_needed_mm + 10.0,
-    )
-    return float(b[0]) - problem.needle.radius_mm
+def _certified_best(problem: StraightProblem, m: CFRWMap, obj: Objective, placed, bodies):
+    """The best direction of the map whose needle, as the record will hold it (its points
+    rounded by :func:`~.certify.record_point`), passes the straight clearance rule
+    (:func:`~.certify.certify_needle`, the certificate verify_multi re-derives) and the
+    length limit; a direction that fails is dropped and the next best tried, at most
+    :data:`RECORD_CHECK_MAX_DIRECTIONS` of them.
+
+    Returns
+    -------
+    (Entry or None, NeedleCertificate or None, str)
+        The accepted trajectory (its points, length and clearance as recorded) and its
+        certificate, or None and why ("" when the CFRW is empty).
+    """
+    ok = m.feasible.copy()
+    gamma, longest = problem.gamma_mm, problem.needle.max_length_mm
+    why = ""
+    for _ in range(RECORD_CHECK_MAX_DIRECTIONS):
+        e = best_on_map(_masked(m, ok), obj)
+        if e is None:
+            return None, None, why
+        tip, entry = record_point(e.target_mm), record_point(e.entry_mm)
+        cert = certify_needle(problem, tip, entry, placed, bodies)
+        if cert.passes(gamma) and cert.length_mm <= longest:
+            chosen = Entry(
+                entry, tip, e.theta_rad, e.phi_rad, cert.length_mm, cert.clearance_mm,
+                e.normal_angle_deg, e.iterations,
+            )  # fmt: skip
+            return chosen, cert, ""
+        why = "its directions fail the clearance rule once rounded as the record holds them"
+        ok &= ~((m.theta_rad[:, None] == e.theta_rad) & (m.phi_rad[None, :] == e.phi_rad))
+    n = RECORD_CHECK_MAX_DIRECTIONS
+    return None, None, f"its {n} best directions fail the clearance rule once rounded as recorded"
 
 
 def _greedy_order(maps, obj, radius, gamma) -> tuple:

@@ -7,10 +7,15 @@ problem, finely, without the planner's map:
 - length: at most the needle's;
 - angles: Sigma's theta and phi within Eq. 2's limits, the approach cone, and the angle to
   the entry surface's inward normal within its limit;
-- clearance to the anatomy: certified (sampled every :data:`CHECK_STEP_MM` with Lipschitz
-  interval bounds, the fields' error bounds subtracted), at least gamma;
-- clearance to the needles placed before it: the closed-form distance between the axes
-  less both radii, and the certified distance of its tube to their heads, at least gamma.
+- clearance to the anatomy and to the needles placed before it: at least gamma by the
+  straight planners' clearance rule (:mod:`needlekit.constants`), with two certificates
+  (:func:`~needlekit.planning.straight.certify.certify_needle`): the planner's own samples,
+  re-derived from the record (its entry and target, the planner's sphere-tracing step and
+  cap), and dense samples every :data:`CHECK_STEP_MM` (for the placed needles, the
+  closed-form distance between the axes besides their heads traced densely). A needle
+  passes when either proves it, and the better bound is reported. The planner certifies
+  each needle from the same rounded numbers before accepting it, so every needle of a
+  plan it calls solved passes here, with the same clearance.
 
 A rule that cannot be checked (a missing field in the record) counts as broken.
 """
@@ -19,17 +24,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from needlekit.anatomy.fields import union
 from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
-from needlekit.geometry.segments import segment_distances
+from needlekit.constants import STRAIGHT_CHECK_STEP_MM
 from needlekit.planning.result import Verification
-from needlekit.planning.straight.cfrw import segment_clearance_bound
+from needlekit.planning.straight.certify import certify_needle
 from needlekit.planning.straight.problem import StraightProblem, angles_of
 
 __all__ = ["CHECK_STEP_MM", "ENTRY_ON_SURFACE_TOL_MM", "verify_multi"]
 
-#: Sample spacing (mm) of the check's clearance: its bound is at most half of it low.
-CHECK_STEP_MM: float = 0.05
+#: Sample spacing (mm) of the check's dense certificate: its bound is at most half of it
+#: low (:data:`~needlekit.constants.STRAIGHT_CHECK_STEP_MM`).
+CHECK_STEP_MM: float = STRAIGHT_CHECK_STEP_MM
 #: An entry point this close (mm) to the entry surface is on it (the planner locates it to
 #: 1e-4 mm; the record rounds to 1e-6).
 ENTRY_ON_SURFACE_TOL_MM: float = 1e-3
@@ -63,7 +68,6 @@ def verify_multi(problem: StraightProblem, record: dict, *, head=LIU_HEAD) -> Ve
     if not isinstance(needles, list) or not needles:
         return Verification(False, ("needles: the record holds no needles",), {"needles": []})
     body = problem.scene[problem.entry_surface].field
-    obstacles = problem.obstacle_field()
     r, gamma = problem.needle.radius_mm, problem.gamma_mm
     placed: list[tuple[np.ndarray, np.ndarray]] = []
     bodies: list = []
@@ -118,30 +122,19 @@ def verify_multi(problem: StraightProblem, record: dict, *, head=LIU_HEAD) -> Ve
             bad.append(
                 f"{name}: {angle:.2f} deg to the surface normal, limit {problem.max_normal_angle_deg:g}"
             )
-        b, _ = segment_clearance_bound(
-            obstacles, tip[None], u[None], np.array([length]), cap_mm=r + gamma + 10.0,
-            step_mm=CHECK_STEP_MM,
-        )  # fmt: skip
-        clearance = float(b[0]) - r
-        row["clearance_mm"] = clearance
-        if clearance < gamma:
-            bad.append(f"{name}: certified clearance {clearance:.4f} mm below gamma {gamma:g} mm")
+        cert = certify_needle(problem, tip, entry, tuple(placed), tuple(bodies))
+        row["clearance_mm"] = cert.clearance_mm
+        row["planner_samples_clearance_mm"] = cert.planner_clearance_mm
+        row["dense_clearance_mm"] = cert.dense_clearance_mm
+        if cert.clearance_mm < gamma:
+            bad.append(
+                f"{name}: certified clearance {cert.clearance_mm:.4f} mm below gamma {gamma:g} mm"
+            )
         if placed:
-            # the tubes' axes in closed form, and the placed needles' heads (Eq. 4) certified
-            d = min(
-                float(segment_distances(p_tip, p_entry, tip[None], entry[None])[0])
-                for p_tip, p_entry in placed
-            )
-            heads, _ = segment_clearance_bound(
-                union(*bodies),
-                tip[None],
-                u[None],
-                np.array([length]),
-                cap_mm=r + gamma + 10.0,
-                step_mm=CHECK_STEP_MM,
-            )
-            gap = min(d - 2 * r, float(heads[0]) - r)
+            gap = cert.needle_clearance_mm
             row["needle_clearance_mm"] = gap
+            row["planner_samples_needle_clearance_mm"] = cert.planner_needle_clearance_mm
+            row["dense_needle_clearance_mm"] = cert.dense_needle_clearance_mm
             if gap < gamma:
                 bad.append(
                     f"{name}: {gap:.4f} mm from a needle placed before it, below gamma {gamma:g} mm"

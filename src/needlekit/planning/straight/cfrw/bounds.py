@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
+from needlekit.constants import STRAIGHT_CAP_ABOVE_GAMMA_MM, STRAIGHT_NEAR_STEP_MM
 from needlekit.anatomy.needle_body import NeedleBody
 from needlekit.anatomy.primitives import Capsule
 from needlekit.geometry.segments import segment_distances
@@ -26,12 +27,13 @@ __all__ = [
 
 
 #: Largest step of the sphere tracing near obstacles (mm): the certified bound is at most
-#: half of it below the sampled minimum.
-NEAR_STEP_MM: float = 0.5
+#: half of it below the sampled minimum (the straight planners' clearance rule, in
+#: :mod:`needlekit.constants`).
+NEAR_STEP_MM: float = STRAIGHT_NEAR_STEP_MM
 
 #: Clearances above gamma by more than this are reported as this (mm): the map certifies
 #: them as "at least"; it bounds the work of the sphere tracing.
-CLEARANCE_CAP_ABOVE_GAMMA_MM: float = 10.0
+CLEARANCE_CAP_ABOVE_GAMMA_MM: float = STRAIGHT_CAP_ABOVE_GAMMA_MM
 
 #: Largest gap (mm) between a convex obstacle's certified bound along a segment and the
 #: smallest distance sampled on it (:func:`convex_segment_bound`).

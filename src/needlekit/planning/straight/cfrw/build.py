@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from needlekit.constants import RECORD_ROUNDING_ALLOWANCE_MM
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.angle_grid import grid_shape
 from needlekit.planning.straight.cfrw.bounds import (
@@ -109,7 +110,9 @@ def cfrw_map(
                 step_mm=step_mm,
             )
         clearance[check] = b - problem.needle.radius_mm
-    blocked[(blocked == 0) & ~(clearance >= problem.gamma_mm)] = Blocked.CLEARANCE
+    # the record rounds the chosen points: keep the allowance above gamma (constants.py)
+    accept = problem.gamma_mm + RECORD_ROUNDING_ALLOWANCE_MM
+    blocked[(blocked == 0) & ~(clearance >= accept)] = Blocked.CLEARANCE
     shape = (m, k)
     anatomy_map = CFRWMap(
         problem,  # its clearance, for now, the anatomy's alone

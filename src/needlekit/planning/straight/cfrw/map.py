@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
+from needlekit.constants import RECORD_ROUNDING_ALLOWANCE_MM
 from needlekit.errors import InvalidInputError
 from needlekit.planning.straight.cfrw.bounds import (
     CLEARANCE_CAP_ABOVE_GAMMA_MM,
@@ -176,7 +177,8 @@ class CFRWMap:
                 np.minimum(clearance[check], b - pr.needle.radius_mm, out=b)
                 clearance[check] = b
         blocked = self.blocked.reshape(-1).copy()
-        blocked[(blocked == Blocked.FREE) & ~(clearance >= pr.gamma_mm)] = Blocked.PLACED_NEEDLE
+        accept = pr.gamma_mm + RECORD_ROUNDING_ALLOWANCE_MM  # as cfrw_map's
+        blocked[(blocked == Blocked.FREE) & ~(clearance >= accept)] = Blocked.PLACED_NEEDLE
         shape = self.blocked.shape
         return replace(
             self, problem=pr, clearance_mm=clearance.reshape(shape), blocked=blocked.reshape(shape)
