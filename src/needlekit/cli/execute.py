@@ -67,6 +67,7 @@ def check_noise_flags(args: argparse.Namespace) -> None:
     InvalidInputError
         Named by the flag.
     """
+    _guard(args)  # --hold-timeout-s within its range
     for name, top in NOISE_LIMITS.items():
         v = getattr(args, name)
         if v is not None and v > top:
@@ -114,6 +115,7 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     """
     from dataclasses import replace
 
+    from needlekit.execute.faults import PROFILES
     from needlekit.execute.needle_sim import ExecutionNoise
     from needlekit.execute.replan import ReplanPolicy
     from needlekit.execute.run import ExecutionSettings
@@ -139,8 +141,34 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
         delay_s=None if args.replan_delay_ms is None else args.replan_delay_ms / 1e3,
         warm_start=not args.no_warm_start,
     )
-    settings = ExecutionSettings(insertion_speed_mm_s=args.speed_mm_s, noise=noise)
+    settings = ExecutionSettings(
+        insertion_speed_mm_s=args.speed_mm_s, noise=noise, guard=_guard(args),
+        faults=None if args.faults is None else PROFILES[args.faults],
+    )  # fmt: skip
     return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args))
+
+
+def _guard(args: argparse.Namespace):
+    """The sensor guard's policy from ``--on-fault`` and ``--hold-timeout-s``."""
+    from needlekit.execute.guard import GuardSpec
+
+    try:
+        return GuardSpec(on_fault=args.on_fault, hold_timeout_s=args.hold_timeout_s)
+    except InvalidInputError as exc:
+        flag = "--on-fault" if exc.field == "on_fault" else "--hold-timeout-s"
+        raise InvalidInputError(flag, exc.reason) from None
+
+
+#: The profiles of ``--faults`` (:data:`needlekit.execute.faults.PROFILES`, named here so
+#: that the parser does not import the simulation).
+FAULT_PROFILES: tuple[str, ...] = ("dropout", "freeze", "distortion", "jitter", "nan", "replan",
+                                   "mixed")  # fmt: skip
+
+
+def _fault_profile(text: str) -> str:
+    if text not in FAULT_PROFILES:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(FAULT_PROFILES)}, got {text!r}")
+    return text
 
 
 #: The breathing flags, by the field of :class:`~needlekit.execute.breathing.Breathing` each
@@ -383,6 +411,18 @@ def add_noise_flags(p) -> None:
     loop.add_argument("--replan-delay-ms", type=_non_negative, metavar="MS",
                       help="the time a re-plan takes in the simulation (default: the "
                       "search's measured time; a fixed value replays exactly)")  # fmt: skip
+    fault = p.add_argument_group(
+        "faults: every sample is checked, and stale or lying input holds the needle"
+    )
+    fault.add_argument("--faults", type=_fault_profile, metavar="PROFILE",
+                       help="inject faults into the simulated sensor and the re-plans, from "
+                       "each trial's seed: " + ", ".join(FAULT_PROFILES) + " (docs/execute.md)")  # fmt: skip
+    fault.add_argument("--on-fault", choices=["hold", "abort"], default="hold",
+                       help="when the input fails: hold the needle until good input returns "
+                       "(default), or abort the insertion")  # fmt: skip
+    fault.add_argument("--hold-timeout-s", type=_positive, default=10.0, metavar="S",
+                       help="the longest hold before the insertion is aborted (default 10, "
+                       "at most 3600)")  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:

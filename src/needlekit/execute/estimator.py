@@ -82,6 +82,7 @@ class TipEstimator:
         self.t = 0.0
         self._steps: deque = deque()  # (t before, pose before, P before, command)
         self.n_updates = 0
+        self.last_d2 = 0.0  # the latest sample's squared Mahalanobis distance
 
     def _propagate(self, pose, P, command):
         spin, kappa, ds, dt, shift, shift_sigma = command
@@ -135,7 +136,7 @@ class TipEstimator:
         self.pose, self.P = self._propagate(self.pose, self.P, command)
         self.t += dt_s
 
-    def update(self, taken_s: float, measured_pose) -> None:
+    def update(self, taken_s: float, measured_pose, gate_d2: float | None = None) -> bool:
         """Correct the estimate with a sample taken at ``taken_s`` (now or earlier).
 
         Parameters
@@ -143,10 +144,14 @@ class TipEstimator:
         taken_s : float
             When the sample was taken (the filter's clock: seconds of commanded steps).
         measured_pose : ndarray, shape (4, 4)
+        gate_d2 : float, optional
+            The innovation gate: a sample whose squared Mahalanobis distance
+            ``y^T S^-1 y`` exceeds it is refused and leaves the estimate as it was.
 
         Returns
         -------
-        None
+        bool
+            Whether the sample was used (False: refused by the gate).
         """
         z = np.asarray(measured_pose, dtype=np.float64)
         # the estimate of the moment the sample was taken: after every step begun before it
@@ -157,7 +162,12 @@ class TipEstimator:
             pose, P = self.pose, self.P
         y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
         S = P + self.R_meas
-        K = np.linalg.solve(S, P).T  # P S^-1 (both symmetric)
+        # S^-1 P and S^-1 y in one solve (both symmetric: K = P S^-1 = (S^-1 P)^T)
+        sol = np.linalg.solve(S, np.column_stack((P, y)))
+        self.last_d2 = float(y @ sol[:, 6])
+        if gate_d2 is not None and not self.last_d2 <= gate_d2:  # NaN is refused too
+            return False
+        K = sol[:, :6].T
         dx = K @ y
         pose = pose.copy()
         pose[:3, 3] += dx[:3]
@@ -173,6 +183,7 @@ class TipEstimator:
         self._steps = kept
         self.pose, self.P = pose, P
         self.n_updates += 1
+        return True
 
     @property
     def position_sigma_mm(self) -> float:
