@@ -38,6 +38,11 @@ __all__ = ["TipEstimator"]
 #: How much of the past the filter keeps to place a late sample (s).
 HISTORY_S: float = 0.5
 
+#: A sample taken this close (s) to a step's start was taken at it: a timestamp that
+#: crossed the wire as seconds since the epoch (OpenIGTLink) keeps about 0.2 us of them, and
+#: a sample placed one step late meets that step's spin as an orientation error.
+TIME_TOL_S: float = 1e-6
+
 
 class TipEstimator:
     """A Kalman filter on the tip pose (see the module notes).
@@ -155,7 +160,7 @@ class TipEstimator:
         """
         z = np.asarray(measured_pose, dtype=np.float64)
         # the estimate of the moment the sample was taken: after every step begun before it
-        replay = [s for s in self._steps if s[0] >= taken_s - 1e-9]
+        replay = [s for s in self._steps if s[0] >= taken_s - TIME_TOL_S]
         if replay:
             _, pose, P, _ = replay[0]
         else:
@@ -176,7 +181,7 @@ class TipEstimator:
         A = np.eye(6) - K
         P = A @ P @ A.T + K @ self.R_meas @ K.T
         # replay the steps since, from the corrected estimate (and rewrite their history)
-        kept = deque(s for s in self._steps if s[0] < taken_s - 1e-9)
+        kept = deque(s for s in self._steps if s[0] < taken_s - TIME_TOL_S)
         for t0, _, _, command in replay:
             kept.append((t0, pose, P, command))
             pose, P = self._propagate(pose, P, command)

@@ -12,8 +12,8 @@ filter, and gives every sample one verdict:
     not a rigid pose (its rotation not orthonormal, or a reflection);
 ``frozen``
     a timestamp that does not advance, or the same value again although the robot moved
-    the needle between the two (a sensor on a moving needle never repeats itself; a value
-    once found frozen is refused until another one comes);
+    the needle between the moments the two were taken (a sensor on a moving needle never
+    repeats itself; a value once found frozen is refused until another one comes);
 ``jump``
     farther from the last accepted sample than the needle could have moved since (the
     insertion commanded since, times :data:`PLAUSIBLE_SPEED_FACTOR`, what the tissue could
@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +87,10 @@ RESUME_SAMPLES: int = 3
 #: A re-plan that comes back after the needle went on this far (mm) since it was asked
 #: planned from a tip that is no longer there: refused, the last verified plan kept.
 REPLAN_STALE_MM: float = 1.0
+
+#: How far back (s) the guard remembers the insertion, to know whether the needle moved
+#: between two samples' moments (the filter's history is as long).
+INSERTION_MEMORY_S: float = 0.5
 
 #: A rotation block this far (Frobenius) from orthonormal is no pose.
 ORTHONORMAL_TOL: float = 1e-3
@@ -179,7 +183,7 @@ class SensorGuard:
         # the last sample of any verdict: its time stamp, its value, the insertion then
         self._last_taken = -math.inf
         self._last_value: np.ndarray | None = None
-        self._last_inserted = 0.0
+        self._insertions: deque = deque([(0.0, 0.0)])  # (loop time, insertion) of late
         self._frozen_value: np.ndarray | None = None
         self._why: str | None = None  # the latest refusal since the last accepted sample
         self._hold_t = 0.0
@@ -204,6 +208,10 @@ class SensorGuard:
             Whether the sample was accepted (and used).
         """
         ok = False
+        memory = self._insertions
+        memory.append((t, inserted_mm))
+        while len(memory) > 2 and memory[1][0] < t - INSERTION_MEMORY_S:
+            memory.popleft()
         if sample is not None:
             kind = self._screen(sample, inserted_mm)
             if kind is None and not estimator.update(sample.taken_s, sample.pose,
@@ -229,9 +237,10 @@ class SensorGuard:
         g = sample.pose
         value = np.asarray(g, dtype=np.float64)
         taken = float(sample.taken_s)
-        moved = inserted_mm > self._last_inserted + 1e-9
         previous = self._last_value
-        self._last_value, self._last_inserted = value, inserted_mm
+        moved = previous is not None and (
+            self._inserted_at(taken) > self._inserted_at(self._last_taken) + 1e-9)
+        self._last_value = value
         advanced = taken > self._last_taken
         self._last_taken = max(self._last_taken, taken) if math.isfinite(taken) else self._last_taken
         if value.shape != (4, 4) or not (np.all(np.isfinite(value)) and math.isfinite(taken)):
@@ -246,7 +255,7 @@ class SensorGuard:
             if np.array_equal(value, self._frozen_value):
                 return "frozen"
             self._frozen_value = None
-        if moved and previous is not None and np.array_equal(value, previous):
+        if moved and np.array_equal(value, previous):
             self._frozen_value = value
             return "frozen"
         reach = (PLAUSIBLE_SPEED_FACTOR * (inserted_mm - self._good_inserted)
@@ -255,6 +264,14 @@ class SensorGuard:
         if float(np.linalg.norm(value[:3, 3] - self._good_p)) > reach:
             return "jump"
         return None
+
+    def _inserted_at(self, t: float) -> float:
+        """The insertion at loop time ``t`` (the oldest remembered before the memory)."""
+        found = self._insertions[0][1]
+        for when, inserted in reversed(self._insertions):
+            if when <= t + 1e-12:
+                return inserted
+        return found
 
     def _update_hold(self, t: float) -> None:
         spec = self.spec
