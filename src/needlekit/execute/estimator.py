@@ -88,6 +88,7 @@ class TipEstimator:
         self._steps: deque = deque()  # (t before, pose before, P before, command)
         self.n_updates = 0
         self.last_d2 = 0.0  # the latest sample's squared Mahalanobis distance
+        self._rhs = np.empty((6, 7))  # the update's right-hand sides: P and the innovation
 
     def _propagate(self, pose, P, command):
         spin, kappa, ds, dt, shift, shift_sigma = command
@@ -168,7 +169,10 @@ class TipEstimator:
         y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
         S = P + self.R_meas
         # S^-1 P and S^-1 y in one solve (both symmetric: K = P S^-1 = (S^-1 P)^T)
-        sol = np.linalg.solve(S, np.column_stack((P, y)))
+        rhs = self._rhs
+        rhs[:, :6] = P
+        rhs[:, 6] = y
+        sol = np.linalg.solve(S, rhs)
         self.last_d2 = float(y @ sol[:, 6])
         if gate_d2 is not None and not self.last_d2 <= gate_d2:  # NaN is refused too
             return False

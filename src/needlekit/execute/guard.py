@@ -43,6 +43,7 @@ import math
 from collections import Counter, deque
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from needlekit.errors import InvalidInputError
@@ -88,9 +89,10 @@ RESUME_SAMPLES: int = 3
 #: planned from a tip that is no longer there: refused, the last verified plan kept.
 REPLAN_STALE_MM: float = 1.0
 
-#: How far back (s) the guard remembers the insertion, to know whether the needle moved
-#: between two samples' moments (the filter's history is as long).
-INSERTION_MEMORY_S: float = 0.5
+#: How many changes of the insertion the guard remembers, to know whether the needle moved
+#: between two samples' moments: 2.5 s of steps at the default 5 ms (the filter places
+#: samples up to 0.5 s late).
+INSERTION_MEMORY: int = 512
 
 #: A rotation block this far (Frobenius) from orthonormal is no pose.
 ORTHONORMAL_TOL: float = 1e-3
@@ -100,6 +102,45 @@ REJECT_KINDS: tuple[str, ...] = ("non_finite", "invalid", "frozen", "jump", "gat
 
 #: What the guard does about a fault.
 FAULT_ACTIONS: tuple[str, ...] = ("hold", "resume", "abort", "kept_plan")
+
+
+@numba.njit(cache=True)
+def _pose_checks(g, prev, frozen, good_p):  # pragma: no cover (compiled)
+    """One pass over a sample's matrix (the feedback step is hot): whether every entry is
+    finite, how far its rotation block is from orthonormal (Frobenius norm of
+    ``R^T R - I``), its determinant, whether it equals ``prev`` and ``frozen`` entry for
+    entry, and its position's distance from ``good_p``."""
+    finite = True
+    for i in range(4):
+        for j in range(4):
+            if not np.isfinite(g[i, j]):
+                finite = False
+    if not finite:
+        return False, 0.0, 0.0, False, False, 0.0
+    err = 0.0
+    for i in range(3):
+        for j in range(3):
+            d = g[0, i] * g[0, j] + g[1, i] * g[1, j] + g[2, i] * g[2, j] - (1.0 if i == j else 0.0)
+            err += d * d
+    det = (g[0, 0] * (g[1, 1] * g[2, 2] - g[1, 2] * g[2, 1])
+           - g[0, 1] * (g[1, 0] * g[2, 2] - g[1, 2] * g[2, 0])
+           + g[0, 2] * (g[1, 0] * g[2, 1] - g[1, 1] * g[2, 0]))  # fmt: skip
+    same_prev = True
+    same_frozen = True
+    for i in range(4):
+        for j in range(4):
+            if g[i, j] != prev[i, j]:
+                same_prev = False
+            if g[i, j] != frozen[i, j]:
+                same_frozen = False
+    dist = 0.0
+    for i in range(3):
+        dist += (g[i, 3] - good_p[i]) ** 2
+    return True, np.sqrt(err), det, same_prev, same_frozen, np.sqrt(dist)
+
+
+#: Stands in for "no such matrix" in :func:`_pose_checks` (never equal to a sample).
+_NONE = np.full((4, 4), np.nan)
 
 
 @dataclass(frozen=True)
@@ -183,7 +224,8 @@ class SensorGuard:
         # the last sample of any verdict: its time stamp, its value, the insertion then
         self._last_taken = -math.inf
         self._last_value: np.ndarray | None = None
-        self._insertions: deque = deque([(0.0, 0.0)])  # (loop time, insertion) of late
+        # (loop time, insertion) where the insertion changed, the latest INSERTION_MEMORY
+        self._insertions: deque = deque([(0.0, 0.0)], maxlen=INSERTION_MEMORY)
         self._frozen_value: np.ndarray | None = None
         self._why: str | None = None  # the latest refusal since the last accepted sample
         self._hold_t = 0.0
@@ -207,63 +249,65 @@ class SensorGuard:
         bool
             Whether the sample was accepted (and used).
         """
+        if inserted_mm != self._insertions[-1][1]:  # the insertion as it changes
+            self._insertions.append((t, inserted_mm))
+        if sample is None:  # the hot path: nothing to judge, and most often nothing due
+            if self.holding or t - self._good_t > self.spec.stale_s + 1e-9:
+                self._update_hold(t)
+            return False
         ok = False
-        memory = self._insertions
-        memory.append((t, inserted_mm))
-        while len(memory) > 2 and memory[1][0] < t - INSERTION_MEMORY_S:
-            memory.popleft()
-        if sample is not None:
-            kind = self._screen(sample, inserted_mm)
-            if kind is None and not estimator.update(sample.taken_s, sample.pose,
-                                                     self.spec.gate_chi2):  # fmt: skip
-                kind = "gated"
-            if kind is None:
-                ok = True
-                self.accepted += 1
-                self._in_a_row += 1
-                self._good_p = sample.pose[:3, 3].copy()
-                self._good_taken, self._good_inserted, self._good_t = (
-                    sample.taken_s, inserted_mm, t)  # fmt: skip
-                self._why = None
-            else:
-                self.rejected[kind] += 1
-                self._in_a_row = 0
-                self._why = kind
+        kind = self._screen(sample, inserted_mm)
+        if kind is None and not estimator.update(sample.taken_s, sample.pose, self.spec.gate_chi2):
+            kind = "gated"
+        if kind is None:
+            ok = True
+            self.accepted += 1
+            self._in_a_row += 1
+            self._good_p = sample.pose[:3, 3].copy()
+            self._good_taken, self._good_inserted, self._good_t = sample.taken_s, inserted_mm, t
+            self._why = None
+        else:
+            self.rejected[kind] += 1
+            self._in_a_row = 0
+            self._why = kind
         self._update_hold(t)
         return ok
 
     def _screen(self, sample, inserted_mm: float) -> str | None:
         """The sample's verdict before the filter's gate (None: it passes)."""
-        g = sample.pose
-        value = np.asarray(g, dtype=np.float64)
+        value = np.asarray(sample.pose, dtype=np.float64)
         taken = float(sample.taken_s)
         previous = self._last_value
         moved = previous is not None and (
-            self._inserted_at(taken) > self._inserted_at(self._last_taken) + 1e-9)
+            self._inserted_at(taken) > self._inserted_at(self._last_taken) + 1e-9)  # fmt: skip
+        if value.shape != (4, 4) or not math.isfinite(taken):
+            self._last_value = None
+            return "non_finite"
+        value = np.ascontiguousarray(value)
         self._last_value = value
         advanced = taken > self._last_taken
-        self._last_taken = max(self._last_taken, taken) if math.isfinite(taken) else self._last_taken
-        if value.shape != (4, 4) or not (np.all(np.isfinite(value)) and math.isfinite(taken)):
+        self._last_taken = max(self._last_taken, taken)
+        frozen = self._frozen_value
+        finite, ortho, det, same_prev, same_frozen, dist = _pose_checks(
+            value, _NONE if previous is None else previous,
+            _NONE if frozen is None else frozen, self._good_p)  # fmt: skip
+        if not finite:
             return "non_finite"
-        r = value[:3, :3]
-        if (np.linalg.norm(r.T @ r - np.eye(3)) > ORTHONORMAL_TOL
-                or np.linalg.det(r) < 0.0):  # fmt: skip
+        if ortho > ORTHONORMAL_TOL or det < 0.0:
             return "invalid"
         if not advanced:
             return "frozen"
-        if self._frozen_value is not None:
-            if np.array_equal(value, self._frozen_value):
+        if frozen is not None:
+            if same_frozen:
                 return "frozen"
             self._frozen_value = None
-        if moved and np.array_equal(value, previous):
+        if moved and same_prev:
             self._frozen_value = value
             return "frozen"
         reach = (PLAUSIBLE_SPEED_FACTOR * (inserted_mm - self._good_inserted)
                  + self.carried_speed_mm_s * max(taken - self._good_taken, 0.0)
                  + self.slack_mm)  # fmt: skip
-        if float(np.linalg.norm(value[:3, 3] - self._good_p)) > reach:
-            return "jump"
-        return None
+        return "jump" if dist > reach else None
 
     def _inserted_at(self, t: float) -> float:
         """The insertion at loop time ``t`` (the oldest remembered before the memory)."""

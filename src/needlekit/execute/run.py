@@ -321,9 +321,9 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replann
         guard.admit(t, sample, est, needle.inserted_mm)  # every sample checked, or none used
         if guard.aborted:
             break
-        gated = policy is not None and not policy.may_advance(t)
-        if gated or not guard.may_advance():  # held: the needle does not go in
-            phase = "held" if not guard.may_advance() else "gated"
+        held = guard.holding
+        if held or (policy is not None and not policy.may_advance(t)):  # it does not go in
+            phase = "held" if held else "gated"
             if policy is not None:  # let go, it rides with the tissue
                 _ride(needle, est, policy, t, s.dt_s)
             else:

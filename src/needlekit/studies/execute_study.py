@@ -400,7 +400,48 @@ def _fault_summary(runs: list[dict]) -> dict:
         },
         "rejected": rejected,
         "faults_injected": injected,
+        "faults_unanswered": sum(len(unanswered_faults(r)) for r in runs),
     }
+
+
+#: The injected faults that must hold the needle (a late sample or a failed re-plan need
+#: not), and how long after a fault's end its hold may begin (s): the guard's stale time
+#: and a sample period, rounded up.
+HOLDING_FAULTS: tuple[str, ...] = ("dropout", "freeze", "distortion", "nan")
+ANSWER_WITHIN_S: float = 0.5
+
+
+def unanswered_faults(run: dict) -> list[dict]:
+    """The injected faults of one closed-loop run that no hold (or abort) answered: met
+    while the insertion ran, and no hold overlapping them (or beginning within
+    :data:`ANSWER_WITHIN_S` of their end).
+
+    Parameters
+    ----------
+    run : dict
+        A closed-loop record with ``faults``, ``faults_injected`` and ``procedure_s``.
+
+    Returns
+    -------
+    list of dict
+    """
+    spans, start = [], None
+    end_s = run.get("procedure_s", math.inf)
+    for e in run["faults"]:
+        if e["action"] == "hold" or (e["action"] == "abort" and start is None):
+            start = e["time_s"]
+        if e["action"] in ("resume", "abort") and start is not None:
+            spans.append((start, e["time_s"]))
+            start = None
+    if start is not None:
+        spans.append((start, end_s))
+    out = []
+    for f in run.get("faults_injected", ()):
+        if f["kind"] not in HOLDING_FAULTS or f["start_s"] >= end_s:
+            continue
+        if not any(a <= f["end_s"] + ANSWER_WITHIN_S and b >= f["start_s"] for a, b in spans):
+            out.append(f)
+    return out
 
 
 def _settings_record(scenario_name: str, plan, seed: int, trials, options, margin) -> dict:
