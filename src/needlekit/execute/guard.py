@@ -28,7 +28,9 @@ stopped, froze, or turned into lies), the guard *holds* the needle: the loop sto
 advancing it (:meth:`SensorGuard.may_advance`), and re-plans wait. The hold ends after
 :data:`RESUME_SAMPLES` accepted samples in a row, or turns into an abort: at once with
 ``on_fault="abort"``, after ``hold_timeout_s`` with ``on_fault="hold"`` (the default).
-Every hold, resume and abort is an event ``{"time_s", "kind", "action"}``; so is a
+Every hold, resume and abort is an event ``{"time_s", "kind", "action"}`` (a hold whose
+reason changes, input that stopped and then came back as lies, is a new ``hold`` event of
+the new kind; the timeout runs from the first); so is a
 re-plan the loop refused (:meth:`SensorGuard.check_replan`: it failed, or it came back
 after the needle had moved on more than :data:`REPLAN_STALE_MM`), the last verified plan
 kept.
@@ -230,6 +232,7 @@ class SensorGuard:
         self._why: str | None = None  # the latest refusal since the last accepted sample
         self._hold_t = 0.0
         self._hold_kind = ""
+        self._holds = 0
 
     def admit(self, t: float, sample, estimator, inserted_mm: float) -> bool:
         """Judge the sample that arrived at loop time ``t`` (None: none did), correct the
@@ -270,6 +273,9 @@ class SensorGuard:
             self.rejected[kind] += 1
             self._in_a_row = 0
             self._why = kind
+            if self.holding and kind != self._hold_kind:  # held for another reason now
+                self._hold_kind = kind
+                self._event(t, kind, "hold")
         self._update_hold(t)
         return ok
 
@@ -338,6 +344,7 @@ class SensorGuard:
                 self._event(t, self._hold_kind, "abort")
             else:
                 self.holding = True
+                self._holds += 1
                 self._event(t, self._hold_kind, "hold")
 
     def may_advance(self) -> bool:
@@ -424,7 +431,7 @@ class SensorGuard:
             "faults": list(self.events),
             "rejected": {k: int(self.rejected[k]) for k in REJECT_KINDS if self.rejected[k]},
             "accepted": int(self.accepted),
-            "holds": sum(e["action"] == "hold" for e in self.events),
+            "holds": self._holds,
             "held_s": round(self.held_s, 6),
             "aborted": bool(self.aborted),
         }

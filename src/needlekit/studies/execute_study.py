@@ -428,7 +428,7 @@ def unanswered_faults(run: dict) -> list[dict]:
     spans, start = [], None
     end_s = run.get("procedure_s", math.inf)
     for e in run["faults"]:
-        if e["action"] == "hold" or (e["action"] == "abort" and start is None):
+        if e["action"] in ("hold", "abort") and start is None:  # a hold's first event
             start = e["time_s"]
         if e["action"] in ("resume", "abort") and start is not None:
             spans.append((start, e["time_s"]))
