@@ -49,6 +49,7 @@ import numba
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.execute.estimator import TIME_TOL_S
 
 __all__ = [
     "FAULT_ACTIONS",
@@ -319,7 +320,7 @@ class SensorGuard:
         """The insertion at loop time ``t`` (the oldest remembered before the memory)."""
         found = self._insertions[0][1]
         for when, inserted in reversed(self._insertions):
-            if when <= t + 1e-12:
+            if when <= t + TIME_TOL_S:  # a timestamp off by its rounding is at the step
                 return inserted
         return found
 
