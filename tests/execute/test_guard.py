@@ -225,3 +225,15 @@ def test_the_cli_names_every_profile_the_library_has():
     from needlekit.cli.execute import FAULT_PROFILES
 
     assert set(FAULT_PROFILES) == set(PROFILES)
+
+
+def test_a_timestamp_a_rounding_early_is_read_at_its_step():
+    """An OpenIGTLink timestamp (the epoch plus seconds) comes back 0.2 us early: the
+    echo of a held needle must not be taken for a frozen tracker."""
+    guard, est = SensorGuard(GuardSpec(), np.eye(4), 0.4), _estimator()
+    guard.admit(0.150, None, est, 0.30)
+    guard.admit(0.155, None, est, 0.31)  # the last step in, then held
+    at = (0.0, 0.0, 0.31)
+    assert guard.admit(0.160, _sample(0.155 - 2e-7, at), est, 0.31)
+    assert guard.admit(0.185, _sample(0.180 - 2e-7, at), est, 0.31)  # held: the same value
+    assert not guard.rejected
