@@ -9,6 +9,11 @@ default; :class:`needlekit.control.em.EMSensor`) feeds a Kalman filter
 insertion stops when the goal is no longer ahead of the estimated tip. Both runs of one
 trial draw the needle's radius, the tissue's push and the orientation noise from the same
 seed, so they meet the same needle in the same tissue.
+
+Every sample, the simulated sensor's or a tracker's, passes the sensor guard
+(:mod:`needlekit.execute.guard`) before it reaches the filter; while the guard holds, the
+needle does not go in, and when it gives up the insertion ends there. Faults of a profile
+(:mod:`needlekit.execute.faults`) are injected into the simulated sensor and the re-plans.
 """
 
 from __future__ import annotations
@@ -165,7 +170,7 @@ class LoopHooks:
         ``(t_s, true_pose, estimated_pose, plan_points_mm, state)``; ``state`` a dict of
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
         (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"held"`` while the
-        sensor guard holds it, ``"done"``).
+        sensor guard holds it, ``"done"``, or ``"aborted"`` when the guard gave up).
     observe_every_s : float
     breathing : needlekit.execute.breathing.Policy or None
         The anatomy breathing, and the policy the robot inserts with: the recorded path
