@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numba
 import numpy as np
 
 from needlekit.errors import InvalidInputError
@@ -42,6 +43,41 @@ HISTORY_S: float = 0.5
 #: crossed the wire as seconds since the epoch (OpenIGTLink) keeps about 0.2 us of them, and
 #: a sample placed one step late meets that step's spin as an orientation error.
 TIME_TOL_S: float = 1e-6
+
+
+@numba.njit(cache=True)
+def _gain(S, P, y):  # pragma: no cover (compiled)
+    """The Kalman gain ``K = P S^-1`` and the squared Mahalanobis distance ``y^T S^-1 y``,
+    by one Cholesky factorisation of the 6x6 ``S`` (symmetric positive definite); ``ok``
+    False when it is not (the caller then solves by LU)."""
+    L = np.zeros((6, 6))
+    for i in range(6):
+        for j in range(i + 1):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return np.zeros((6, 6)), 0.0, False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    X = np.empty((6, 7))
+    for c in range(7):
+        for i in range(6):
+            acc = P[i, c] if c < 6 else y[i]
+            for k in range(i):
+                acc -= L[i, k] * X[k, c]
+            X[i, c] = acc / L[i, i]
+        for i in range(5, -1, -1):
+            acc = X[i, c]
+            for k in range(i + 1, 6):
+                acc -= L[k, i] * X[k, c]
+            X[i, c] = acc / L[i, i]
+    d2 = 0.0
+    for i in range(6):
+        d2 += y[i] * X[i, 6]
+    return X[:, :6].T.copy(), d2, True
 
 
 class TipEstimator:
@@ -88,7 +124,6 @@ class TipEstimator:
         self._steps: deque = deque()  # (t before, pose before, P before, command)
         self.n_updates = 0
         self.last_d2 = 0.0  # the latest sample's squared Mahalanobis distance
-        self._rhs = np.empty((6, 7))  # the update's right-hand sides: P and the innovation
 
     def _propagate(self, pose, P, command):
         spin, kappa, ds, dt, shift, shift_sigma = command
@@ -168,15 +203,13 @@ class TipEstimator:
             pose, P = self.pose, self.P
         y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
         S = P + self.R_meas
-        # S^-1 P and S^-1 y in one solve (both symmetric: K = P S^-1 = (S^-1 P)^T)
-        rhs = self._rhs
-        rhs[:, :6] = P
-        rhs[:, 6] = y
-        sol = np.linalg.solve(S, rhs)
-        self.last_d2 = float(y @ sol[:, 6])
+        K, d2, ok = _gain(S, P, y)
+        if not ok:  # S not positive definite in floating point: LU
+            sol = np.linalg.solve(S, np.column_stack((P, y)))
+            K, d2 = sol[:, :6].T, float(y @ sol[:, 6])
+        self.last_d2 = float(d2)
         if gate_d2 is not None and not self.last_d2 <= gate_d2:  # NaN is refused too
             return False
-        K = sol[:, :6].T
         dx = K @ y
         pose = pose.copy()
         pose[:3, 3] += dx[:3]

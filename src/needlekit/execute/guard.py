@@ -277,23 +277,24 @@ class SensorGuard:
             if self.holding and kind != self._hold_kind:  # held for another reason now
                 self._hold_kind = kind
                 self._event(t, kind, "hold")
-        self._update_hold(t)
+        if self.holding or t - self._good_t > self.spec.stale_s + 1e-9:
+            self._update_hold(t)
         return ok
 
     def _screen(self, sample, inserted_mm: float) -> str | None:
         """The sample's verdict before the filter's gate (None: it passes)."""
-        value = np.asarray(sample.pose, dtype=np.float64)
+        value = sample.pose
+        if not (type(value) is np.ndarray and value.dtype == np.float64  # noqa: E721
+                and value.flags.c_contiguous):  # fmt: skip
+            value = np.ascontiguousarray(value, dtype=np.float64)
         taken = float(sample.taken_s)
-        previous = self._last_value
-        moved = previous is not None and (
-            self._inserted_at(taken) > self._inserted_at(self._last_taken) + 1e-9)  # fmt: skip
+        previous, last_taken = self._last_value, self._last_taken
         if value.shape != (4, 4) or not math.isfinite(taken):
             self._last_value = None
             return "non_finite"
-        value = np.ascontiguousarray(value)
         self._last_value = value
-        advanced = taken > self._last_taken
-        self._last_taken = max(self._last_taken, taken)
+        advanced = taken > last_taken
+        self._last_taken = max(last_taken, taken)
         frozen = self._frozen_value
         finite, ortho, det, same_prev, same_frozen, dist = _pose_checks(
             value, _NONE if previous is None else previous,
@@ -308,8 +309,8 @@ class SensorGuard:
             if same_frozen:
                 return "frozen"
             self._frozen_value = None
-        if moved and same_prev:
-            self._frozen_value = value
+        if same_prev and self._inserted_at(taken) > self._inserted_at(last_taken) + 1e-9:
+            self._frozen_value = value  # the same value, though the needle moved between
             return "frozen"
         reach = (PLAUSIBLE_SPEED_FACTOR * (inserted_mm - self._good_inserted)
                  + self.carried_speed_mm_s * max(taken - self._good_taken, 0.0)
