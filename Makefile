@@ -13,12 +13,20 @@ JOBS   ?= 2
 # browser (tests/test_browser.py): installed once when missing and apt-get can.
 CHROMIUM ?= /usr/bin/chromium
 
-.PHONY: help install demo test test-fast lint bench clean browser
+# The OpenIGTLink C++ library's own example programs (Debian's openigtlink-examples sources
+# against libopenigtlink-dev), for the live-link test against a peer nobody here wrote
+# (tests/execute/test_igtl_cpp.py): ReceiveClient reads what `execute --igtl` sends,
+# TrackerServer is a tracker whose transforms are not the needle's.
+IGTL_EXAMPLES_SRC ?= /usr/share/doc/openigtlink-examples/examples
+IGTL_EXAMPLES     ?= .cache/igtl-examples
+
+.PHONY: help install demo test test-fast lint bench clean browser igtl-examples
 
 help:
 	@echo "make demo   - create .venv, install needlekit, run the demo into $(OUT)"
 	@echo "make test   - create .venv, install needlekit with test extras, run the tests"
 	@echo "make browser - install Debian's chromium and chromium-driver (for the browser test)"
+	@echo "make igtl-examples - build OpenIGTLink's C++ examples (for the live-link interop test)"
 	@echo "make lint   - ruff check"
 	@echo "make bench  - run the benchmarks into out/bench"
 	@echo "make clean  - remove .venv, out/ and caches"
@@ -50,7 +58,25 @@ browser:
 		|| echo "could not install chromium: the browser test will be skipped"; \
 	else echo "no chromium and no root apt-get: the browser test will be skipped"; fi
 
-test: $(STAMP) browser
+igtl-examples:
+	@if [ -d $(IGTL_EXAMPLES_SRC) ] && [ -d /usr/lib/openigtlink ]; then :; \
+	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+		echo "installing Debian's libopenigtlink-dev and openigtlink-examples"; \
+		apt-get install -y -qq libopenigtlink-dev openigtlink-examples >/dev/null \
+		|| (apt-get update -qq && apt-get install -y -qq libopenigtlink-dev openigtlink-examples >/dev/null) \
+		|| echo "could not install OpenIGTLink: the C++ interop test will be skipped"; \
+	else echo "no OpenIGTLink and no root apt-get: the C++ interop test will be skipped"; fi
+	@if [ -d $(IGTL_EXAMPLES_SRC) ] && command -v cmake >/dev/null 2>&1; then \
+		for d in Tracker Receiver; do \
+			cmake -S $(IGTL_EXAMPLES_SRC)/$$d -B $(IGTL_EXAMPLES)/$$d -DCMAKE_BUILD_TYPE=Release \
+				-Wno-dev >/dev/null || exit 1; \
+		done; \
+		cmake --build $(IGTL_EXAMPLES)/Tracker --target TrackerServer >/dev/null && \
+		cmake --build $(IGTL_EXAMPLES)/Receiver --target ReceiveClient >/dev/null && \
+		echo "built $(IGTL_EXAMPLES)/Tracker/TrackerServer and $(IGTL_EXAMPLES)/Receiver/ReceiveClient"; \
+	fi
+
+test: $(STAMP) browser igtl-examples
 	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q
 
 test-fast: $(STAMP)

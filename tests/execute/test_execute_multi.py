@@ -135,6 +135,8 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
          "a multi plan"),
         (["--cross-track-mm", "1"], "error: --cross-track-mm: applies to a steerable plan; the "
          "plan is a multi plan"),
+        (["--faults", "mixed"], "error: --faults: applies to a steerable plan; the plan is a "
+         "multi plan"),
         (["--resume", "--trial", "0"], "error: --resume: carries on a whole study, not one "
          "--trial"),
         (["--registration-sd-mm", "11"], "error: --registration-sd-mm: expected at most 10, "

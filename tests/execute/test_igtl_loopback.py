@@ -134,7 +134,9 @@ def test_the_tip_can_come_from_a_tracker_over_the_link(toy_plan, tmp_path, capsy
     received = int(out.split("messages sent, ")[1].split()[0])
     assert code == 0 and received >= 5
     record = json.loads((tmp_path / "execute.json").read_text())["trials"][0]["closed_loop"]
-    assert record["samples"] == received  # every pose the tracker sent, and nothing else
+    # every pose the tracker sent, and nothing else, judged by the sensor guard
+    assert record["samples"] + sum(record["rejected"].values()) == received, record["rejected"]
+    assert not record["rejected"], (record["rejected"], record["faults"])
     assert record["final_error_mm"] < 1.0
 
 

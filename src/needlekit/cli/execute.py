@@ -70,6 +70,7 @@ def check_noise_flags(args: argparse.Namespace) -> None:
     InvalidInputError
         Named by the flag.
     """
+    _guard(args)  # --hold-timeout-s within its range
     for name, top in NOISE_LIMITS.items():
         v = getattr(args, name)
         if v is not None and v > top:
@@ -117,6 +118,7 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     """
     from dataclasses import replace
 
+    from needlekit.execute.faults import PROFILES
     from needlekit.execute.needle_sim import ExecutionNoise
     from needlekit.execute.replan import ReplanPolicy
     from needlekit.execute.run import ExecutionSettings
@@ -142,8 +144,45 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
         delay_s=None if args.replan_delay_ms is None else args.replan_delay_ms / 1e3,
         warm_start=not args.no_warm_start,
     )
-    settings = ExecutionSettings(insertion_speed_mm_s=args.speed_mm_s, noise=noise)
+    settings = ExecutionSettings(
+        insertion_speed_mm_s=args.speed_mm_s, noise=noise, guard=_guard(args),
+        faults=None if args.faults is None else PROFILES[args.faults],
+    )  # fmt: skip
     return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args))
+
+
+def _guard(args: argparse.Namespace):
+    """The sensor guard's policy from ``--on-fault`` and ``--hold-timeout-s``."""
+    from needlekit.execute.guard import GuardSpec
+
+    try:
+        return GuardSpec(on_fault=args.on_fault, hold_timeout_s=args.hold_timeout_s)
+    except InvalidInputError as exc:
+        flag = "--on-fault" if exc.field == "on_fault" else "--hold-timeout-s"
+        raise InvalidInputError(flag, exc.reason) from None
+
+
+#: The profiles of ``--faults`` (:data:`needlekit.execute.faults.PROFILES`, named here so
+#: that the parser does not import the simulation).
+FAULT_PROFILES: tuple[str, ...] = ("dropout", "freeze", "distortion", "jitter", "nan", "replan",
+                                   "mixed")  # fmt: skip
+
+
+def _hold_timeout(text: str) -> float:
+    v = _positive(text)
+    if v > HOLD_TIMEOUT_MAX_S:
+        raise argparse.ArgumentTypeError(f"expected at most {HOLD_TIMEOUT_MAX_S:g} s, got {text!r}")
+    return v
+
+
+#: ``--hold-timeout-s`` at most this (s): an hour held is a procedure abandoned.
+HOLD_TIMEOUT_MAX_S: float = 3600.0
+
+
+def _fault_profile(text: str) -> str:
+    if text not in FAULT_PROFILES:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(FAULT_PROFILES)}, got {text!r}")
+    return text
 
 
 #: The breathing flags, by the field of :class:`~needlekit.execute.breathing.Breathing` each
@@ -270,8 +309,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     if link is not None:
         link.flush()
         link.close()
-        print(f"OpenIGTLink: {link.sent} messages sent" + (
-            f", {hooks.sensor.received} tip poses received" if hooks.sensor else ""))  # fmt: skip
+        print(_link_line(link, hooks, study.document))
     if args.report is not None:
         from needlekit.report.execute_report import write_execute_report
 
@@ -284,7 +322,26 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     if args.report is not None:
         print(f"-> {args.report}")
     crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
-    return EXIT_OK if not s["crashed"] and crossed == 0 else 1
+    aborted = s["closed_loop"].get("aborted", 0)
+    if aborted:
+        print(f"  {aborted} closed-loop insertion(s) aborted on a sensor fault (execute.json: faults)")
+    return EXIT_OK if not s["crashed"] and crossed == 0 and not aborted else 1
+
+
+def _link_line(link, hooks, document: dict) -> str:
+    """What went over the link, in one line."""
+    line = f"OpenIGTLink: {link.sent} messages sent"
+    dropped = getattr(link.endpoint, "dropped", 0)
+    if dropped:
+        line += f" ({dropped} dropped: the other end did not read them)"
+    if hooks.sensor is not None:
+        line += f", {hooks.sensor.received} tip poses received"
+        trials = document["trials"]
+        loop = trials[0].get("closed_loop", {}) if trials else {}
+        rejected = loop.get("rejected") or {}
+        if rejected:
+            line += " (rejected: " + ", ".join(f"{n} {k}" for k, n in rejected.items()) + ")"
+    return line
 
 
 def _live_link(args: argparse.Namespace, options):
@@ -296,7 +353,51 @@ def _live_link(args: argparse.Namespace, options):
     link = IGTLLink(args.igtl, realtime=args.igtl_realtime, wait_s=args.igtl_wait_s)
     sensor = None if args.tip_from_igtl is None else IGTLTipSensor(link, args.tip_from_igtl)
     period = 1.0 / options.settings.sensor.rate_hz
-    return LoopHooks(sensor=sensor, observe=link.publish, observe_every_s=period), link
+    hooks = LoopHooks(sensor=sensor, observe=link.publish, observe_every_s=period,
+                      notify=say_fault)  # fmt: skip
+    return hooks, link
+
+
+#: How :func:`say_fault` names each kind of fault.
+FAULT_WORDS = {
+    "stopped": "no tip samples arrive",
+    "frozen": "the tip samples are frozen (the same value, or a timestamp that does not advance)",
+    "non_finite": "the tip samples are not finite (NaN or infinite)",
+    "invalid": "the tip samples are not a rigid pose",
+    "jump": "the tip samples jump farther than the needle can have moved",
+    "gated": "the tip samples disagree with the needle's motion (innovation gate)",
+    "replan_failed": "a re-plan failed",
+    "replan_overrun": "a re-plan came back too late",
+}
+#: ... and each action.
+ACTION_WORDS = {
+    "hold": "the needle is held",
+    "abort": "the insertion is aborted",
+    "kept_plan": "the last verified plan is kept",
+}
+
+
+def say_fault(event: dict) -> None:
+    """Say a sensor guard's event in one line on stderr, as it happens.
+
+    Parameters
+    ----------
+    event : dict
+        ``{"time_s", "kind", "action"}`` (:class:`~needlekit.execute.guard.SensorGuard`).
+
+    Returns
+    -------
+    None
+    """
+    import sys
+
+    what = FAULT_WORDS.get(event["kind"], event["kind"])
+    if event["action"] == "resume":
+        line = (f"t={event['time_s']:.3f} s: good tip samples again after "
+                f"{event.get('held_s', 0.0):.2f} s held ({event['kind']}): the insertion resumes")  # fmt: skip
+    else:
+        line = f"t={event['time_s']:.3f} s: {what}: {ACTION_WORDS.get(event['action'], event['action'])}"
+    print(line, file=sys.stderr, flush=True)
 
 
 def _summary_table(s: dict) -> str:
@@ -387,6 +488,18 @@ def add_noise_flags(p) -> None:
     loop.add_argument("--replan-delay-ms", type=_non_negative, metavar="MS",
                       help="the time a re-plan takes in the simulation (default: the "
                       "search's measured time; a fixed value replays exactly)")  # fmt: skip
+    fault = p.add_argument_group(
+        "faults: every sample is checked, and stale or lying input holds the needle"
+    )
+    fault.add_argument("--faults", type=_fault_profile, metavar="PROFILE",
+                       help="inject faults into the simulated sensor and the re-plans, from "
+                       "each trial's seed: " + ", ".join(FAULT_PROFILES) + " (docs/execute.md)")  # fmt: skip
+    fault.add_argument("--on-fault", choices=["hold", "abort"], default="hold",
+                       help="when the input fails: hold the needle until good input returns "
+                       "(default), or abort the insertion")  # fmt: skip
+    fault.add_argument("--hold-timeout-s", type=_hold_timeout, default=10.0, metavar="S",
+                       help="the longest hold before the insertion is aborted (default 10, "
+                       "at most 3600)")  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -407,8 +520,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "tip, feedback, re-planning), many trials",
         description="Insert a steerable plan with a needle that does not follow its model "
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
-        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle or a "
-        "trial crashed. A straight multi plan (multi.json) is inserted by the simulated Panda "
+        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle, a "
+        "trial crashed, or a closed-loop insertion was aborted on a sensor fault (--on-fault). A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
         "VFIs; exit 1 when a needle touched a placed one, left its constraints, or a trial "
         "crashed.",

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numba
 import numpy as np
 
 from needlekit.errors import InvalidInputError
@@ -37,6 +38,46 @@ __all__ = ["TipEstimator"]
 
 #: How much of the past the filter keeps to place a late sample (s).
 HISTORY_S: float = 0.5
+
+#: A sample taken this close (s) to a step's start was taken at it: a timestamp that
+#: crossed the wire as seconds since the epoch (OpenIGTLink) keeps about 0.2 us of them, and
+#: a sample placed one step late meets that step's spin as an orientation error.
+TIME_TOL_S: float = 1e-6
+
+
+@numba.njit(cache=True)
+def _gain(S, P, y):  # pragma: no cover (compiled)
+    """The Kalman gain ``K = P S^-1`` and the squared Mahalanobis distance ``y^T S^-1 y``,
+    by one Cholesky factorisation of the 6x6 ``S`` (symmetric positive definite); ``ok``
+    False when it is not (the caller then solves by LU)."""
+    L = np.zeros((6, 6))
+    for i in range(6):
+        for j in range(i + 1):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return np.zeros((6, 6)), 0.0, False
+                L[i, i] = np.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    X = np.empty((6, 7))
+    for c in range(7):
+        for i in range(6):
+            acc = P[i, c] if c < 6 else y[i]
+            for k in range(i):
+                acc -= L[i, k] * X[k, c]
+            X[i, c] = acc / L[i, i]
+        for i in range(5, -1, -1):
+            acc = X[i, c]
+            for k in range(i + 1, 6):
+                acc -= L[k, i] * X[k, c]
+            X[i, c] = acc / L[i, i]
+    d2 = 0.0
+    for i in range(6):
+        d2 += y[i] * X[i, 6]
+    return X[:, :6].T.copy(), d2, True
 
 
 class TipEstimator:
@@ -82,6 +123,7 @@ class TipEstimator:
         self.t = 0.0
         self._steps: deque = deque()  # (t before, pose before, P before, command)
         self.n_updates = 0
+        self.last_d2 = 0.0  # the latest sample's squared Mahalanobis distance
 
     def _propagate(self, pose, P, command):
         spin, kappa, ds, dt, shift, shift_sigma = command
@@ -135,7 +177,7 @@ class TipEstimator:
         self.pose, self.P = self._propagate(self.pose, self.P, command)
         self.t += dt_s
 
-    def update(self, taken_s: float, measured_pose) -> None:
+    def update(self, taken_s: float, measured_pose, gate_d2: float | None = None) -> bool:
         """Correct the estimate with a sample taken at ``taken_s`` (now or earlier).
 
         Parameters
@@ -143,21 +185,31 @@ class TipEstimator:
         taken_s : float
             When the sample was taken (the filter's clock: seconds of commanded steps).
         measured_pose : ndarray, shape (4, 4)
+        gate_d2 : float, optional
+            The innovation gate: a sample whose squared Mahalanobis distance
+            ``y^T S^-1 y`` exceeds it is refused and leaves the estimate as it was.
 
         Returns
         -------
-        None
+        bool
+            Whether the sample was used (False: refused by the gate).
         """
         z = np.asarray(measured_pose, dtype=np.float64)
         # the estimate of the moment the sample was taken: after every step begun before it
-        replay = [s for s in self._steps if s[0] >= taken_s - 1e-9]
+        replay = [s for s in self._steps if s[0] >= taken_s - TIME_TOL_S]
         if replay:
             _, pose, P, _ = replay[0]
         else:
             pose, P = self.pose, self.P
         y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
         S = P + self.R_meas
-        K = np.linalg.solve(S, P).T  # P S^-1 (both symmetric)
+        K, d2, ok = _gain(S, P, y)
+        if not ok:  # S not positive definite in floating point: LU
+            sol = np.linalg.solve(S, np.column_stack((P, y)))
+            K, d2 = sol[:, :6].T, float(y @ sol[:, 6])
+        self.last_d2 = float(d2)
+        if gate_d2 is not None and not self.last_d2 <= gate_d2:  # NaN is refused too
+            return False
         dx = K @ y
         pose = pose.copy()
         pose[:3, 3] += dx[:3]
@@ -166,13 +218,14 @@ class TipEstimator:
         A = np.eye(6) - K
         P = A @ P @ A.T + K @ self.R_meas @ K.T
         # replay the steps since, from the corrected estimate (and rewrite their history)
-        kept = deque(s for s in self._steps if s[0] < taken_s - 1e-9)
+        kept = deque(s for s in self._steps if s[0] < taken_s - TIME_TOL_S)
         for t0, _, _, command in replay:
             kept.append((t0, pose, P, command))
             pose, P = self._propagate(pose, P, command)
         self._steps = kept
         self.pose, self.P = pose, P
         self.n_updates += 1
+        return True
 
     @property
     def position_sigma_mm(self) -> float:

@@ -51,6 +51,14 @@ log = logging.getLogger(__name__)
 DEFAULT_PORT: int = 18944
 #: Messages left in pyigtl's outgoing queue (it holds 100) before the next instant's go in.
 QUEUE_HIGH: int = 40
+#: A received rotation block this close (Frobenius, of R^T R - I) to orthonormal is float32
+#: rounding of a rotation, and is made one.
+ROUNDING_TOL: float = 1e-4
+#: Bytes packed but not yet taken by the socket, at most: about 2 s of the stream (an
+#: instant is 4 messages, a few kB with the plan's points, 40 a second). Past it the other
+#: end is not reading: what is queued is dropped (said once), so that the insertion, and
+#: the tracker's samples coming the other way, never wait for it.
+OUTBOX_BYTES: int = 256 * 1024
 
 
 def parse_address(text: str) -> tuple[str | None, int]:
@@ -95,16 +103,39 @@ def _pyigtl():
     return pyigtl
 
 
+def _send_some(endpoint, sock) -> None:
+    """Pack what is queued into the endpoint's outbox (at most :data:`OUTBOX_BYTES`; past
+    it the queue is dropped) and give the socket what it takes now, never waiting on a
+    peer that does not read (a message the socket took in part goes on where it stopped)."""
+    box = endpoint.outbox
+    with endpoint.lock_outgoing_messages:
+        queue = endpoint.outgoing_messages
+        while queue and len(box) < OUTBOX_BYTES:
+            box += queue.popleft().pack()
+        if queue and len(box) >= OUTBOX_BYTES:
+            if not endpoint.dropped:
+                log.warning("OpenIGTLink: the other end does not read what is sent; "
+                            "messages are dropped, the insertion goes on")  # fmt: skip
+            endpoint.dropped += len(queue)
+            queue.clear()
+    if box:
+        try:
+            taken = sock.send(box)
+        except (TimeoutError, BlockingIOError):  # its buffer is full: next time round
+            taken = 0
+        del box[:taken]
+
+
 def _serve(endpoint, sock) -> None:
     """Read what arrives and send what is queued until asked to stop or the connection
     fails (then one logged line, and ``endpoint.lost`` says why)."""
+    endpoint.outbox = bytearray()
     try:
         while not endpoint.communication_thread_stop_requested:
             while endpoint._receive_message_from_socket(sock):
                 if endpoint.communication_thread_stop_requested:
                     break
-            while endpoint._send_queued_message_from_socket(sock):
-                pass
+            _send_some(endpoint, sock)
     except Exception as exc:  # whatever the peer did: one line, no traceback
         endpoint.lost = f"{type(exc).__name__}: {exc}"
         endpoint._connected = False
@@ -141,6 +172,8 @@ def _client(pyigtl, host: str, port: int):
 
     client = Client(host=host, port=port, start_now=False)
     client.lost = None
+    client.dropped = 0
+    client.outbox = bytearray()
     client.start()
     return client
 
@@ -172,6 +205,8 @@ class IGTLLink:
             self.endpoint = pyigtl.OpenIGTLinkServer(port=port, local_server=True, start_now=False)
             self.endpoint.RequestHandlerClass = _Handler
             self.endpoint.lost = None
+            self.endpoint.dropped = 0
+            self.endpoint.outbox = bytearray()
             threading.Thread(target=self.endpoint.serve_forever, daemon=True).start()
         else:
             self.endpoint = _client(pyigtl, host, port)
@@ -262,7 +297,7 @@ class IGTLLink:
         ep = self.endpoint
         while time.monotonic() < deadline and ep.is_connected():
             with ep.lock_outgoing_messages:
-                if len(ep.outgoing_messages) <= most:
+                if len(ep.outgoing_messages) <= most and (most or not ep.outbox):
                     return
             time.sleep(0.001)
 
@@ -298,6 +333,10 @@ class IGTLTipSensor:
     """The sensed tip from incoming TRANSFORMs (:class:`~needlekit.execute.run.LoopHooks`'
     ``sensor``): each new message named ``name`` is a sample taken at its timestamp.
 
+    The sensor passes on what arrives as it is (a repeated timestamp, a NaN, a matrix that
+    is no pose): the loop's :class:`~needlekit.execute.guard.SensorGuard` judges it. A
+    rotation block within float32's rounding of a rotation is made one.
+
     Parameters
     ----------
     link : IGTLLink
@@ -313,7 +352,6 @@ class IGTLTipSensor:
         self.link = link
         self.name = name
         self.received = 0
-        self._last_stamp = -math.inf
 
     def update(self, t: float, true_pose) -> EMSample | None:
         """The newest sample that has arrived by simulated time ``t`` (the simulated
@@ -329,16 +367,16 @@ class IGTLTipSensor:
         EMSample or None
         """
         msg = self.link.latest_transform(self.name)
-        if msg is None or msg.timestamp <= self._last_stamp:
+        if msg is None:
             return None
-        pose = np.array(msg.matrix, dtype=np.float64)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-            return None
-        u, _, vt = np.linalg.svd(pose[:3, :3])  # the nearest rotation (sent as float32)
-        pose[:3, :3] = u @ vt
-        if np.linalg.det(pose[:3, :3]) < 0:  # a reflection is no pose
-            return None
-        self._last_stamp = msg.timestamp
         self.received += 1
-        taken = min(float(msg.timestamp - self.link.t0_wall), t)
-        return EMSample(taken, t, pose)
+        pose = np.full((4, 4), np.nan)
+        matrix = np.asarray(msg.matrix, dtype=np.float64)
+        if matrix.shape == (4, 4):
+            pose = matrix.copy()
+        r = pose[:3, :3]
+        if np.all(np.isfinite(r)) and np.linalg.norm(r.T @ r - np.eye(3)) < ROUNDING_TOL:
+            u, _, vt = np.linalg.svd(r)  # the nearest rotation (sent as float32)
+            pose[:3, :3] = u @ vt
+        taken = float(msg.timestamp - self.link.t0_wall)
+        return EMSample(min(taken, t) if math.isfinite(taken) else taken, t, pose)

@@ -9,6 +9,11 @@ default; :class:`needlekit.control.em.EMSensor`) feeds a Kalman filter
 insertion stops when the goal is no longer ahead of the estimated tip. Both runs of one
 trial draw the needle's radius, the tissue's push and the orientation noise from the same
 seed, so they meet the same needle in the same tissue.
+
+Every sample, the simulated sensor's or a tracker's, passes the sensor guard
+(:mod:`needlekit.execute.guard`) before it reaches the filter; while the guard holds, the
+needle does not go in, and when it gives up the insertion ends there. Faults of a profile
+(:mod:`needlekit.execute.faults`) are injected into the simulated sensor and the re-plans.
 """
 
 from __future__ import annotations
@@ -23,7 +28,15 @@ import numpy as np
 from needlekit.control.em import EMSensor, EMSensorSpec
 from needlekit.errors import InvalidInputError
 from needlekit.execute.estimator import TipEstimator
+from needlekit.execute.faults import (
+    REPLAN_OVERRUN_S,
+    FaultProfile,
+    FaultSchedule,
+    FaultySensor,
+    fault_seed,
+)
 from needlekit.execute.feedback import PlanReference, pure_pursuit
+from needlekit.execute.guard import GuardSpec, SensorGuard
 from needlekit.execute.needle_sim import ExecutionNoise, SimulatedNeedle
 from needlekit.execute.replan import Replanner
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -62,6 +75,11 @@ class ExecutionSettings:
         certified from those points, less half their gap).
     noise : ExecutionNoise
     sensor : EMSensorSpec
+    guard : GuardSpec
+        What the closed loop does when its sensor fails (:mod:`needlekit.execute.guard`).
+    faults : FaultProfile or None
+        Faults injected into the simulated sensor and the re-plans
+        (:mod:`needlekit.execute.faults`); None: none.
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -71,6 +89,8 @@ class ExecutionSettings:
     record_mm: float = 0.25
     noise: ExecutionNoise = field(default_factory=ExecutionNoise)
     sensor: EMSensorSpec = DEFAULT_SENSOR
+    guard: GuardSpec = field(default_factory=GuardSpec)
+    faults: FaultProfile | None = None
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
@@ -110,6 +130,11 @@ class ExecutionRun:
         and when it applied (the needle went on meanwhile), and the plan.
     procedure_s : float
         Closed loop, the simulated time the insertion took (pauses included).
+    guard : dict or None
+        Closed loop, the sensor guard's account (:meth:`SensorGuard.record`): the faults
+        and holds as ``{"time_s", "kind", "action"}``, the samples rejected by kind.
+    faults_injected : tuple of dict
+        Closed loop with a fault profile, the faults the run met.
     """
 
     closed_loop: bool
@@ -123,6 +148,8 @@ class ExecutionRun:
     cross_track_mm: np.ndarray | None = None
     replan_events: tuple = ()
     procedure_s: float = 0.0
+    guard: dict | None = None
+    faults_injected: tuple = ()
 
 
 @dataclass
@@ -142,12 +169,15 @@ class LoopHooks:
         Called every ``observe_every_s`` of simulated time, and once at the end, with
         ``(t_s, true_pose, estimated_pose, plan_points_mm, state)``; ``state`` a dict of
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
-        (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"done"``).
+        (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"held"`` while the
+        sensor guard holds it, ``"done"``, or ``"aborted"`` when the guard gave up).
     observe_every_s : float
     breathing : needlekit.execute.breathing.Policy or None
         The anatomy breathing, and the policy the robot inserts with: the recorded path
         and the final error are then the tip's in the tissue (module notes of
         :mod:`needlekit.execute.breathing`).
+    notify : callable or None
+        Called with each fault event of the sensor guard as it happens (a dict).
     """
 
     tick_times: list | None = None
@@ -155,6 +185,7 @@ class LoopHooks:
     observe: Callable | None = None
     observe_every_s: float = 0.025
     breathing: object | None = None
+    notify: Callable | None = None
 
 
 def _open_loop_commands(plan: SteerablePlan, step_mm: float):
@@ -237,7 +268,7 @@ def execute_plan(
         r_min_mm,
         s,
         needle,
-        sensor_seed,
+        (sensor_seed, fault_seed(ss)),
         points,
         record,
         replanner,
@@ -245,8 +276,28 @@ def execute_plan(
     )
 
 
-def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, replanner, hooks):
+def _sensor_and_guard(plan, s, seeds, hooks):
+    """The closed loop's sensor (the simulated one, its faults, or the hooks'), the guard
+    every sample passes through, and the fault schedule (None: none)."""
+    sensor_seed, faults_seed = seeds
     sensor = hooks.sensor or EMSensor(s.sensor, np.random.default_rng(sensor_seed))
+    schedule = None
+    if s.faults is not None:
+        nominal = plan.length_mm / s.insertion_speed_mm_s
+        schedule = FaultSchedule(s.faults, np.random.default_rng(faults_seed), nominal)
+        if hooks.sensor is None:
+            sensor = FaultySensor(sensor, schedule)
+    carried = 0.0
+    if hooks.breathing is not None:  # the fastest the breathing carries the tip: A 2n pi / T
+        tr = hooks.breathing.trace
+        carried = float(np.max(tr.amplitudes_mm * 2 * tr.breathing.shape * math.pi / tr.periods_s))
+    guard = SensorGuard(s.guard, plan.start_pose, s.sensor.position_sigma_mm, carried,
+                        hooks.notify)  # fmt: skip
+    return sensor, guard, schedule
+
+
+def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replanner, hooks):
+    sensor, guard, schedule = _sensor_and_guard(plan, s, seeds, hooks)
     tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
     est = TipEstimator(
         plan.start_pose,
@@ -261,7 +312,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     kappa_max = 1.0 / r_min_mm
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
-    index, t, used, pending, k = 0, 0.0, 0, None, 0
+    index, t, pending, k = 0, 0.0, None, 0
     clock = time.perf_counter
     cross: list[float] = []
     events: list[tuple] = []
@@ -272,18 +323,25 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         # add their periods separately, and a sample read a step late sees a moved tip
         sample = sensor.update(t + SENSOR_SLACK_S, lambda: needle.pose)
         c0 = clock()
-        if sample is not None:
-            est.update(sample.taken_s, sample.pose)
-            used += 1
-        if policy is not None and not policy.may_advance(t):  # gated: let go, and wait
-            _ride(needle, est, policy, t, s.dt_s)
+        guard.admit(t, sample, est, needle.inserted_mm)  # every sample checked, or none used
+        if guard.aborted:
+            break
+        held = guard.holding
+        if held or (policy is not None and not policy.may_advance(t)):  # it does not go in
+            phase = "held" if held else "gated"
+            if policy is not None:  # let go, it rides with the tissue
+                _ride(needle, est, policy, t, s.dt_s)
+            else:
+                est.predict(0.0, 0.0, 0.0, s.dt_s)
+            if phase == "held":
+                guard.held_step(s.dt_s)
             k += 1
             t = k * s.dt_s
-            record(policy.trace.actual(t))
+            record(None if policy is None else policy.trace.actual(t))
             if observe is not None and t - seen >= hooks.observe_every_s - 1e-9:
                 seen = t
                 observe(t, needle.pose, est.pose, ref.points_mm,
-                        _state(needle, est.pose, goal, replanner, "gated"))  # fmt: skip
+                        _state(needle, est.pose, goal, replanner, phase))  # fmt: skip
             continue
         pose = est.pose
         if policy is not None:  # the controller's frame: the sensed tip less its offset
@@ -293,9 +351,11 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
             break
         if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
-            (current, ref), index, asked, pending = pending[0], 0, pending[2], None
-            events.append((asked, float(needle.inserted_mm), current))
-            limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
+            if guard.replan_in_time(t, pending[2], float(needle.inserted_mm)):
+                (current, ref), index = pending[0], 0
+                events.append((pending[2], float(needle.inserted_mm), current))
+                limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
+            pending = None
         index = ref.nearest(pose[:3, 3], index)
         off = float(np.linalg.norm(ref.points_mm[index] - pose[:3, 3]))
         if (
@@ -305,7 +365,10 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
         ):
             c1 = clock()
             res, took = replanner.replan(pose, needle.inserted_mm, (current, ref.arc_mm[index]))
+            fault = None if schedule is None else schedule.replan_fault(t)
+            res = guard.check_replan(t, res, fault)
             if res is not None:
+                took += REPLAN_OVERRUN_S if fault == "overrun" else 0.0
                 pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
                            float(needle.inserted_mm))  # fmt: skip
             c0 += clock() - c1  # the search is not the feedback step
@@ -337,12 +400,14 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, sensor_seed, points, record, r
     points.append(needle.pose[:3, 3] - offset)
     if observe is not None:
         observe(t, needle.pose, est.pose, ref.points_mm,
-                _state(needle, est.pose, goal, replanner, "done"))  # fmt: skip
+                _state(needle, est.pose, goal, replanner, "aborted" if guard.aborted else "done"))  # fmt: skip
     err = float(np.linalg.norm(points[-1] - goal))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
-    return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err, used,
-                        adopted, tuple(lat), np.array(cross), tuple(events), t)  # fmt: skip
+    injected = () if schedule is None else tuple(schedule.to_list())
+    return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err,
+                        guard.accepted, adopted, tuple(lat), np.array(cross), tuple(events), t,
+                        guard.record(), injected)  # fmt: skip
 
 
 def _ride(needle, est, policy, t: float, dt: float) -> None:

@@ -181,7 +181,13 @@ def _path_record(run, truth) -> dict:
     gap = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()) if len(pts) > 1 else 0.0
     cert = truth.collision_checker(max(gap, 1e-6)).certify(pts, max(gap, 1e-6))
     lat = [float(v) for v in run.replan_latency_s]
+    guard = {}
+    if run.guard is not None:  # closed loop: its faults, holds and rejected samples
+        guard = {**run.guard, "procedure_s": float(run.procedure_s)}
+        if run.faults_injected:
+            guard["faults_injected"] = list(run.faults_injected)
     return {
+        **guard,
         "final_error_mm": float(run.final_error_mm),
         "min_clearance_mm": _finite(cert.certified_clearance_mm),
         "sampled_clearance_mm": _finite(cert.sampled_clearance_mm),
@@ -368,7 +374,75 @@ def loop_summary(runs: list[dict]) -> dict:
         "violated": sum(bool(r["violated"]) for r in runs),
         "replans": _stats(r["replans"] for r in runs),
         "replan_latency_ms": _stats(1e3 * t for t in lat),
+        **_fault_summary(runs),
     }
+
+
+def _fault_summary(runs: list[dict]) -> dict:
+    """Closed loop: the faults met and what the guard did (counts over the runs)."""
+    if not runs or "faults" not in runs[0]:
+        return {}
+    events = [e for r in runs for e in r["faults"]]
+    rejected: dict = {}
+    for r in runs:
+        for k, n in r["rejected"].items():
+            rejected[k] = rejected.get(k, 0) + n
+    injected: dict = {}
+    for r in runs:
+        for f in r.get("faults_injected", ()):
+            injected[f["kind"]] = injected.get(f["kind"], 0) + 1
+    return {
+        "holds": sum(r["holds"] for r in runs),
+        "held_s": _stats(r["held_s"] for r in runs),
+        "aborted": sum(bool(r["aborted"]) for r in runs),
+        "fault_events": {
+            f"{k}/{a}": sum(e["kind"] == k and e["action"] == a for e in events)
+            for k, a in sorted({(e["kind"], e["action"]) for e in events})
+        },
+        "rejected": rejected,
+        "faults_injected": injected,
+        "faults_unanswered": sum(len(unanswered_faults(r)) for r in runs),
+    }
+
+
+#: The injected faults that must hold the needle (a late sample or a failed re-plan need
+#: not), and how long after a fault's end its hold may begin (s): the guard's stale time
+#: and a sample period, rounded up.
+HOLDING_FAULTS: tuple[str, ...] = ("dropout", "freeze", "distortion", "nan")
+ANSWER_WITHIN_S: float = 0.5
+
+
+def unanswered_faults(run: dict) -> list[dict]:
+    """The injected faults of one closed-loop run that no hold (or abort) answered: met
+    while the insertion ran, and no hold overlapping them (or beginning within
+    :data:`ANSWER_WITHIN_S` of their end).
+
+    Parameters
+    ----------
+    run : dict
+        A closed-loop record with ``faults``, ``faults_injected`` and ``procedure_s``.
+
+    Returns
+    -------
+    list of dict
+    """
+    spans, start = [], None
+    end_s = run.get("procedure_s", math.inf)
+    for e in run["faults"]:
+        if e["action"] in ("hold", "abort") and start is None:  # a hold's first event
+            start = e["time_s"]
+        if e["action"] in ("resume", "abort") and start is not None:
+            spans.append((start, e["time_s"]))
+            start = None
+    if start is not None:
+        spans.append((start, end_s))
+    out = []
+    for f in run.get("faults_injected", ()):
+        if f["kind"] not in HOLDING_FAULTS or f["start_s"] >= end_s:
+            continue
+        if not any(a <= f["end_s"] + ANSWER_WITHIN_S and b >= f["start_s"] for a, b in spans):
+            out.append(f)
+    return out
 
 
 def _settings_record(scenario_name: str, plan, seed: int, trials, options, margin) -> dict:
