@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from needlekit._numbers import MIN_POSITIVE
 from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
@@ -168,21 +169,10 @@ FAULT_PROFILES: tuple[str, ...] = ("dropout", "freeze", "distortion", "jitter", 
                                    "mixed")  # fmt: skip
 
 
-def _hold_timeout(text: str) -> float:
-    v = _positive(text)
-    if v > HOLD_TIMEOUT_MAX_S:
-        raise argparse.ArgumentTypeError(f"expected at most {HOLD_TIMEOUT_MAX_S:g} s, got {text!r}")
-    return v
-
-
 #: ``--hold-timeout-s`` at most this (s): an hour held is a procedure abandoned.
 HOLD_TIMEOUT_MAX_S: float = 3600.0
-
-
-def _fault_profile(text: str) -> str:
-    if text not in FAULT_PROFILES:
-        raise argparse.ArgumentTypeError(f"expected one of {', '.join(FAULT_PROFILES)}, got {text!r}")
-    return text
+#: ``--hold-timeout-s``: a number through the gate, in (0, HOLD_TIMEOUT_MAX_S] s.
+_hold_timeout = number(MIN_POSITIVE, HOLD_TIMEOUT_MAX_S, unit="s")
 
 
 #: The breathing flags, by the field of :class:`~needlekit.execute.breathing.Breathing` each
@@ -491,7 +481,7 @@ def add_noise_flags(p) -> None:
     fault = p.add_argument_group(
         "faults: every sample is checked, and stale or lying input holds the needle"
     )
-    fault.add_argument("--faults", type=_fault_profile, metavar="PROFILE",
+    fault.add_argument("--faults", choices=FAULT_PROFILES, metavar="PROFILE",
                        help="inject faults into the simulated sensor and the re-plans, from "
                        "each trial's seed: " + ", ".join(FAULT_PROFILES) + " (docs/execute.md)")  # fmt: skip
     fault.add_argument("--on-fault", choices=["hold", "abort"], default="hold",
