@@ -91,7 +91,17 @@ class NeedleCertificate:
         return max(self.planner_needle_clearance_mm, self.dense_needle_clearance_mm)
 
     def passes(self, gamma_mm: float) -> bool:
-        """Whether either certificate proves each clearance at least ``gamma_mm``."""
+        """Whether either certificate proves each clearance at least ``gamma_mm``.
+
+        Parameters
+        ----------
+        gamma_mm : float
+            The safety distance (mm).
+
+        Returns
+        -------
+        bool
+        """
         return self.clearance_mm >= gamma_mm and self.needle_clearance_mm >= gamma_mm
 
 
