@@ -59,11 +59,12 @@ browser:
 	else echo "no chromium and no root apt-get: the browser test will be skipped"; fi
 
 igtl-examples:
-	@if [ -d $(IGTL_EXAMPLES_SRC) ] && [ -d /usr/lib/openigtlink ]; then :; \
+	@if [ -d $(IGTL_EXAMPLES_SRC) ] && [ -d /usr/lib/openigtlink ] && command -v cmake >/dev/null 2>&1 \
+		&& command -v c++ >/dev/null 2>&1; then :; \
 	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
-		echo "installing Debian's libopenigtlink-dev and openigtlink-examples"; \
-		apt-get install -y -qq libopenigtlink-dev openigtlink-examples >/dev/null \
-		|| (apt-get update -qq && apt-get install -y -qq libopenigtlink-dev openigtlink-examples >/dev/null) \
+		echo "installing Debian's libopenigtlink-dev and openigtlink-examples (cmake, g++)"; \
+		apt-get install -y -qq cmake g++ libopenigtlink-dev openigtlink-examples >/dev/null \
+		|| (apt-get update -qq && apt-get install -y -qq cmake g++ libopenigtlink-dev openigtlink-examples >/dev/null) \
 		|| echo "could not install OpenIGTLink: the C++ interop test will be skipped"; \
 	else echo "no OpenIGTLink and no root apt-get: the C++ interop test will be skipped"; fi
 	@if [ -d $(IGTL_EXAMPLES_SRC) ] && command -v cmake >/dev/null 2>&1; then \
