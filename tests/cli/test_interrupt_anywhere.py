@@ -1,29 +1,18 @@
 """Ctrl-C at any moment of any long command (issue "Fail safe", point 5).
 
-Each long command runs once to completion (its complete outputs: the "earlier run"), then
-again with the same ``--out``, and gets a SIGINT at a few seeded moments: once the
-process (and its workers) have used a seeded fraction of the CPU time the whole run took.
-Whatever it was doing then (importing, loading the scene, inside a numba kernel, in a
-worker pool, writing), the outcome is the same: exit status 130, exactly one line on
-stderr and no traceback, no worker left, the earlier complete outputs byte-identical and
-nothing else new but a partial record (``X.partial.json``) beside them.
-
-Nothing here asserts a time: the moments are CPU fractions, the outcomes are checked.
+Each long command runs to completion, then again with the same ``--out``, and gets a SIGINT
+at a few seeded moments; the outcomes checked are those of ``interrupt_check``
+(``tests/cli/conftest.py``): exit 130, one line on stderr, no worker left, the earlier
+complete outputs byte-identical and nothing new but a partial record. The long studies on
+real data: ``test_interrupt_studies.py``.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import resource
-import signal
 import subprocess
 import sys
-import time
-import zlib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -47,83 +36,8 @@ COMMANDS = {
 }
 
 
-def _descendants(pid: int) -> list[int]:
-    """Every live descendant of ``pid`` (from /proc)."""
-    parents = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if fields[0] != "Z":
-                parents[int(entry.name)] = int(fields[1])
-    found, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        kids = [c for c, pp in parents.items() if pp == p]
-        found += kids
-        todo += kids
-    return found
-
-
-def _cmdline(pid: int) -> bytes:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes()
-    except OSError:
-        return b""
-
-
-def _left(family: list[int], workers: list[int]) -> list[int]:
-    """The processes of ``family`` still alive: pool workers at once; multiprocessing's
-    resource tracker ends by itself when it reads the end of its pipe (the main process
-    gone), so it gets a few seconds to do so."""
-    if [p for p in workers if _alive(p)]:
-        return [p for p in workers if _alive(p)]
-    for _ in range(100):
-        left = [p for p in family if _alive(p)]
-        if not left:
-            break
-        time.sleep(0.1)
-    return left
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-def _cpu_s(pid: int) -> float:
-    """CPU seconds of a process and its live descendants."""
-    total = 0.0
-    for p in [pid, *_descendants(pid)]:
-        try:
-            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    return total
-
-
-def _argv(name: str, out: Path, plan: Path | None) -> list[str]:
-    args = [a.replace("{d}", str(out)).replace("{plan}", str(plan)) for a in COMMANDS[name][0]]
-    return [sys.executable, "-m", "needlekit.cli", *args]
-
-
-def _files(folder: Path) -> dict[str, bytes]:
-    return {
-        str(p.relative_to(folder)): p.read_bytes()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file()
-    }
-
-
-def _default_sigint():
-    # a run started in the background of a shell without job control inherits SIGINT
-    # ignored: the command under test gets the default disposition, as a terminal gives it
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+def _args(name: str, out: Path, plan: Path) -> list[str]:
+    return [a.replace("{d}", str(out)).replace("{plan}", str(plan)) for a in COMMANDS[name][0]]
 
 
 @pytest.fixture(scope="module")
@@ -134,52 +48,10 @@ def toy_plan(tmp_path_factory) -> Path:
     return out
 
 
-def _complete_run(name: str, out: Path, plan: Path) -> float:
-    """Run the command to its end (the earlier outputs); the CPU seconds it took."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    done = subprocess.run(_argv(name, out, plan), capture_output=True, text=True, timeout=900)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    assert done.returncode in (0, 1), done.stderr  # 1: a verdict (multi's plan may fail)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-
-
-def _interrupt_at(argv: list[str], cpu_s: float):
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_default_sigint)  # fmt: skip
-    while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
-        time.sleep(0.02)
-    assert proc.poll() is None, "the command ended before the moment chosen"
-    family = _descendants(proc.pid)
-    workers = [p for p in family if b"spawn_main" in _cmdline(p)]
-    proc.send_signal(signal.SIGINT)  # to the main process alone, as `timeout -s INT` does
-    _, stderr = proc.communicate(timeout=300)
-    return proc.returncode, stderr, _left(family, workers)
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(COMMANDS))
 def test_ctrl_c_at_seeded_moments_ends_in_one_line_and_keeps_earlier_outputs(
-    tmp_path, name, toy_plan
+    tmp_path, name, toy_plan, interrupt_check
 ):
     out = tmp_path / "out"
-    # twice: the first run may fill caches (compiled kernels) that the later runs find;
-    # the moments are fractions of the warm run, before its result is decided
-    total_cpu_s = min(_complete_run(name, out, toy_plan), _complete_run(name, out, toy_plan))
-    earlier = _files(out)
-    assert earlier, "the complete run wrote nothing"
-    rng = np.random.default_rng(zlib.crc32(name.encode()))
-    for moment in rng.uniform(0.1, 0.7, COMMANDS[name][1]):
-        code, stderr, left = _interrupt_at(_argv(name, out, toy_plan), moment * total_cpu_s)
-        lines = [ln for ln in stderr.splitlines() if ln.strip()]
-        where = f"{name} at {moment:.2f} of {total_cpu_s:.1f} CPU s: {stderr}"
-        assert code == 130, where
-        assert len(lines) == 1 and lines[0].startswith("interrupted: "), where
-        assert "Traceback" not in stderr and "SystemError" not in stderr, where
-        assert left == [], where  # every worker stopped, nothing left behind
-        now = _files(out)
-        assert {k: now[k] for k in earlier} == earlier, where  # byte-identical
-        new = sorted(set(now) - set(earlier))
-        assert all(".partial." in Path(k).name for k in new), (new, where)
-        for k in new:  # a partial record, whole, then removed for the next moment
-            assert json.loads(now[k])["partial"] is True
-            (out / k).unlink()
+    interrupt_check(name, _args(name, out, toy_plan), out, COMMANDS[name][1])

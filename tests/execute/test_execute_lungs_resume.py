@@ -43,3 +43,21 @@ def test_ctrl_c_keeps_the_lungs_done_and_resume_goes_on_from_the_one_under_way(
     assert [c["patient"] for c in record["cases"]] == [1, 2, 3] and record["holds"]
     assert record["resumed"] is True and "partial" not in record
     assert not (tmp_path / "execute_lungs.partial.json").exists()  # finished: now stale
+
+
+def test_ctrl_c_before_the_first_lung_is_planned_writes_the_record_its_line_names(
+    tmp_path, monkeypatch
+):
+    def decide(st, patient):  # Ctrl-C while the first lung's margin is measured
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(execute_lungs, "_decide", decide)
+    with pytest.raises(Interrupted) as stopped:
+        execute_lungs.run_execute_lungs(tmp_path, patients=(1, 2), trials=4)
+    beside = tmp_path / "execute_lungs.partial.json"
+    assert str(stopped.value) == (
+        f"0 of 2 lungs done; written to {beside} marked partial; the same command with "
+        "--resume carries on"
+    )  # no lung under way: no trials are said to be kept
+    partial = json.loads(beside.read_text())
+    assert partial["partial"] is True and partial["cases"] == [] and "current" not in partial

@@ -317,6 +317,7 @@ def run_execute_lungs(
         data = read_partial(path, "execute-lungs record", head)
         cases, current = list(data.get("cases") or []), data.get("current")
     t0 = time.perf_counter()
+    under_way = None  # the lung planned whose trials run
     try:
         for p in patients:
             if any(c["patient"] == p for c in cases):
@@ -326,17 +327,27 @@ def run_execute_lungs(
             if decided["status"] != "planned":
                 cases.append(decided)
                 continue
+            under_way = decided
             write_partial(path, {**head, "cases": cases, "current": decided})
             cases.append(_run_case(st, decided, resume=carried))
+            under_way = None
             write_partial(path, {**head, "cases": cases})
     except (Interrupted, KeyboardInterrupt, SystemError) as exc:
         if not isinstance(exc, Interrupted) and not is_interrupt(exc):
             raise
+        # written here, whenever Ctrl-C came (before the first lung was planned too): the
+        # line names a record that is there
+        written = write_partial(
+            path, {**head, "cases": cases, **({"current": under_way} if under_way else {})}
+        )
+        trials = (  # the trial runs wrote theirs before raising Interrupted
+            " (the trials of the one under way kept in its execute.partial.json)"
+            if isinstance(exc, Interrupted)
+            else ""
+        )
         raise Interrupted(
-            f"{len(cases)} of {len(patients)} lungs done (the trials of the one under way kept "
-            f"in its execute.partial.json); written to {partial_path(path)} marked partial; the "
-            "same command with "
-            "--resume carries on"
+            f"{len(cases)} of {len(patients)} lungs done{trials}; written to {written} marked "
+            "partial; the same command with --resume carries on"
         ) from None
     record = {
         **head,

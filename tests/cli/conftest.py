@@ -1,0 +1,161 @@
+"""Shared by the tests of ``tests/cli``: Ctrl-C sent to a long command at seeded moments.
+
+``interrupt_check(name, args, out, moments)`` runs ``needlekit ARGS`` to completion (its
+complete outputs in ``out``: the "earlier run"), then again with the same arguments, and
+sends it a SIGINT at ``moments`` seeded moments: once the process (and its workers) have
+used a seeded fraction of the CPU time the whole run took. Whatever it was doing then
+(importing, loading the scene, inside a numba kernel, in a worker pool, writing), the
+outcome must be the same: exit status 130, exactly one line on stderr and no traceback, no
+worker left, the earlier complete outputs byte-identical and nothing else new but a
+partial record (``X.partial.json``) beside them; a record the line says was written is
+there.
+
+Nothing here asserts a time: the moments are CPU fractions, the outcomes are checked.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import resource
+import signal
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every live descendant of ``pid`` (from /proc)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if fields[0] != "Z":
+                parents[int(entry.name)] = int(fields[1])
+    found, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parents.items() if pp == p]
+        found += kids
+        todo += kids
+    return found
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def _left(family: list[int], workers: list[int]) -> list[int]:
+    """The processes of ``family`` still alive: pool workers at once; multiprocessing's
+    resource tracker ends by itself when it reads the end of its pipe (the main process
+    gone), so it gets a few seconds to do so."""
+    if [p for p in workers if _alive(p)]:
+        return [p for p in workers if _alive(p)]
+    for _ in range(100):
+        left = [p for p in family if _alive(p)]
+        if not left:
+            break
+        time.sleep(0.1)
+    return left
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _cpu_s(pid: int) -> float:
+    """CPU seconds of a process and its live descendants."""
+    total = 0.0
+    for p in [pid, *_descendants(pid)]:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def _default_sigint():
+    # a run started in the background of a shell without job control inherits SIGINT
+    # ignored: the command under test gets the default disposition, as a terminal gives it
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _complete_run(argv: list[str]) -> float:
+    """Run the command to its end (the earlier outputs); the CPU seconds it took."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=900)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    assert done.returncode in (0, 1), done.stderr  # 1: a verdict (multi's plan may fail)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _interrupt_at(argv: list[str], cpu_s: float):
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint)  # fmt: skip
+    while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
+        time.sleep(0.02)
+    assert proc.poll() is None, "the command ended before the moment chosen"
+    family = _descendants(proc.pid)
+    workers = [p for p in family if b"spawn_main" in _cmdline(p)]
+    proc.send_signal(signal.SIGINT)  # to the main process alone, as `timeout -s INT` does
+    _, stderr = proc.communicate(timeout=300)
+    return proc.returncode, stderr, _left(family, workers)
+
+
+def check_interrupts(name: str, args: list[str], out: Path, moments: int) -> None:
+    """Run ``needlekit ARGS`` to its end twice (writing in ``out``), then interrupt it at
+    ``moments`` moments seeded by ``name`` and check each outcome (the module's text)."""
+    argv = [sys.executable, "-m", "needlekit.cli", *args]
+    # twice: the first run may fill caches (compiled kernels, the prepared anatomy) that
+    # the later runs find; the moments are fractions of the warm run, before its result
+    # is decided
+    total_cpu_s = min(_complete_run(argv), _complete_run(argv))
+    earlier = _files(out)
+    assert earlier, "the complete run wrote nothing"
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    for moment in rng.uniform(0.1, 0.7, moments):
+        code, stderr, left = _interrupt_at(argv, moment * total_cpu_s)
+        lines = [ln for ln in stderr.splitlines() if ln.strip()]
+        where = f"{name} at {moment:.2f} of {total_cpu_s:.1f} CPU s: {stderr}"
+        assert code == 130, where
+        assert len(lines) == 1 and lines[0].startswith("interrupted: "), where
+        assert "Traceback" not in stderr and "SystemError" not in stderr, where
+        assert left == [], where  # every worker stopped, nothing left behind
+        now = _files(out)
+        assert {k: now[k] for k in earlier} == earlier, where  # byte-identical
+        new = sorted(set(now) - set(earlier))
+        assert all(".partial." in Path(k).name for k in new), (new, where)
+        said = re.search(r"written to (.+) marked partial", lines[0])
+        for path in said.group(1).split(" and ") if said else ():  # the line tells the truth
+            assert os.path.relpath(path, out) in new, (path, new, where)
+        for k in new:  # a partial record, whole, then removed for the next moment
+            assert json.loads(now[k])["partial"] is True
+            (out / k).unlink()
+
+
+@pytest.fixture
+def interrupt_check():
+    """``interrupt_check(name, args, out, moments)``: see the module's text."""
+    return check_interrupts
