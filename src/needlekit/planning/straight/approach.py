@@ -84,6 +84,12 @@ class ApproachAnalysis:
         within their limits.
     settings : dict
         ``needle_radius_mm``, ``gamma_mm``, ``max_length_mm``, ``max_normal_angle_deg``.
+    certified_shortest : dict or None
+        needlekit's chosen line (:meth:`shortest`): the shortest accessible one whose
+        needle, its points rounded as the record holds them, passes the straight clearance
+        rule (:func:`~needlekit.planning.straight.certify.certify_segment`), with its
+        certified clearance; None when none does (or without a field, when a thickness or
+        gamma cannot be checked).
     """
 
     target_mm: np.ndarray
@@ -97,6 +103,7 @@ class ApproachAnalysis:
     accessible_paa: np.ndarray
     accessible: np.ndarray
     settings: dict
+    certified_shortest: dict | None = None
 
     @staticmethod
     def _score(areas, ok) -> float:
@@ -119,13 +126,16 @@ class ApproachAnalysis:
         Parameters
         ----------
         paa : bool
-            By PAA's criterion instead of needlekit's.
+            By PAA's criterion (no certificate: PAA's own answer) instead of needlekit's
+            (:attr:`certified_shortest`, which adds ``clearance_mm``).
 
         Returns
         -------
         dict or None
         """
-        ok = self.accessible_paa if paa else self.accessible
+        if not paa:  # needlekit's: certified as recorded (approach_analysis)
+            return None if self.certified_shortest is None else dict(self.certified_shortest)
+        ok = self.accessible_paa
         if not ok.any():
             return None
         idx = np.flatnonzero(ok)
@@ -297,6 +307,9 @@ def approach_analysis(
             b, _ = segment_clearance_bound(field, ends[check], u[check], length[check], cap_mm=cap)
             clearance[check] = b - needle_radius_mm
         ok &= clearance >= gamma_mm
+    chosen = _certified_shortest(
+        target, centres, length, ok, field, needle_radius_mm, gamma_mm, max_length_mm
+    )
     settings = {
         "needle_radius_mm": float(needle_radius_mm),
         "gamma_mm": float(gamma_mm),
@@ -304,8 +317,43 @@ def approach_analysis(
         "max_normal_angle_deg": float(max_normal_angle_deg),
     }
     return ApproachAnalysis(
-        target, centres, areas, length, hit, leaves, normal_angle, clearance, ~hit, ok, settings
-    )
+        target, centres, areas, length, hit, leaves, normal_angle, clearance, ~hit, ok, settings,
+        chosen,
+    )  # fmt: skip
+
+
+def _certified_shortest(
+    target, centres, length, ok, field, radius_mm, gamma_mm, max_length_mm
+) -> dict | None:
+    """The shortest accessible line whose needle, as recorded (points rounded), passes the
+    straight clearance rule; at most RECORD_CHECK_MAX_DIRECTIONS lines are tried.
+
+    Without a field the rule cannot be checked: with a thickness or gamma nothing is
+    chosen (a constraint that cannot be checked counts as violated); with neither, the
+    exact line test is the whole rule and the shortest accessible line stands.
+    """
+    from needlekit.planning.straight.certify import certify_segment, record_point
+    from needlekit.planning.straight.entry import RECORD_CHECK_MAX_DIRECTIONS
+
+    idx = np.flatnonzero(ok)
+    idx = idx[np.argsort(length[idx], kind="stable")]
+    if field is None:
+        if radius_mm > 0 or gamma_mm > 0 or not idx.size:
+            return None
+        i = int(idx[0])
+        return {"face": i, "length_mm": float(length[i]), "entry_mm": centres[i].tolist()}
+    tip = record_point(target)
+    for i in idx[:RECORD_CHECK_MAX_DIRECTIONS]:
+        entry = record_point(centres[i])
+        cert = certify_segment(field, tip, entry, radius_mm=radius_mm, gamma_mm=gamma_mm)
+        if cert.passes(gamma_mm) and cert.length_mm <= max_length_mm:
+            return {
+                "face": int(i),
+                "length_mm": cert.length_mm,
+                "entry_mm": entry.tolist(),
+                "clearance_mm": cert.clearance_mm,
+            }
+    return None
 
 
 def approach_scores(targets_mm, skin, obstacles) -> np.ndarray:

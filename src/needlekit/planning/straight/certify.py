@@ -18,7 +18,7 @@ Two certificates of each clearance, the better one counts (each is a lower bound
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -33,7 +33,13 @@ from needlekit.geometry.segments import segment_distances
 from needlekit.planning.straight.cfrw import obstacle_segment_bound, segment_clearance_bound
 from needlekit.planning.straight.problem import StraightProblem
 
-__all__ = ["NeedleCertificate", "certify_needle", "record_point"]
+__all__ = [
+    "NeedleCertificate",
+    "certified_entry",
+    "certify_needle",
+    "certify_segment",
+    "record_point",
+]
 
 
 def record_point(point) -> np.ndarray:
@@ -130,13 +136,51 @@ def certify_needle(
     -------
     NeedleCertificate
     """
+    return certify_segment(
+        problem.anatomy_field(), tip_mm, entry_mm, radius_mm=problem.needle.radius_mm,
+        gamma_mm=problem.gamma_mm, extra_obstacles=tuple(problem.extra_obstacles),
+        placed=placed, bodies=bodies,
+    )  # fmt: skip
+
+
+def certify_segment(
+    field,
+    tip_mm: np.ndarray,
+    entry_mm: np.ndarray,
+    *,
+    radius_mm: float,
+    gamma_mm: float,
+    extra_obstacles: tuple = (),
+    placed: tuple = (),
+    bodies: tuple = (),
+) -> NeedleCertificate:
+    """:func:`certify_needle` given the obstacles' field instead of a problem (the same
+    certificate: ``needlekit approach`` certifies its chosen line with it).
+
+    Parameters
+    ----------
+    field : DistanceField or None
+        The anatomy's obstacles (None: none).
+    tip_mm, entry_mm : ndarray, shape (3,)
+        The needle's target and entry as recorded (:func:`record_point`).
+    radius_mm, gamma_mm : float
+        Needle radius and safety distance (mm).
+    extra_obstacles : sequence of DistanceField
+        Obstacles counted one by one, as the CFRW map counts a problem's extra ones.
+    placed, bodies : sequence
+        As :func:`certify_needle`'s.
+
+    Returns
+    -------
+    NeedleCertificate
+    """
     tip = np.asarray(tip_mm, dtype=float).reshape(3)
     entry = np.asarray(entry_mm, dtype=float).reshape(3)
     axis = entry - tip
     length = float(np.linalg.norm(axis))
     o, u, L = tip[None], (axis / length)[None], np.array([length])
-    r = problem.needle.radius_mm
-    cap = problem.clearance_needed_mm + STRAIGHT_CAP_ABOVE_GAMMA_MM
+    r = float(radius_mm)
+    cap = r + float(gamma_mm) + STRAIGHT_CAP_ABOVE_GAMMA_MM
 
     def traced(field, step):
         if field is None:
@@ -149,14 +193,47 @@ def certify_needle(
             for f in fields
         ) - r  # fmt: skip
 
-    planner = traced(problem.anatomy_field(), STRAIGHT_NEAR_STEP_MM)
-    dense = traced(problem.anatomy_field(), STRAIGHT_CHECK_STEP_MM)
-    if problem.extra_obstacles:  # obstacles the problem itself adds, as the map counts them
-        planner = min(planner, each(problem.extra_obstacles))
-        dense = min(dense, traced(union(*problem.extra_obstacles), STRAIGHT_CHECK_STEP_MM))
+    planner = traced(field, STRAIGHT_NEAR_STEP_MM)
+    dense = traced(field, STRAIGHT_CHECK_STEP_MM)
+    if extra_obstacles:  # obstacles the problem itself adds, as the map counts them
+        planner = min(planner, each(extra_obstacles))
+        dense = min(dense, traced(union(*extra_obstacles), STRAIGHT_CHECK_STEP_MM))
     planner_needles = dense_needles = float("inf")
     if bodies:
         planner_needles = each(bodies)
         axes = min(float(segment_distances(p, q, o, entry[None])[0]) for p, q in placed)
         dense_needles = min(axes - 2 * r, traced(union(*bodies), STRAIGHT_CHECK_STEP_MM))
     return NeedleCertificate(length, planner, dense, planner_needles, dense_needles)
+
+
+def certified_entry(problem: StraightProblem, entry, placed: tuple = (), bodies: tuple = ()):
+    """A trajectory as its record will hold it, if it passes the straight clearance rule.
+
+    Its target and entry are rounded (:func:`record_point`) and certified
+    (:func:`certify_needle`, the certificate ``verify_multi`` re-derives); it passes when
+    the certificate proves each clearance at least gamma and the needle reaches.
+
+    Parameters
+    ----------
+    problem : StraightProblem
+        Anatomy (with any extra obstacles), needle and gamma.
+    entry : Entry
+        The trajectory (:class:`~needlekit.planning.straight.entry.Entry`).
+    placed, bodies : sequence
+        The needles placed before it (as :func:`certify_needle`'s).
+
+    Returns
+    -------
+    (Entry or None, NeedleCertificate)
+        The trajectory with its points rounded and its length and clearance the
+        certificate's, or None when it fails; and the certificate.
+    """
+    tip, point = record_point(entry.target_mm), record_point(entry.entry_mm)
+    cert = certify_needle(problem, tip, point, placed, bodies)
+    if not (cert.passes(problem.gamma_mm) and cert.length_mm <= problem.needle.max_length_mm):
+        return None, cert
+    out = replace(
+        entry, entry_mm=point, target_mm=tip, length_mm=cert.length_mm,
+        clearance_mm=cert.clearance_mm,
+    )  # fmt: skip
+    return out, cert

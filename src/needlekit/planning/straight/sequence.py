@@ -24,9 +24,13 @@ import numpy as np
 from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.segments import segment_distances
-from needlekit.planning.straight.certify import certify_needle, record_point
 from needlekit.planning.straight.cfrw import Blocked, CFRWMap, cfrw_map
-from needlekit.planning.straight.entry import Entry, Objective, best_on_map
+from needlekit.planning.straight.entry import (
+    Entry,
+    Objective,
+    best_direction,
+    certified_best,
+)
 from needlekit.planning.straight.problem import StraightProblem
 from needlekit.records import Status, enum_of, field_of
 
@@ -34,12 +38,6 @@ __all__ = ["EXHAUSTIVE_ORDER_MAX", "MultiNeedlePlan", "NeedleRecord", "plan_need
 
 #: Up to this many needles every insertion order is tried (6! = 720 orders).
 EXHAUSTIVE_ORDER_MAX: int = 6
-
-#: Most directions of a needle's CFRW the planner certifies as recorded before it gives
-#: up on the needle: the map keeps RECORD_ROUNDING_ALLOWANCE_MM above gamma, so the best
-#: one passes but where rounding moves the sphere tracing's samples (none seen in the
-#: tests' and benchmarks' plans); each costs one segment's certificate (~ms).
-RECORD_CHECK_MAX_DIRECTIONS: int = 32
 
 
 @dataclass(frozen=True)
@@ -267,7 +265,7 @@ def _rigid_rank(
                 if pair not in memo:
                     memo[pair] = _clear_of_placed(m, ((tip, entry),), radius, gamma)
                 ok &= memo[pair]
-            e = best_on_map(_masked(m, ok), objective)
+            e = best_direction(_masked(m, ok), objective)
             memo[key] = (
                 None if e is None else (placed + ((e.target_mm, e.entry_mm),), total + e.length_mm)
             )
@@ -401,9 +399,10 @@ def plan_needles(
         # the anatomy's map less what the placed needles block (CFRWMap.with_obstacles)
         m = base.with_obstacles(*bodies)
         kept.append(m)
-        e, cert, why = _certified_best(
-            problem.with_target(target), m, obj, tuple(placed_axes), tuple(bodies)
-        )
+        e, cert, why = certified_best(
+            m, obj, problem=problem.with_target(target), placed=tuple(placed_axes),
+            bodies=tuple(bodies),
+        )  # fmt: skip
         needle_clear = np.inf if cert is None else cert.needle_clearance_mm
         records.append(
             NeedleRecord(rank, j, targets[j].copy(), target, e, needle_clear, m.counts())
@@ -436,40 +435,6 @@ def _stopped(radius: float, gamma: float) -> MultiNeedlePlan:
     return MultiNeedlePlan((), (), False, 0, gamma, radius, reason, status=Status.TIMEOUT)
 
 
-def _certified_best(problem: StraightProblem, m: CFRWMap, obj: Objective, placed, bodies):
-    """The best direction of the map whose needle, as the record will hold it (its points
-    rounded by :func:`~.certify.record_point`), passes the straight clearance rule
-    (:func:`~.certify.certify_needle`, the certificate verify_multi re-derives) and the
-    length limit; a direction that fails is dropped and the next best tried, at most
-    :data:`RECORD_CHECK_MAX_DIRECTIONS` of them.
-
-    Returns
-    -------
-    (Entry or None, NeedleCertificate or None, str)
-        The accepted trajectory (its points, length and clearance as recorded) and its
-        certificate, or None and why ("" when the CFRW is empty).
-    """
-    ok = m.feasible.copy()
-    gamma, longest = problem.gamma_mm, problem.needle.max_length_mm
-    why = ""
-    for _ in range(RECORD_CHECK_MAX_DIRECTIONS):
-        e = best_on_map(_masked(m, ok), obj)
-        if e is None:
-            return None, None, why
-        tip, entry = record_point(e.target_mm), record_point(e.entry_mm)
-        cert = certify_needle(problem, tip, entry, placed, bodies)
-        if cert.passes(gamma) and cert.length_mm <= longest:
-            chosen = Entry(
-                entry, tip, e.theta_rad, e.phi_rad, cert.length_mm, cert.clearance_mm,
-                e.normal_angle_deg, e.iterations,
-            )  # fmt: skip
-            return chosen, cert, ""
-        why = "its directions fail the clearance rule once rounded as the record holds them"
-        ok &= ~((m.theta_rad[:, None] == e.theta_rad) & (m.phi_rad[None, :] == e.phi_rad))
-    n = RECORD_CHECK_MAX_DIRECTIONS
-    return None, None, f"its {n} best directions fail the clearance rule once rounded as recorded"
-
-
 def _greedy_order(maps, obj, radius, gamma) -> tuple:
     left = list(range(len(maps)))
     order: list[int] = []
@@ -482,7 +447,7 @@ def _greedy_order(maps, obj, radius, gamma) -> tuple:
         _, j, ok = min(sizes, key=lambda s: (s[0], s[1]))
         order.append(j)
         left.remove(j)
-        e = best_on_map(_masked(maps[j], ok), obj)
+        e = best_direction(_masked(maps[j], ok), obj)
         if e is not None:
             placed.append((e.target_mm, e.entry_mm))
     return tuple(order)
