@@ -23,16 +23,16 @@ TOY, MULTI = str(EXAMPLES / "toy.yaml"), str(EXAMPLES / "liver_phantom_multi.yam
 COMMANDS = {
     "plan": (["plan", TOY, "--out", "{d}/plan.json"], 2),
     "sweep": (["sweep", TOY, "--directions", "200", "--max-iterations", "300",
-               "--out", "{d}/sweep.json"], 3),  # fmt: skip
+               "--out", "{d}/sweep.json"], 3),
     "sweep-workers": (["sweep", TOY, "--directions", "200", "--max-iterations", "300",
-                       "--workers", "2", "--out", "{d}/sweep.json"], 2),  # fmt: skip
+                       "--workers", "2", "--out", "{d}/sweep.json"], 2),
     "puncture": (["puncture", "--trials", "1", "--out", "{d}"], 3),
     "puncture-workers": (["puncture", "--trials", "2", "--workers", "2", "--out", "{d}"], 1),
     "execute": (["execute", TOY, "{plan}", "--trials", "3", "--out", "{d}"], 2),
     "multi": (["multi", MULTI, "--out", "{d}/multi.json"], 2),
     "cfrw": (["cfrw", MULTI, "--out", "{d}/cfrw.json"], 2),
     "bench": (["bench", "kinematics", "--arcs", "20000", "--samples", "8", "--repeat", "1",
-               "--out", "{d}/bench.json"], 2),  # fmt: skip
+               "--out", "{d}/bench.json"], 2),
 }
 
 

@@ -45,7 +45,8 @@ class _Faulted:
                          observe=lambda t, true, est, pts, state: seen.append((t, state)))  # fmt: skip
 
 
-def _run(kind, length_s=100.0, guard=GuardSpec(hold_timeout_s=2.0), seed=4, **given):
+def _run(kind, length_s=100.0, guard=None, seed=4, **given):
+    guard = GuardSpec(hold_timeout_s=2.0) if guard is None else guard
     seen: list = []
     settings = ExecutionSettings(noise=ExecutionNoise.none(), guard=guard)
     run = execute_plan(PLAN, GOAL, 50.0, closed_loop=True, seed=seed, settings=settings,

@@ -21,7 +21,7 @@ import pytest
 
 pytest.importorskip("pyigtl", reason="pyigtl: pip install -e .[igtl]")
 
-from needlekit.cli import main  # noqa: E402
+from needlekit.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 TOY = ROOT / "examples" / "toy.yaml"

@@ -25,7 +25,6 @@ schedule is the trial seed's fourth child (:func:`fault_seed`): ``--trial K`` re
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np

@@ -284,7 +284,7 @@ class SensorGuard:
     def _screen(self, sample, inserted_mm: float) -> str | None:
         """The sample's verdict before the filter's gate (None: it passes)."""
         value = sample.pose
-        if not (type(value) is np.ndarray and value.dtype == np.float64  # noqa: E721
+        if not (type(value) is np.ndarray and value.dtype == np.float64
                 and value.flags.c_contiguous):  # fmt: skip
             value = np.ascontiguousarray(value, dtype=np.float64)
         taken = float(sample.taken_s)

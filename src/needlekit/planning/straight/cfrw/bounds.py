@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
-from needlekit.constants import STRAIGHT_CAP_ABOVE_GAMMA_MM, STRAIGHT_NEAR_STEP_MM
 from needlekit.anatomy.needle_body import NeedleBody
 from needlekit.anatomy.primitives import Capsule
+from needlekit.constants import STRAIGHT_CAP_ABOVE_GAMMA_MM, STRAIGHT_NEAR_STEP_MM
 from needlekit.geometry.segments import segment_distances
 from needlekit.planning.straight.problem import StraightProblem
 
