@@ -85,6 +85,14 @@ def _interrupted_sweep(tmp_path: Path, cpu_s: float, *extra: str):
     return subprocess.CompletedProcess(argv, proc.returncode, stdout, stderr), out
 
 
+def _directions_done(partial: Path) -> int:
+    """How many (direction, planner) results a partial sweep record holds (0 without one)."""
+    if not partial.exists():
+        return 0
+    rows = [r for r in json.loads(partial.read_text())["directions"] if r["effective"]]
+    return sum(r["status"][p] is not None for r in rows for p in ("rcs_star", "rrt"))
+
+
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory) -> dict:
     """The same sweep, uninterrupted (the table does not depend on the executor)."""
@@ -101,7 +109,13 @@ def whole(tmp_path_factory) -> dict:
 )
 def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, executor, cpu_s,
                                                                   whole):  # fmt: skip
-    done, out = _interrupted_sweep(tmp_path, cpu_s, *executor)
+    # a loaded machine may start the pool's workers slower than the moment allows: the
+    # moment moves later (x1.5) until a direction is done when it comes, at most twice
+    for attempt in range(3):
+        done, out = _interrupted_sweep(tmp_path, cpu_s * 1.5**attempt, *executor)
+        if _directions_done(tmp_path / "sweep.partial.json") > 0:
+            break
+        (tmp_path / "sweep.partial.json").unlink(missing_ok=True)
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert done.returncode == 130, done.stderr
     assert len(lines) == 1 and lines[0].startswith("interrupted: "), done.stderr

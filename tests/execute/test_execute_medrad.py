@@ -39,9 +39,11 @@ def test_bench_execute_times_every_replan_warm_and_cold_and_the_feedback_steps(
 
 
 def test_the_margin_comes_down_to_what_lung_1_allows(medrad_dir):
+    # the clearance rule certifies the whole path, half the 0.5 mm sample gap included:
+    # lung 1's plan keeps 0.1 mm of margin so (0.3 when only its samples were tested)
     margin, doc, _, res = plan_with_margin(1, 0.5, medrad_dir)
-    assert margin == pytest.approx(0.3) and res.status.value == "solved"
-    assert doc["needle"]["safety_margin_mm"] == pytest.approx(0.3)
+    assert margin == pytest.approx(0.1) and res.status.value == "solved"
+    assert doc["needle"]["safety_margin_mm"] == pytest.approx(0.1)
     assert res.stats["certified"]
 
 
