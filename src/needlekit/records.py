@@ -40,7 +40,7 @@ class Status(enum.Enum):
         search finished; a best plan so far is then reported as SOLVED).
     INVALID_INPUT
         The problem itself is malformed (start in collision beyond the start exclusion,
-        goal outside the allowed region, ...). Records written before issue 20 carry
+        goal outside the allowed region, ...). Records written before 2026-12-03 carry
         ``"invalid_problem"``, which still reads as this; ``INVALID_PROBLEM`` is the same
         member under its old name.
     """
@@ -223,7 +223,7 @@ def enum_of(kind: type[enum.Enum], value, where: str):
 def trial_solved(status: str) -> bool:
     """Whether a controller trial's written status says it reached its target:
     ``"solved"``, or ``"completed"`` in records written before the one status vocabulary
-    (issue 20).
+    (2026-12-03).
 
     Parameters
     ----------

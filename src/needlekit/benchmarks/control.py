@@ -17,7 +17,7 @@ step gets its own statistics (n, median, p90, p99, p99.9, max in us):
 - ``ticks``: every tick the 1 kHz loop runs (all but the jobs), the figure the robot sees.
 
 Every tick kind gets its own verdict (:func:`~needlekit.benchmarks.timing.tick_verdict`:
-median <= 100 us as issue 13 asked, and Franka's budget as issue 20 asks of each kind on its
+median <= 100 us (the control loop's budget), and Franka's budget for each kind on its
 own, p99 <= 300 us and p99.9 <= 1 ms), as do all ticks pooled. The record
 also counts the garbage collections during the timed trials (``gc.callbacks``: collections
 per generation and their pauses) and states the load average before and after, and the

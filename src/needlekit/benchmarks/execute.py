@@ -9,7 +9,7 @@ the given margin), RCS* plans; then
   whole :meth:`~needlekit.execute.replan.Replanner.replan` timed: the continuation
   problem, the search and the independent check. Each tip is re-planned warm-started (the
   rest of the plan, the default) and, as the reference in the same process, cold; the
-  record gives both and their ratio. Target (issue 21): p95 at most 25 ms, one sensor
+  record gives both and their ratio. Target: p95 at most 25 ms, one sensor
   period at 40 Hz.
 - **feedback step**: closed-loop trials with the default noise and sensor, every step of
   the controller timed (:class:`~needlekit.execute.run.LoopHooks`' ``tick_times``:
@@ -39,7 +39,7 @@ from needlekit.studies.execute_study import lung_scenario_document, warm_up_repl
 
 __all__ = ["FEEDBACK_P99_MS", "REPLAN_P95_MS", "run_execute_benchmark"]
 
-#: Issue 21's targets: re-plan latency p95 (one sensor period at 40 Hz) and feedback p99.
+#: The closed loop's targets: re-plan latency p95 (one sensor period at 40 Hz) and feedback p99.
 REPLAN_P95_MS: float = 25.0
 FEEDBACK_P99_MS: float = 1.0
 #: The perturbation of the re-planned tips: lateral SD (mm) and turn SD (deg) per axis.

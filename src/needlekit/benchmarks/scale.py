@@ -1,4 +1,4 @@
-"""``needlekit bench scale``: how the cost grows (issue 13, point 5).
+"""``needlekit bench scale``: how the cost grows with the problem's size.
 
 Four series, each recorded with the machine's load average when it started and ended:
 

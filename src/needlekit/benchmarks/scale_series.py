@@ -45,7 +45,7 @@ MAX_ITERATIONS: int = 1000
 TIME_LIMIT_S: float = 30.0
 #: The study's size the fitted line is read at (Tang et al. run 100 trials).
 STUDY_TARGET_TRIALS: int = 100
-#: The sweep's planner (the part of Feng's protocol issue 13 bounds).
+#: The sweep's planner (the part of Feng's protocol whose time is bounded).
 SWEEP_PLANNER: str = "rcs_star"
 
 Progress = Callable[[str], None] | None

@@ -47,7 +47,7 @@ __all__ = [
     "run_steerable_benchmark",
 ]
 
-#: Issue 4's reference for Med-RAD lung 1, RCS*: (start, r_min) -> certified cost (mm),
+#: The reference for Med-RAD lung 1, RCS*: (start, r_min) -> certified cost (mm),
 #: None where the goal is unreachable, "no plan" where nothing is found within 1 s.
 REFERENCE_LUNG1: dict[tuple[int, int], float | str | None] = {
     (1, 50): 58.26, (2, 50): "no plan", (3, 50): 53.24, (4, 50): 58.12, (5, 50): 58.09,

@@ -1,6 +1,6 @@
-"""``needlekit bench straight``: the straight multi-needle planner's speed (issue 11, point 6).
+"""``needlekit bench straight``: the straight multi-needle planner's speed.
 
-Targets (issue 11): a CFRW map at 1 degree for one target in at most 1 s; a whole
+Targets: a CFRW map at 1 degree for one target in at most 1 s; a whole
 multi-needle plan (order, every trajectory) in at most 10 s, the prepared anatomy
 excluded and reported apart.
 
@@ -54,7 +54,7 @@ from needlekit.scenario.straight import coverage_region, multi_problem_from_scen
 
 __all__ = ["TARGETS_S", "run_straight_benchmark"]
 
-#: Issue 11's targets (s): one 1-degree CFRW map, one whole multi-needle plan.
+#: The straight planner's speed targets (s): one 1-degree CFRW map, one whole multi-needle plan.
 TARGETS_S: dict[str, float] = {"cfrw_map_1deg_s": 1.0, "multi_plan_s": 10.0}
 #: Sigma height (mm) of the layer timed (the paper's Fig. 11 plane).
 LAYER_H_MM: float = 150.0
@@ -482,7 +482,7 @@ def run_straight_benchmark(
     examples_dir: str | os.PathLike | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Time the straight multi-needle planner stage by stage against issue 11's targets.
+    """Time the straight multi-needle planner stage by stage against its speed targets.
 
     Parameters
     ----------

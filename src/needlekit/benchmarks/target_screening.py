@@ -1,4 +1,4 @@
-"""Sampled lung targets screened beside the UNC reference app (issue 20, point 2).
+"""Sampled lung targets screened beside the UNC reference app.
 
 ``needlekit bench steerable --reference-app PATH --sample-targets N [--target-seed S]``
 replaces each patient's own target by ``N`` targets drawn reproducibly
@@ -47,7 +47,7 @@ SAMPLE_DISTANCE_MM = (35.0, 90.0)
 SAMPLE_CONE_DEG = 90.0
 #: The app's refusal that needlekit's connectivity proof must match.
 NOT_CONNECTED = "Reachable workspace is not connected to the goal"
-#: Issue 20's bound on needlekit's time to answer those cases.
+#: The bound on needlekit's time to answer those cases.
 SCREEN_TIME_S = 0.1
 #: Voxels drawn per batch, and batches tried per target before giving up.
 _BATCH = 4096

@@ -11,8 +11,8 @@ import numpy as np
 __all__ = ["TICK_TARGET_US", "step_statistics", "tick_verdict"]
 
 #: A control tick's targets (us). Franka's 1 kHz loop leaves about 300 us to user code:
-#: p99 <= 300 us for every kind of tick on its own (issue 20), p99.9 <= 1 ms (a tick past
-#: the whole period is a missed cycle); the median (issue 13) leaves room for the tail.
+#: p99 <= 300 us for every kind of tick on its own, p99.9 <= 1 ms (a tick past
+#: the whole period is a missed cycle); the median (the control loop's budget) leaves room for the tail.
 TICK_TARGET_US = {"median": 100.0, "p99": 300.0, "p99.9": 1000.0}
 
 

@@ -246,7 +246,7 @@ def _register_execute_lungs(study_sub) -> None:
     se = study_sub.add_parser(
         "execute-lungs",
         help="plans carried out in simulated tissue on the Med-RAD lungs, open beside closed "
-        "loop (issue 21)",
+        "loop",
         description="For each Med-RAD lung (start 1 to its target): the margin the execution "
         "noise asks for (a pilot's deviation, k sigma), the largest the anatomy allows, the "
         "plan, and --trials trials open and closed loop as `needlekit execute` runs them. "
@@ -284,7 +284,7 @@ _probability = number(0.0, 0.5, low_open=True)
 def _register_livers(study_sub) -> None:
     sl = study_sub.add_parser(
         "livers",
-        help="every Med-RAD liver nodule ablated by straight needles (issue 11)",
+        help="every Med-RAD liver nodule ablated by straight needles",
         description="For each Med-RAD liver, each start pose and its nodule, and each gamma: "
         "targets chosen to cover the nodule plus margin, trajectories planned as `needlekit "
         "multi` plans examples/medrad_liver4.yaml, every planned needle re-checked; what "
@@ -315,7 +315,7 @@ def _register_livers(study_sub) -> None:
 def _register_feng_lungs(study_sub) -> None:
     sf = study_sub.add_parser(
         "feng-lungs",
-        help="Feng et al.'s effective-region protocol on a Med-RAD lung, two targets (issue 12)",
+        help="Feng et al.'s effective-region protocol on a Med-RAD lung, two targets",
         description="Feng et al.'s protocol on real anatomy: Med-RAD lung 5 from start 1's "
         "point, their needle (2 mm, r_min 50 mm, l_max 100 mm, alpha 20 deg, tau 1 mm), 544 "
         "start directions, RCS*, RCS and RRT 1 s each, to the given target and a second one "

@@ -1,4 +1,4 @@
-"""The control step's numerical core as two numba kernels (issue 13 point 2).
+"""The control step's numerical core as two numba kernels.
 
 :func:`control_qp` builds the whole QP of one control step (task error and Jacobian, Hessian
 and gradient, the step's VFI rows and the joint-limit bounds) into buffers the caller keeps

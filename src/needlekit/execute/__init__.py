@@ -1,6 +1,6 @@
 """A plan carried out: a simulated bevel-tip needle that does not follow its model, a
 tracked tip, a pose estimator, a feedback law that steers back to the plan, and
-re-planning from where the tip is (issue 21; docs/execute.md).
+re-planning from where the tip is (docs/execute.md).
 
 Modules
 -------

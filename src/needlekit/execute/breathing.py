@@ -10,7 +10,7 @@ the plateau longer for larger ``n`` (``shape``). Each cycle ``k`` draws its ampl
 period around the nominal ones (SD ``amplitude_jitter`` and ``period_jitter``, fractions;
 breath-to-breath variability), from the trial's seed. Presets (:data:`PRESETS`): lung
 5 mm and liver 13 mm superior-inferior (the tissue moving inferior, ``-S`` in RAS, as the
-diaphragm descends), period 4 s, the figures issue 21 gives from published motion studies.
+diaphragm descends), period 4 s, figures from published motion studies.
 The plan is made on the anatomy at end-exhale (``d = 0``), as a breath-hold CT shows it.
 
 **The needle in moving tissue.** The robot drives the needle in its own (world) frame; the
@@ -136,7 +136,7 @@ class Breathing:
         return BreathingTrace(self, np.array(starts[:-1]), np.array(amps), np.array(periods))
 
 
-#: Presets: issue 21's figures (superior-inferior, 4 s).
+#: Presets: figures from published motion studies (superior-inferior, 4 s).
 PRESETS: dict[str, Breathing] = {
     "lung": Breathing(amplitude_mm=5.0),
     "liver": Breathing(amplitude_mm=13.0),

@@ -8,8 +8,8 @@ drawn here from its own random stream:
 - **Orientation noise.** After every step the tip turns by a random rotation (a rotation
   vector ``N(0, s^2 I)`` in the tip frame), ``s = orientation_sigma_rad`` per
   ``reference_interval_s`` of insertion, scaled by ``sqrt(dt / reference_interval_s)``
-  for other steps (a random walk). Default pi/2000 rad per 0.1 s, the value issue 21
-  gives from published simulations of steerable needles.
+  for other steps (a random walk). Default pi/2000 rad per 0.1 s, the value
+  taken from published simulations of steerable needles.
 - **Curvature.** The needle's radius of curvature in this tissue is ``r_min`` plus
   ``N(0, radius_sigma_mm^2)`` (default SD 3 mm), drawn once per insertion: a commanded
   curvature ``kappa`` (a duty cycle ``kappa r_min``) gives ``kappa r_min / r``.

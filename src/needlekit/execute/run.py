@@ -50,7 +50,7 @@ TIME_CAP_FACTOR: float = 20.0
 #: A sample due this close (s) to the loop's time is taken at it (module notes in the loop).
 SENSOR_SLACK_S: float = 1e-9
 
-#: The tip sensor of issue 21: 40 Hz, 0.4 mm and 0.5 deg SD, 5 ms latency.
+#: The simulated tip sensor: 40 Hz, 0.4 mm and 0.5 deg SD, 5 ms latency.
 DEFAULT_SENSOR = EMSensorSpec(
     rate_hz=40.0, position_sigma_mm=0.4, orientation_sigma_deg=0.5, latency_s=0.005
 )

@@ -1,4 +1,4 @@
-"""The closed loop on the Med-RAD lungs (issue 21, point 3; ``needlekit study execute-lungs``).
+"""The closed loop on the Med-RAD lungs (``needlekit study execute-lungs``).
 
 For each lung (start 1 to its target; the needle and the exact voxel-centre test of
 ``examples/medrad_lung1.yaml``):
@@ -19,7 +19,7 @@ For each lung (start 1 to its target; the needle and the exact voxel-centre test
    (:func:`~needlekit.studies.execute_study.run_execute_study`), into
    ``DIR/lungN/execute.json``.
 
-``DIR/execute_lungs.json`` gathers the cases and judges each against issue 21's targets:
+``DIR/execute_lungs.json`` gathers the cases and judges each against the closed loop's targets:
 closed-loop mean error at most 0.5 mm, at least 95 % of trials within 1 mm, no obstacle
 crossed (open or closed loop figures beside them, judged on nothing).
 """
@@ -65,7 +65,7 @@ __all__ = [
 
 #: The study's record in its --out folder.
 LUNGS_FILE = "execute_lungs.json"
-#: Issue 21's targets on the five lungs.
+#: The closed loop's targets on the five lungs.
 TARGETS = {"closed_mean_error_mm": 0.5, "closed_within_1mm": 0.95, "crossed": 0}
 #: The crossing probability (per recorded point) the margin wanted is set for.
 CROSSING_PROBABILITY: float = 0.001

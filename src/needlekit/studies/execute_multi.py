@@ -1,4 +1,4 @@
-"""A straight multi-needle plan inserted by the robot (issue 21 point 5): each needle's line
+"""A straight multi-needle plan inserted by the robot: each needle's line
 is the guide line of Tang et al.'s controller on the simulated Panda, the needles go in in
 the planned order, the needles already placed are vector-field-inequality obstacles, and
 the plan's deformation model moves the remaining targets after each insertion.

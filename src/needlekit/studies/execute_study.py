@@ -1,5 +1,5 @@
 """Monte Carlo of a plan carried out: every trial open loop and closed loop on the same
-needle in the same tissue (issue 21, point 3; ``needlekit execute``).
+needle in the same tissue (``needlekit execute``).
 
 Trial ``i`` draws everything from the ``i``-th child of ``SeedSequence(seed)`` (its
 ``entropy`` and ``spawn_key`` are written beside it, and ``--trial K`` replays it alone):
@@ -64,7 +64,7 @@ __all__ = [
 #: What ``needlekit execute`` writes in its --out folder.
 EXECUTE_FILE = "execute.json"
 
-#: Published closed-loop steerable-needle and robotic insertion errors (issue 21), for the
+#: Published closed-loop steerable-needle and robotic insertion errors, for the
 #: report's table: (source, setting, mean mm, SD mm or None, note).
 LITERATURE: tuple[tuple, ...] = (
     ("Vrooijink et al.", "phantom, RRT re-planned from 2D ultrasound, no obstacle", 0.86, 0.35, ""),

@@ -1,6 +1,6 @@
 """Feng et al.'s effective-puncture-region protocol on real anatomy: a Med-RAD lung.
 
-Issue 12, point 1. Feng et al. (2023) sweep 544 start directions at one start point, keep
+Feng et al. (2023) sweep 544 start directions at one start point, keep
 those at least alpha = 20 deg off the punctured surface, and run RRT, RCS and RCS* for 1 s
 from each, to two targets (their Tables 2-4, Figs. 7-9). They print their start and goals
 but not their lung obstacles, so the protocol cannot be rerun on their case. Here it runs

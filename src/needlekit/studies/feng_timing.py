@@ -1,5 +1,5 @@
-"""How long Feng's protocol on a Med-RAD lung took, and where the time went (issue 13,
-point 3: the protocol at scale).
+"""How long Feng's protocol on a Med-RAD lung took, and where the time went (the
+protocol at scale).
 
 The study's planners run with wall-clock budgets (1 s per direction and planner); what is
 around them (preparing the patient, sending tasks, waiting between sweeps, checking the
@@ -16,9 +16,9 @@ from __future__ import annotations
 
 __all__ = ["BOUND_FACTOR", "RCS_STAR_LIMIT_S", "timing_record", "timing_verdict"]
 
-#: The wall time may exceed the planners' time per worker by this factor (issue 13).
+#: The wall time may exceed the planners' time per worker by this factor.
 BOUND_FACTOR: float = 1.15
-#: The RCS* part (both targets) must be done within this time (s; issue 13).
+#: The RCS* part (both targets) must be done within this time (s).
 RCS_STAR_LIMIT_S: float = 60.0
 
 

@@ -1,6 +1,6 @@
 """The Med-RAD liver study: every nodule of every Med-RAD liver ablated by straight needles.
 
-Issue 11, point 6. For each patient, each start pose the patient's files pair with a nodule
+For each patient, each start pose the patient's files pair with a nodule
 (``start1`` with the only nodule, ``target2_start1`` with nodule 2, ...), and each safety
 distance gamma, :func:`run_liver_study` plans the case as ``needlekit multi`` plans
 ``examples/medrad_liver4.yaml`` (:data:`LIVER_SETTINGS`, the example's settings; only the
@@ -71,7 +71,7 @@ LIVER_SETTINGS: dict = {
         "approach_cone_deg": 45,
     },
 }
-#: The safety distances of issue 11 (mm).
+#: The safety distances (mm).
 DEFAULT_GAMMAS_MM: tuple[float, ...] = (1.5, 3.0)
 
 

@@ -142,7 +142,7 @@ class CFRWMap:
 
     def with_obstacles(self, *fields: DistanceField, step_mm: float = NEAR_STEP_MM) -> CFRWMap:
         """The CFRW once more obstacles are in place (the needles placed so far): the
-        intersection of this map's CFRW with the new obstacles' (issue 11, point 2).
+        intersection of this map's CFRW with the new obstacles'.
 
         Directions, entries, lengths and normal angles are this map's (the entry surface
         is unchanged); each clearance is lowered to each new obstacle's certified bound
