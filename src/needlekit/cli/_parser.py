@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from needlekit import __version__
 from needlekit.cli import (
     bench,
+    cache,
     demo,
     execute,
     kinematics,
@@ -57,6 +58,7 @@ COMMAND_MODULES = (
     reproduce,
     study,  # study livers|feng-lungs
     bench,  # bench SUITE
+    cache,  # cache list|clear|limit
 )
 
 

@@ -102,6 +102,9 @@ _WRITE_THREADS = 2
 _TEMP_PREFIX = ".tmp-"
 _TRASH_PREFIX = ".trash-"
 _MANIFEST = "manifest.json"
+#: An entry's unsigned usage record (patient, source, created, last used):
+#: :mod:`needlekit.io.cache_entries`.
+USAGE_FILE = "usage.json"
 
 
 class CorruptEntryError(Exception):
@@ -456,6 +459,7 @@ def write_entry(
     key: str,
     inputs: dict,
     arrays: dict[str, tuple[np.ndarray, dict]],
+    usage: dict | None = None,
 ) -> CacheEntry:
     """Store a new entry atomically and open it.
 
@@ -471,6 +475,9 @@ def write_entry(
         What the key was made of (kept in the manifest, for people reading it).
     arrays : dict of str to (ndarray, dict)
         Name -> (values of any shape, metadata). Names are file stems: letters, digits, ``_``, ``-``.
+    usage : dict, optional
+        The entry's usage record (:func:`needlekit.io.cache_entries.usage_record`),
+        written with it.
 
     Returns
     -------
@@ -513,6 +520,8 @@ def write_entry(
             secret,
         )
         _replace_json(tmp, _MANIFEST, manifest)
+        if usage is not None:
+            _replace_json(tmp, USAGE_FILE, usage)
         for attempt in range(2):
             try:
                 os.rename(tmp, final)

@@ -19,9 +19,10 @@ import numpy as np
 from needlekit.anatomy.fields import LazyField
 from needlekit.anatomy.voxel import DEFAULT_MASK_PADDING_MM, MASK_OFFSET_MAX_FRACTION, VoxelSDF
 from needlekit.anatomy.voxel_local import local_mask_sdf, preview_mask_sdf
-from needlekit.io import anatomy_cache
+from needlekit.io import anatomy_cache, cache_entries
 from needlekit.io.cache_key import CacheKeyError
 from needlekit.io.medrad_prepare import FREE_SPACE_PADDING_MM, _prepare, _Prepared, _Spec
+from needlekit.io.prepare_progress import PreparationProgress, estimate_s, header_voxels
 from needlekit.io.volumes import Mask
 
 __all__: list[str] = []
@@ -88,6 +89,10 @@ def _cached_sdf(entry: anatomy_cache.CacheEntry, name: str) -> VoxelSDF:
     if stored is not None:
         return _restored_sdf(stored)
     sdf = VoxelSDF.from_mask(_uncropped(entry[f"mask_{name}"]))
+    if not cache_entries.make_room(entry.path.parent, sdf.values.nbytes, keep=entry.path):
+        log.info("the field of %s (%s) is not stored: the cache is at its limit", name,
+                 cache_entries.format_size(sdf.values.nbytes))  # fmt: skip
+        return sdf
     stored = entry.put(f"sdf_{name}", sdf.values, sdf.prepared_state())
     return sdf if stored is None else _restored_sdf(stored)
 
@@ -158,11 +163,27 @@ def _from_entry(entry: anatomy_cache.CacheEntry, specs: list[_Spec],
     )
 
 
+def _estimate(paths: dict[str, Path], region: str) -> float | None:
+    """Seconds a first preparation takes, from the masks' headers (None if unreadable)."""
+    voxels = {name: header_voxels(p) for name, p in paths.items()}
+    if any(v is None for v in voxels.values()):
+        return None
+    return estimate_s(list(voxels.values()), voxels[region])
+
+
+def _entry_bytes(arrays: dict[str, tuple[np.ndarray, dict]]) -> int:
+    """About the bytes an entry of these arrays takes (each array's ``.npy`` header and
+    record counted as 2 kB)."""
+    return sum(np.asarray(a).nbytes + 2048 for a, _ in arrays.values())
+
+
 def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: list[_Spec],
                     region: str, n_threads: int, folder: Path, cache_dir) -> _Prepared:  # fmt: skip
     """:func:`_prepare` through the cache: open the entry of the masks' content, or build
-    and store it."""
+    and store it, saying so (:class:`~needlekit.io.prepare_progress.PreparationProgress`)
+    and keeping the cache within its limit (:func:`~needlekit.io.cache_entries.make_room`)."""
     t0 = time.perf_counter()
+    limit = cache_entries.cache_limit(cache_dir)[0]  # a bad limit: one line, before any work
     inputs = _cache_inputs(organ, paths, specs, region)
     key = anatomy_cache.entry_key(inputs)
     label = f"medrad-{organ}{patient}"
@@ -177,17 +198,48 @@ def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: lis
         return prep
     if entry is not None:
         timings["cache_load_s"] = time.perf_counter() - t0
+        cache_entries.mark_used(entry.path)
         log.debug("prepared anatomy from the cache: %s", entry.path)
         return _from_entry(entry, specs, timings)
-    prep = _prepare(paths, specs, region, n_threads, folder)
-    timings.update(prep.timings_s)
-    t0 = time.perf_counter()
+    what = f"Med-RAD {organ} {patient}"
+    where = anatomy_cache.cache_root(cache_dir) / f"{label}-{key}"
+    progress = PreparationProgress(what, where, _estimate(paths, region))
     try:
-        entry = anatomy_cache.write_entry(cache_dir, label, key, inputs, _entry_arrays(prep))
+        return _build_and_store(progress, paths, specs, region, n_threads, folder,
+                                (cache_dir, label, key, inputs, limit), timings)  # fmt: skip
+    finally:
+        progress.close()
+
+
+def _build_and_store(progress: PreparationProgress, paths, specs, region, n_threads, folder,
+                     store: tuple, timings: dict[str, float]) -> _Prepared:  # fmt: skip
+    """Prepare the anatomy and store it as a new entry, if it fits within the limit."""
+    cache_dir, label, key, inputs, limit = store
+    prep = _prepare(paths, specs, region, n_threads, folder, progress)
+    timings.update(prep.timings_s)
+    arrays = _entry_arrays(prep)
+    need = _entry_bytes(arrays)
+    progress(f"storing {cache_entries.format_size(need)}")
+    t0 = time.perf_counter()
+    if not cache_entries.make_room(cache_dir, need, limit=limit):
+        log.warning(
+            "%s (%s) is not stored: it is larger than the prepared-anatomy cache's limit of "
+            "%s (needlekit cache limit SIZE raises it)", progress.what,
+            cache_entries.format_size(need), cache_entries.format_size(limit),
+        )  # fmt: skip
+        progress.done("not stored (over the cache's limit)")
+        prep.timings_s = timings
+        return prep
+    usage = cache_entries.usage_record(progress.what, str(folder))
+    try:
+        entry = anatomy_cache.write_entry(cache_dir, label, key, inputs, arrays, usage)
     except OSError as exc:
         log.warning("prepared-anatomy cache unavailable (%s); going on without it", exc)
+        progress.done("not stored")
         prep.timings_s = timings
         return prep
     timings["cache_write_s"] = time.perf_counter() - t0
+    cache_entries.mark_used(entry.path)
+    progress.done(f"{cache_entries.format_size(need)} kept in {entry.path}")
     log.debug("prepared anatomy stored in the cache: %s", entry.path)
     return _from_entry(entry, specs, timings)
