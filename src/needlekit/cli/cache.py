@@ -43,7 +43,7 @@ def _limit_line(cache_dir) -> str:
 
     limit, source = cache_limit(cache_dir)
     where = {"default": "the default"}.get(source, f"from {source}")
-    return f"limit {format_size(limit)} ({where})"
+    return f"limit of {format_size(limit)} ({where})"
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -71,7 +71,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
     else:
         print("no entries")
     print(f"total: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}, "
-          f"{format_size(total)} = {100 * total / limit:.0f} % of the {_limit_line(args.cache_dir)}")  # fmt: skip
+          f"{format_size(total)}, {100 * total / limit:.0f} % of the {_limit_line(args.cache_dir)}")  # fmt: skip
     writing = being_written(args.cache_dir)
     if writing:
         print(f"being written now: {format_size(writing)} (not yet an entry)")
@@ -80,8 +80,13 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 def _cmd_clear(args: argparse.Namespace) -> int:
     from needlekit.io.anatomy_cache import cache_root
-    from needlekit.io.cache_entries import format_size, list_entries, matches, remove_entries
-    from needlekit.io.cache_entries import remove_stale
+    from needlekit.io.cache_entries import (
+        format_size,
+        list_entries,
+        matches,
+        remove_entries,
+        remove_stale,
+    )
 
     root = cache_root(args.cache_dir)
     entries = list_entries(args.cache_dir)
@@ -107,8 +112,7 @@ def _cmd_clear(args: argparse.Namespace) -> int:
 
 
 def _cmd_limit(args: argparse.Namespace) -> int:
-    from needlekit.io.cache_entries import CACHE_LIMIT_ENV, cache_limit, make_room
-    from needlekit.io.cache_entries import set_cache_limit
+    from needlekit.io.cache_entries import CACHE_LIMIT_ENV, cache_limit, make_room, set_cache_limit
 
     if args.size is False:  # no SIZE: say what it is
         print(_limit_line(args.cache_dir))

@@ -175,7 +175,9 @@ def cache_limit(cache_dir: str | os.PathLike | None = None) -> tuple[int, str]:
     except OSError:  # none there (or no readable folder: nothing will be stored anyway)
         return DEFAULT_LIMIT_BYTES, "default"
     except ValueError as exc:
-        raise InvalidInputError(str(path), f"expected the cache's limit, unreadable: {exc}") from None
+        raise InvalidInputError(
+            str(path), f"expected the cache's limit, unreadable: {exc}"
+        ) from None
     size = data.get("limit_bytes") if isinstance(data, dict) else None
     if isinstance(size, bool) or not isinstance(size, int) or not 0 < size <= MAX_LIMIT_BYTES:
         raise InvalidInputError(

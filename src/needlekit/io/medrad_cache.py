@@ -189,6 +189,8 @@ def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: lis
     label = f"medrad-{organ}{patient}"
     timings = {"hash_s": time.perf_counter() - t0}
     t0 = time.perf_counter()
+    where = anatomy_cache.cache_root(cache_dir) / f"{label}-{key}"
+    existed = where.is_dir()
     try:
         entry = anatomy_cache.open_entry(cache_dir, label, key)
     except CacheKeyError as exc:  # nothing can be checked or signed: no cache this run
@@ -202,8 +204,8 @@ def _prepare_cached(organ: str, patient: int, paths: dict[str, Path], specs: lis
         log.debug("prepared anatomy from the cache: %s", entry.path)
         return _from_entry(entry, specs, timings)
     what = f"Med-RAD {organ} {patient}"
-    where = anatomy_cache.cache_root(cache_dir) / f"{label}-{key}"
-    progress = PreparationProgress(what, where, _estimate(paths, region))
+    why = "its entry was damaged" if existed else "first use"
+    progress = PreparationProgress(what, where, _estimate(paths, region), why=why)
     try:
         return _build_and_store(progress, paths, specs, region, n_threads, folder,
                                 (cache_dir, label, key, inputs, limit), timings)  # fmt: skip

@@ -6,10 +6,10 @@ other progress bars are::
 
     preparing Med-RAD lung 1 (first use; about 17 s, kept in ~/.cache/needlekit/medrad-lung1-4969643a…): masks 3/5 [00:04]
 
-Otherwise (a pipe, a file, a notebook, a batch worker) the same opening line is logged once
-(level WARNING, so it shows without ``-v``), each stage at INFO (``-v``) and the end at
-INFO. Nothing goes to stdout, so JSON printed there is never mixed with it. A patient found
-in the cache says nothing.
+Otherwise (a pipe, a file, a notebook, a batch worker) the same lines are logged at INFO
+(``needlekit -v`` shows them): the opening line, each stage, and the end. Nothing goes to
+stdout, so JSON printed there is never mixed with it. A patient found in the cache says
+nothing.
 
 The estimate
     :func:`estimate_s` scales measured seconds per million voxels: reading a mask
@@ -79,7 +79,9 @@ def header_voxels(path: str | os.PathLike) -> int | None:
         with opener(p, "rb") as f:
             head = f.read(540)
         size = int.from_bytes(head[:4], "little")
-        cls = nib.Nifti2Header if 540 in (size, int.from_bytes(head[:4], "big")) else nib.Nifti1Header
+        cls = (
+            nib.Nifti2Header if 540 in (size, int.from_bytes(head[:4], "big")) else nib.Nifti1Header
+        )
         header = cls.from_fileobj(io.BytesIO(head[: cls.template_dtype.itemsize]))
         n = 1
         for d in header.get_data_shape()[:3]:
@@ -135,13 +137,16 @@ class PreparationProgress:
         Seconds (None: unknown, not said).
     stream : file, optional
         Where the live line goes (default stderr); it is live only on a terminal.
+    why : str
+        Why it is prepared (``"first use"``, ``"its entry was damaged"``).
     """
 
-    def __init__(self, what: str, where, estimate: float | None, stream=None) -> None:
+    def __init__(self, what: str, where, estimate: float | None, stream=None,
+                 why: str = "first use") -> None:  # fmt: skip
         self.what = what
         self.estimate = estimate
         about = "" if estimate is None else f"about {max(1, round(estimate))} s, "
-        self.head = f"preparing {what} (first use; {about}kept in {_short(Path(where))})"
+        self.head = f"preparing {what} ({why}; {about}kept in {_short(Path(where))})"
         self._t0 = time.perf_counter()
         self._bar = None
         stream = sys.stderr if stream is None else stream
@@ -155,7 +160,7 @@ class PreparationProgress:
             )  # fmt: skip
             self._bar.set_postfix_str("starting", refresh=True)
         else:
-            log.warning("%s", self.head)
+            log.info("%s", self.head)
 
     def __call__(self, stage: str) -> None:
         """A stage begins (``"masks 3/5"``, ``"free-space field"``, ``"storing 0.62 GB"``)."""
