@@ -13,7 +13,8 @@ Size limit
     :data:`DEFAULT_LIMIT_BYTES` (10 GB). Sizes are decimal: 1 GB = 10^9 bytes, 1 GiB =
     2^30. Before a new entry is stored, or an array added to one, :func:`make_room`
     removes the least recently used entries until the new bytes fit, in one log line;
-    what cannot fit even in an empty cache is not stored (the run goes on from memory).
+    what would not fit even then is not stored (the run goes on from memory) and nothing
+    is removed for it.
 
 What eviction never removes
     The entries this process has opened or written (:func:`mark_used`); an entry still
@@ -128,12 +129,12 @@ def parse_size(text: str, field: str = "SIZE") -> int:
 
 
 def format_size(n: int | float) -> str:
-    """A size for people: ``624 MB``, ``1.52 GB`` (decimal units).
+    """A size for people: ``624 MB``, ``1.52 GB``, ``2 kB`` (decimal units).
 
     Examples
     --------
     >>> format_size(624_000_000), format_size(1_520_000_000), format_size(2_000)
-    ('624 MB', '1.52 GB', '0.00 MB')
+    ('624 MB', '1.52 GB', '2 kB')
     >>> format_size(10**10)
     '10 GB'
     """
@@ -141,7 +142,7 @@ def format_size(n: int | float) -> str:
         return f"{n / 1e9:.3g} GB"
     if n >= 10**6:
         return f"{n / 1e6:.0f} MB"
-    return f"{n / 1e6:.2f} MB"
+    return f"{n / 1e3:.0f} kB"
 
 
 # ----------------------------------------------------------------------------------------
@@ -490,8 +491,8 @@ def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
     Returns
     -------
     bool
-        Whether the bytes fit now (False: nothing else could be removed; the caller
-        does not store them).
+        Whether the bytes fit now. False when they would not fit even after removing every
+        entry it may remove: then it removes none, and the caller does not store them.
     """
     if limit is None:
         limit = cache_limit(cache_dir)[0]
@@ -510,6 +511,8 @@ def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
             continue
         evict.append(e)
         left -= e.bytes
+    if left + need_bytes > limit:  # it would not fit even so: keep the others
+        return False
     removed = remove_entries(evict)
     if removed:
         log.warning(
@@ -519,8 +522,7 @@ def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
             ", ".join(f"{e.patient} ({format_size(e.bytes)}, last used {_utc(e.last_used)})"
                       for e in removed),
         )  # fmt: skip
-    left = total - sum(e.bytes for e in removed)
-    return left + need_bytes <= limit
+    return True
 
 
 def remove_stale(cache_dir: str | os.PathLike | None = None) -> None:

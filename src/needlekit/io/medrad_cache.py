@@ -224,10 +224,12 @@ def _build_and_store(progress: PreparationProgress, paths, specs, region, n_thre
     progress(f"storing {cache_entries.format_size(need)}")
     t0 = time.perf_counter()
     if not cache_entries.make_room(cache_dir, need, limit=limit):
+        why = ("it is larger than" if need > limit else
+               "the entries in use or being written leave no room for it within")  # fmt: skip
         log.warning(
-            "%s (%s) is not stored: it is larger than the prepared-anatomy cache's limit of "
-            "%s (needlekit cache limit SIZE raises it)", progress.what,
-            cache_entries.format_size(need), cache_entries.format_size(limit),
+            "%s (%s) is not stored: %s the prepared-anatomy cache's limit of %s "
+            "(needlekit cache limit SIZE raises it)", progress.what,
+            cache_entries.format_size(need), why, cache_entries.format_size(limit),
         )  # fmt: skip
         progress.done("not stored (over the cache's limit)")
         prep.timings_s = timings
