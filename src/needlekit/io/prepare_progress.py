@@ -108,7 +108,7 @@ def estimate_s(mask_voxels: list[int], grid_voxels: int) -> float:
     Examples
     --------
     >>> round(estimate_s([84_227_584] * 5, 84_227_584), 1)  # lung 1
-    17.3
+    17.4
     """
     read = READ_S_PER_MVOXEL * sum(mask_voxels) / 1e6
     return read + (FIELD_S_PER_MVOXEL + STORE_S_PER_MVOXEL) * grid_voxels / 1e6
