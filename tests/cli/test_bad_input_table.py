@@ -1111,6 +1111,27 @@ ROWS = [
         ["bench", "nope"],
         "error: argument SUITE: invalid choice: 'nope' (choose from 'kinematics', 'fields', 'control', 'steerable', 'execute', 'approach', 'straight', 'scale')",
     ),
+    # -- cache
+    (
+        ["cache", "limit", "banana"],
+        "error: argument SIZE: expected a size such as 10GB, 500MB or 1.5TB (up to 1000TB), got 'banana'",
+    ),
+    (
+        ["cache", "limit", "5"],
+        "error: argument SIZE: expected a size such as 10GB, 500MB or 1.5TB (up to 1000TB), got '5'",
+    ),
+    (
+        ["cache", "clear", "--older-than-days", "-1"],
+        "error: argument --older-than-days: expected a number in [0, 36500] days, got '-1'",
+    ),
+    (
+        ["cache", "clear", "--cache-dir", "{d}", "--patient", "lung9"],
+        "error: --patient: expected a patient or entry key held in {d} (have: none), got 'lung9'",
+    ),
+    (
+        ["cache", "nope"],
+        "error: argument ACTION: invalid choice: 'nope' (choose from 'list', 'clear', 'limit')",
+    ),
 ]
 
 

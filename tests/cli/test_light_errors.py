@@ -235,6 +235,11 @@ CASES = {
         ["bench", "control", "--out", "/proc/x.json"],
         ["bench", "fields", "--out", "{d}/pose.txt/x.json"],
     ],
+    "cache": [
+        ["cache", "limit", "banana"],
+        ["cache", "clear", "--older-than-days", "-1"],
+        ["cache", "clear", "--cache-dir", "{d}", "--patient", "lung9"],
+    ],
 }
 
 #: Errors whose checks moved ahead of heavy imports: the pose file (``_validation`` checks
@@ -251,7 +256,7 @@ CASES["formerly heavy"] = [
 
 
 #: A command group without its sub-command is a usage error (exit 2), not its help.
-CASES["groups"] = [["bench"], ["study"], ["scene"], ["kinematics"]]
+CASES["groups"] = [["bench"], ["study"], ["scene"], ["kinematics"], ["cache"]]
 
 
 def _check(cases: list[list[str]], files: Path) -> None:

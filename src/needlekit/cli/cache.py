@@ -123,7 +123,7 @@ def _cmd_limit(args: argparse.Namespace) -> int:
     print(_limit_line(args.cache_dir))
     if source == f"${CACHE_LIMIT_ENV}":
         print(f"note: ${CACHE_LIMIT_ENV} is set and takes precedence over the stored limit")
-    make_room(args.cache_dir, 0, limit=limit)  # the cache holds no more than its limit
+    make_room(args.cache_dir, 0, limit=limit, say=print)  # it holds no more than its limit
     return EXIT_OK
 
 

@@ -470,8 +470,8 @@ def remove_entries(entries: list[EntryInfo]) -> list[EntryInfo]:
     return done
 
 
-def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
-              limit: int | None = None, keep: str | os.PathLike | None = None) -> bool:  # fmt: skip
+def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *, limit: int | None = None,
+              keep: str | os.PathLike | None = None, say=None) -> bool:  # fmt: skip
     """Remove least recently used entries until ``need_bytes`` more fit within the limit.
 
     Never removed: ``keep``, the entries this process uses (:func:`mark_used`), entries
@@ -487,6 +487,8 @@ def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
         Bytes (default :func:`cache_limit`).
     keep : path-like, optional
         The entry about to grow.
+    say : callable, optional
+        Given the line of what was removed instead of the log (a command prints it).
 
     Returns
     -------
@@ -515,13 +517,16 @@ def make_room(cache_dir: str | os.PathLike | None, need_bytes: int, *,
         return False
     removed = remove_entries(evict)
     if removed:
-        log.warning(
-            "prepared-anatomy cache over its limit of %s: removed %s, least recently used "
-            "(needlekit cache limit SIZE changes the limit)",
-            format_size(limit),
-            ", ".join(f"{e.patient} ({format_size(e.bytes)}, last used {_utc(e.last_used)})"
-                      for e in removed),
+        line = (
+            f"prepared-anatomy cache over its limit of {format_size(limit)}: removed "
+            + ", ".join(f"{e.patient} ({format_size(e.bytes)}, last used {_utc(e.last_used)})"
+                        for e in removed)
+            + ", least recently used (needlekit cache limit SIZE changes the limit)"
         )  # fmt: skip
+        if say is None:
+            log.warning("%s", line)
+        else:
+            say(line)
     return True
 
 
