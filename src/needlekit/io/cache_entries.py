@@ -53,15 +53,19 @@ __all__ = [
     "CACHE_LIMIT_ENV",
     "DEFAULT_LIMIT_BYTES",
     "EntryInfo",
+    "being_written",
     "cache_limit",
     "format_size",
     "list_entries",
     "make_room",
     "mark_used",
+    "matches",
     "parse_size",
     "patient_name",
     "remove_entries",
+    "remove_stale",
     "set_cache_limit",
+    "usage_record",
 ]
 
 log = logging.getLogger(__name__)
@@ -130,6 +134,15 @@ def parse_size(text: str, field: str = "SIZE") -> int:
 
 def format_size(n: int | float) -> str:
     """A size for people: ``624 MB``, ``1.52 GB``, ``2 kB`` (decimal units).
+
+    Parameters
+    ----------
+    n : int or float
+        Bytes.
+
+    Returns
+    -------
+    str
 
     Examples
     --------
@@ -218,6 +231,14 @@ def set_cache_limit(cache_dir: str | os.PathLike | None, size: int | None) -> Pa
 def patient_name(label: str) -> str:
     """What an entry's label names: ``medrad-lung1`` -> ``Med-RAD lung 1``.
 
+    Parameters
+    ----------
+    label : str
+
+    Returns
+    -------
+    str
+
     Examples
     --------
     >>> patient_name("medrad-liver12"), patient_name("phantom-x")
@@ -262,7 +283,12 @@ class EntryInfo:
     writing: bool
 
     def to_dict(self) -> dict:
-        """JSON-ready."""
+        """The listing as ``needlekit cache list --json`` prints it.
+
+        Returns
+        -------
+        dict
+        """
         return {
             "patient": self.patient,
             "label": self.label,
@@ -322,6 +348,10 @@ def mark_used(entry_path: str | os.PathLike, now: float | None = None) -> None:
     entry_path : path-like
     now : float, optional
         Unix time (default now).
+
+    Returns
+    -------
+    None
     """
     path = Path(entry_path)
     _IN_USE.add(str(path.resolve()))
@@ -537,6 +567,10 @@ def remove_stale(cache_dir: str | os.PathLike | None = None) -> None:
     Parameters
     ----------
     cache_dir : path-like, optional
+
+    Returns
+    -------
+    None
     """
     root = cache_root(cache_dir)
     if not root.is_dir():

@@ -163,7 +163,17 @@ class PreparationProgress:
             log.info("%s", self.head)
 
     def __call__(self, stage: str) -> None:
-        """A stage begins (``"masks 3/5"``, ``"free-space field"``, ``"storing 0.62 GB"``)."""
+        """A stage begins.
+
+        Parameters
+        ----------
+        stage : str
+            ``"masks 3/5"``, ``"free-space field"``, ``"storing 624 MB"``.
+
+        Returns
+        -------
+        None
+        """
         if self._bar is not None:
             self._bar.set_postfix_str(stage, refresh=True)
         else:
@@ -171,7 +181,17 @@ class PreparationProgress:
                      time.perf_counter() - self._t0)  # fmt: skip
 
     def done(self, outcome: str) -> None:
-        """The preparation ended; ``outcome`` says what became of it (``"0.62 GB kept"``)."""
+        """The preparation ended.
+
+        Parameters
+        ----------
+        outcome : str
+            What became of it (``"624 MB kept in ..."``, ``"not stored"``).
+
+        Returns
+        -------
+        None
+        """
         took = time.perf_counter() - self._t0
         end = f"done in {took:.1f} s, {outcome}"
         if self._bar is not None:
@@ -182,7 +202,12 @@ class PreparationProgress:
             log.info("prepared %s: %s", self.what, end)
 
     def close(self) -> None:
-        """Close the live line if a failure left it open."""
+        """Close the live line if a failure left it open.
+
+        Returns
+        -------
+        None
+        """
         if self._bar is not None:
             self._bar.close()
             self._bar = None
