@@ -270,12 +270,12 @@ def test_a_first_preparation_is_logged_with_its_stages_and_a_hit_says_nothing(
     lines = [r.getMessage() for r in caplog.records if r.name == "needlekit.io.medrad"]
     assert lines[0] == (
         "preparing Med-RAD lung 1 (first use; about 1 s, kept in "
-        f"{cache}/medrad-lung1-{first.cache_entry.name[-32:][:8]}…)"
+        f"{cache}/medrad-lung1-{first.cache_entry.name[-32:][:8]}...)"
     )
     stages = [line.split(": ", 1)[1].split(" (")[0] for line in lines[1:-1]]
     assert stages == ["masks 1/5", "masks 2/5", "masks 3/5", "masks 4/5", "masks 5/5",
                       "free-space field", f"storing {stages[-1].split(' ', 1)[1]}"]  # fmt: skip
-    assert lines[-1].startswith("prepared Med-RAD lung 1: done in ") and str(cache) in lines[-1]
+    assert lines[-1].startswith("prepared Med-RAD lung 1: done in ") and lines[-1].endswith(" kept")
     (e,) = list_entries(cache)
     assert e.patient == "Med-RAD lung 1" and e.source.endswith("Patient1")
     caplog.clear()
@@ -310,14 +310,36 @@ def test_on_a_terminal_the_line_is_live_on_stderr_and_a_hit_draws_nothing(
     assert term.getvalue() == ""
 
 
+@pytest.mark.parametrize(("columns", "lines"), [(400, 1), (80, 2)])
+def test_on_a_narrow_terminal_the_stages_go_under_the_opening_words(
+    tmp_path, monkeypatch, columns, lines
+):
+    from needlekit.io import prepare_progress
+
+    monkeypatch.setattr(prepare_progress, "_columns", lambda stream: columns)
+    term = _Terminal()
+    p = PreparationProgress("Med-RAD lung 1", tmp_path / ("medrad-lung1-" + "0" * 32), 17.4,
+                            stream=term)  # fmt: skip
+    p("masks 3/5")
+    p.done("624 MB kept")
+    head = f"preparing Med-RAD lung 1 (first use; about 17 s, kept in {tmp_path}/medrad-lung1-00000000...)"
+    last = term.getvalue().split("\r")[-2]  # the line as it is left
+    if lines == 1:
+        assert last.startswith(f"{head}: done in ") and "\n" not in term.getvalue()[:-1]
+    else:
+        assert term.getvalue().startswith(head + "\n") and last.startswith("  done in ")
+    assert "624 MB kept [00:" in last
+
+
 def test_progress_without_an_estimate_says_no_time(tmp_path):
     term = _Terminal()
     p = PreparationProgress("Med-RAD liver 2", tmp_path / ("medrad-liver2-" + "0" * 32), None,
                             stream=term)  # fmt: skip
     p("masks 1/3")
     p.done("not stored")
-    assert f"preparing Med-RAD liver 2 (first use; kept in {tmp_path}/medrad-liver2-00000000…)" in (
-        term.getvalue()
+    assert (
+        f"preparing Med-RAD liver 2 (first use; kept in {tmp_path}/medrad-liver2-00000000...)"
+        in (term.getvalue())
     )
 
 

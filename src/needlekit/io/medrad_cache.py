@@ -244,6 +244,6 @@ def _build_and_store(progress: PreparationProgress, paths, specs, region, n_thre
         return prep
     timings["cache_write_s"] = time.perf_counter() - t0
     cache_entries.mark_used(entry.path)
-    progress.done(f"{cache_entries.format_size(need)} kept in {entry.path}")
+    progress.done(f"{cache_entries.format_size(need)} kept")
     log.debug("prepared anatomy stored in the cache: %s", entry.path)
     return _from_entry(entry, specs, timings)

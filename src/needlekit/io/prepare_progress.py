@@ -4,7 +4,7 @@ it takes, where it is kept, and how far it is.
 On a terminal (stderr a TTY) one live line on stderr, drawn by ``tqdm`` as the project's
 other progress bars are::
 
-    preparing Med-RAD lung 1 (first use; about 17 s, kept in ~/.cache/needlekit/medrad-lung1-4969643a…): masks 3/5 [00:04]
+    preparing Med-RAD lung 1 (first use; about 17 s, kept in ~/.cache/needlekit/medrad-lung1-4969643a...): masks 3/5 [00:04]
 
 Otherwise (a pipe, a file, a notebook, a batch worker) the same lines are logged at INFO
 (``needlekit -v`` shows them): the opening line, each stage, and the end. Nothing goes to
@@ -115,17 +115,26 @@ def estimate_s(mask_voxels: list[int], grid_voxels: int) -> float:
 
 
 def _short(path: Path) -> str:
-    """``~/.cache/needlekit/medrad-lung1-4969643a…``: home as ``~``, the key cut to 8."""
+    """``~/.cache/needlekit/medrad-lung1-4969643a...``: home as ``~``, the key cut to 8."""
     text = str(path)
     home = str(Path.home())
     if text.startswith(home + os.sep):
         text = "~" + text[len(home) :]
     head, sep, key = text.rpartition("-")
-    return f"{head}-{key[:8]}…" if sep and len(key) > 8 else text
+    return f"{head}-{key[:8]}..." if sep and len(key) > 8 else text
+
+
+def _columns(stream) -> int:
+    """Width of the terminal ``stream`` is on (80 when it cannot be told)."""
+    try:
+        return os.get_terminal_size(stream.fileno()).columns or 80
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return 80
 
 
 class PreparationProgress:
-    """The line of one first preparation.
+    """The line of one first preparation. On a terminal narrower than the line, the
+    opening words take a line of their own and the stages are drawn under them.
 
     Parameters
     ----------
@@ -154,11 +163,12 @@ class PreparationProgress:
         if isatty is not None and isatty():
             from tqdm import tqdm
 
-            self._bar = tqdm(
-                total=None, desc=self.head, file=stream, leave=True,
-                bar_format="{desc}: {postfix} [{elapsed}]",
-            )  # fmt: skip
-            self._bar.set_postfix_str("starting", refresh=True)
+            self._lead = f"{self.head}: "
+            if len(self._lead) + 40 > _columns(stream):  # too narrow: the stages below it
+                stream.write(f"{self.head}\n")
+                self._lead = "  "
+            self._bar = tqdm(total=None, desc=f"{self._lead}starting", file=stream,
+                             leave=True, bar_format="{desc} [{elapsed}]")  # fmt: skip
         else:
             log.info("%s", self.head)
 
@@ -175,7 +185,7 @@ class PreparationProgress:
         None
         """
         if self._bar is not None:
-            self._bar.set_postfix_str(stage, refresh=True)
+            self._bar.set_description_str(f"{self._lead}{stage}", refresh=True)
         else:
             log.info("preparing %s: %s (%.1f s so far)", self.what, stage,
                      time.perf_counter() - self._t0)  # fmt: skip
@@ -195,7 +205,7 @@ class PreparationProgress:
         took = time.perf_counter() - self._t0
         end = f"done in {took:.1f} s, {outcome}"
         if self._bar is not None:
-            self._bar.set_postfix_str(end, refresh=True)
+            self._bar.set_description_str(f"{self._lead}{end}", refresh=True)
             self._bar.close()
             self._bar = None
         else:
