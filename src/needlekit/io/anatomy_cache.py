@@ -38,8 +38,9 @@ Reads are checked in full, and signed records cannot be forged
 
 Where
     :func:`cache_root`: the folder given, else ``$NEEDLEKIT_CACHE_DIR``, else
-    ``$XDG_CACHE_HOME/needlekit``, else ``~/.cache/needlekit``. Delete the folder (or call
-    :func:`clear_cache`) to clear it. Entries hold patient data, so they stay private to
+    ``$XDG_CACHE_HOME/needlekit``, else ``~/.cache/needlekit``. ``needlekit cache
+    list|clear|limit`` shows it, empties it and bounds its size
+    (:mod:`needlekit.io.cache_entries`); :func:`clear_cache` removes every entry. Entries hold patient data, so they stay private to
     the user who made them (folders 0700, files 0600, as ``mkdtemp``/``mkstemp`` create
     them).
 """
