@@ -384,13 +384,13 @@ def _info(path: Path, now: float | None = None) -> EntryInfo | None:
     try:
         manifest = json.loads((path / _MANIFEST).read_text(encoding="utf-8"))
         files = [p.stat() for p in path.iterdir() if p.is_file()]
-    except (OSError, ValueError):
+        mtime = (path / _MANIFEST).stat().st_mtime
+    except (OSError, ValueError):  # not an entry, or removed meanwhile
         return None
     if not isinstance(manifest, dict):
         return None
     label = str(manifest.get("label", path.name.rsplit("-", 1)[0]))
     usage = _read_usage(path)
-    mtime = (path / _MANIFEST).stat().st_mtime if files else 0.0
     created = _number(usage.get("created"), mtime)
     t = time.time() if now is None else now
     return EntryInfo(
