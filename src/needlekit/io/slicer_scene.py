@@ -110,7 +110,9 @@ class SlicerModel:
         if f.size == 0:
             f = f.reshape(0, 3)
         if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-            raise InvalidInputError(f"{self.name}.faces", f"expected (f, 3) integers, got {f.shape}")
+            raise InvalidInputError(
+                f"{self.name}.faces", f"expected (f, 3) integers, got {f.shape}"
+            )
         if f.size and (f.min() < 0 or f.max() >= len(self.vertices_mm)):
             raise InvalidInputError(f"{self.name}.faces", "an index is outside the vertices")
         self.faces = f.astype(np.int64)
@@ -147,7 +149,9 @@ class SlicerMarkup:
     def __post_init__(self) -> None:
         kind = self.item.get("type") if isinstance(self.item, dict) else None
         if kind not in _MARKUP_NODES:
-            raise InvalidInputError("item", f"expected a Fiducial, Line or Curve markup, got {kind!r}")
+            raise InvalidInputError(
+                "item", f"expected a Fiducial, Line or Curve markup, got {kind!r}"
+            )
         if self.curve_type not in ("linear", "spline", "polynomial", "shortestDistanceOnSurface"):
             raise InvalidInputError("curve_type", f"not a Slicer curve type: {self.curve_type!r}")
 
@@ -176,7 +180,9 @@ def fiducials_markup(points_mm, labels: Sequence[str], *, name: str, color=None)
     pts, _ = as_points(points_mm, "points_mm")
     labels = list(labels)
     if len(pts) < 1 or len(labels) != len(pts):
-        raise InvalidInputError("labels", f"expected one label per point ({len(pts)}), got {len(labels)}")
+        raise InvalidInputError(
+            "labels", f"expected one label per point ({len(pts)}), got {len(labels)}"
+        )
     item = _markup("Fiducial", _name(name), pts, labels, color=_color(color, "color"),
                    description="", point_labels=True)  # fmt: skip
     item.pop("measurements")  # a length means nothing for a point list
@@ -302,7 +308,9 @@ def scene_files(
         item = mk.item
         tag, cls, display_tag, display_cls = _MARKUP_NODES[item["type"]]
         rel = f"Data/{_safe(item['name'], taken)}.mrk.json"
-        data[rel] = (json_text(markups_document([item]), rel, indent=2, ensure_ascii=False) + "\n").encode()
+        data[rel] = (
+            json_text(markups_document([item]), rel, indent=2, ensure_ascii=False) + "\n"
+        ).encode()
         ids = (f"{cls}{i}", f"{display_cls}{i}", f"vtkMRMLMarkupsJsonStorageNode{i}")
         node = {"id": ids[0], "name": item["name"],
                 "references": f"display:{ids[1]};storage:{ids[2]};", "locked": "true"}  # fmt: skip
@@ -365,7 +373,9 @@ def write_slicer_scene(
     if name is None:
         name = dest.stem if bundle and dest.stem else "case"
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
-        raise InvalidInputError("name", f"expected a plain file name (letters, digits, ._-), got {name!r}")
+        raise InvalidInputError(
+            "name", f"expected a plain file name (letters, digits, ._-), got {name!r}"
+        )
     files = scene_files(models, markups, name=name)
     if bundle:
         return write_bytes(dest, _bundle(files, name))
