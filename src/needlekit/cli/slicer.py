@@ -56,6 +56,12 @@ def _cmd_slicer(args: argparse.Namespace) -> int:
     out = write_slicer_scene(args.out if args.out is not None else args.out_dir, models, markups)
     names = ", ".join(m.item["name"] for m in markups)
     print(f"{len(models)} models ({', '.join(m.name for m in models)})")
+    meshed = {m.name for m in models}
+    missed = [s.name for s in scenario.scene.structures if s.name not in meshed]
+    if missed:
+        print(
+            f"no surface at --max-cells {args.max_cells} (thinner than a cell?): {', '.join(missed)}"
+        )
     print(f"{len(markups)} markups ({names})")
     print(f"RAS scene, files in LPS -> {out} ({time.perf_counter() - t0:.1f} s)")
     return EXIT_OK

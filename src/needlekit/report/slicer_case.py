@@ -191,7 +191,7 @@ def _check_execution_matches(plan_data: dict, execution: dict, where: str) -> No
         theirs = execution.get("plan_needles")
         if not isinstance(theirs, list):
             raise InvalidInputError(
-                where, "is not an execution of a multi-needle plan (no plan_needles)"
+                where, "does not execute a multi-needle plan (no plan_needles); the plan is one"
             )
         pairs = [as_points([n.get("entry_mm"), n.get("target_mm")], where)[0] for n in theirs
                  if isinstance(n, dict) and n.get("entry_mm") is not None]  # fmt: skip
@@ -204,7 +204,7 @@ def _check_execution_matches(plan_data: dict, execution: dict, where: str) -> No
         theirs = execution.get("plan_primitives")
         if not isinstance(theirs, list):
             raise InvalidInputError(
-                where, "is not an execution of a steerable plan (no plan_primitives)"
+                where, "does not execute a steerable plan (no plan_primitives); the plan is one"
             )
         try:
             same = np.shape(theirs) == np.shape(prims) and np.allclose(
