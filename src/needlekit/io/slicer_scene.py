@@ -52,7 +52,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io._markups_format import _flip_xy
 from needlekit.io.files import staged_outputs, write_bytes
 from needlekit.io.finite_json import json_text
-from needlekit.io.markups import markups_document
+from needlekit.io.markups import _color, _markup, _name, markups_document
 
 __all__ = [
     "SCENE_FILE_KINDS",
@@ -175,8 +175,6 @@ def fiducials_markup(points_mm, labels: Sequence[str], *, name: str, color=None)
     dict
         One item of a markups document, positions in LPS.
     """
-    from needlekit.io.markups import _color, _markup, _name
-
     pts, _ = as_points(points_mm, "points_mm")
     labels = list(labels)
     if len(pts) < 1 or len(labels) != len(pts):

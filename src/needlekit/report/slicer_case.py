@@ -29,6 +29,7 @@ from needlekit.anatomy.summary import surface_mesh
 from needlekit.errors import InvalidInputError
 from needlekit.io.markups import markups_curve, markups_line
 from needlekit.io.slicer_scene import SlicerMarkup, SlicerModel, fiducials_markup
+from needlekit.planning.steerable.plan import plan_from_dict
 from needlekit.report.scene3d import _ROLE_STYLE
 
 __all__ = [
@@ -168,8 +169,6 @@ def case_markups(plan_data: dict, where: str, *, spacing_mm: float = 2.0) -> lis
                                         description=f"planned needle {k}"), line_thickness=0.4)
               for k, e, t in needles),
         ]  # fmt: skip
-    from needlekit.planning.steerable.plan import plan_from_dict
-
     plan, goal = plan_from_dict(plan_data, where)
     if plan is None:
         status = plan_data.get("status", "unknown")
