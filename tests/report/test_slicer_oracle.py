@@ -27,6 +27,7 @@ slicer = pytest.importorskip(
     "Slicer's MRML classes are the oracle of these tests",
 )
 from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402  (vtk comes with it)
+from vtkmodules.vtkCommonMath import vtkMatrix4x4  # noqa: E402
 
 from needlekit.anatomy.summary import surface_mesh  # noqa: E402
 from needlekit.cli import main  # noqa: E402
@@ -318,3 +319,50 @@ def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path):
             assert np.max(np.abs(got[1] - n["tip_mm"])) < TOL_MM
     scene = load_scenario(scenario).scene
     assert {s.name for s in scene.structures} <= set(sc.nodes)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_med_rad_lung_1s_models_lie_on_its_masks_as_slicer_loads_them(medrad_dir, tmp_path):
+    """The scene over the CT's own masks: each model of Med-RAD lung 1, read back by
+    Slicer, lies on the boundary of its NIfTI mask as Slicer's volume reader places it
+    (every vertex between a voxel inside and one outside), so nothing needs registering.
+    The plan is a 10 mm straight insertion from the scenario's start pose (no planning)."""
+    scenario = EXAMPLES / "medrad_lung1.yaml"
+    sc = load_scenario(scenario)
+    pose = sc.start.world_T_tip
+    plan = {"status": "solved", "planner": "test", "cost_mm": 10.0,
+            "goal_mm": (pose[:3, 3] + 10 * pose[:3, 2]).tolist(), "start_pose": pose.tolist(),
+            "primitives": [{"rotation_rad": 0.0, "curvature_per_mm": 0.0, "length_mm": 10.0}]}  # fmt: skip
+    (tmp_path / "plan.json").write_text(json.dumps(plan))
+    out = tmp_path / "lung1.mrb"
+    assert main(["slicer", str(scenario), str(tmp_path / "plan.json"), "--out", str(out)]) == 0
+    slc = SlicerScene(out, tmp_path / "unpacked")
+    assert np.max(np.abs(slc.control_points("entry") - pose[:3, 3])) < TOL_MM
+    for s in sc.scene.structures:
+        if s.name == "pleuralBoundary":
+            continue  # a surface of 10^5 points: the smaller ones make the point
+        pts = slc.model_points(s.name)
+        mask = slc.scene.AddNewNodeByClass("vtkMRMLLabelMapVolumeNode", f"{s.name} mask")
+        storage = slc.scene.AddNewNodeByClass("vtkMRMLVolumeArchetypeStorageNode")
+        storage.SetFileName(str(s.source))
+        mask.SetAndObserveStorageNodeID(storage.GetID())
+        assert storage.ReadData(mask) == 1
+        m = vtkMatrix4x4()
+        mask.GetRASToIJKMatrix(m)
+        ras_to_ijk = np.array([[m.GetElement(i, j) for j in range(4)] for i in range(4)])
+        image = mask.GetImageData()
+        dims = image.GetDimensions()
+        labels = vtk_to_numpy(image.GetPointData().GetScalars()).reshape(dims[::-1]) > 0
+        labels = np.pad(labels, 2)  # outside the image is outside the mask
+        ijk = (np.c_[pts, np.ones(len(pts))] @ ras_to_ijk.T)[:, :3] + 2
+        lo = np.floor(ijk).astype(int)
+        assert np.all(lo >= 1) and np.all(lo + 2 < np.array(dims) + 4)
+        # the surface is meshed every `step` voxels: look within the 4x4x4 voxels about it
+        corners = np.array([labels[lo[:, 2] + k, lo[:, 1] + j, lo[:, 0] + i]
+                            for k in range(-1, 3) for j in range(-1, 3) for i in range(-1, 3)])  # fmt: skip
+        on_boundary = corners.any(axis=0) & ~corners.all(axis=0)
+        assert on_boundary.all(), s.name
+        # the same points with x and y negated (LPS taken for RAS) leave the image
+        flipped = (np.c_[pts * [-1, -1, 1], np.ones(len(pts))] @ ras_to_ijk.T)[:, :3]
+        assert not np.any(np.all((flipped >= 0) & (flipped < dims), axis=1)), s.name
