@@ -228,6 +228,15 @@ def test_slicer_reads_back_the_points_the_plan_and_each_trial(toy, tmp_path, whe
             assert got[0] == pytest.approx(pts[0], abs=TOL_MM)
             assert got[-1] == pytest.approx(pts[-1], abs=TOL_MM)
     assert len(sc.nodes) == 4 + 3 + 6  # models, target/entry/plan, two curves a trial
+    # how they are drawn: the plan a 1 mm tube, a trial 0.5 mm without its name in the views
+    plan_display = sc.nodes["plan"].GetDisplayNode()
+    assert plan_display.GetCurveLineSizeMode() == plan_display.UseLineDiameter
+    assert plan_display.GetLineDiameter() == 1.0
+    assert plan_display.GetSelectedColor() == pytest.approx((1.0, 0.84, 0.0), abs=1e-6)
+    trial_display = sc.nodes["trial 1 open loop"].GetDisplayNode()
+    assert trial_display.GetLineDiameter() == 0.5
+    assert not trial_display.GetPropertiesLabelVisibility()
+    assert sc.nodes["target"].GetDisplayNode().GetPointLabelsVisibility()
 
 
 def test_the_files_are_lps_and_slicer_turns_them_to_ras(toy):

@@ -132,8 +132,9 @@ class SlicerMarkup:
         The markup (``type`` Fiducial, Line or Curve; positions in LPS as those write them).
     curve_type : str
         For a curve: how Slicer joins the control points (``"spline"``, ``"linear"``).
-    line_thickness : float
-        Of lines and curves, as a fraction of the glyph size (Slicer's default 0.2).
+    line_diameter_mm : float, optional
+        Of lines and curves, in mm; else Slicer's default (a fifth of the glyph size,
+        which follows the view's zoom).
     glyph_scale : float
         Size of the control points' glyphs (% of the view; Slicer's default 3).
     extra : dict
@@ -142,7 +143,7 @@ class SlicerMarkup:
 
     item: dict
     curve_type: str = "spline"
-    line_thickness: float = 0.2
+    line_diameter_mm: float | None = None
     glyph_scale: float = 3.0
     extra: dict = field(default_factory=dict)
 
@@ -317,9 +318,12 @@ def scene_files(
         lines.append(_element(tag, **node))
         shown = item.get("display", {})
         display = {"id": ids[1], "name": display_tag, "visibility": "true",
-                   "glyphScale": f"{mk.glyph_scale:g}", "lineThickness": f"{mk.line_thickness:g}",
+                   "glyphScale": f"{mk.glyph_scale:g}",
                    "pointLabelsVisibility": "true" if shown.get("pointLabelsVisibility") else "false",
                    "propertiesLabelVisibility": "true"}  # fmt: skip
+        if mk.line_diameter_mm is not None:
+            display["curveLineSizeMode"] = "UseLineDiameter"
+            display["lineDiameter"] = f"{mk.line_diameter_mm:g}"
         if "color" in shown:
             display["color"] = display["selectedColor"] = _numbers(shown["color"])
         display.update(mk.extra)

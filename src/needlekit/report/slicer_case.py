@@ -49,6 +49,12 @@ _ENTRY_RGB = (0.149, 0.275, 0.325)
 _PLAN_RGB = (1.0, 0.84, 0.0)
 _CLOSED_RGB = (0.18, 0.62, 0.27)
 _OPEN_RGB = (0.85, 0.33, 0.1)
+#: The plan drawn as a 1 mm tube with small control points; the trials thinner, their
+#: control points smaller still and their names not shown in the views (a dozen labels
+#: would hide the anatomy; the Data module lists them).
+_PLAN_STYLE = {"line_diameter_mm": 1.0, "glyph_scale": 1.5}
+_TRIAL_STYLE = {"line_diameter_mm": 0.5, "glyph_scale": 0.75,
+                "extra": {"propertiesLabelVisibility": "false"}}  # fmt: skip
 
 
 def _rgb(css: str) -> tuple[float, float, float]:
@@ -166,7 +172,7 @@ def case_markups(plan_data: dict, where: str, *, spacing_mm: float = 2.0) -> lis
                                           [f"entry {k}" for k, _, _ in needles],
                                           name="entry", color=_ENTRY_RGB)),
             *(SlicerMarkup(markups_line(e, t, name=f"needle {k}", color=_PLAN_RGB,
-                                        description=f"planned needle {k}"), line_thickness=0.4)
+                                        description=f"planned needle {k}"), **_PLAN_STYLE)
               for k, e, t in needles),
         ]  # fmt: skip
     plan, goal = plan_from_dict(plan_data, where)
@@ -179,7 +185,7 @@ def case_markups(plan_data: dict, where: str, *, spacing_mm: float = 2.0) -> lis
         SlicerMarkup(fiducials_markup([goal], ["target"], name="target", color=_TARGET_RGB)),
         SlicerMarkup(fiducials_markup([points[0]], ["entry"], name="entry", color=_ENTRY_RGB)),
         SlicerMarkup(markups_curve(points, name="plan", color=_PLAN_RGB, description=desc),
-                     line_thickness=0.4),
+                     **_PLAN_STYLE),
     ]  # fmt: skip
 
 
@@ -263,7 +269,7 @@ def execution_markups(
                 out.append(SlicerMarkup(markups_line(
                     tip - lengths[k] * axis, tip, name=f"trial {i + 1} needle {k}",
                     color=_CLOSED_RGB, description=f"{n.get('status')}: {n.get('error_mm')} mm to the target",
-                )))  # fmt: skip
+                ), **_TRIAL_STYLE))  # fmt: skip
         return out
     for i, run in enumerate(runs[:trials]):
         if not isinstance(run, dict):
@@ -281,7 +287,8 @@ def execution_markups(
                 f": {err:.3f} mm to the target" if isinstance(err, float) else ""
             )
             out.append(SlicerMarkup(markups_curve(pts, name=f"trial {i + 1} {label}", color=rgb,
-                                                  description=desc), curve_type="linear"))  # fmt: skip
+                                                  description=desc),
+                                    curve_type="linear", **_TRIAL_STYLE))  # fmt: skip
     return out
 
 
