@@ -756,6 +756,51 @@ ROWS = [
         "error: {d}/deep.json: nested too deeply to be a needlekit file",
     ),
     (["markups", "{d}/goal_only.json"], "error: the following arguments are required: --out"),
+    # -- slicer
+    (
+        ["slicer", "{TOY}", "{d}/missing.json", "--out", "{d}/x.mrb"],
+        "error: plan: {d}/missing.json: not found",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/malformed.json", "--out", "{d}/x.mrb"],
+        "error: {d}/malformed.json: not a JSON plan file (Expecting ',' delimiter: line 1 column 8 (char 7))",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/list.json", "--out", "{d}/x.mrb"],
+        "error: {d}/list.json: expected a JSON object at the top level",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.mrb"],
+        "error: {d}/goal_only.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale)",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/deep.json", "--out", "{d}/x.mrb"],
+        "error: {d}/deep.json: nested too deeply to be a needlekit file",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.zip"],
+        "error: --out: {d}/x.zip: expected a name ending in .mrb",
+    ),
+    (
+        ["slicer", "{d}/nan.yaml", "{d}/goal_only.json", "--out", "{d}/x.mrb"],
+        "error: nan.yaml: start.point_mm[2]: expected a number in [-1e+06, 1e+06] mm, got nan",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json", "--execution", "{d}/missing.json", "--out", "{d}/x.mrb"],
+        "error: --execution: {d}/missing.json: not found",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.mrb", "--out-dir", "{d}/y"],
+        "error: argument --out-dir: not allowed with argument --out",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.mrb", "--max-cells", "2000"],
+        "error: argument --max-cells: expected a whole number in [8, 1024], got '2000'",
+    ),
+    (
+        ["slicer", "{TOY}", "{d}/goal_only.json"],
+        "error: one of the arguments --out --out-dir is required",
+    ),
     # -- kinematics
     (
         ["kinematics", "forward", "--kappa-per-mm", "0.02", "--segment", "1,2"],

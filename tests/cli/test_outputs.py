@@ -21,6 +21,7 @@ from needlekit.cli._parser import (
     REPRODUCE_PAPERS,
 )
 from needlekit.cli.execute import EXECUTE_FILES
+from needlekit.cli.slicer import SLICER_FILES
 from needlekit.cli.study import EXECUTE_LUNGS_FILES
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -96,6 +97,7 @@ FILE_OUTPUTS = [
     (["approach", MULTI], "--out"),
     (["approach", MULTI], "--report"),
     (["markups", TOY], "--out"),  # any existing file passes the input check
+    (["slicer", TOY, TOY], "--out"),  # any existing files pass the input checks
     (["study", "livers"], "--out"),
     (["bench", "approach"], "--out"),
     (["bench", "scale"], "--out"),
@@ -111,6 +113,7 @@ FOLDER_OUTPUTS = [
     (["reproduce", "lecture"], "--out", REPRODUCE_FILES),
     (["execute", TOY, TOY], "--out", EXECUTE_FILES),
     (["study", "execute-lungs"], "--out", EXECUTE_LUNGS_FILES),
+    (["slicer", TOY, TOY], "--out-dir", SLICER_FILES),
 ]
 
 #: Output flags the two tests above leave out, and why.

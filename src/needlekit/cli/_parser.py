@@ -25,6 +25,7 @@ from needlekit.cli import (
     report,
     reproduce,
     scene,
+    slicer,
     straight,
     study,
 )
@@ -51,6 +52,7 @@ COMMAND_MODULES = (
     planning,  # plan, sweep, verify
     straight,  # cfrw, multi, approach
     markups,
+    slicer,  # the whole case as a Slicer scene
     puncture,
     execute,  # execute SCENARIO PLAN
     report,

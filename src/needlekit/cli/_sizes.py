@@ -32,6 +32,7 @@ __all__ = [
     "livers_sizes",
     "markups_sizes",
     "puncture_sizes",
+    "slicer_sizes",
     "sweep_sizes",
 ]
 
@@ -220,6 +221,29 @@ def markups_sizes(args: argparse.Namespace) -> list[Size]:
         return []  # no path: the command says so
     points = plan.length_mm / args.spacing_mm + 2
     return [Size("--spacing-mm", points, 100, f"{points:.3g} curve points")]
+
+
+def slicer_sizes(args: argparse.Namespace) -> list[Size]:
+    """``slicer``: ``--max-cells`` (:func:`cells_sizes`) and, for a steerable plan, the
+    curve points of its path at ``--spacing-mm`` (:func:`markups_sizes`; the execution's
+    paths are thinned from points the file already holds).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    list of Size
+    """
+    sizes = cells_sizes(args)
+    if args.spacing_mm is None or not args.spacing_mm > 0:
+        return sizes
+    from needlekit.io.files import read_json_object
+
+    if "needles" in read_json_object(args.plan, "plan"):
+        return sizes  # a multi-needle plan: two points a needle, whatever the spacing
+    return sizes + markups_sizes(args)
 
 
 def _most(values) -> float:
