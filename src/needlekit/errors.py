@@ -15,6 +15,7 @@ __all__ = [
     "OutputError",
     "SingularityError",
     "UnreachableTargetError",
+    "did_you_mean",
     "is_interrupt",
     "raise_if_interrupt",
 ]
@@ -158,3 +159,34 @@ def raise_if_interrupt(exc: BaseException) -> None:
     """
     if is_interrupt(exc):
         raise KeyboardInterrupt from None
+
+
+def did_you_mean(word: str, choices, *, n: int = 1) -> str:
+    """The nearest of ``choices`` to a misspelt ``word``, as a message's end: ``"; did you
+    mean --trials?"`` (with ``n`` > 1 perhaps ``"; did you mean a or b?"``), or ``""`` when none is close
+    (:func:`difflib.get_close_matches`, its default cut-off 0.6).
+
+    Parameters
+    ----------
+    word : str
+    choices : iterable of str
+    n : int
+        At most this many suggestions.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> did_you_mean("--trails", ["--trials", "--seed"])
+    '; did you mean --trials?'
+    >>> did_you_mean("nope", ["plan", "sweep"])
+    ''
+    """
+    import difflib
+
+    # flags are compared without their dashes: "--bogus" is nothing like "--out"
+    names = {str(c).lstrip("-"): str(c) for c in choices}
+    close = difflib.get_close_matches(str(word).lstrip("-"), list(names), n=n)
+    return f"; did you mean {' or '.join(names[c] for c in close)}?" if close else ""

@@ -1015,8 +1015,8 @@ ROWS = [
         "error: argument --trials: expected a whole number in [1, 1000000000], got '0'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--trial", "3"],
-        "error: --trial: expected a trial number below --trials (2), got 3",
+        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--replay-trial", "3"],
+        "error: --replay-trial: expected a trial number below --trials (2), got 3",
     ),
     (
         ["execute", "{TOY}", "{d}/malformed.json", "--igtl", "70000"],

@@ -4,7 +4,6 @@ loop, over many trials (docs/execute.md)."""
 from __future__ import annotations
 
 import argparse
-import math
 
 from needlekit._numbers import MIN_POSITIVE
 from needlekit.cli import _flags, _sizes
@@ -40,7 +39,7 @@ example:
   needlekit plan examples/medrad_lung1.yaml --out out/lung1/plan.json
   needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trials 100 --seed 0 \\
       --out out/lung1 --workers 2
-  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trial 17 --out out/t17
+  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --replay-trial 17 --out out/t17
   needlekit multi examples/medrad_liver4.yaml --out out/liver4/multi.json
   needlekit execute examples/medrad_liver4.yaml out/liver4/multi.json --trials 20 \
       --out out/liver4 --workers 2
@@ -94,9 +93,9 @@ def _check_flags(args: argparse.Namespace) -> None:
         from needlekit.execute.igtl_link import parse_address
 
         parse_address(args.igtl)
-        if args.trial is None and args.trials != 1:
+        if args.replay_trial is None and args.trials != 1:
             raise InvalidInputError(
-                "--igtl", "streams one insertion: give --trial K (or --trials 1)"
+                "--igtl", "streams one insertion: give --replay-trial K (or --trials 1)"
             )
         if args.executor != "serial" or args.workers is not None:
             raise InvalidInputError(
@@ -278,7 +277,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
 
     source, problem, plan, name = load_checked_plan(args)
     options = execute_options(args, 1.0 / problem.kappa_max_per_mm)
-    trials = [args.trial] if args.trial is not None else list(range(args.trials))
+    trials = [args.replay_trial] if args.replay_trial is not None else list(range(args.trials))
     resume = None
     if args.resume:
         resume = read_partial_execute(args.out, name, plan, args.seed, trials, options)
@@ -311,11 +310,41 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     print(f"-> {study.path}")
     if args.report is not None:
         print(f"-> {args.report}")
-    crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
-    aborted = s["closed_loop"].get("aborted", 0)
-    if aborted:
-        print(f"  {aborted} closed-loop insertion(s) aborted on a sensor fault (execute.json: faults)")
-    return EXIT_OK if not s["crashed"] and crossed == 0 and not aborted else 1
+    failures = execute_failures(s)
+    for line in failures:
+        print(f"exit 1: {line}")
+    return EXIT_OK if not failures else 1
+
+
+def execute_failures(s: dict) -> list[str]:
+    """Why a steerable ``execute`` run exits 1, one line each (none: exit 0), as its
+    ``--help`` says: a run that crossed an obstacle (open loop, closed loop, or the closed
+    loop under any breathing policy: ignore, gate or track), a trial that crashed, an
+    insertion aborted on a sensor fault (``--on-fault abort``, or a hold longer than
+    ``--hold-timeout-s``).
+
+    Parameters
+    ----------
+    s : dict
+        ``summary`` of ``execute.json``.
+
+    Returns
+    -------
+    list of str
+    """
+    runs = {"open loop": s["open_loop"], "closed loop": s["closed_loop"]}
+    runs.update({f"breathing, {k}": r for k, r in (s.get("breathing") or {}).items()})
+    out = []
+    for name, r in runs.items():
+        if r.get("violated"):
+            out.append(f"{name}: {r['violated']} of {r['runs']} runs crossed an obstacle")
+    for name, r in runs.items():
+        if r.get("aborted"):
+            out.append(f"{name}: {r['aborted']} of {r['runs']} insertions aborted on a sensor "
+                       "fault (execute.json: faults)")  # fmt: skip
+    if s["crashed"]:
+        out.append(f"{len(s['crashed'])} of {s['trials']} trials crashed")
+    return out
 
 
 def _link_line(link, hooks, document: dict) -> str:
@@ -390,19 +419,26 @@ def say_fault(event: dict) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
+#: Why a cell of the execute tables has no value (the footnote under the table).
+_NO_REPLAN = "no re-plan ran, so there is no latency to measure (the open loop never re-plans)"
+
+
 def _summary_table(s: dict) -> str:
     rows = []
     for loop in ("open_loop", "closed_loop"):
         r = s[loop]
         e, c, lat = r["final_error_mm"], r["min_clearance_mm"], r["replan_latency_ms"]
+        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
         rows.append([
-            loop.replace("_", " "), e.get("mean", math.nan), e.get("sd", math.nan),
-            e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), c.get("min", math.nan),
-            r["violated"], r["replans"].get("mean", math.nan), lat.get("p95", math.nan),
+            loop.replace("_", " "), e.get("mean"), e.get("sd"), e.get("max"), within,
+            c.get("min"), r["violated"], r["replans"].get("mean"), lat.get("p95"),
         ])  # fmt: skip
-    head = ["run", "error mean", "sd", "max", "% <= 1 mm", "min clearance", "crossed",
-            "re-plans", "re-plan p95 ms"]  # fmt: skip
-    text = _fmt_table(head, rows)
+    head = ["run", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "min clearance mm",
+            "crossed", "re-plans", "re-plan p95 ms"]  # fmt: skip
+    text = _fmt_table(head, rows, why={
+        "re-plan p95 ms": _NO_REPLAN,
+        "min clearance mm": "no run ended (every trial crashed)",
+    })  # fmt: skip
     if "breathing" in s:
         text += "\n\n" + breathing_table(s["breathing"])
     return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
@@ -423,11 +459,12 @@ def breathing_table(per_policy: dict) -> str:
     rows = []
     for name, r in per_policy.items():
         e, t = r["final_error_mm"], r["procedure_s"]
-        rows.append([f"breathing, {name}", e.get("mean", math.nan), e.get("sd", math.nan),
-                     e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), r["violated"],
-                     t.get("mean", math.nan)])  # fmt: skip
+        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
+        rows.append([f"breathing, {name}", e.get("mean"), e.get("sd"), e.get("max"), within,
+                     r["violated"], t.get("mean")])  # fmt: skip
     return _fmt_table(
-        ["policy", "error mean", "sd", "max", "% <= 1 mm", "crossed", "procedure s"], rows
+        ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed", "procedure s"],
+        rows, why={"procedure s": "no run ended (every trial crashed)"},
     )
 
 
@@ -524,7 +561,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                help="also write a self-contained HTML page: one trial animated in 3D, the "
                "errors open beside closed loop, the re-plan latency, the literature")  # fmt: skip
     ex.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
-    ex.add_argument("--trial", type=_seed, metavar="K", help="run trial K alone (its seed)")
+    ex.add_argument("--replay-trial", type=_seed, metavar="K",
+                    help="run trial K alone, as it ran among --trials (its seed)")  # fmt: skip
+    ex.mistaken_flags["--trial"] = (
+        "; did you mean --trials N (how many trials) or --replay-trial K (run trial K alone)?"
+    )
     _flags.SEED.add(ex, default=0, help="root seed (default 0)")
     _flags.OUT.add(
         ex, folder=True, contents=EXECUTE_FILES, default="out/execute",
