@@ -226,9 +226,8 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
             "yes" if c["holds"] else "NO",
         ])  # fmt: skip
     heads = ["case", "status", "margin wanted mm", "kept mm", "open mean mm", "closed mean mm",
-             "sd mm", "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"]
+             "sd mm", "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"]  # fmt: skip
     print(_fmt_table(heads, rows, why=dict.fromkeys(heads[2:], "the case did not run (status)")))
-    # fmt: skip
     brows = [
         [f"lung {c['patient']}", name, f"{b['mean_error_mm']:.3f}", f"{b['sd_error_mm']:.3f}",
          f"{100 * b['within_1mm']:.0f}", b["violated"], f"{b['procedure_s']:.1f}"]
