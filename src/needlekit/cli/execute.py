@@ -234,7 +234,10 @@ def load_checked_plan(args: argparse.Namespace):
     plan, goal, _ = read_plan_json(args.plan)
     if plan is None:
         raise InvalidInputError("plan", f"{args.plan.name} holds no plan to carry out")
-    source = ScenarioSource.of(args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache)
+    source = ScenarioSource.of(
+        args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache,
+        safety_margin_mm=getattr(args, "safety_margin_mm", None),
+    )  # fmt: skip
     scenario, problem = source.cached()
     other = []
     if not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
@@ -547,8 +550,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "tip, feedback, re-planning), many trials",
         description="Insert a steerable plan with a needle that does not follow its model "
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
-        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle, a "
-        "trial crashed, or a closed-loop insertion was aborted on a sensor fault (--on-fault). A straight multi plan (multi.json) is inserted by the simulated Panda "
+        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle (open "
+        "loop, closed loop, or the closed loop under any --breathing policy: ignore, gate or "
+        "track), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
+        "abort, or a hold longer than --hold-timeout-s); each reason is printed on a line "
+        "'exit 1: ...'. A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
         "VFIs; exit 1 when a needle touched a placed one, left its constraints, or a trial "
         "crashed.",
@@ -567,6 +573,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "; did you mean --trials N (how many trials) or --replay-trial K (run trial K alone)?"
     )
     _flags.SEED.add(ex, default=0, help="root seed (default 0)")
+    ex.add_argument("--safety-margin-mm", type=_non_negative_mm, metavar="MM",
+                    help="the margin the plan is checked against and re-plans keep (mm), "
+                    "instead of the scenario's needle.safety_margin_mm (give the one the "
+                    "plan was made with: plan --safety-margin-mm)")  # fmt: skip
     _flags.OUT.add(
         ex, folder=True, contents=EXECUTE_FILES, default="out/execute",
         help="output folder (default out/execute)",

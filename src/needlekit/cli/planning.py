@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import functools
+import math
 import sys
 
 from needlekit.cli import _flags, _sizes
@@ -10,6 +12,7 @@ from needlekit.cli._common import (
     EXIT_OK,
     _Formatter,
     _non_negative,
+    _non_negative_mm,
     _numbers,
     _positive_int,
     _positive_mm,
@@ -42,7 +45,29 @@ def _source(args: argparse.Namespace):
         needle_diameter_mm=args.needle_diameter_mm,
         cache_dir=getattr(args, "cache_dir", None),
         use_cache=not getattr(args, "no_cache", False),
+        safety_margin_mm=getattr(args, "safety_margin_mm", None),
     )
+
+
+#: The library's names of the values the flags replace, as the flags say them.
+_FLAG_OF_FIELD = {"goal_mm": "--goal", "start_pose": "--start-pose"}
+
+
+def _flags_named(handler):
+    """The command's handler, an error about a value a flag gave named by the flag
+    (``--goal``, not the library's ``goal_mm``)."""
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return handler(args)
+        except InvalidInputError as exc:
+            flag = _FLAG_OF_FIELD.get(exc.field)
+            if flag is None or getattr(args, flag[2:].replace("-", "_"), None) is None:
+                raise
+            raise InvalidInputError(flag, exc.reason) from None
+
+    return run
 
 
 def _document(args: argparse.Namespace) -> dict:
@@ -113,17 +138,73 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     _, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
     write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
-    cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
-    cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
-    print(
-        f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms search, "
-        f"{1000 * res.stats.get('setup_s', 0.0):.1f} ms set-up) -> {args.out}"
-    )
-    if res.status is not PlanStatus.SOLVED and res.stats.get("reason"):
-        print(f"reason: {res.stats['reason']}")
+    times = (f"({1000 * res.time_s:.1f} ms search, {1000 * res.stats.get('setup_s', 0.0):.1f} "
+             f"ms set-up) -> {args.out}")  # fmt: skip
+    margin = problem.safety_margin_mm
+    if res.status is PlanStatus.SOLVED:
+        cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
+        print(f"{planner}: solved, cost {res.cost_mm:.4f} mm{cert} {times}")
+        print(clearance_line(res.stats, margin))
+        return EXIT_OK
+    why = f": {res.stats['reason']}" if res.stats.get("reason") else ""
+    print(f"{planner}: no plan to the goal with a {margin:g} mm safety margin{why} {times}")
     if res.status is PlanStatus.APPROXIMATE:
-        print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
-    return EXIT_OK if res.status is PlanStatus.SOLVED else 1
+        print(f"  the nearest path it found stops {res.stats['goal_distance_mm']:.3f} mm from the "
+              f"goal (tolerance {problem.goal_tolerance_mm:g} mm): recorded in {args.out.name} "
+              "as approximate, not a plan to execute")  # fmt: skip
+    if margin > 0:
+        print(_margin_advice(problem, built[planner], settings))
+    return 1
+
+
+def clearance_line(metrics, margin_mm: float) -> str:
+    """The clearance of a path in one line, as ``plan`` and ``verify`` both print it: the
+    certified figure of the one clearance rule (:mod:`needlekit.constants`, a lower bound
+    over the whole path), the smallest sampled distance beside it, and the margin kept.
+
+    Parameters
+    ----------
+    metrics : mapping
+        ``certified_clearance_mm``, ``min_clearance_mm``, ``collision_model``
+        (:func:`~needlekit.planning.steerable.verify.verify_plan`'s metrics, or a plan's
+        ``stats``, which are the same check's).
+    margin_mm : float
+        The problem's safety margin.
+
+    Returns
+    -------
+    str
+    """
+
+    def mm(key: str) -> str:
+        v = metrics.get(key)
+        return "-" if v is None else f"{v:.3f} mm"
+
+    return (
+        f"clearance: certified {mm('certified_clearance_mm')} over the whole path "
+        f"(smallest sampled distance {mm('min_clearance_mm')}; "
+        f"{metrics.get('collision_model', '-')}), safety margin kept {margin_mm:g} mm"
+    )
+
+
+def _margin_advice(problem, planner, settings) -> str:
+    """Which margin plans, when the one asked for does not: the same search without a
+    margin (one more search); the certified clearance of the path it finds is a margin
+    that plans, so the largest one is at least that."""
+    from needlekit.planning.result import PlanStatus
+    from needlekit.planning.steerable.solve import solve
+
+    free = solve(problem.with_safety_margin(0.0), planner, termination=settings.termination())
+    if free.status is not PlanStatus.SOLVED:
+        return ("  without a margin it finds no plan either: the margin is not what stops it "
+                "(the goal, the needle or the budget is)")  # fmt: skip
+    c = free.stats["certified_clearance_mm"]
+    keep = math.floor(1000 * c) / 1000
+    return (
+        f"  the largest margin that plans is at least {c:.3f} mm: without a margin the "
+        f"search finds a plan (cost {free.cost_mm:.4f} mm) whose certified clearance is "
+        f"{c:.3f} mm (a costlier path may keep more); --safety-margin-mm {keep:g} plans"
+    )
 
 
 #: The flags that only go with ``plan --dynamic``.
@@ -221,6 +302,11 @@ def _plan_goals(args: argparse.Namespace, doc: dict, settings, planner_instance)
     planner = settings.name
     goals = np.asarray(args.goals, dtype=float)
     _, problem = _source(args).load(doc)
+    from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
+
+    box = anatomy_box(problem.scene)
+    for g in goals:  # each target where the anatomy is, before any search
+        check_inside_anatomy(g, box, "--goals")
     if args.multi == "one-tree":  # one RRT tree (the flags checked the planner is RRT)
         results = planner_instance.solve_multi(problem, goals, settings.termination())
     else:  # the lecture's procedure: from the start node again for each target
@@ -336,16 +422,17 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         problem = problem.with_free_start_direction()
     check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
-        out = {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics}
+        out = {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics,
+               "safety_margin_mm": problem.safety_margin_mm}  # fmt: skip
         print(json_text(out, "--json", indent=2))
     else:
         m = check.metrics
         print(
             f"{'ok' if check.ok else 'VIOLATED'}: cost {m['cost']:.4f}, length {m['length_mm']:.3f} mm, goal distance "
             f"{m['goal_distance_mm']:.3f} mm, max curvature {m['max_curvature_per_mm']:.5f} /mm, heading change "
-            f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm, "
-            f"certified clearance {m['certified_clearance_mm']:.3f} mm ({m['collision_model']})"
+            f"{m['max_heading_change_deg']:.2f} deg"
         )
+        print(clearance_line(m, problem.safety_margin_mm))
         for v in check.violations:
             print(f"  - {v}")
     turned = any(v.startswith("start: the plan's insertion direction") for v in check.violations)
@@ -385,6 +472,13 @@ def _problem_overrides(p) -> None:
     )
     p.add_argument("--r-min-mm", type=_positive_mm, help="minimum radius of curvature (mm)")
     p.add_argument("--needle-diameter-mm", type=_positive_mm, help="needle diameter (mm)")
+    p.add_argument(
+        "--safety-margin-mm",
+        type=_non_negative_mm,
+        metavar="MM",
+        help="clearance the path keeps beyond the needle's radius (mm), instead of the "
+        "scenario's needle.safety_margin_mm",
+    )
 
 
 def _rrt_connection(p) -> None:
@@ -494,7 +588,7 @@ def _register_plan(sub) -> None:
         out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
     )
     _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
-    planp.set_defaults(command_handler=_cmd_plan)
+    planp.set_defaults(command_handler=_flags_named(_cmd_plan))
 
 
 def _register_sweep(sub) -> None:
@@ -544,7 +638,7 @@ def _register_sweep(sub) -> None:
         help="carry on from the record an interrupted run wrote beside --out "
         "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
-    sw.set_defaults(command_handler=_cmd_sweep, sizes=_sizes.sweep_sizes)
+    sw.set_defaults(command_handler=_flags_named(_cmd_sweep), sizes=_sizes.sweep_sizes)
 
 
 def _register_verify(sub) -> None:
@@ -565,7 +659,7 @@ def _register_verify(sub) -> None:
     )
     _flags.add_cache_options(ver)
     _flags.JSON.add(ver, help="print JSON instead of text")
-    ver.set_defaults(command_handler=_cmd_verify)
+    ver.set_defaults(command_handler=_flags_named(_cmd_verify))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
