@@ -343,11 +343,11 @@ def _check_points_inside(scene: Scene, data: dict, start, goal, straight: dict, 
     targets = straight.get("targets")
     if isinstance(targets, np.ndarray) and "targets" in (data.get("straight") or {}):
         points += [(t, f"straight.targets[{i}]") for i, t in enumerate(targets)]
-    for point, field in points:
+    for point, where in points:
         try:
-            check_inside_anatomy(point, box, field)
+            check_inside_anatomy(point, box, where)
         except InvalidInputError as exc:
-            raise ctx.error(field, exc.reason) from None
+            raise ctx.error(where, exc.reason) from None
 
 
 def _cheap_extent_mm(scene: Scene) -> float | None:
