@@ -150,8 +150,8 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     print(f"{planner}: no plan to the goal with a {margin:g} mm safety margin{why} {times}")
     if res.status is PlanStatus.APPROXIMATE:
         print(f"  the nearest path it found stops {res.stats['goal_distance_mm']:.3f} mm from the "
-              f"goal (tolerance {problem.goal_tolerance_mm:g} mm): recorded in {args.out.name} "
-              "as approximate, not a plan to execute")  # fmt: skip
+              f"goal (tolerance {problem.goal_tolerance_mm:g} mm): recorded with status "
+              "approximate, not a plan to execute")  # fmt: skip
     if margin > 0:
         print(_margin_advice(problem, built[planner], settings))
     return 1
@@ -189,22 +189,32 @@ def clearance_line(metrics, margin_mm: float) -> str:
 
 def _margin_advice(problem, planner, settings) -> str:
     """Which margin plans, when the one asked for does not: the same search without a
-    margin (one more search); the certified clearance of the path it finds is a margin
-    that plans, so the largest one is at least that."""
+    margin, then at the margin the path it found passes by the search's own clearance test
+    (:func:`~needlekit.planning.steerable.verify.search_clearance_mm`), to confirm it
+    (two more searches, each within the budget). That margin plans, so the largest one is
+    at least it; a costlier path may keep more."""
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
+    from needlekit.planning.steerable.verify import search_clearance_mm
 
-    free = solve(problem.with_safety_margin(0.0), planner, termination=settings.termination())
+    free_problem = problem.with_safety_margin(0.0)
+    free = solve(free_problem, planner, termination=settings.termination())
     if free.status is not PlanStatus.SOLVED:
         return ("  without a margin it finds no plan either: the margin is not what stops it "
                 "(the goal, the needle or the budget is)")  # fmt: skip
     c = free.stats["certified_clearance_mm"]
-    keep = math.floor(1000 * c) / 1000
-    return (
-        f"  the largest margin that plans is at least {c:.3f} mm: without a margin the "
-        f"search finds a plan (cost {free.cost_mm:.4f} mm) whose certified clearance is "
-        f"{c:.3f} mm (a costlier path may keep more); --safety-margin-mm {keep:g} plans"
-    )
+    bound = math.floor(1000 * search_clearance_mm(free_problem, free.plan)) / 1000
+    head = (f"  without a margin it plans (cost {free.cost_mm:.4f} mm, certified clearance "
+            f"{c:.3f} mm)")  # fmt: skip
+    if bound <= 0:
+        return head + "; that path passes the search's clearance test at no margin above 0"
+    again = solve(problem.with_safety_margin(bound), planner, termination=settings.termination())
+    if again.status is PlanStatus.SOLVED:
+        return (f"{head}; the largest margin that plans is at least {bound:g} mm (checked: "
+                f"--safety-margin-mm {bound:g} plans, cost {again.cost_mm:.4f} mm; a costlier "
+                "path may keep more)")  # fmt: skip
+    return (f"{head}; that path passes the search's clearance test up to a {bound:g} mm "
+            f"margin, but at {bound:g} mm the planner found no plan within its budget")
 
 
 #: The flags that only go with ``plan --dynamic``.
