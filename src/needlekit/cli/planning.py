@@ -50,7 +50,7 @@ def _source(args: argparse.Namespace):
 
 
 #: The library's names of the values the flags replace, as the flags say them.
-_FLAG_OF_FIELD = {"goal_mm": "--goal", "start_pose": "--start-pose"}
+_FLAG_OF_FIELD = {"goal_mm": "--goal", "start_pose": "--start-pose", "planner": "--planner"}
 
 
 def _flags_named(handler):

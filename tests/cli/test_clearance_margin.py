@@ -1,0 +1,104 @@
+"""``plan`` and ``verify`` report the one certified clearance (the rule of
+:mod:`needlekit.constants`, :func:`verify_plan`) identically, with the margin kept;
+``--safety-margin-mm`` replaces the scenario's; a margin that leaves no plan is said
+plainly, with the margin that does plan (checked by planning at it)."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from contextlib import redirect_stdout
+from pathlib import Path
+
+import pytest
+
+from needlekit.cli import main
+from needlekit.planning.steerable.verify import search_clearance_mm, verify_plan
+from needlekit.scenario.problems import load_problem
+from needlekit.scenario.results import read_plan_json
+
+TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
+
+
+def _run(argv) -> tuple[int, list[str]]:
+    out = io.StringIO()
+    with redirect_stdout(out):
+        code = main([str(a) for a in argv])
+    return code, out.getvalue().splitlines()
+
+
+def _clearance(lines: list[str]) -> str:
+    (line,) = [x for x in lines if x.startswith("clearance: ")]
+    return line
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    d = tmp_path_factory.mktemp("clearance")
+    code, lines = _run(["plan", TOY, "--out", d / "plan.json"])
+    assert code == 0
+    return d, lines
+
+
+def test_plan_verify_and_the_file_report_one_clearance(planned):
+    d, plan_lines = planned
+    code, verify_lines = _run(["verify", TOY, d / "plan.json"])
+    assert code == 0
+    # the oracle: the library's check of the plan file against the scenario
+    _, problem = load_problem(TOY)
+    plan, _, data = read_plan_json(d / "plan.json")
+    m = verify_plan(problem, plan).metrics
+    want = (f"clearance: certified {m['certified_clearance_mm']:.3f} mm over the whole path "
+            f"(smallest sampled distance {m['min_clearance_mm']:.3f} mm; field), safety "
+            "margin kept 0 mm")  # fmt: skip
+    assert _clearance(plan_lines) == _clearance(verify_lines) == want
+    assert data["stats"]["certified_clearance_mm"] == m["certified_clearance_mm"]
+    assert data["stats"]["min_clearance_mm"] == m["min_clearance_mm"]
+    code, text = _run(["verify", TOY, d / "plan.json", "--json"])
+    out = json.loads("\n".join(text))
+    assert out["metrics"]["certified_clearance_mm"] == m["certified_clearance_mm"]
+    assert out["safety_margin_mm"] == 0.0
+
+
+def test_the_margin_flag_replaces_the_scenarios_in_plan_and_verify(planned):
+    d, _ = planned
+    code, lines = _run(["plan", TOY, "--safety-margin-mm", "1", "--out", d / "m1.json"])
+    assert code == 0 and _clearance(lines).endswith("safety margin kept 1 mm")
+    plan, _, data = read_plan_json(d / "m1.json")
+    assert data["stats"]["certified_clearance_mm"] >= 1.0
+    # the same plan checked against a margin it does not keep: exit 1, the rule named
+    above = math.ceil(data["stats"]["certified_clearance_mm"]) + 1
+    code, lines = _run(["verify", TOY, d / "m1.json", "--safety-margin-mm", above])
+    assert code == 1 and lines[0].startswith("VIOLATED")
+    assert _clearance(lines).endswith(f"safety margin kept {above:g} mm")
+
+
+def test_a_margin_that_leaves_no_plan_says_so_and_names_one_that_plans(planned):
+    d, _ = planned
+    code, lines = _run(["plan", TOY, "--safety-margin-mm", "3", "--out", d / "m3.json"])
+    assert code == 1
+    assert lines[0].startswith("rcs_star: no plan to the goal with a 3 mm safety margin")
+    assert "not a plan to execute" in lines[1]
+    # the oracle: the plan made without a margin, by the search's own clearance test
+    _, problem = load_problem(TOY)
+    free, _, data = read_plan_json(d / "plan.json")
+    bound = math.floor(1000 * search_clearance_mm(problem, free)) / 1000
+    assert bound == 2.557  # the toy's certified clearance, as measured
+    assert lines[2] == (
+        f"  without a margin it plans (cost {data['cost_mm']:.4f} mm, certified clearance "
+        f"{data['stats']['certified_clearance_mm']:.3f} mm); the largest margin that plans is "
+        f"at least {bound:g} mm (checked: --safety-margin-mm {bound:g} plans, cost "
+        f"{data['cost_mm']:.4f} mm; a costlier path may keep more)"
+    )
+    code, lines = _run(["plan", TOY, "--safety-margin-mm", bound, "--out", d / "b.json"])
+    assert code == 0
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf", "1e300"])
+def test_the_margin_flag_passes_the_numeric_gate(value, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", str(TOY), "--safety-margin-mm", value])
+    assert exc.value.code == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: argument --safety-margin-mm: expected a number")
