@@ -65,7 +65,7 @@ def test_the_margin_flag_replaces_the_scenarios_in_plan_and_verify(planned):
     d, _ = planned
     code, lines = _run(["plan", TOY, "--safety-margin-mm", "1", "--out", d / "m1.json"])
     assert code == 0 and _clearance(lines).endswith("safety margin kept 1 mm")
-    plan, _, data = read_plan_json(d / "m1.json")
+    _, _, data = read_plan_json(d / "m1.json")
     assert data["stats"]["certified_clearance_mm"] >= 1.0
     # the same plan checked against a margin it does not keep: exit 1, the rule named
     above = math.ceil(data["stats"]["certified_clearance_mm"]) + 1
