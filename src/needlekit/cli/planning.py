@@ -606,7 +606,8 @@ def _register_sweep(sub) -> None:
         "sweep",
         help="plan over the start directions of the effective puncture region (Feng et al.)",
         description="Sample start directions around the scenario's start point, keep those at least "
-        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
+        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json; "
+        "exit 0 when some direction is solved and the best plan passes its check, else 1.",
     )
     add_input(sw, "scenario", help="scenario file (YAML)")
     _problem_overrides(sw)
@@ -655,7 +656,9 @@ def _register_verify(sub) -> None:
     ver = sub.add_parser(
         "verify",
         help="re-check a plan file independently; exit 1 on any violation",
-        description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
+        description="Check clearance, curvature, length, heading, entry angle and goal tolerance "
+        "of a plan against the scenario (its safety margin, or --safety-margin-mm); exit 0 when "
+        "every rule holds, exit 1 on any violation.",
     )
     add_input(ver, "scenario", help="scenario file (YAML)")
     add_input(ver, "plan", help="plan file (plan.json)")

@@ -176,7 +176,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "puncture",
         help="simulate robotic punctures with adaptive VFI control (Tang et al., Section III)",
         description="Run simulated punctures of a Panda guided by EM sensors under kinematic "
-        "uncertainty and write DIR/puncture.json and DIR/puncture.html.",
+        "uncertainty and write DIR/puncture.json and DIR/puncture.html; exit 1 when a trial "
+        "aborted or a constraint was violated beyond the measurement noise, else 0.",
     )
     pu.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
     _flags.SEED.add(pu, default=0, help="root seed (default 0)")
