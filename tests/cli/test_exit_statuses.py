@@ -37,8 +37,9 @@ MODES = {
     "breathing liver, no re-planning": ["--breathing", "liver", "--no-replan"],
     "faults, hold": ["--faults", "dropout", "--on-fault", "hold"],
     "faults, abort": ["--faults", "freeze", "--on-fault", "abort"],
-    "breathing and faults, abort": ["--breathing", "lung", "--faults", "mixed", "--on-fault",
-                                    "abort"],  # fmt: skip
+    "breathing and faults, abort": [
+        "--breathing", "lung", "--faults", "mixed", "--on-fault", "abort"
+    ],
 }
 
 
