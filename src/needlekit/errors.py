@@ -8,6 +8,8 @@ line.
 
 from __future__ import annotations
 
+import difflib
+
 __all__ = [
     "Interrupted",
     "InvalidInputError",
@@ -184,8 +186,6 @@ def did_you_mean(word: str, choices, *, n: int = 1) -> str:
     >>> did_you_mean("nope", ["plan", "sweep"])
     ''
     """
-    import difflib
-
     # flags are compared without their dashes: "--bogus" is nothing like "--out"
     names = {str(c).lstrip("-"): str(c) for c in choices}
     close = difflib.get_close_matches(str(word).lstrip("-"), list(names), n=n)

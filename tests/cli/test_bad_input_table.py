@@ -154,11 +154,11 @@ ROWS = [
     (["plan", "{d}"], "error: scenario: {d}: is a folder, expected a file"),
     (
         ["plan", "{TOY}", "--planner", "nope"],
-        "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+        "error: --planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
     ),
     (
         ["plan", "{TOY}", "--planner", "liu_cfrw"],
-        "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
+        "error: --planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
     ),
     (
         ["plan", "{d}/block_planner.yaml"],
@@ -437,11 +437,11 @@ ROWS = [
     # -- sweep
     (
         ["sweep", "{TOY}", "--planner", "nope"],
-        "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+        "error: --planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
     ),
     (
         ["sweep", "{TOY}", "--planner", "rrt", "liu_cfrw"],
-        "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
+        "error: --planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
     ),
     (
         ["sweep", "{d}/malformed.yaml"],

@@ -78,7 +78,8 @@ def test_a_margin_that_leaves_no_plan_says_so_and_names_one_that_plans(planned):
     d, _ = planned
     code, lines = _run(["plan", TOY, "--safety-margin-mm", "3", "--out", d / "m3.json"])
     assert code == 1
-    assert lines[0].startswith("rcs_star: no plan to the goal with a 3 mm safety margin")
+    assert lines[0].startswith("rcs_star: approximate, no plan to the goal with a 3 mm safety "
+                               "margin")  # fmt: skip
     assert "not a plan to execute" in lines[1]
     # the oracle: the plan made without a margin, by the search's own clearance test
     _, problem = load_problem(TOY)

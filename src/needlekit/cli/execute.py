@@ -9,7 +9,6 @@ from needlekit._numbers import MIN_POSITIVE
 from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
-    _fmt_table,
     _non_negative,
     _non_negative_mm,
     _numbers,
@@ -21,6 +20,7 @@ from needlekit.cli._common import (
     number,
 )
 from needlekit.cli._paths import add_input, add_output
+from needlekit.cli._verdicts import execute_failures, summary_table
 from needlekit.errors import InvalidInputError
 
 #: What ``needlekit execute`` writes in its --out folder.
@@ -307,7 +307,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
 
         write_execute_report(args.report, study.document, problem, plan)
     s = study.document["summary"]
-    print(_summary_table(s))
+    print(summary_table(s))
     for c in s["crashed"]:
         print(f"  trial {c['trial']} crashed: {c['error']}")
     print(f"-> {study.path}")
@@ -317,37 +317,6 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     for line in failures:
         print(f"exit 1: {line}")
     return EXIT_OK if not failures else 1
-
-
-def execute_failures(s: dict) -> list[str]:
-    """Why a steerable ``execute`` run exits 1, one line each (none: exit 0), as its
-    ``--help`` says: a run that crossed an obstacle (open loop, closed loop, or the closed
-    loop under any breathing policy: ignore, gate or track), a trial that crashed, an
-    insertion aborted on a sensor fault (``--on-fault abort``, or a hold longer than
-    ``--hold-timeout-s``).
-
-    Parameters
-    ----------
-    s : dict
-        ``summary`` of ``execute.json``.
-
-    Returns
-    -------
-    list of str
-    """
-    runs = {"open loop": s["open_loop"], "closed loop": s["closed_loop"]}
-    runs.update({f"breathing, {k}": r for k, r in (s.get("breathing") or {}).items()})
-    out = []
-    for name, r in runs.items():
-        if r.get("violated"):
-            out.append(f"{name}: {r['violated']} of {r['runs']} runs crossed an obstacle")
-    for name, r in runs.items():
-        if r.get("aborted"):
-            out.append(f"{name}: {r['aborted']} of {r['runs']} insertions aborted on a sensor "
-                       "fault (execute.json: faults)")  # fmt: skip
-    if s["crashed"]:
-        out.append(f"{len(s['crashed'])} of {s['trials']} trials crashed")
-    return out
 
 
 def _link_line(link, hooks, document: dict) -> str:
@@ -420,55 +389,6 @@ def say_fault(event: dict) -> None:
     else:
         line = f"t={event['time_s']:.3f} s: {what}: {ACTION_WORDS.get(event['action'], event['action'])}"
     print(line, file=sys.stderr, flush=True)
-
-
-#: Why a cell of the execute tables has no value (the footnote under the table).
-_NO_REPLAN = "no re-plan ran, so there is no latency to measure (the open loop never re-plans)"
-
-
-def _summary_table(s: dict) -> str:
-    rows = []
-    for loop in ("open_loop", "closed_loop"):
-        r = s[loop]
-        e, c, lat = r["final_error_mm"], r["min_clearance_mm"], r["replan_latency_ms"]
-        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
-        rows.append([
-            loop.replace("_", " "), e.get("mean"), e.get("sd"), e.get("max"), within,
-            c.get("min"), r["violated"], r["replans"].get("mean"), lat.get("p95"),
-        ])  # fmt: skip
-    head = ["run", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "min clearance mm",
-            "crossed", "re-plans", "re-plan p95 ms"]  # fmt: skip
-    text = _fmt_table(head, rows, why={
-        "re-plan p95 ms": _NO_REPLAN,
-        "min clearance mm": "no run ended (every trial crashed)",
-    })  # fmt: skip
-    if "breathing" in s:
-        text += "\n\n" + breathing_table(s["breathing"])
-    return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
-
-
-def breathing_table(per_policy: dict) -> str:
-    """The closed loop under breathing, a row per policy.
-
-    Parameters
-    ----------
-    per_policy : dict
-        ``summary["breathing"]`` of ``execute.json``.
-
-    Returns
-    -------
-    str
-    """
-    rows = []
-    for name, r in per_policy.items():
-        e, t = r["final_error_mm"], r["procedure_s"]
-        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
-        rows.append([f"breathing, {name}", e.get("mean"), e.get("sd"), e.get("max"), within,
-                     r["violated"], t.get("mean")])  # fmt: skip
-    return _fmt_table(
-        ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed", "procedure s"],
-        rows, why={"procedure s": "no run ended (every trial crashed)"},
-    )
 
 
 def add_noise_flags(p) -> None:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import functools
-import math
 import sys
 
 from needlekit.cli import _flags, _sizes
@@ -21,6 +19,7 @@ from needlekit.cli._common import (
     sweep_progress,
 )
 from needlekit.cli._paths import add_input, add_output
+from needlekit.cli._verdicts import clearance_line, flags_named, say_plan
 from needlekit.errors import InvalidInputError, NeedlekitError
 from needlekit.io.files import json_text
 from needlekit.io.results import scenario_reference
@@ -47,27 +46,6 @@ def _source(args: argparse.Namespace):
         use_cache=not getattr(args, "no_cache", False),
         safety_margin_mm=getattr(args, "safety_margin_mm", None),
     )
-
-
-#: The library's names of the values the flags replace, as the flags say them.
-_FLAG_OF_FIELD = {"goal_mm": "--goal", "start_pose": "--start-pose", "planner": "--planner"}
-
-
-def _flags_named(handler):
-    """The command's handler, an error about a value a flag gave named by the flag
-    (``--goal``, not the library's ``goal_mm``)."""
-
-    @functools.wraps(handler)
-    def run(args: argparse.Namespace) -> int:
-        try:
-            return handler(args)
-        except InvalidInputError as exc:
-            flag = _FLAG_OF_FIELD.get(exc.field)
-            if flag is None or getattr(args, flag[2:].replace("-", "_"), None) is None:
-                raise
-            raise InvalidInputError(flag, exc.reason) from None
-
-    return run
 
 
 def _document(args: argparse.Namespace) -> dict:
@@ -132,89 +110,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         return _plan_goals(args, doc, settings, built[planner])
 
     from needlekit.io.plans import write_plan_json
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
     _, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
     write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
-    times = (f"({1000 * res.time_s:.1f} ms search, {1000 * res.stats.get('setup_s', 0.0):.1f} "
-             f"ms set-up) -> {args.out}")  # fmt: skip
-    margin = problem.safety_margin_mm
-    if res.status is PlanStatus.SOLVED:
-        cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
-        print(f"{planner}: solved, cost {res.cost_mm:.4f} mm{cert} {times}")
-        print(clearance_line(res.stats, margin))
-        return EXIT_OK
-    why = f": {res.stats['reason']}" if res.stats.get("reason") else ""
-    print(f"{planner}: no plan to the goal with a {margin:g} mm safety margin{why} {times}")
-    if res.status is PlanStatus.APPROXIMATE:
-        print(f"  the nearest path it found stops {res.stats['goal_distance_mm']:.3f} mm from the "
-              f"goal (tolerance {problem.goal_tolerance_mm:g} mm): recorded with status "
-              "approximate, not a plan to execute")  # fmt: skip
-    if margin > 0:
-        print(_margin_advice(problem, built[planner], settings))
-    return 1
-
-
-def clearance_line(metrics, margin_mm: float) -> str:
-    """The clearance of a path in one line, as ``plan`` and ``verify`` both print it: the
-    certified figure of the one clearance rule (:mod:`needlekit.constants`, a lower bound
-    over the whole path), the smallest sampled distance beside it, and the margin kept.
-
-    Parameters
-    ----------
-    metrics : mapping
-        ``certified_clearance_mm``, ``min_clearance_mm``, ``collision_model``
-        (:func:`~needlekit.planning.steerable.verify.verify_plan`'s metrics, or a plan's
-        ``stats``, which are the same check's).
-    margin_mm : float
-        The problem's safety margin.
-
-    Returns
-    -------
-    str
-    """
-
-    def mm(key: str) -> str:
-        v = metrics.get(key)
-        return "-" if v is None else f"{v:.3f} mm"
-
-    return (
-        f"clearance: certified {mm('certified_clearance_mm')} over the whole path "
-        f"(smallest sampled distance {mm('min_clearance_mm')}; "
-        f"{metrics.get('collision_model', '-')}), safety margin kept {margin_mm:g} mm"
-    )
-
-
-def _margin_advice(problem, planner, settings) -> str:
-    """Which margin plans, when the one asked for does not: the same search without a
-    margin, then at the margin the path it found passes by the search's own clearance test
-    (:func:`~needlekit.planning.steerable.verify.search_clearance_mm`), to confirm it
-    (two more searches, each within the budget). That margin plans, so the largest one is
-    at least it; a costlier path may keep more."""
-    from needlekit.planning.result import PlanStatus
-    from needlekit.planning.steerable.solve import solve
-    from needlekit.planning.steerable.verify import search_clearance_mm
-
-    free_problem = problem.with_safety_margin(0.0)
-    free = solve(free_problem, planner, termination=settings.termination())
-    if free.status is not PlanStatus.SOLVED:
-        return ("  without a margin it finds no plan either: the margin is not what stops it "
-                "(the goal, the needle or the budget is)")  # fmt: skip
-    c = free.stats["certified_clearance_mm"]
-    bound = math.floor(1000 * search_clearance_mm(free_problem, free.plan)) / 1000
-    head = (f"  without a margin it plans (cost {free.cost_mm:.4f} mm, certified clearance "
-            f"{c:.3f} mm)")  # fmt: skip
-    if bound <= 0:
-        return head + "; that path passes the search's clearance test at no margin above 0"
-    again = solve(problem.with_safety_margin(bound), planner, termination=settings.termination())
-    if again.status is PlanStatus.SOLVED:
-        return (f"{head}; the largest margin that plans is at least {bound:g} mm (checked: "
-                f"--safety-margin-mm {bound:g} plans, cost {again.cost_mm:.4f} mm; a costlier "
-                "path may keep more)")  # fmt: skip
-    return (f"{head}; that path passes the search's clearance test up to a {bound:g} mm "
-            f"margin, but at {bound:g} mm the planner found no plan within its budget")
+    return say_plan(res, problem, built[planner], settings, args.out)
 
 
 #: The flags that only go with ``plan --dynamic``.
@@ -598,7 +499,7 @@ def _register_plan(sub) -> None:
         out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
     )
     _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
-    planp.set_defaults(command_handler=_flags_named(_cmd_plan))
+    planp.set_defaults(command_handler=flags_named(_cmd_plan))
 
 
 def _register_sweep(sub) -> None:
@@ -649,7 +550,7 @@ def _register_sweep(sub) -> None:
         help="carry on from the record an interrupted run wrote beside --out "
         "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
-    sw.set_defaults(command_handler=_flags_named(_cmd_sweep), sizes=_sizes.sweep_sizes)
+    sw.set_defaults(command_handler=flags_named(_cmd_sweep), sizes=_sizes.sweep_sizes)
 
 
 def _register_verify(sub) -> None:
@@ -672,7 +573,7 @@ def _register_verify(sub) -> None:
     )
     _flags.add_cache_options(ver)
     _flags.JSON.add(ver, help="print JSON instead of text")
-    ver.set_defaults(command_handler=_flags_named(_cmd_verify))
+    ver.set_defaults(command_handler=flags_named(_cmd_verify))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from needlekit.anatomy.fields import LazyField
 from needlekit.errors import InvalidInputError
 
 __all__ = ["EXTENT_SLACK_MM", "UNIT_FACTORS", "anatomy_box", "check_inside_anatomy"]
@@ -44,8 +45,6 @@ def anatomy_box(scene) -> np.ndarray | None:
     ndarray, shape (2, 3), or None
         ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` (mm).
     """
-    from needlekit.anatomy.fields import LazyField
-
     boxes = []
     for s in scene.structures:
         f = s.field

@@ -57,6 +57,7 @@ from needlekit.scenario._blocks import (  # the document's blocks
     _straight,
     _structure,
 )
+from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
 
 _log = logging.getLogger(__name__)
 
@@ -328,8 +329,6 @@ def parse_scenario(
 def _check_points_inside(scene: Scene, data: dict, start, goal, straight: dict, ctx) -> None:
     """The start, the goal and the straight block's targets lie where the anatomy is
     (:func:`needlekit.scenario.extent.check_inside_anatomy`), each named by its field."""
-    from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
-
     box = anatomy_box(scene)
     if box is None:
         return

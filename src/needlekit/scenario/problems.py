@@ -34,6 +34,7 @@ from needlekit.scenario.dynamic import (  # re-exported (they lived here)
     dynamic_settings,
     moving_case,
 )
+from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
 from needlekit.scenario.planners import PlannerSettings, planner_settings  # re-exported
 from needlekit.scenario.straight import (  # re-exported
     coverage_region,
@@ -133,8 +134,6 @@ def _with_overrides(
     if sc.goal is None and goal_mm is None:
         raise InvalidInputError("goal", f"{name}: the scenario gives no goal; pass a goal")
     if goal_mm is not None or start_pose is not None:  # where the anatomy is, before any search
-        from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
-
         box = anatomy_box(sc.scene)
         if start_pose is not None:
             check_inside_anatomy(overrides["start_pose"][:3, 3], box, "start_pose")
