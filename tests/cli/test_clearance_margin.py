@@ -103,3 +103,33 @@ def test_the_margin_flag_passes_the_numeric_gate(value, capsys):
     assert exc.value.code == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("error: argument --safety-margin-mm: expected a number")
+
+
+def test_sweep_plans_under_the_flags_margin(planned):
+    d, _ = planned
+    code, lines = _run(["sweep", TOY, "--directions", "100", "--max-iterations", "200",
+                        "--safety-margin-mm", "1", "--out", d / "sweep.json",
+                        "--plan", d / "best.json"])  # fmt: skip
+    assert code == 0
+    _, _, data = read_plan_json(d / "best.json")
+    assert data["stats"]["certified_clearance_mm"] >= 1.0
+    code, lines = _run(["verify", TOY, d / "best.json", "--any-start-direction",
+                        "--safety-margin-mm", "1"])  # fmt: skip
+    assert code == 0 and _clearance(lines).endswith("safety margin kept 1 mm")
+
+
+def test_execute_checks_the_plan_against_the_flags_margin(planned, capsys):
+    d, _ = planned
+    # the plan made without a margin keeps 2.557 mm: at 3 mm it fails before any trial
+    assert main(["execute", str(TOY), str(d / "plan.json"), "--safety-margin-mm", "3",
+                 "--trials", "1", "--out", str(d / "e3")]) == 2  # fmt: skip
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("error: plan: plan.json fails its check against toy.yaml: "
+                           "collision: certified clearance 2.5574 mm")
+    assert line.endswith("below the safety margin 3 mm, outside the start exclusion")
+    assert not (d / "e3").exists()
+    code, _ = _run(["execute", TOY, d / "plan.json", "--safety-margin-mm", "1", "--trials", "1",
+                    "--replan-iterations", "500", "--replan-delay-ms", "5", "--out", d / "e1"])  # fmt: skip
+    doc = json.loads((d / "e1" / "execute.json").read_text())
+    assert doc["summary"]["margin_mm"] == 1.0
+    assert code == (1 if doc["summary"]["closed_loop"]["violated"] else 0)
