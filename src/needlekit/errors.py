@@ -166,7 +166,8 @@ def raise_if_interrupt(exc: BaseException) -> None:
 def did_you_mean(word: str, choices, *, n: int = 1) -> str:
     """The nearest of ``choices`` to a misspelt ``word``, as a message's end: ``"; did you
     mean --trials?"`` (with ``n`` > 1 perhaps ``"; did you mean a or b?"``), or ``""`` when none is close
-    (:func:`difflib.get_close_matches`, its default cut-off 0.6).
+    (:func:`difflib.get_close_matches` with a cut-off of 0.7: "astar" is not offered
+    "rcs_star", "lnug" is offered "lung").
 
     Parameters
     ----------
@@ -188,5 +189,5 @@ def did_you_mean(word: str, choices, *, n: int = 1) -> str:
     """
     # flags are compared without their dashes: "--bogus" is nothing like "--out"
     names = {str(c).lstrip("-"): str(c) for c in choices}
-    close = difflib.get_close_matches(str(word).lstrip("-"), list(names), n=n)
+    close = difflib.get_close_matches(str(word).lstrip("-"), list(names), n=n, cutoff=0.7)
     return f"; did you mean {' or '.join(names[c] for c in close)}?" if close else ""

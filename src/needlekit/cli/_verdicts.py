@@ -18,7 +18,18 @@ _FLAG_OF_FIELD = {"goal_mm": "--goal", "start_pose": "--start-pose", "planner": 
 
 def flags_named(handler):
     """The command's handler, an error about a value a flag gave named by the flag
-    (``--goal``, not the library's ``goal_mm``)."""
+    (``--goal``, not the library's ``goal_mm``).
+
+    Parameters
+    ----------
+    handler : callable
+        ``handler(args) -> int``.
+
+    Returns
+    -------
+    callable
+        The same, with the library's field names turned into the flags that gave them.
+    """
 
     @functools.wraps(handler)
     def run(args: argparse.Namespace) -> int:
@@ -114,7 +125,21 @@ def margin_advice(problem, planner, settings) -> str:
     margin, then at the margin the path it found passes by the search's own clearance test
     (:func:`~needlekit.planning.steerable.verify.search_clearance_mm`), to confirm it
     (two more searches, each within the budget). That margin plans, so the largest one is
-    at least it; a costlier path may keep more."""
+    at least it; a costlier path may keep more.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        The problem under the margin that left no plan.
+    planner : Planner
+    settings : PlannerSettings
+        Its termination (the budget) for each search.
+
+    Returns
+    -------
+    str
+        One line, indented.
+    """
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
     from needlekit.planning.steerable.verify import search_clearance_mm
@@ -177,6 +202,19 @@ _NO_REPLAN = "no re-plan ran, so there is no latency to measure (the open loop n
 
 
 def summary_table(s: dict) -> str:
+    """``execute``'s table of the open and the closed loop (and, under breathing, one row
+    per policy), units in every numeric header, a dash with its reason where there is no
+    value.
+
+    Parameters
+    ----------
+    s : dict
+        ``summary`` of ``execute.json``.
+
+    Returns
+    -------
+    str
+    """
     rows = []
     for loop in ("open_loop", "closed_loop"):
         r = s[loop]
