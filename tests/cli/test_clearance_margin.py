@@ -133,3 +133,26 @@ def test_execute_checks_the_plan_against_the_flags_margin(planned, capsys):
     doc = json.loads((d / "e1" / "execute.json").read_text())
     assert doc["summary"]["margin_mm"] == 1.0
     assert code == (1 if doc["summary"]["closed_loop"]["violated"] else 0)
+
+
+def test_a_sweep_resumes_only_under_the_margin_it_ran_with(planned, capsys):
+    from needlekit.studies.sweep_study import write_partial_sweep
+
+    d, _ = planned
+    _run(["sweep", TOY, "--directions", "12", "--max-iterations", "200",
+          "--safety-margin-mm", "1", "--out", d / "s1.json"])  # fmt: skip
+    record = json.loads((d / "s1.json").read_text())
+    assert record["safety_margin_mm"] == 1.0
+    # the record an interrupted run would have left, with the same head
+    from needlekit.planning.steerable.sweep_result import sweeps_from_dict
+
+    head = {k: record[k] for k in ("scenario", "time_limit_s", "max_iterations", "seed",
+                                   "options", "safety_margin_mm")}  # fmt: skip
+    write_partial_sweep(d / "s1.json", head, sweeps_from_dict(record, "s1.json"))
+    flags = ["sweep", str(TOY), "--directions", "12", "--max-iterations", "200", "--out",
+             str(d / "s1.json"), "--resume"]  # fmt: skip
+    assert main([*flags, "--safety-margin-mm", "0.5"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == (f"error: --resume: {d / 's1.partial.json'} was written with other "
+                    "safety_margin_mm than this run's")  # fmt: skip
+    assert main([*flags, "--safety-margin-mm", "1"]) != 2  # the same margin: carried on
