@@ -48,14 +48,6 @@ def _source(args: argparse.Namespace):
     )
 
 
-def _margin(args: argparse.Namespace, doc: dict) -> float:
-    """The safety margin the problem will keep: ``--safety-margin-mm``, else the
-    scenario's ``needle.safety_margin_mm`` (0 by default), known before the anatomy loads."""
-    if args.safety_margin_mm is not None:
-        return float(args.safety_margin_mm)
-    return float((doc.get("needle") or {}).get("safety_margin_mm", 0.0))
-
-
 def _document(args: argparse.Namespace) -> dict:
     """The scenario's document, read and checked against the schema (no anatomy, no numba)."""
     from needlekit.io.scenario_schema import read_scenario_document
@@ -271,14 +263,16 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.resume:  # the partial file agrees with this run, before any anatomy
         from needlekit.studies.sweep_study import read_partial_sweep, sweep_settings
 
+        margin = args.safety_margin_mm  # the flag's, else the scenario's (before the anatomy)
+        if margin is None:
+            margin = float((doc.get("needle") or {}).get("safety_margin_mm", 0.0))
+
         resume = read_partial_sweep(
             args.out,
             list(built),
             dirs,
-            sweep_settings(
-                built, settings.time_limit_s, settings.max_iterations, settings.seed,
-                _margin(args, doc),
-            ),
+            sweep_settings(built, settings.time_limit_s, settings.max_iterations, settings.seed,
+                           margin),  # the margin the problem will keep
         )
     source = _source(args)
     source.cached(doc)  # load (and check) the scenario before starting any worker
