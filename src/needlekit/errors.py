@@ -8,6 +8,8 @@ line.
 
 from __future__ import annotations
 
+import difflib
+
 __all__ = [
     "Interrupted",
     "InvalidInputError",
@@ -15,6 +17,7 @@ __all__ = [
     "OutputError",
     "SingularityError",
     "UnreachableTargetError",
+    "did_you_mean",
     "is_interrupt",
     "raise_if_interrupt",
 ]
@@ -158,3 +161,33 @@ def raise_if_interrupt(exc: BaseException) -> None:
     """
     if is_interrupt(exc):
         raise KeyboardInterrupt from None
+
+
+def did_you_mean(word: str, choices, *, n: int = 1) -> str:
+    """The nearest of ``choices`` to a misspelt ``word``, as a message's end: ``"; did you
+    mean --trials?"`` (with ``n`` > 1 perhaps ``"; did you mean a or b?"``), or ``""`` when none is close
+    (:func:`difflib.get_close_matches` with a cut-off of 0.7: "astar" is not offered
+    "rcs_star", "lnug" is offered "lung").
+
+    Parameters
+    ----------
+    word : str
+    choices : iterable of str
+    n : int
+        At most this many suggestions.
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> did_you_mean("--trails", ["--trials", "--seed"])
+    '; did you mean --trials?'
+    >>> did_you_mean("nope", ["plan", "sweep"])
+    ''
+    """
+    # flags are compared without their dashes: "--bogus" is nothing like "--out"
+    names = {str(c).lstrip("-"): str(c) for c in choices}
+    close = difflib.get_close_matches(str(word).lstrip("-"), list(names), n=n, cutoff=0.7)
+    return f"; did you mean {' or '.join(names[c] for c in close)}?" if close else ""

@@ -154,11 +154,11 @@ ROWS = [
     (["plan", "{d}"], "error: scenario: {d}: is a folder, expected a file"),
     (
         ["plan", "{TOY}", "--planner", "nope"],
-        "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+        "error: --planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
     ),
     (
         ["plan", "{TOY}", "--planner", "liu_cfrw"],
-        "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
+        "error: --planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
     ),
     (
         ["plan", "{d}/block_planner.yaml"],
@@ -437,11 +437,11 @@ ROWS = [
     # -- sweep
     (
         ["sweep", "{TOY}", "--planner", "nope"],
-        "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+        "error: --planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
     ),
     (
         ["sweep", "{TOY}", "--planner", "rrt", "liu_cfrw"],
-        "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
+        "error: --planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
     ),
     (
         ["sweep", "{d}/malformed.yaml"],
@@ -1060,8 +1060,8 @@ ROWS = [
         "error: argument --trials: expected a whole number in [1, 1000000000], got '0'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--trial", "3"],
-        "error: --trial: expected a trial number below --trials (2), got 3",
+        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--replay-trial", "3"],
+        "error: --replay-trial: expected a trial number below --trials (2), got 3",
     ),
     (
         ["execute", "{TOY}", "{d}/malformed.json", "--igtl", "70000"],

@@ -1,6 +1,6 @@
 """``needlekit execute`` (issue 21, point 3, and point 8's input checks): trials open loop
 beside closed loop on the same draws, written to execute.json; one trial replayed alone
-by --trial; bad input refused in one line with exit 2 before any work; a crashing trial
+by --replay-trial; bad input refused in one line with exit 2 before any work; a crashing trial
 recorded with its seed while the others go on; Ctrl-C keeps the trials done.
 
 Re-plans run with an iteration budget and a fixed simulated delay: the runs are
@@ -69,7 +69,7 @@ def test_every_trial_runs_open_and_closed_loop_on_the_same_needle(toy_plan, thre
 
 
 def test_one_trial_replays_alone_to_the_bit(toy_plan, three_trials, tmp_path):
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--trial", "1",
+    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--replay-trial", "1",
                  "--out", str(tmp_path), *REPRODUCIBLE]) == 0  # fmt: skip
     alone = json.loads((tmp_path / "execute.json").read_text())["trials"]
     assert len(alone) == 1 and alone[0] == three_trials["trials"][1]
@@ -90,7 +90,7 @@ def _plan_with(toy_plan: Path, tmp_path: Path, **change) -> Path:
         ({}, ["--orientation-noise-rad", "1"], "--orientation-noise-rad"),
         ({}, ["--deflection-sd", "nan"], "--deflection-sd"),
         ({}, ["--radius-sd-mm", "20"], "--radius-sd-mm"),
-        ({}, ["--trials", "2", "--trial", "2"], "--trial"),
+        ({}, ["--trials", "2", "--replay-trial", "2"], "--replay-trial"),
         ({"goal_mm": [0.0, 0.0, 1.0]}, [], "made for another scenario"),
         (
             {"primitives": [{"rotation_rad": 0.0, "curvature_per_mm": 0.0, "length_mm": 500.0}]},

@@ -77,7 +77,7 @@ def drag(tmp_path_factory):
     assert main(["multi", str(scenario), "--out", str(plan)]) == 0
     assert main(["execute", str(scenario), str(plan), "--trials", "2", "--workers", "2",
                  "--out", str(d / "two")]) == 0  # fmt: skip
-    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--trial", "1",
+    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--replay-trial", "1",
                  "--out", str(d / "one"), "--report", str(d / "one" / "page.html")]) == 0  # fmt: skip
     return {
         "scenario": scenario,
@@ -137,11 +137,11 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
          "plan is a multi plan"),
         (["--faults", "mixed"], "error: --faults: applies to a steerable plan; the plan is a "
          "multi plan"),
-        (["--resume", "--trial", "0"], "error: --resume: carries on a whole study, not one "
-         "--trial"),
+        (["--resume", "--replay-trial", "0"], "error: --resume: carries on a whole study, not one "
+         "--replay-trial"),
         (["--registration-sd-mm", "11"], "error: --registration-sd-mm: expected at most 10, "
          "got 11"),
-        (["--trials", "2", "--trial", "2"], "error: --trial: expected a trial number below "
+        (["--trials", "2", "--replay-trial", "2"], "error: --replay-trial: expected a trial number below "
          "--trials (2), got 2"),
     ]  # fmt: skip
     for extra, line in cases:

@@ -190,7 +190,7 @@ def test_faults_replay_with_trial_k_and_no_obstacle_is_crossed(tmp_path):
               "--replan-iterations", "200", "--speed-mm-s", "10"]  # fmt: skip
     assert main(["execute", str(TOY), str(plan), "--trials", "3", "--out", str(tmp_path / "a"),
                  *common]) == 0  # fmt: skip
-    assert main(["execute", str(TOY), str(plan), "--trial", "2", "--out", str(tmp_path / "b"),
+    assert main(["execute", str(TOY), str(plan), "--replay-trial", "2", "--out", str(tmp_path / "b"),
                  *common]) == 0  # fmt: skip
     import json
 

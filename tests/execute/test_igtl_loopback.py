@@ -143,7 +143,7 @@ def test_the_tip_can_come_from_a_tracker_over_the_link(toy_plan, tmp_path, capsy
 def test_the_link_flags_are_checked_before_any_work(toy_plan, tmp_path, capsys):
     for flags, words in (
         (["--igtl", "70000"], "--igtl"),
-        (["--igtl", "18944", "--trials", "3"], "--trial K"),
+        (["--igtl", "18944", "--trials", "3"], "--replay-trial K"),
         (["--tip-from-igtl", "NeedleToTracker"], "--tip-from-igtl"),
         (["--igtl", "18944", "--trials", "1", "--workers", "2"], "--igtl"),
     ):

@@ -243,12 +243,12 @@ def test_an_unknown_planner_is_refused_before_the_anatomy_loads(tmp_path, capsys
     out = str(tmp_path / "p.json")
     assert main(["plan", str(EXAMPLES / "toy.yaml"), "--planner", "astar", "--out", out]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == "error: planner: unknown planner 'astar'; available: rcs_star, rcs, rrt, liu_cfrw"
+    assert err == "error: --planner: unknown planner 'astar'; available: rcs_star, rcs, rrt, liu_cfrw"
     assert main(["plan", str(EXAMPLES / "toy.yaml"), "--planner", "liu_cfrw", "--out", out]) == 2
     err = capsys.readouterr().err.strip()
     assert (
         err
-        == "error: planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt"
+        == "error: --planner: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt"
     )
 
 

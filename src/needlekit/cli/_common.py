@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 
 from needlekit._numbers import (
@@ -19,6 +19,7 @@ from needlekit._numbers import (
     MIN_STEP_MM,
     Bounds,
 )
+from needlekit.errors import did_you_mean
 
 EXIT_OK = 0
 EXIT_USAGE = 2
@@ -38,14 +39,46 @@ _NEGATIVE_VALUE = re.compile(
 
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``error: ...``, exit 2), reading ``-10,10,70`` as a
-    value (no option of needlekit looks like a negative number)."""
+    value (no option of needlekit looks like a negative number).
+
+    No flag may be abbreviated (``allow_abbrev=False``): ``--trial`` never stands for
+    another flag. A flag, command or choice that is not one of the parser's is answered
+    with the nearest ones (:func:`needlekit.errors.did_you_mean`); ``mistaken_flags``
+    (flag -> what to say) names what a flag that is not one was likely meant as.
+    """
 
     def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = _NEGATIVE_VALUE
+        self.mistaken_flags: dict[str, str] = {}
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(EXIT_USAGE, f"error: {message}\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        namespace, extras = super().parse_known_args(args, namespace)
+        for word in extras:  # an unknown flag near one of ours: say which, in one line
+            if not word.startswith("--"):
+                continue
+            flag = word.split("=", 1)[0]
+            hint = self.mistaken_flags.get(flag)
+            if hint is None:
+                flags = [o for o in self._option_string_actions if o.startswith("--")]
+                hint = did_you_mean(flag, flags)
+            if hint:
+                self.error(f"{flag}: not a flag of {self.prog}{hint}")
+        return namespace, extras
+
+    def _check_value(self, action, value) -> None:
+        if action.choices is not None and isinstance(value, str) and value not in action.choices:
+            hint = did_you_mean(value, action.choices)
+            if hint:
+                choices = ", ".join(map(repr, action.choices))
+                raise argparse.ArgumentError(
+                    action, f"invalid choice: {value!r} (choose from {choices}){hint}"
+                )
+        super()._check_value(action, value)
 
 
 class _Formatter(argparse.HelpFormatter):
@@ -177,17 +210,48 @@ def _start_pose(path):
     return read_pose_txt(path)
 
 
-def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+#: What a dash stands for when the table's caller gave no reason of its own.
+NO_VALUE = "no value to show"
+
+
+def _fmt_table(
+    headers: Sequence[str], rows: Sequence[Sequence[object]], why: Mapping[str, str] | None = None
+) -> str:
+    """A console table: text columns aligned left, numbers right, floats to 4 decimals.
+
+    A cell with no value (None, a NaN or an infinity, or the text ``-``) is a dash, never
+    ``nan`` or ``inf``; under the table, one footnote line per column that has a dash says
+    why (``why[header]``, else :data:`NO_VALUE`). Headers of numbers carry their unit
+    (``error mean mm``, ``procedure s``); ``tests/cli/test_tables.py`` runs every command
+    that prints a table and checks both.
+
+    Parameters
+    ----------
+    headers : sequence of str
+    rows : sequence of sequences
+    why : mapping, optional
+        Header -> why a cell of that column has no value.
+
+    Returns
+    -------
+    str
+    """
+
+    def missing(v: object) -> bool:
+        return v is None or v == "-" or (isinstance(v, float) and not math.isfinite(v))
+
     def cell(v: object) -> str:
+        if missing(v):
+            return "-"
         if isinstance(v, float):
-            return "inf" if math.isinf(v) else f"{v:.4f}"
+            return f"{v:.4f}"
         return str(v)
 
     def numeric(text: str) -> bool:
         try:
             float(text)
         except ValueError:
-            return text in ("-", "inf")
+            return text == "-"
         return True
 
     text = [[cell(v) for v in row] for row in rows]
@@ -204,6 +268,9 @@ def _fmt_table(headers: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
 
     lines = [line(headers), "  ".join("-" * w for w in widths)]
     lines.extend(line(r) for r in text)
+    for i, h in enumerate(headers):
+        if any(missing(row[i]) for row in rows):
+            lines.append(f"- in {h or 'column ' + str(i + 1)}: {(why or {}).get(h, NO_VALUE)}")
     return "\n".join(lines)
 
 

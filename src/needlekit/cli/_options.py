@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from needlekit._numbers import ANY_INT, ANY_REAL, Bounds, field_bounds
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, did_you_mean
 
 _TRUE = ("true", "yes", "on", "1")
 _FALSE = ("false", "no", "off", "0")
@@ -131,5 +131,6 @@ def planner_flag_options(
                 opts[head] = value
         if not taken:
             known = "; ".join(f"{p} takes {', '.join(types[p]) or 'no options'}" for p in planners)
-            raise InvalidInputError(f"--option {name}", f"unknown option ({known})")
+            hint = did_you_mean(name.partition(".")[0], {o for p in planners for o in types[p]})
+            raise InvalidInputError(f"--option {name}", f"unknown option ({known}){hint}")
     return out

@@ -169,7 +169,7 @@ def puncture_sizes(args: argparse.Namespace) -> list[Size]:
 
 
 def execute_sizes(args: argparse.Namespace) -> list[Size]:
-    """``execute``: ``--trials`` (one trial with ``--trial``).
+    """``execute``: ``--trials`` (one trial with ``--replay-trial``).
 
     Parameters
     ----------

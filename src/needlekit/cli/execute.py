@@ -4,13 +4,11 @@ loop, over many trials (docs/execute.md)."""
 from __future__ import annotations
 
 import argparse
-import math
 
 from needlekit._numbers import MIN_POSITIVE
 from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import (
     EXIT_OK,
-    _fmt_table,
     _non_negative,
     _non_negative_mm,
     _numbers,
@@ -22,6 +20,7 @@ from needlekit.cli._common import (
     number,
 )
 from needlekit.cli._paths import add_input, add_output
+from needlekit.cli._verdicts import execute_failures, summary_table
 from needlekit.errors import InvalidInputError
 
 #: What ``needlekit execute`` writes in its --out folder.
@@ -40,7 +39,7 @@ example:
   needlekit plan examples/medrad_lung1.yaml --out out/lung1/plan.json
   needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trials 100 --seed 0 \\
       --out out/lung1 --workers 2
-  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --trial 17 --out out/t17
+  needlekit execute examples/medrad_lung1.yaml out/lung1/plan.json --replay-trial 17 --out out/t17
   needlekit multi examples/medrad_liver4.yaml --out out/liver4/multi.json
   needlekit execute examples/medrad_liver4.yaml out/liver4/multi.json --trials 20 \
       --out out/liver4 --workers 2
@@ -94,9 +93,9 @@ def _check_flags(args: argparse.Namespace) -> None:
         from needlekit.execute.igtl_link import parse_address
 
         parse_address(args.igtl)
-        if args.trial is None and args.trials != 1:
+        if args.replay_trial is None and args.trials != 1:
             raise InvalidInputError(
-                "--igtl", "streams one insertion: give --trial K (or --trials 1)"
+                "--igtl", "streams one insertion: give --replay-trial K (or --trials 1)"
             )
         if args.executor != "serial" or args.workers is not None:
             raise InvalidInputError(
@@ -235,7 +234,10 @@ def load_checked_plan(args: argparse.Namespace):
     plan, goal, _ = read_plan_json(args.plan)
     if plan is None:
         raise InvalidInputError("plan", f"{args.plan.name} holds no plan to carry out")
-    source = ScenarioSource.of(args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache)
+    source = ScenarioSource.of(
+        args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache,
+        safety_margin_mm=getattr(args, "safety_margin_mm", None),
+    )  # fmt: skip
     scenario, problem = source.cached()
     other = []
     if not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
@@ -278,7 +280,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
 
     source, problem, plan, name = load_checked_plan(args)
     options = execute_options(args, 1.0 / problem.kappa_max_per_mm)
-    trials = [args.trial] if args.trial is not None else list(range(args.trials))
+    trials = [args.replay_trial] if args.replay_trial is not None else list(range(args.trials))
     resume = None
     if args.resume:
         resume = read_partial_execute(args.out, name, plan, args.seed, trials, options)
@@ -305,17 +307,16 @@ def _cmd_execute(args: argparse.Namespace) -> int:
 
         write_execute_report(args.report, study.document, problem, plan)
     s = study.document["summary"]
-    print(_summary_table(s))
+    print(summary_table(s))
     for c in s["crashed"]:
         print(f"  trial {c['trial']} crashed: {c['error']}")
     print(f"-> {study.path}")
     if args.report is not None:
         print(f"-> {args.report}")
-    crossed = s["closed_loop"]["violated"] + s["open_loop"]["violated"]
-    aborted = s["closed_loop"].get("aborted", 0)
-    if aborted:
-        print(f"  {aborted} closed-loop insertion(s) aborted on a sensor fault (execute.json: faults)")
-    return EXIT_OK if not s["crashed"] and crossed == 0 and not aborted else 1
+    failures = execute_failures(s)
+    for line in failures:
+        print(f"exit 1: {line}")
+    return EXIT_OK if not failures else 1
 
 
 def _link_line(link, hooks, document: dict) -> str:
@@ -388,47 +389,6 @@ def say_fault(event: dict) -> None:
     else:
         line = f"t={event['time_s']:.3f} s: {what}: {ACTION_WORDS.get(event['action'], event['action'])}"
     print(line, file=sys.stderr, flush=True)
-
-
-def _summary_table(s: dict) -> str:
-    rows = []
-    for loop in ("open_loop", "closed_loop"):
-        r = s[loop]
-        e, c, lat = r["final_error_mm"], r["min_clearance_mm"], r["replan_latency_ms"]
-        rows.append([
-            loop.replace("_", " "), e.get("mean", math.nan), e.get("sd", math.nan),
-            e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), c.get("min", math.nan),
-            r["violated"], r["replans"].get("mean", math.nan), lat.get("p95", math.nan),
-        ])  # fmt: skip
-    head = ["run", "error mean", "sd", "max", "% <= 1 mm", "min clearance", "crossed",
-            "re-plans", "re-plan p95 ms"]  # fmt: skip
-    text = _fmt_table(head, rows)
-    if "breathing" in s:
-        text += "\n\n" + breathing_table(s["breathing"])
-    return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
-
-
-def breathing_table(per_policy: dict) -> str:
-    """The closed loop under breathing, a row per policy.
-
-    Parameters
-    ----------
-    per_policy : dict
-        ``summary["breathing"]`` of ``execute.json``.
-
-    Returns
-    -------
-    str
-    """
-    rows = []
-    for name, r in per_policy.items():
-        e, t = r["final_error_mm"], r["procedure_s"]
-        rows.append([f"breathing, {name}", e.get("mean", math.nan), e.get("sd", math.nan),
-                     e.get("max", math.nan), 100.0 * (r["within_1mm"] or 0.0), r["violated"],
-                     t.get("mean", math.nan)])  # fmt: skip
-    return _fmt_table(
-        ["policy", "error mean", "sd", "max", "% <= 1 mm", "crossed", "procedure s"], rows
-    )
 
 
 def add_noise_flags(p) -> None:
@@ -510,8 +470,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "tip, feedback, re-planning), many trials",
         description="Insert a steerable plan with a needle that does not follow its model "
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
-        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle, a "
-        "trial crashed, or a closed-loop insertion was aborted on a sensor fault (--on-fault). A straight multi plan (multi.json) is inserted by the simulated Panda "
+        "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle (open "
+        "loop, closed loop, or the closed loop under any --breathing policy: ignore, gate or "
+        "track), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
+        "abort, or a hold longer than --hold-timeout-s); each reason is printed on a line "
+        "'exit 1: ...'. A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
         "VFIs; exit 1 when a needle touched a placed one, left its constraints, or a trial "
         "crashed.",
@@ -524,8 +487,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                help="also write a self-contained HTML page: one trial animated in 3D, the "
                "errors open beside closed loop, the re-plan latency, the literature")  # fmt: skip
     ex.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
-    ex.add_argument("--trial", type=_seed, metavar="K", help="run trial K alone (its seed)")
+    ex.add_argument("--replay-trial", type=_seed, metavar="K",
+                    help="run trial K alone, as it ran among --trials (its seed)")  # fmt: skip
+    ex.mistaken_flags["--trial"] = (
+        "; did you mean --trials N (how many trials) or --replay-trial K (run trial K alone)?"
+    )
     _flags.SEED.add(ex, default=0, help="root seed (default 0)")
+    ex.add_argument("--safety-margin-mm", type=_non_negative_mm, metavar="MM",
+                    help="the margin the plan is checked against and re-plans keep (mm), "
+                    "instead of the scenario's needle.safety_margin_mm (give the one the "
+                    "plan was made with: plan --safety-margin-mm)")  # fmt: skip
     _flags.OUT.add(
         ex, folder=True, contents=EXECUTE_FILES, default="out/execute",
         help="output folder (default out/execute)",

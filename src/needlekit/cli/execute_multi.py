@@ -5,7 +5,6 @@ simulated Panda under Tang et al.'s controller, needle after needle (docs/execut
 from __future__ import annotations
 
 import argparse
-import math
 
 from needlekit.cli._common import EXIT_OK, _fmt_table
 from needlekit.errors import InvalidInputError
@@ -17,14 +16,14 @@ STEERABLE_ONLY = (
     "breathing_amplitude_mm", "breathing_period_s", "breathing_shape", "breathing_direction",
     "no_replan", "no_warm_start", "cross_track_mm", "replan_time_limit_s", "replan_iterations",
     "replan_delay_ms", "igtl", "tip_from_igtl", "igtl_realtime", "igtl_wait_s", "faults",
-    "on_fault", "hold_timeout_s",
+    "on_fault", "hold_timeout_s", "safety_margin_mm",
 )  # fmt: skip
 #: ``--registration-sd-mm`` at most this: beyond it the robot works on another patient.
 REGISTRATION_SD_MAX_MM = 10.0
 
 
 def check_trial_flags(args: argparse.Namespace) -> None:
-    """``--trial`` below ``--trials``, and not with ``--resume`` (both kinds of plan).
+    """``--replay-trial`` below ``--trials``, and not with ``--resume`` (both kinds of plan).
 
     Parameters
     ----------
@@ -39,12 +38,12 @@ def check_trial_flags(args: argparse.Namespace) -> None:
     InvalidInputError
         Named by the flag.
     """
-    if args.trial is not None and args.trial >= args.trials:
+    if args.replay_trial is not None and args.replay_trial >= args.trials:
         raise InvalidInputError(
-            "--trial", f"expected a trial number below --trials ({args.trials}), got {args.trial}"
+            "--replay-trial", f"expected a trial number below --trials ({args.trials}), got {args.replay_trial}"
         )
-    if args.trial is not None and args.resume:
-        raise InvalidInputError("--resume", "carries on a whole study, not one --trial")
+    if args.replay_trial is not None and args.resume:
+        raise InvalidInputError("--resume", "carries on a whole study, not one --replay-trial")
 
 
 def check_multi_flags(args: argparse.Namespace) -> None:
@@ -61,7 +60,7 @@ def check_multi_flags(args: argparse.Namespace) -> None:
     Raises
     ------
     InvalidInputError
-        A steerable-only flag given, ``--resume`` with ``--trial``, or a bad value; named
+        A steerable-only flag given, ``--resume`` with ``--replay-trial``, or a bad value; named
         by its flag.
     """
     defaults = args.steerable_defaults
@@ -174,7 +173,7 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
     from needlekit.studies.execute_multi import run_multi_execution
 
     sc, multi, coverage = load_checked_multi(args, record)
-    trials = [args.trial] if args.trial is not None else list(range(args.trials))
+    trials = [args.replay_trial] if args.replay_trial is not None else list(range(args.trials))
     with (
         open_executor(
             args.executor, workers=args.workers, address=args.scheduler, dashboard=args.dashboard
@@ -218,14 +217,17 @@ def multi_table(s: dict) -> str:
     rows = []
     for order, r in s["by_needle"].items():
         e, sh = r["error_mm"], r["target_shift_mm"]
-        rows.append([f"needle {order}", e.get("mean", math.nan), e.get("sd", math.nan),
-                     e.get("max", math.nan), sh.get("mean", math.nan)])  # fmt: skip
+        rows.append([f"needle {order}", e.get("mean"), e.get("sd"), e.get("max"),
+                     sh.get("mean")])  # fmt: skip
     e = s["error_mm"]
-    rows.append(["all needles", e.get("mean", math.nan), e.get("sd", math.nan),
-                 e.get("max", math.nan), math.nan])  # fmt: skip
+    rows.append(["all needles", e.get("mean"), e.get("sd"), e.get("max"), None])
     for lit in s["literature"]:
-        rows.append([lit["source"], lit["mean_mm"], lit["sd_mm"], math.nan, math.nan])
-    text = _fmt_table(["", "error mean", "sd", "max", "target shift"], rows)
+        rows.append([lit["source"], lit["mean_mm"], lit["sd_mm"], None, None])
+    text = _fmt_table(["", "error mean mm", "sd mm", "max mm", "target shift mm"], rows, why={
+        "max mm": "the published studies give a mean and an SD only",
+        "target shift mm": "a shift is per needle: none for all needles together or a "
+        "published study",
+    })  # fmt: skip
     gap = s["min_needle_gap_mm"]
     text += (
         f"\n{s['needles']} needles in {s['trials']} trials: {len(s['touched'])} touched a placed "

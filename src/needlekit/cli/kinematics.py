@@ -140,7 +140,9 @@ def _cmd_inverse(args: argparse.Namespace) -> int:
         if arcline is not None:
             row.append(rec["shortest_arc_line_mm"])
         rows.append(row)
-    print(_fmt_table(headers, rows))
+    print(_fmt_table(headers, rows, why={
+        "radius_mm": "the target lies on the needle's axis: a straight line (infinite radius)"
+    }))  # fmt: skip
     return EXIT_OK
 
 

@@ -10,6 +10,7 @@ from needlekit.cli._common import (
     EXIT_OK,
     _Formatter,
     _non_negative,
+    _non_negative_mm,
     _numbers,
     _positive_int,
     _positive_mm,
@@ -18,6 +19,7 @@ from needlekit.cli._common import (
     sweep_progress,
 )
 from needlekit.cli._paths import add_input, add_output
+from needlekit.cli._verdicts import clearance_line, flags_named, say_plan
 from needlekit.errors import InvalidInputError, NeedlekitError
 from needlekit.io.files import json_text
 from needlekit.io.results import scenario_reference
@@ -42,6 +44,7 @@ def _source(args: argparse.Namespace):
         needle_diameter_mm=args.needle_diameter_mm,
         cache_dir=getattr(args, "cache_dir", None),
         use_cache=not getattr(args, "no_cache", False),
+        safety_margin_mm=getattr(args, "safety_margin_mm", None),
     )
 
 
@@ -107,23 +110,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         return _plan_goals(args, doc, settings, built[planner])
 
     from needlekit.io.plans import write_plan_json
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
     _, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
     write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
-    cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
-    cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
-    print(
-        f"{planner}: {res.status.value}, {cost}{cert} ({1000 * res.time_s:.1f} ms search, "
-        f"{1000 * res.stats.get('setup_s', 0.0):.1f} ms set-up) -> {args.out}"
-    )
-    if res.status is not PlanStatus.SOLVED and res.stats.get("reason"):
-        print(f"reason: {res.stats['reason']}")
-    if res.status is PlanStatus.APPROXIMATE:
-        print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
-    return EXIT_OK if res.status is PlanStatus.SOLVED else 1
+    return say_plan(res, problem, built[planner], settings, args.out)
 
 
 #: The flags that only go with ``plan --dynamic``.
@@ -221,6 +213,11 @@ def _plan_goals(args: argparse.Namespace, doc: dict, settings, planner_instance)
     planner = settings.name
     goals = np.asarray(args.goals, dtype=float)
     _, problem = _source(args).load(doc)
+    from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
+
+    box = anatomy_box(problem.scene)
+    for g in goals:  # each target where the anatomy is, before any search
+        check_inside_anatomy(g, box, "--goals")
     if args.multi == "one-tree":  # one RRT tree (the flags checked the planner is RRT)
         results = planner_instance.solve_multi(problem, goals, settings.termination())
     else:  # the lecture's procedure: from the start node again for each target
@@ -266,11 +263,16 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.resume:  # the partial file agrees with this run, before any anatomy
         from needlekit.studies.sweep_study import read_partial_sweep, sweep_settings
 
+        margin = args.safety_margin_mm  # the flag's, else the scenario's (before the anatomy)
+        if margin is None:
+            margin = float((doc.get("needle") or {}).get("safety_margin_mm", 0.0))
+
         resume = read_partial_sweep(
             args.out,
             list(built),
             dirs,
-            sweep_settings(built, settings.time_limit_s, settings.max_iterations, settings.seed),
+            sweep_settings(built, settings.time_limit_s, settings.max_iterations, settings.seed,
+                           margin),  # the margin the problem will keep
         )
     source = _source(args)
     source.cached(doc)  # load (and check) the scenario before starting any worker
@@ -336,16 +338,17 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         problem = problem.with_free_start_direction()
     check = verify_plan(problem, plan, expected_cost_mm=data.get("cost_mm"))
     if args.json:
-        out = {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics}
+        out = {"ok": check.ok, "violations": list(check.violations), "metrics": check.metrics,
+               "safety_margin_mm": problem.safety_margin_mm}  # fmt: skip
         print(json_text(out, "--json", indent=2))
     else:
         m = check.metrics
         print(
             f"{'ok' if check.ok else 'VIOLATED'}: cost {m['cost']:.4f}, length {m['length_mm']:.3f} mm, goal distance "
             f"{m['goal_distance_mm']:.3f} mm, max curvature {m['max_curvature_per_mm']:.5f} /mm, heading change "
-            f"{m['max_heading_change_deg']:.2f} deg, min clearance {m['min_clearance_mm']:.3f} mm, "
-            f"certified clearance {m['certified_clearance_mm']:.3f} mm ({m['collision_model']})"
+            f"{m['max_heading_change_deg']:.2f} deg"
         )
+        print(clearance_line(m, problem.safety_margin_mm))
         for v in check.violations:
             print(f"  - {v}")
     turned = any(v.startswith("start: the plan's insertion direction") for v in check.violations)
@@ -385,6 +388,13 @@ def _problem_overrides(p) -> None:
     )
     p.add_argument("--r-min-mm", type=_positive_mm, help="minimum radius of curvature (mm)")
     p.add_argument("--needle-diameter-mm", type=_positive_mm, help="needle diameter (mm)")
+    p.add_argument(
+        "--safety-margin-mm",
+        type=_non_negative_mm,
+        metavar="MM",
+        help="clearance the path keeps beyond the needle's radius (mm), instead of the "
+        "scenario's needle.safety_margin_mm",
+    )
 
 
 def _rrt_connection(p) -> None:
@@ -494,7 +504,7 @@ def _register_plan(sub) -> None:
         out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
     )
     _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
-    planp.set_defaults(command_handler=_cmd_plan)
+    planp.set_defaults(command_handler=flags_named(_cmd_plan))
 
 
 def _register_sweep(sub) -> None:
@@ -502,7 +512,8 @@ def _register_sweep(sub) -> None:
         "sweep",
         help="plan over the start directions of the effective puncture region (Feng et al.)",
         description="Sample start directions around the scenario's start point, keep those at least "
-        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json.",
+        "min_puncture_angle_deg from the entry surface, plan from each, and write sweep.json; "
+        "exit 0 when some direction is solved and the best plan passes its check, else 1.",
     )
     add_input(sw, "scenario", help="scenario file (YAML)")
     _problem_overrides(sw)
@@ -544,14 +555,16 @@ def _register_sweep(sub) -> None:
         help="carry on from the record an interrupted run wrote beside --out "
         "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
-    sw.set_defaults(command_handler=_cmd_sweep, sizes=_sizes.sweep_sizes)
+    sw.set_defaults(command_handler=flags_named(_cmd_sweep), sizes=_sizes.sweep_sizes)
 
 
 def _register_verify(sub) -> None:
     ver = sub.add_parser(
         "verify",
         help="re-check a plan file independently; exit 1 on any violation",
-        description="Check clearance, curvature, length, heading, entry angle and goal tolerance of a plan.",
+        description="Check clearance, curvature, length, heading, entry angle and goal tolerance "
+        "of a plan against the scenario (its safety margin, or --safety-margin-mm); exit 0 when "
+        "every rule holds, exit 1 on any violation.",
     )
     add_input(ver, "scenario", help="scenario file (YAML)")
     add_input(ver, "plan", help="plan file (plan.json)")
@@ -565,7 +578,7 @@ def _register_verify(sub) -> None:
     )
     _flags.add_cache_options(ver)
     _flags.JSON.add(ver, help="print JSON instead of text")
-    ver.set_defaults(command_handler=_cmd_verify)
+    ver.set_defaults(command_handler=flags_named(_cmd_verify))
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -132,10 +132,13 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
         )
     s = study.summary
     rows = []
-    for key in ("position_error_mm", "angle_error_deg"):
+    for key, what, unit in (("position_error_mm", "position error", "mm"),
+                            ("angle_error_deg", "angle error", "deg")):  # fmt: skip
         for source, st in (("needlekit", s[key]), ("Tang et al.", s["paper"][key])):
-            rows.append([f"{key}", source, st["mean"], st["sd"], st["min"], st["max"]])
-    print(_fmt_table(["quantity", "source", "mean", "sd", "min", "max"], rows))
+            rows.append([what, unit, source, st["mean"], st["sd"], st["min"], st["max"]])
+    no_trial = "no trial completed, so there is no error to measure"
+    print(_fmt_table(["quantity", "unit", "source", "mean", "sd", "min", "max"], rows,
+                     why=dict.fromkeys(("mean", "sd", "min", "max"), no_trial)))  # fmt: skip
     v = s["constraint_violations"]
     print(
         f"{s['completed']} of {s['trials']} trials completed, {s['aborted']['count']} aborted; "
@@ -173,7 +176,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "puncture",
         help="simulate robotic punctures with adaptive VFI control (Tang et al., Section III)",
         description="Run simulated punctures of a Panda guided by EM sensors under kinematic "
-        "uncertainty and write DIR/puncture.json and DIR/puncture.html.",
+        "uncertainty and write DIR/puncture.json and DIR/puncture.html; exit 1 when a trial "
+        "aborted or a constraint was violated beyond the measurement noise, else 0.",
     )
     pu.add_argument("--trials", type=_positive_int, default=100, help="trials (default 100)")
     _flags.SEED.add(pu, default=0, help="root seed (default 0)")

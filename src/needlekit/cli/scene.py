@@ -57,14 +57,19 @@ def _cmd_scene(args: argparse.Namespace) -> int:
                 r.kind,
                 _fmt_extent(r.extent_mm),
                 "-" if r.voxel_size_mm is None else " x ".join(f"{v:.2f}" for v in r.voxel_size_mm),
-                "inf" if not np.isfinite(r.volume_ml) else f"{r.volume_ml:.2f}",
+                None if not np.isfinite(r.volume_ml) else f"{r.volume_ml:.2f}",
                 f"{r.error_bound_mm:.3f}",
             ]
             for r in rows
         ]
         print(
             _fmt_table(
-                ["name", "role", "field", "extent_mm", "voxel_mm", "volume_ml", "error_mm"], table
+                ["name", "role", "field", "extent_mm", "voxel_mm", "volume_ml", "error_mm"],
+                table,
+                why={
+                    "voxel_mm": "an analytic shape, not a voxel grid",
+                    "volume_ml": "an unbounded region (a half-space, an infinite cylinder)",
+                },
             )
         )
         if sc.start is not None:

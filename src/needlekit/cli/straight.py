@@ -343,7 +343,8 @@ def _register_multi(sub) -> None:
         "multi",
         help="plan several straight needles one after another (Liu et al. 2016, Fig. 4)",
         description="CFRW per needle, the optimal entry in it, placed needles as obstacles, "
-        "targets moved by the deformation; write multi.json; exit 0 when every needle is planned.",
+        "targets moved by the deformation; write multi.json; exit 0 when every needle is planned "
+        "(with targets: coverage, and the tumour plus margin is covered), else 1.",
     )
     _scenario_and_out(mu, "multi.json", "plan to write (default multi.json)")
     add_output(

@@ -71,7 +71,7 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
         )
     rows = []
     for r in record["rows"]:
-        clear = "-" if r["min_clearance_mm"] is None else f"{r['min_clearance_mm']:.2f}"
+        clear = None if r["min_clearance_mm"] is None else f"{r['min_clearance_mm']:.2f}"
         check = {True: "ok", False: "VIOLATED", None: "-"}[r["verified"]]
         rows.append(
             [
@@ -83,9 +83,10 @@ def _cmd_study_livers(args: argparse.Namespace) -> int:
         )  # fmt: skip
     print(
         _fmt_table(
-            ["liver", "nodule", "start", "gamma", "status", "needles", "coverage (tumour)",
-             "min clear", "healthy mL", "plan s", "check"],
+            ["liver", "nodule", "start", "gamma mm", "status", "needles", "coverage (tumour)",
+             "min clear mm", "healthy mL", "plan s", "check"],
             rows,
+            why={"min clear mm": "no needle placed", "check": "no plan to check"},
         )
     )  # fmt: skip
     for r in record["rows"]:
@@ -139,16 +140,20 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
             rows.append(
                 [
                     goal, name, f"{t['n_solved']} of {t['n_effective']}", feng[name]["n_solved"],
-                    t["best_cost_mm"] or "-", t["mean_cost_mm"] or "-", feng[name]["mean_cost_mm"],
-                    t["cost_before_lowest_mm"] or "-", feng[name]["cost_before_lowest_mm"],
+                    t["best_cost_mm"], t["mean_cost_mm"], feng[name]["mean_cost_mm"],
+                    t["cost_before_lowest_mm"], feng[name]["cost_before_lowest_mm"],
                     f"{t['solved_not_direct']}", f"{c['passed']} of {c['solved']}",
                 ]
             )  # fmt: skip
     print(
         _fmt_table(
-            ["target", "planner", "solved", "Feng", "best mm", "mean mm", "Feng mean",
-             "before lowest", "Feng before", "not direct", "checked ok"],
+            ["target", "planner", "solved", "Feng", "best mm", "mean mm", "Feng mean mm",
+             "before lowest mm", "Feng before mm", "not direct", "checked ok"],
             rows,
+            why=dict.fromkeys(
+                ("best mm", "mean mm", "Feng mean mm", "before lowest mm", "Feng before mm"),
+                "no direction solved, so no cost",
+            ),
         )
     )  # fmt: skip
     for goal, rec in record["goals"].items():
@@ -210,7 +215,7 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
     rows = []
     for c in record["cases"]:
         if c["status"] != "done":
-            rows.append([f"lung {c['patient']}", c["status"], *["-"] * 9])
+            rows.append([f"lung {c['patient']}", c["status"], *[None] * 9])
             continue
         cl, op = c["closed_loop"], c["open_loop"]
         rows.append([
@@ -220,10 +225,9 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
             f"{cl['violated']} / {op['violated']}", f"{cl['replans_mean']:.2f}",
             "yes" if c["holds"] else "NO",
         ])  # fmt: skip
-    print(_fmt_table(
-        ["case", "status", "margin wanted", "kept", "open mean", "closed mean", "sd",
-         "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"], rows,
-    ))  # fmt: skip
+    heads = ["case", "status", "margin wanted mm", "kept mm", "open mean mm", "closed mean mm",
+             "sd mm", "% <= 1 mm", "crossed (closed / open)", "re-plans", "targets hold"]  # fmt: skip
+    print(_fmt_table(heads, rows, why=dict.fromkeys(heads[2:], "the case did not run (status)")))
     brows = [
         [f"lung {c['patient']}", name, f"{b['mean_error_mm']:.3f}", f"{b['sd_error_mm']:.3f}",
          f"{100 * b['within_1mm']:.0f}", b["violated"], f"{b['procedure_s']:.1f}"]
@@ -231,8 +235,8 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
     ]  # fmt: skip
     if brows:
         print("\nbreathing, closed loop per policy (errors and crossings in the tissue):")
-        print(_fmt_table(["case", "policy", "mean", "sd", "% <= 1 mm", "crossed", "procedure s"],
-                         brows))  # fmt: skip
+        print(_fmt_table(["case", "policy", "mean mm", "sd mm", "% <= 1 mm", "crossed",
+                          "procedure s"], brows))  # fmt: skip
     print(
         f"targets: closed-loop mean <= 0.5 mm, >= 95 % within 1 mm, no crossing: "
         f"{'hold' if record['holds'] else 'DO NOT hold'} ({record['wall_s']:.0f} s) -> {args.out}"

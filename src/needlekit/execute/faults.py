@@ -20,7 +20,7 @@ kinds:
     every re-plan fails, or (half the time) comes back 1 s late.
 
 Each fault lasts 0.2-2 s and starts between 1 s and 90 % of the nominal duration. The
-schedule is the trial seed's fourth child (:func:`fault_seed`): ``--trial K`` replays it.
+schedule is the trial seed's fourth child (:func:`fault_seed`): ``--replay-trial K`` replays it.
 """
 
 from __future__ import annotations

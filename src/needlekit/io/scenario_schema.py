@@ -21,7 +21,7 @@ from typing import Any
 
 from needlekit._numbers import MAX_ABS_MM, check_document
 from needlekit.anatomy.collision_registry import check_collision_model
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, did_you_mean
 from needlekit.io import safe_yaml
 from needlekit.io._schema_blocks import (  # the schema's pieces; the kinds re-exported
     BASE,
@@ -122,8 +122,9 @@ def _schema_message(err) -> tuple[str, str]:
     v = err.validator
     if v == "additionalProperties":
         extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
-        allowed = ", ".join(err.schema.get("properties", {}))
-        return where, f"unknown field {', '.join(map(repr, extra))} (allowed: {allowed})"
+        known = list(err.schema.get("properties", {}))
+        hint = did_you_mean(extra[0], known) if len(extra) == 1 else ""
+        return where, f"unknown field {', '.join(map(repr, extra))} (allowed: {', '.join(known)}){hint}"
     if v == "required":
         return where, err.message.replace("is a required property", "is missing")
     if v == "enum":

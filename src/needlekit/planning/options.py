@@ -12,7 +12,7 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, did_you_mean
 
 __all__ = ["options_from_mapping", "refuse_unknown_options"]
 
@@ -89,5 +89,7 @@ def refuse_unknown_options(planner: str, names, mapping: Mapping) -> None:
     if unknown:
         known = ", ".join(sorted(names)) or "no options"
         raise InvalidInputError(
-            "planner.options", f"{planner} takes {known}; unknown: {', '.join(map(str, unknown))}"
+            "planner.options",
+            f"{planner} takes {known}; unknown: {', '.join(map(str, unknown))}"
+            + (did_you_mean(str(unknown[0]), names) if len(unknown) == 1 else ""),
         )

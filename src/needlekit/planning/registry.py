@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping
 from importlib import metadata
 from typing import Any
 
-from needlekit.errors import InvalidInputError
+from needlekit.errors import InvalidInputError, did_you_mean
 from needlekit.planning.options import options_from_mapping, refuse_unknown_options
 
 __all__ = [
@@ -236,7 +236,9 @@ def _entry(name: str) -> PlannerFactory | BuiltinPlanner:
         return _REGISTRY[name]
     except KeyError:
         raise InvalidInputError(
-            "planner", f"unknown planner {name!r}; available: {', '.join(planner_names())}"
+            "planner",
+            f"unknown planner {name!r}; available: {', '.join(planner_names())}"
+            + did_you_mean(name, planner_names()),
         ) from None
 
 

@@ -37,6 +37,7 @@ from needlekit.constants import (
     DEFAULT_START_EXCLUSION_MM,
     MM_WARNING_MIN_EXTENT_MM,
 )
+from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.scenario_schema import (
@@ -56,6 +57,7 @@ from needlekit.scenario._blocks import (  # the document's blocks
     _straight,
     _structure,
 )
+from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
 
 _log = logging.getLogger(__name__)
 
@@ -303,6 +305,8 @@ def parse_scenario(
     start = _start(data["start"], ctx, base) if "start" in data else None
     goal = _goal(data["goal"], ctx, base) if "goal" in data else None
     _warn_if_not_mm(scene, source)
+    straight = _straight(data.get("straight"), ctx, base, goal, structures)
+    _check_points_inside(scene, data, start, goal, straight, ctx)
     return Scenario(
         data.get("name", ""),
         data.get("description", ""),
@@ -314,12 +318,35 @@ def parse_scenario(
         None,
         base,
         data.get("collision_model", "field"),
-        _straight(data.get("straight"), ctx, base, goal, structures),
+        straight,
         moving,
         dict(data.get("dynamic", {})),
         static_scene,
         dict(data.get("collision_options", {})),
     )
+
+
+def _check_points_inside(scene: Scene, data: dict, start, goal, straight: dict, ctx) -> None:
+    """The start, the goal and the straight block's targets lie where the anatomy is
+    (:func:`needlekit.scenario.extent.check_inside_anatomy`), each named by its field."""
+    box = anatomy_box(scene)
+    if box is None:
+        return
+    points = []
+    if start is not None:
+        given = [k for k in ("pose", "pose_file", "case_start", "point_mm") if k in data["start"]]
+        points.append((start.point_mm, "start." + given[0]))
+    if goal is not None:
+        given = [k for k in ("point_mm", "point_file", "case_target") if k in data["goal"]]
+        points.append((goal.point_mm, "goal." + given[0]))
+    targets = straight.get("targets")
+    if isinstance(targets, np.ndarray) and "targets" in (data.get("straight") or {}):
+        points += [(t, f"straight.targets[{i}]") for i, t in enumerate(targets)]
+    for point, where in points:
+        try:
+            check_inside_anatomy(point, box, where)
+        except InvalidInputError as exc:
+            raise ctx.error(where, exc.reason) from None
 
 
 def _cheap_extent_mm(scene: Scene) -> float | None:

@@ -34,6 +34,7 @@ from needlekit.scenario.dynamic import (  # re-exported (they lived here)
     dynamic_settings,
     moving_case,
 )
+from needlekit.scenario.extent import anatomy_box, check_inside_anatomy
 from needlekit.scenario.planners import PlannerSettings, planner_settings  # re-exported
 from needlekit.scenario.straight import (  # re-exported
     coverage_region,
@@ -65,6 +66,7 @@ def load_problem(
     needle_diameter_mm: float | None = None,
     cache_dir: str | os.PathLike | None = None,
     use_cache: bool = True,
+    safety_margin_mm: float | None = None,
 ):
     """Load a scenario file and build its steerable-needle problem.
 
@@ -82,6 +84,8 @@ def load_problem(
         Root of the prepared-anatomy cache (default: the user cache folder).
     use_cache : bool
         Load a Med-RAD base's prepared anatomy from that cache, or store it there.
+    safety_margin_mm : float, optional
+        Replaces the scenario's ``needle.safety_margin_mm``.
 
     Returns
     -------
@@ -99,10 +103,14 @@ def load_problem(
 
     path = Path(scenario_path)
     sc = load_scenario(path, cache_dir=cache_dir, use_cache=use_cache)
-    return _with_overrides(sc, path.name, start_pose, goal_mm, r_min_mm, needle_diameter_mm)
+    return _with_overrides(
+        sc, path.name, start_pose, goal_mm, r_min_mm, needle_diameter_mm, safety_margin_mm
+    )
 
 
-def _with_overrides(sc, name: str, start_pose, goal_mm, r_min_mm, needle_diameter_mm):
+def _with_overrides(
+    sc, name: str, start_pose, goal_mm, r_min_mm, needle_diameter_mm, safety_margin_mm=None
+):
     """:func:`load_problem`'s overrides applied to a loaded scenario."""
     from needlekit.scenario.loading import GoalSpec, StartSpec
 
@@ -119,10 +127,18 @@ def _with_overrides(sc, name: str, start_pose, goal_mm, r_min_mm, needle_diamete
         overrides["r_min_mm"] = r_min_mm
     if needle_diameter_mm is not None:
         overrides["needle_diameter_mm"] = needle_diameter_mm
+    if safety_margin_mm is not None:
+        overrides["safety_margin_mm"] = safety_margin_mm
     if sc.start is None and start_pose is None:
         raise InvalidInputError("start", f"{name}: the scenario gives no start; pass a start pose")
     if sc.goal is None and goal_mm is None:
         raise InvalidInputError("goal", f"{name}: the scenario gives no goal; pass a goal")
+    if goal_mm is not None or start_pose is not None:  # where the anatomy is, before any search
+        box = anatomy_box(sc.scene)
+        if start_pose is not None:
+            check_inside_anatomy(overrides["start_pose"][:3, 3], box, "start_pose")
+        if goal_mm is not None:
+            check_inside_anatomy(overrides["goal_mm"], box, "goal_mm")
     if sc.start is None or sc.goal is None:  # fill what the scenario lacks
         start = sc.start or StartSpec(
             overrides["start_pose"][:3, 3], overrides["start_pose"], "start_pose override"
@@ -229,6 +245,8 @@ class ScenarioSource:
         The scenario itself as canonical JSON (:meth:`of_document`); None: read the file.
     document_sha256 : str or None
         Its digest, which identifies the source in place of the text.
+    safety_margin_mm : float or None
+        Replaces the scenario's safety margin (``--safety-margin-mm``).
     """
 
     scenario_path: str
@@ -240,6 +258,7 @@ class ScenarioSource:
     use_cache: bool = True
     document: str | None = field(default=None, compare=False, repr=False)
     document_sha256: str | None = None
+    safety_margin_mm: float | None = None
 
     @classmethod
     def of(
@@ -252,6 +271,7 @@ class ScenarioSource:
         needle_diameter_mm: float | None = None,
         cache_dir: str | os.PathLike | None = None,
         use_cache: bool = True,
+        safety_margin_mm: float | None = None,
     ) -> ScenarioSource:
         """A source from the same arguments as :func:`load_problem`.
 
@@ -263,6 +283,7 @@ class ScenarioSource:
         r_min_mm, needle_diameter_mm : float, optional
         cache_dir : str or path, optional
         use_cache : bool
+        safety_margin_mm : float, optional
 
         Returns
         -------
@@ -276,6 +297,7 @@ class ScenarioSource:
             None if needle_diameter_mm is None else float(needle_diameter_mm),
             None if cache_dir is None else str(Path(cache_dir).expanduser().resolve()),
             bool(use_cache),
+            safety_margin_mm=None if safety_margin_mm is None else float(safety_margin_mm),
         )
 
     @classmethod
@@ -308,7 +330,8 @@ class ScenarioSource:
         cache_dir : str or path, optional
         use_cache : bool
         **overrides
-            ``start_pose``, ``goal_mm``, ``r_min_mm``, ``needle_diameter_mm`` (as :meth:`of`).
+            ``start_pose``, ``goal_mm``, ``r_min_mm``, ``needle_diameter_mm``,
+            ``safety_margin_mm`` (as :meth:`of`).
 
         Returns
         -------
@@ -394,5 +417,6 @@ class ScenarioSource:
             sc = replace(sc, path=None)
         pose = None if self.start_pose is None else np.reshape(self.start_pose, (4, 4))
         return _with_overrides(
-            sc, path.name, pose, self.goal_mm, self.r_min_mm, self.needle_diameter_mm
-        )
+            sc, path.name, pose, self.goal_mm, self.r_min_mm, self.needle_diameter_mm,
+            self.safety_margin_mm,
+        )  # fmt: skip

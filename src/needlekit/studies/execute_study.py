@@ -2,7 +2,7 @@
 needle in the same tissue (``needlekit execute``).
 
 Trial ``i`` draws everything from the ``i``-th child of ``SeedSequence(seed)`` (its
-``entropy`` and ``spawn_key`` are written beside it, and ``--trial K`` replays it alone):
+``entropy`` and ``spawn_key`` are written beside it, and ``--replay-trial K`` replays it alone):
 the needle's radius, the tissue's push and the orientation noise, then the sensor's
 noise. The open-loop run commands the plan's primitives; the closed-loop run tracks the
 tip, steers back to the plan and re-plans from the estimated tip

@@ -145,7 +145,7 @@ def run_sweep_study(
     sweeps = {}
     head = {
         "scenario": scenario_reference(source.scenario_path, sweep_path),
-        **sweep_settings(built, time_limit_s, max_iterations, seed),
+        **sweep_settings(built, time_limit_s, max_iterations, seed, problem.safety_margin_mm),
     }
     options = head["options"]
     for name, planner in built.items():
@@ -246,9 +246,12 @@ def write_partial_sweep(path, head: dict, sweeps: dict):
     return write_partial(path, record)
 
 
-def sweep_settings(planners: dict, time_limit_s, max_iterations, seed) -> dict:
+def sweep_settings(
+    planners: dict, time_limit_s, max_iterations, seed, safety_margin_mm: float | None = None
+) -> dict:
     """The settings a sweep record holds beside its directions (and a resumed run must
-    share): ``time_limit_s``, ``max_iterations``, ``seed`` and each planner's ``options``.
+    share): ``time_limit_s``, ``max_iterations``, ``seed``, each planner's ``options``, and
+    the ``safety_margin_mm`` the plans keep (when given).
 
     Parameters
     ----------
@@ -257,17 +260,22 @@ def sweep_settings(planners: dict, time_limit_s, max_iterations, seed) -> dict:
     time_limit_s : float
     max_iterations : int or None
     seed : int or None
+    safety_margin_mm : float, optional
+        The problem's margin (the scenario's, or ``--safety-margin-mm``).
 
     Returns
     -------
     dict
     """
-    return {
+    out = {
         "time_limit_s": time_limit_s,
         "max_iterations": max_iterations,
         "seed": seed,
         "options": {name: _options_of(p) for name, p in planners.items()},
     }
+    if safety_margin_mm is not None:
+        out["safety_margin_mm"] = float(safety_margin_mm)
+    return out
 
 
 def read_partial_sweep(path, planners, directions, settings: dict | None = None) -> dict:

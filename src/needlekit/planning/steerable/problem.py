@@ -504,6 +504,28 @@ class SteerableProblem:
         """
         return self._derived(goal_tolerance_mm=as_positive(goal_tolerance_mm, "goal_tolerance_mm"))
 
+    def with_safety_margin(self, safety_margin_mm: float) -> SteerableProblem:
+        """The same problem with another safety margin: built again (the collision
+        checkers depend on it); a voxel-centre model's obstacle test is rebuilt from the
+        same voxels for the new margin.
+
+        Parameters
+        ----------
+        safety_margin_mm : float
+            >= 0.
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        vo = self.voxel_obstacles
+        if vo is not None:
+            vo = VoxelObstacles(
+                vo.occupancy, vo.affine, needle_diameter_mm=self.needle_diameter_mm,
+                safety_margin_mm=safety_margin_mm,
+            )  # fmt: skip
+        return replace(self, safety_margin_mm=safety_margin_mm, voxel_obstacles=vo)
+
     def _derived(self, **checked) -> SteerableProblem:
         """A copy with checked fields changed, nothing else recomputed."""
         out = copy.copy(self)

@@ -53,6 +53,7 @@ __all__ = [
     "START_TOLERANCE_RAD",
     "Verification",
     "motion_samples",
+    "search_clearance_mm",
     "verify_approximate",
     "verify_plan",
 ]
@@ -103,6 +104,31 @@ def motion_samples(plan: SteerablePlan, spacing_mm: float = MOTION_SPACING_MM) -
         pose = np.ascontiguousarray(poses[i])
         chunks.append(arc_points_unchecked(pose, float(spin), float(kappa), float(length), m)[1:])
     return np.ascontiguousarray(np.concatenate(chunks))
+
+
+def search_clearance_mm(problem: SteerableProblem, plan: SteerablePlan) -> float:
+    """The certified clearance of a plan by the search's own samples alone (every
+    :data:`~needlekit.constants.MOTION_SPACING_MM` of each primitive, half of it lost to the
+    gaps): the largest safety margin under which a search accepts this path's motions.
+    :func:`verify_plan` reports the better of this and its dense certificate, so this is
+    at most its ``certified_clearance_mm``.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    plan : SteerablePlan
+
+    Returns
+    -------
+    float
+        mm; -inf when a sample collides.
+    """
+    start = plan.start_pose
+    own = not np.array_equal(start[:3, 3], problem.start_point_mm)
+    source = replace(problem, start_pose=start, start_point_mm=None) if own else problem
+    checker = source.collision_checker(MOTION_SPACING_MM)
+    cert = checker.certify(motion_samples(plan, MOTION_SPACING_MM), MOTION_SPACING_MM)
+    return float(cert.certified_clearance_mm)
 
 
 def _certified_clearance(
