@@ -18,7 +18,8 @@ TOY = EXAMPLES / "toy.yaml"
 CASES = [
     (["plna", "x"], "error: argument COMMAND: invalid choice: 'plna' (choose from 'kinematics', "
      "'schema', 'scene', 'plan', 'sweep', 'verify', 'cfrw', 'multi', 'approach', 'markups', "
-     "'puncture', 'execute', 'report', 'demo', 'reproduce', 'study', 'bench'); did you mean "
+     "'slicer', 'puncture', 'execute', 'report', 'demo', 'reproduce', 'study', 'bench', "
+     "'cache'); did you mean "
      "plan?"),
     (["study", "feng-lung"], "error: argument STUDY: invalid choice: 'feng-lung' (choose from "
      "'livers', 'feng-lungs', 'execute-lungs'); did you mean feng-lungs?"),
