@@ -97,8 +97,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         _refuse_dynamic_flags(args)
         if args.goals is not None:
             _check_goals(args, planner)
-        elif args.report is not None:
-            raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
     # every check on the input done: now the planners (numba)
     if args.dynamic:
         return _plan_dynamic(args, doc, settings, dynamic)
@@ -106,13 +104,12 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.goals is not None:
         return _plan_goals(args, doc, settings, built[planner])
 
-    from needlekit.io.plans import write_plan_json
     from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.solve import solve
 
-    _, problem = _source(args).load(doc)
+    sc, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
-    write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
+    _write_plan(args, sc, problem, res)
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
     print(
@@ -124,6 +121,22 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if res.status is PlanStatus.APPROXIMATE:
         print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
     return EXIT_OK if res.status is PlanStatus.SOLVED else 1
+
+
+def _write_plan(args: argparse.Namespace, sc, problem, res) -> None:
+    """plan.json, and with ``--report`` the plan's page, put in place together."""
+    from needlekit.io.files import staged_outputs
+    from needlekit.io.plans import write_plan_json
+
+    with staged_outputs():
+        write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
+        if args.report is not None:
+            from needlekit.report.steerable_report import write_plan_report
+
+            title = f"Steerable-needle plan: {sc.name or args.scenario.name}"
+            write_plan_report(args.report, problem, res, title=title)
+    if args.report is not None:
+        print(f"drew the plan -> {args.report}")
 
 
 #: The flags that only go with ``plan --dynamic``.
@@ -491,9 +504,13 @@ def _register_plan(sub) -> None:
     out = planp.add_argument_group("output")
     _flags.OUT.add(out, default="plan.json", help="plan file to write (default plan.json)")
     add_output(
-        out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
+        out,
+        "--report",
+        help="also write the plan's page (HTML: the path in the anatomy, its check, its "
+        "motions); with --goals or --dynamic, the page of the plans",
     )
     _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
+    _flags.PLOTLY.add(planp)
     planp.set_defaults(command_handler=_cmd_plan)
 
 
@@ -544,6 +561,7 @@ def _register_sweep(sub) -> None:
         help="carry on from the record an interrupted run wrote beside --out "
         "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
+    _flags.PLOTLY.add(sw)
     sw.set_defaults(command_handler=_cmd_sweep, sizes=_sizes.sweep_sizes)
 
 

@@ -478,6 +478,7 @@ def run_execute_study(
     resume: list[dict] | None = None,
     scenario_name: str = "",
     hooks=None,
+    scenario_file: str | None = None,
 ) -> ExecuteStudy:
     """Run the trials and write ``out_dir/execute.json`` (atomically).
 
@@ -501,6 +502,10 @@ def run_execute_study(
     scenario_name : str
     hooks : LoopHooks, optional
         Attached to every closed-loop run (a live link): trials then run in this process.
+    scenario_file : str, optional
+        The scenario's path relative to ``out_dir``
+        (:func:`needlekit.io.results.scenario_reference`), kept as ``scenario_file`` so
+        that ``needlekit report execute.json`` finds it.
 
     Returns
     -------
@@ -527,6 +532,8 @@ def run_execute_study(
         progress=progress,
     )  # fmt: skip
     doc = {**head, "summary": study_summary(records, margin), "wall_s": time.perf_counter() - t0}
+    if scenario_file is not None:
+        doc["scenario_file"] = scenario_file
     doc["trials"] = records
     write_json(path, doc)
     return ExecuteStudy(doc, path)
