@@ -298,6 +298,7 @@ def write_report_html(
                         include_plotlyjs=False,
                         config=config,
                         post_script=DRAWN_SCRIPT,
+                        auto_play=False,  # an animation waits for its play button
                     )
                     f.write(f"<div class='figure'>{div}</div>")
                 if getattr(s, "caption", None):
