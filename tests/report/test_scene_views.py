@@ -135,7 +135,7 @@ def test_a_path_view_is_framed_on_the_path_with_see_through_enclosures():
     for t in meshes.values():  # what is drawn lies in the cube (one cell of slack)
         xyz = np.stack([t.x, t.y, t.z], axis=1)
         assert np.all(xyz >= box[0] - 3.0) and np.all(xyz <= box[1] + 3.0)
-    line = [t for t in fig.data if t.type == "scatter3d" and t.mode == "lines"][0]
+    line = next(t for t in fig.data if t.type == "scatter3d" and t.mode == "lines")
     assert line.line.color == PATH_COLOUR
     # the fissure (see-through) above and the vessel (solid) below: seen from the side
     eye = np.array([sc.camera.eye.x, sc.camera.eye.y, sc.camera.eye.z])

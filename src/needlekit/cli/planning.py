@@ -109,7 +109,9 @@ def _cmd_plan(args: argparse.Namespace) -> int:
 
     sc, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
-    _write_plan(args, sc, problem, res)
+    from needlekit.cli.report import write_plan_and_page
+
+    write_plan_and_page(args, sc, problem, res)
     cost = "no plan" if not res.status.has_plan else f"cost {res.cost_mm:.4f} mm"
     cert = ", certified optimal at the finest resolution" if res.stats.get("certified") else ""
     print(
@@ -121,22 +123,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if res.status is PlanStatus.APPROXIMATE:
         print(f"the path ends {res.stats['goal_distance_mm']:.3f} mm from the goal")
     return EXIT_OK if res.status is PlanStatus.SOLVED else 1
-
-
-def _write_plan(args: argparse.Namespace, sc, problem, res) -> None:
-    """plan.json, and with ``--report`` the plan's page, put in place together."""
-    from needlekit.io.files import staged_outputs
-    from needlekit.io.plans import write_plan_json
-
-    with staged_outputs():
-        write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
-        if args.report is not None:
-            from needlekit.report.steerable_report import write_plan_report
-
-            title = f"Steerable-needle plan: {sc.name or args.scenario.name}"
-            write_plan_report(args.report, problem, res, title=title)
-    if args.report is not None:
-        print(f"drew the plan -> {args.report}")
 
 
 #: The flags that only go with ``plan --dynamic``.

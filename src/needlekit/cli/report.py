@@ -54,6 +54,37 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def write_plan_and_page(args: argparse.Namespace, sc, problem, res) -> None:
+    """``needlekit plan``'s files: plan.json, and with ``--report`` the plan's page (as
+    ``needlekit report plan.json`` draws it), put in place together.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``out``, ``report``, ``scenario``.
+    sc : Scenario
+    problem : SteerableProblem
+    res : PlanResult
+
+    Returns
+    -------
+    None
+    """
+    from needlekit.io.files import staged_outputs
+    from needlekit.io.plans import write_plan_json
+    from needlekit.io.results import scenario_reference
+
+    with staged_outputs():
+        write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
+        if args.report is not None:
+            from needlekit.report.steerable_report import write_plan_report
+
+            title = f"Steerable-needle plan: {sc.name or args.scenario.name}"
+            write_plan_report(args.report, problem, res, title=title)
+    if args.report is not None:
+        print(f"drew the plan -> {args.report}")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``report`` to the ``needlekit`` parser.
 
