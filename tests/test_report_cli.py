@@ -316,7 +316,7 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale)"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute)"),
         ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),
@@ -676,7 +676,9 @@ def test_one_plan_is_drawn_from_every_place_a_newcomer_looks(made, tmp_path, cap
     _run(["plan", TOY, "--out", tmp_path / "plan.json", "--report", tmp_path / "plan.html"])
     said = capsys.readouterr().out
     assert f"drew the plan -> {tmp_path / 'plan.html'}" in said
-    _run(["scene", "render", TOY, "--plan", tmp_path / "plan.json", "--out", tmp_path / "scene.html"])
+    _run(
+        ["scene", "render", TOY, "--plan", tmp_path / "plan.json", "--out", tmp_path / "scene.html"]
+    )
     doc = json.loads((tmp_path / "plan.json").read_text())
     length = sum(m["length_mm"] for m in doc["primitives"])
     said = capsys.readouterr().out
@@ -700,7 +702,7 @@ def test_one_plan_is_drawn_from_every_place_a_newcomer_looks(made, tmp_path, cap
           "--plotly", "shared"])  # fmt: skip
     assert (tmp_path / "shared" / "page.html").stat().st_size < 1_500_000
     assert (tmp_path / "shared" / "plotly.min.js").stat().st_size > 4_000_000
-    assert "src=\"plotly.min.js\"" in (tmp_path / "shared" / "page.html").read_text()
+    assert 'src="plotly.min.js"' in (tmp_path / "shared" / "page.html").read_text()
 
 
 def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path, capsys):
@@ -730,8 +732,12 @@ def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path,
     old.write_text(json.dumps({k: v for k, v in doc.items() if k != "scenario_file"}))
     err = _one_error_line(capsys, ["report", old, "--out", tmp_path / "x.html"])
     assert err.startswith("error: --scenario: ") and "draw it with its plan.json" in err
-    assert main(["report", str(made / "plan.json"), str(old), "--out", str(tmp_path / "y.html")]) == 0
-    assert main(["report", str(old), "--scenario", str(TOY), "--out", str(tmp_path / "z.html")]) == 0
+    assert (
+        main(["report", str(made / "plan.json"), str(old), "--out", str(tmp_path / "y.html")]) == 0
+    )
+    assert (
+        main(["report", str(old), "--scenario", str(TOY), "--out", str(tmp_path / "z.html")]) == 0
+    )
 
 
 def test_every_kind_is_drawn_in_one_call_and_named(made, dynamic, executed, tmp_path, capsys):

@@ -24,6 +24,7 @@ import numpy as np
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
+from needlekit.report.plotly_js import plotly_script
 
 __all__ = [
     "FigureSection",
@@ -250,8 +251,6 @@ def write_report_html(
     """
     if not isinstance(title, str):
         raise InvalidInputError("title", f"expected text (str), got {type(title).__name__}")
-    from needlekit.report.plotly_js import plotly_script
-
     items, esc = _check_sections(sections), html.escape
     figures = sum(isinstance(s, FigureSection) for s in items)
     library = plotly_script(path, plotly) if figures else ""

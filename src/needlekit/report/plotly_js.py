@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from needlekit.errors import InvalidInputError
+from needlekit.io.files import atomic_write
 
 __all__ = ["PLOTLY_FILE", "PLOTLY_MODES", "plotly_mode", "plotly_script"]
 
@@ -98,8 +99,6 @@ def plotly_script(page: str | os.PathLike, mode: str | None = None) -> str:
     js = _library()
     if mode == "inline":
         return f'<script type="text/javascript">{js}</script>'
-    from needlekit.io.files import atomic_write
-
     dest = Path(os.path.abspath(page)).parent / PLOTLY_FILE
     data = js.encode("utf-8")
     same = dest.is_file() and dest.stat().st_size == len(data) and dest.read_bytes() == data

@@ -12,14 +12,14 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile
+from needlekit.report.execute_report import TITLE, execute_sections
 from needlekit.report.result_parts import ReportPart, _steerable_problem
 
 __all__: list[str] = []
 
 
 def _execute_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.planning.steerable.plan import SteerablePlan
-    from needlekit.report.execute_report import TITLE, execute_sections
+    from needlekit.planning.steerable.plan import SteerablePlan  # numba: when drawing only
 
     d = rf.data
     sc = load(rf.scenario)

@@ -37,6 +37,7 @@ from needlekit.anatomy.scene import Role, Scene
 from needlekit.anatomy.summary import surface_mesh
 from needlekit.io.files import atomic_write
 from needlekit.report.html_page import CANVAS_READBACK_HINT, DRAWN_SCRIPT, drawn_note
+from needlekit.report.plotly_js import plotly_script
 
 __all__ = [
     "FACE_BUDGET",
@@ -497,8 +498,6 @@ def _figure_div(fig, height: str | None = None) -> str:
 
 
 def _page(path, title: str, body: str, figures: int) -> str:
-    from needlekit.report.plotly_js import plotly_script
-
     return (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         f"<title>{_html.escape(title)}</title>{CANVAS_READBACK_HINT}{drawn_note(figures)}"

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.planning.result import PlanStatus
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
 
 __all__ = [
@@ -114,7 +115,6 @@ def plan_check(problem, result, *, free_direction: bool = False):
     -------
     VerificationReport or None
     """
-    from needlekit.planning.result import PlanStatus
     from needlekit.planning.steerable.verify import verify_approximate, verify_plan
 
     if result.plan is None:

@@ -375,8 +375,6 @@ def read_results(
 def _plan_scenario(execution: dict, docs, flag: str) -> Path | None:
     """The scenario of the plan, among ``docs``, whose motions the execution carried out
     (None when no plan there has them)."""
-    import numpy as np
-
     prims = np.asarray(execution.get("plan_primitives") or [], dtype=float)
     for p, d in docs:
         if result_kind(d, str(p)) is not ResultKind.PLAN:
