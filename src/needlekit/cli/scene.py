@@ -119,12 +119,12 @@ def _cmd_scene(args: argparse.Namespace) -> int:
         title=f"{sc.name or args.scenario.name}: {args.plan.name}",
         focus_mm=np.vstack([path, np.asarray(goal, dtype=float)[None]]),
     )
-    print(f"drew {args.plan.name} ({data.get('status')}, {plan_length(plan):.1f} mm path) -> "
+    print(f"drew {args.plan.name} ({data.get('status')}, {_plan_length(plan):.1f} mm path) -> "
           f"{write_scene_html(fig, args.out)}")  # fmt: skip
     return EXIT_OK
 
 
-def plan_length(plan) -> float:
+def _plan_length(plan) -> float:
     """The path's length (mm): the motions' lengths summed."""
     return float(sum(float(m[2]) for m in plan.primitives))
 

@@ -44,6 +44,7 @@ __all__ = [
     "PATH_COLOUR",
     "decimate",
     "encloses",
+    "focus_box",
     "scene_figure",
     "view_direction",
     "write_scene_html",
