@@ -119,6 +119,10 @@ _OTHER_RECORDS = (
     (("paa", "needlekit", "blocked"), "an approach analysis (`needlekit approach --report`)"),
     (("livers", "cases"), "a study record (`needlekit study`)"),
     (("machine", "versions"), "a benchmark record (`needlekit bench`)"),
+    (
+        ("plan_needles", "registration", "trials"),
+        "a multi-needle execution (`needlekit execute SCENARIO multi.json --report` draws it)",
+    ),
 )
 
 
