@@ -316,9 +316,8 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute)"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)"),
         ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
-        ('{"plan_needles": [], "registration": {}, "trials": []}', "is a multi-needle execution"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),
     ],

@@ -854,11 +854,11 @@ ROWS = [
     ),
     (
         ["report", "{d}/unknown_kind.json", "--out", "{d}/r.html"],
-        "error: {d}/unknown_kind.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute)",
+        "error: {d}/unknown_kind.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
     ),
     (
         ["report", "{d}/moved_plan.json", "--out", "{d}/r.html"],
-        "error: {d}/moved_plan.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute)",
+        "error: {d}/moved_plan.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
     ),
     # -- reproduce
     (

@@ -59,6 +59,7 @@ class ResultKind(enum.Enum):
     DYNAMIC = "dynamic"  # needlekit plan --dynamic
     SCALE = "scale"  # needlekit bench scale
     EXECUTE = "execute"  # needlekit execute
+    EXECUTE_MULTI = "execute-multi"  # needlekit execute SCENARIO multi.json
 
     @property
     def label(self) -> str:
@@ -86,6 +87,7 @@ _LABELS = {
     ResultKind.DYNAMIC: "re-planning among moving obstacles (needlekit plan --dynamic)",
     ResultKind.SCALE: "scaling curves (needlekit bench scale)",
     ResultKind.EXECUTE: "plan execution, open beside closed loop (needlekit execute)",
+    ResultKind.EXECUTE_MULTI: "straight plan inserted by the robot (needlekit execute multi.json)",
 }
 
 _WORDS = {
@@ -98,6 +100,7 @@ _WORDS = {
     ResultKind.DYNAMIC: "moving-obstacle run",
     ResultKind.SCALE: "scaling curves",
     ResultKind.EXECUTE: "execution",
+    ResultKind.EXECUTE_MULTI: "multi-needle execution",
 }
 
 #: The top-level fields that mark each kind, tried in this order (a sweep's best plans and
@@ -110,6 +113,7 @@ KIND_FIELDS: dict[ResultKind, tuple[str, ...]] = {
     ResultKind.CFRW: ("feasible", "theta_deg", "phi_deg", "world_T_sigma"),
     ResultKind.DYNAMIC: ("moving", "executed", "cycles", "settings"),
     ResultKind.EXECUTE: ("plan_primitives", "trials", "summary", "seed", "options"),
+    ResultKind.EXECUTE_MULTI: ("plan_needles", "registration", "trials", "summary"),
     ResultKind.PLAN: ("status", "primitives", "start_pose", "goal_mm"),
     ResultKind.SCALE: ("benchmark", "planning", "sweep", "study", "machine"),
 }
@@ -119,10 +123,6 @@ _OTHER_RECORDS = (
     (("paa", "needlekit", "blocked"), "an approach analysis (`needlekit approach --report`)"),
     (("livers", "cases"), "a study record (`needlekit study`)"),
     (("machine", "versions"), "a benchmark record (`needlekit bench`)"),
-    (
-        ("plan_needles", "registration", "trials"),
-        "a multi-needle execution (`needlekit execute SCENARIO multi.json --report` draws it)",
-    ),
 )
 
 

@@ -11,9 +11,13 @@ import numpy as np
 
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
 
-__all__ = ["multi_execute_sections", "placed_figure", "write_multi_execute_report"]
+__all__ = ["TITLE", "multi_execute_sections", "placed_figure", "write_multi_execute_report"]
 
 _PLANNED, _PLACED = "#1f77b4", "#d62728"
+
+
+#: The page's title.
+TITLE = "needlekit execute: the straight plan, inserted by the robot"
 
 
 def _needle_rows(s: dict) -> list[dict]:
@@ -157,6 +161,6 @@ def write_multi_execute_report(path: str | os.PathLike, doc: dict, scene, record
     Path
     """
     return write_report_html(
-        path, title="needlekit execute: the straight plan, inserted by the robot",
+        path, title=TITLE,
         sections=multi_execute_sections(doc, scene, record),
     )  # fmt: skip

@@ -59,3 +59,32 @@ def _execute_part(rf: ResultFile, load) -> ReportPart:
         f"{s['trials']} trials: closed loop {mean(closed)} off the target on average, open "
         f"loop {mean(opened)}; {crossed} crossed an obstacle",
     )
+
+
+def _execute_multi_part(rf: ResultFile, load) -> ReportPart:
+    from needlekit.report.execute_multi_report import TITLE as MULTI_TITLE
+    from needlekit.report.execute_multi_report import multi_execute_sections
+
+    d = rf.data
+    sc = load(rf.scenario)
+    multi, _ = load.multi_problem(sc)
+    record = {"needles": d["plan_needles"]}  # the plan's lines, as the run read them
+    try:
+        sections = multi_execute_sections(d, multi.problem.scene, record)
+    except (KeyError, IndexError, TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            str(rf.path),
+            f"lacks a field the execution page draws ({type(exc).__name__}: {exc}); it was "
+            "written by an older needlekit: run `needlekit execute` again",
+        ) from None
+    s = d["summary"]
+    mean = (s.get("error_mm") or {}).get("mean")
+    error = "" if mean is None else f", {mean:.2f} mm off their targets on average"
+    return ReportPart(
+        rf,
+        MULTI_TITLE,
+        sections,
+        f"{s['trials']} trials of {len(d['plan_needles'])} needles{error}; "
+        f"{len(s['touched'])} needle(s) touched a placed one, {len(s['crashed'])} trial(s) "
+        "crashed",
+    )

@@ -51,7 +51,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile, ResultKind
 from needlekit.report.html_page import PartSection, write_report_html
 from needlekit.report.result_dynamic import _dynamic_part
-from needlekit.report.result_execute import _execute_part
+from needlekit.report.result_execute import _execute_multi_part, _execute_part
 from needlekit.report.result_parts import ReportPart  # re-exported (it lived here)
 from needlekit.report.result_steerable import _goals_part, _plan_part, _sweep_part
 from needlekit.report.result_straight import (  # cfrw_sections re-exported
@@ -131,6 +131,7 @@ _BUILDERS = {
     ResultKind.DYNAMIC: _dynamic_part,
     ResultKind.SCALE: _scale_part,
     ResultKind.EXECUTE: _execute_part,
+    ResultKind.EXECUTE_MULTI: _execute_multi_part,
 }
 
 

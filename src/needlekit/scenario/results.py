@@ -205,6 +205,21 @@ def _check_execute(data: dict, where: str) -> None:
     field_of(data, "scenario_file", where, "str", optional=True)
 
 
+def _check_execute_multi(data: dict, where: str) -> None:
+    """A multi-needle ``execute.json``: the plan's needles and the summary the page draws."""
+    for i, n in enumerate(field_of(data, "plan_needles", where, "list")):
+        at = f"{where}: plan_needles[{i}]"
+        field_of(n, "order", at, "int")
+        field_of(n, "entry_mm", at, "point")
+        field_of(n, "target_mm", at, "point")
+    s = field_of(data, "summary", where, "dict")
+    for key in ("trials", "crashed", "touched", "constraints"):
+        if key not in s:
+            raise InvalidInputError(f"{where}: summary.{key}", "missing")
+    field_of(data, "trials", where, "list")
+    field_of(data, "scenario_file", where, "str", optional=True)
+
+
 def _locate_scenario(data: dict, path: Path, flag: str, key: str = "scenario") -> Path:
     """The scenario a result names, relative to the result's own folder (as the commands
     write it: :func:`needlekit.io.results.scenario_reference`), never to the working
@@ -215,7 +230,8 @@ def _locate_scenario(data: dict, path: Path, flag: str, key: str = "scenario") -
             raise InvalidInputError(
                 flag,
                 f"{path}: the execution names no scenario file (written before needlekit "
-                f"kept it); draw it with its plan.json, or give the scenario with {flag}",
+                f"kept it); give the scenario with {flag} (a steerable one: or draw it with "
+                "its plan.json)",
             )
         raise InvalidInputError(flag, f"{path}: the result names no scenario; give it with {flag}")
     located = path.parent / named  # an absolute path stays itself
@@ -256,6 +272,8 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
         _check_scale(data, where)
     elif kind is ResultKind.EXECUTE:
         _check_execute(data, where)
+    elif kind is ResultKind.EXECUTE_MULTI:
+        _check_execute_multi(data, where)
     else:
         _check_puncture(data, where)
 
@@ -309,10 +327,13 @@ def _read(p: Path, data: dict, scenario, flag: str) -> ResultFile:
     _check_kind(kind, data, p.name)
     located = None
     if kind.needs_scenario:
-        key = "scenario_file" if kind is ResultKind.EXECUTE else "scenario"
+        executions = (ResultKind.EXECUTE, ResultKind.EXECUTE_MULTI)
+        key = "scenario_file" if kind in executions else "scenario"
         located = Path(scenario) if scenario is not None else _locate_scenario(data, p, flag, key)
         doc = read_scenario_document(located)
-        if kind in (ResultKind.CFRW, ResultKind.MULTI) and not doc.get("straight"):
+        if kind in (ResultKind.CFRW, ResultKind.MULTI, ResultKind.EXECUTE_MULTI) and not doc.get(
+            "straight"
+        ):
             msg = f"{located} has no straight block; {p.name} was made from another scenario"
             raise InvalidInputError(flag if scenario is not None else str(p), msg)
         if kind is ResultKind.DYNAMIC:
