@@ -12,6 +12,8 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile
+from needlekit.report.execute_multi_report import TITLE as MULTI_TITLE
+from needlekit.report.execute_multi_report import multi_execute_sections
 from needlekit.report.execute_report import TITLE, execute_sections
 from needlekit.report.result_parts import ReportPart, _steerable_problem
 
@@ -62,9 +64,6 @@ def _execute_part(rf: ResultFile, load) -> ReportPart:
 
 
 def _execute_multi_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.report.execute_multi_report import TITLE as MULTI_TITLE
-    from needlekit.report.execute_multi_report import multi_execute_sections
-
     d = rf.data
     sc = load(rf.scenario)
     multi, _ = load.multi_problem(sc)
