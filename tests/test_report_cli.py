@@ -316,7 +316,7 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale)"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)"),
         ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),
@@ -647,3 +647,108 @@ def test_public_functions_have_numpydoc_sections(module):
         if inspect.isfunction(fn):
             doc = inspect.getdoc(fn)
             assert "Returns\n-------" in doc and "Parameters\n----------" in doc, name
+
+
+# ---------------------------------------------------------------------------------------
+# one plan drawn from every place, an execution, every kind in one call
+
+#: A page of one plan or one execution weighs at most this (plotly.js inlined: 4.8 MB).
+PAGE_BYTES = 6_000_000
+
+
+@pytest.fixture(scope="module")
+def executed(made):
+    """Two trials of the toy plan (``needlekit execute``) and the page the command drew."""
+    out = made / "ex"
+    _run(["execute", TOY, made / "plan.json", "--trials", "2", "--out", out, "--report",
+          made / "execute-command.html"], ok=(0, 1))  # fmt: skip
+    return out / "execute.json"
+
+
+def _framed(page: str) -> dict:
+    """The 3D view's camera and axis ranges, as the page gives them to plotly."""
+    ranges = re.findall(r'"[xyz]axis":\{"title":\{"text":"[^"]*"\},"range":\[([^\]]*)\]', page)
+    eye = re.search(r'"camera":\{"eye":\{"x":([^,]+),"y":([^,]+),"z":([^}]+)\}', page)
+    return {"ranges": ranges, "eye": eye}
+
+
+def test_one_plan_is_drawn_from_every_place_a_newcomer_looks(made, tmp_path, capsys):
+    _run(["plan", TOY, "--out", tmp_path / "plan.json", "--report", tmp_path / "plan.html"])
+    said = capsys.readouterr().out
+    assert f"drew the plan -> {tmp_path / 'plan.html'}" in said
+    _run(
+        ["scene", "render", TOY, "--plan", tmp_path / "plan.json", "--out", tmp_path / "scene.html"]
+    )
+    doc = json.loads((tmp_path / "plan.json").read_text())
+    length = sum(m["length_mm"] for m in doc["primitives"])
+    said = capsys.readouterr().out
+    assert said == f"drew plan.json (solved, {length:.1f} mm path) -> {tmp_path / 'scene.html'}\n"
+    _run(["report", tmp_path / "plan.json", "--out", tmp_path / "page.html"])
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew plan.json (plan) -> {tmp_path / 'page.html'}"
+    for name in ("plan.html", "scene.html", "page.html"):
+        page = (tmp_path / name).read_text()
+        assert (tmp_path / name).stat().st_size <= PAGE_BYTES, name
+        assert '"color":"#ff00ff"' in page, name  # the path, in its own colour
+        view = _framed(page)
+        assert len(view["ranges"]) == 3 and view["eye"] is not None, name
+        lo, hi = zip(*(map(float, r.split(",")) for r in view["ranges"]), strict=True)
+        pts = np.vstack([np.asarray(doc["points_mm"], float), doc["goal_mm"]])
+        assert np.all(pts.min(axis=0) >= lo) and np.all(pts.max(axis=0) <= hi), name
+        assert max(np.subtract(hi, lo)) <= np.ptp(pts, axis=0).max() + 2 * 15.0 + 1e-6, name
+        assert '"height":760' in page, name
+    # the same page with plotly.js shared beside it
+    _run(["report", tmp_path / "plan.json", "--out", tmp_path / "shared" / "page.html",
+          "--plotly", "shared"])  # fmt: skip
+    assert (tmp_path / "shared" / "page.html").stat().st_size < 1_500_000
+    assert (tmp_path / "shared" / "plotly.min.js").stat().st_size > 4_000_000
+    assert 'src="plotly.min.js"' in (tmp_path / "shared" / "page.html").read_text()
+
+
+def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path, capsys):
+    doc = json.loads(executed.read_text())
+    assert doc["scenario_file"] == os.path.relpath(TOY, executed.parent)
+    out = tmp_path / "case.html"
+    assert main(["report", str(made / "plan.json"), str(executed), "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew plan.json (plan), execute.json (execution) -> {out}"
+    mean = doc["summary"]["closed_loop"]["final_error_mm"]["mean"]
+    assert said[1].startswith(f"{executed}: execute: 2 trials: closed loop {mean:.2f} mm off")
+    page = _page(out)
+    rows = _rows(page, "Open loop beside closed loop")
+    closed = dict(zip(rows[0], rows[2], strict=True))
+    assert closed["run"] == "closed loop" and closed["error mean (mm)"] == _mm(mean)
+    assert page.count("plotly.js v") == 1
+    # alone, the same page as the command drew (the same sections)
+    alone = tmp_path / "alone.html"
+    assert main(["report", str(executed), "--out", str(alone)]) == 0
+    assert alone.stat().st_size <= PAGE_BYTES
+    assert _rows(_page(alone), "Open loop beside closed loop") == rows
+    command = _page(made / "execute-command.html")
+    assert _rows(command, "Open loop beside closed loop") == rows
+    # written before execute kept its scenario file: found through its plan only
+    old = tmp_path / "old" / "execute.json"
+    old.parent.mkdir()
+    old.write_text(json.dumps({k: v for k, v in doc.items() if k != "scenario_file"}))
+    err = _one_error_line(capsys, ["report", old, "--out", tmp_path / "x.html"])
+    assert err.startswith("error: --scenario: ") and "draw it with its plan.json" in err
+    assert (
+        main(["report", str(made / "plan.json"), str(old), "--out", str(tmp_path / "y.html")]) == 0
+    )
+    assert (
+        main(["report", str(old), "--scenario", str(TOY), "--out", str(tmp_path / "z.html")]) == 0
+    )
+
+
+def test_every_kind_is_drawn_in_one_call_and_named(made, dynamic, executed, tmp_path, capsys):
+    files = [made / "plan.json", made / "goals.json", made / "sweep.json", made / "cfrw.json",
+             made / "multi.json", dynamic / "dynamic.json", executed]  # fmt: skip
+    out = tmp_path / "all.html"
+    assert main(["report", *map(str, files), "--out", str(out)]) in (0, 1)
+    said = capsys.readouterr().out.splitlines()
+    kinds = ["plan", "plans to several targets", "sweep", "CFRW map", "multi-needle plan",
+             "moving-obstacle run", "execution"]  # fmt: skip
+    drew = ", ".join(f"{f.name} ({k})" for f, k in zip(files, kinds, strict=True))
+    assert said[-1] == f"drew {drew} -> {out}"
+    page = _page(out)
+    assert len(re.findall(r"<section id='part-\d'>", page)) == len(files)

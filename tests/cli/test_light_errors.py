@@ -109,7 +109,6 @@ CASES = {
         ["plan", TOY, "--goal", "1,2,x"],
         ["plan", TOY, "--goals", "1,2,3", "--goal", "1,2,3"],
         ["plan", TOY, "--goals", "1,2,3", "--multi", "one-tree", "--planner", "rcs"],
-        ["plan", TOY, "--report", "{d}/r.html"],
         ["plan", TOY, "--step-mm", "3"],
         ["plan", TOY, "--dynamic"],
         ["plan", TOY, "--dynamic", "--goals", "1,2,3"],

@@ -264,3 +264,22 @@ def test_ctrl_c_keeps_the_trials_done_resume_carries_on_and_a_crash_is_recorded(
                                           seed=6, resume=True)  # fmt: skip
     resumed = run(tmp_path / "cut", resume=True).document
     assert resumed["trials"] == whole["trials"] and resumed["summary"] == whole["summary"]
+
+
+def test_report_draws_a_multi_execution_as_the_command_did(drag, tmp_path, capsys):
+    import html as _html
+
+    path = drag["dir"] / "one" / "execute.json"
+    assert drag["one"]["scenario_file"] == "../drag.yaml"
+    out = tmp_path / "again.html"
+    capsys.readouterr()
+    assert main(["report", str(path), "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew execute.json (multi-needle execution) -> {out}"
+    assert said[0].startswith(f"{path}: execute-multi: 1 trials of 3 needles")
+
+    def tables(page):
+        text = _html.unescape(page.read_text())
+        return re.findall(r"<table>.*?</table>", text, flags=re.S)
+
+    assert tables(out) == tables(drag["dir"] / "one" / "page.html")

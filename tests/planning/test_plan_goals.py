@@ -46,7 +46,6 @@ def test_any_planner_goes_target_by_target(tmp_path):
     [
         (["--goals", *GOALS, "--multi", "one-tree"], "error: --multi: one-tree grows an RRT tree"),
         (["--goals", *GOALS, "--goal", "1,2,3"], "error: --goals: give the targets with"),
-        (["--report", "x.html"], "error: --report: draws the plans of --goals"),
     ],
 )
 def test_bad_combinations_are_one_line_errors(tmp_path, capsys, extra, message):

@@ -185,11 +185,14 @@ def summarize_scene(scene: Scene) -> list[StructureSummary]:
     return [summarize(s) for s in scene.structures]
 
 
-def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None):
+def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None, crop=None):
     """Triangle mesh of a field's zero level set by marching cubes (for display).
 
     Voxel fields are meshed on their own grid, subsampled so that no axis has more than
-    ``max_cells`` samples; other fields are sampled over their box (or ``bounds``).
+    ``max_cells`` samples; other fields are sampled over their box (or ``bounds``). With
+    ``crop``, only the part of the surface inside that box is meshed, at the resolution
+    ``max_cells`` gives over the box (a view zoomed onto a path gets its detail, not the
+    whole organ's).
 
     Parameters
     ----------
@@ -198,6 +201,8 @@ def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None):
         Largest number of samples along an axis.
     bounds : array_like, shape (2, 3), optional
         Box to mesh for unbounded fields (e.g. half-spaces).
+    crop : array_like, shape (2, 3), optional
+        Mesh only inside this box (world mm, lower and upper corners).
 
     Returns
     -------
@@ -209,15 +214,34 @@ def surface_mesh(field: DistanceField, *, max_cells: int = 160, bounds=None):
     from skimage.measure import marching_cubes
 
     # a CT structure not built whole is drawn from its coarse preview (fields.LazyField)
+    if isinstance(field, LazyField) and crop is not None:
+        # the window around the box at full resolution (the field itself once built)
+        field = field.near_box(np.asarray(crop, dtype=float).reshape(2, 3), 1.0)
+        if field is None:  # nothing of the structure near the box
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     field = field.preview(max_cells) if isinstance(field, LazyField) else field
     vox = _voxel_of(field)
+    crop = None if crop is None else np.asarray(crop, dtype=float).reshape(2, 3)
     if vox is not None:
-        step = max(1, int(np.ceil(max(vox.shape) / max_cells)))
-        values = np.array(vox.values[::step, ::step, ::step], dtype=np.float32)  # writable copy
+        lo, hi = np.zeros(3, dtype=int), np.asarray(vox.shape, dtype=int)
+        if crop is not None:  # the index box holding the crop's 8 corners (any affine)
+            corners = np.array([[crop[i, 0], crop[j, 1], crop[k, 2]]
+                                for i in (0, 1) for j in (0, 1) for k in (0, 1)])  # fmt: skip
+            ijk = corners @ vox.inv_affine[:3, :3].T + vox.inv_affine[:3, 3]
+            lo = np.clip(np.floor(ijk.min(axis=0)).astype(int) - 1, 0, hi)
+            hi = np.clip(np.ceil(ijk.max(axis=0)).astype(int) + 2, 0, hi)
+        step = max(1, int(np.ceil(max(hi - lo) / max_cells)))
+        window = vox.values[lo[0] : hi[0] : step, lo[1] : hi[1] : step, lo[2] : hi[2] : step]
+        values = np.array(window, dtype=np.float32)  # writable copy
         affine = vox.affine.copy()
+        affine[:3, 3] = affine[:3, :3] @ lo + affine[:3, 3]
         affine[:3, :3] *= step
     else:
         box = field.bounds() if bounds is None else np.asarray(bounds, dtype=float)
+        if crop is not None:
+            box = np.array([np.maximum(box[0], crop[0]), np.minimum(box[1], crop[1])])
+            if np.any(box[1] <= box[0]):
+                return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
         if not np.all(np.isfinite(box)):
             return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
         values, origin, h = sample_grid(field, box, cells=max_cells)

@@ -109,8 +109,12 @@ def _logging(verbose: int) -> Iterator[None]:
 
 
 def _run(command: str, args) -> int:
-    """Run the command's handler (its heavy modules are imported inside it)."""
-    return args.command_handler(args)
+    """Run the command's handler (its heavy modules are imported inside it), its pages
+    getting plotly.js as ``--plotly`` says (inlined where the command has no such flag)."""
+    from needlekit.report.plotly_js import plotly_mode
+
+    with plotly_mode(getattr(args, "plotly", None) or "inline"):
+        return args.command_handler(args)
 
 
 def _quiet_stdout() -> None:
@@ -229,5 +233,6 @@ def _say_where(outputs) -> None:
     for kept, written in outputs.diverted:
         logging.getLogger("needlekit").warning(
             "%s: an earlier output, kept; this run's result (it did not succeed) is in %s",
-            kept, written,
+            kept,
+            written,
         )

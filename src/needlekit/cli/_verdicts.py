@@ -258,3 +258,39 @@ def breathing_table(per_policy: dict) -> str:
         rows,
         why={"procedure s": "no run ended (every trial crashed)"},
     )
+
+
+def dynamic_summary(res) -> list[str]:
+    """``plan --dynamic``'s account: how the re-planning run and the plan made at t = 0 went.
+
+    Parameters
+    ----------
+    res : DynamicResult
+
+    Returns
+    -------
+    list of str
+        The lines to print.
+    """
+    s, m = res.settings, res.check.metrics
+    clear = m.get("certified_moving_clearance_mm")
+    lines = [
+        f"{s['planner']}, re-planning every {s['step_mm']:g} mm at {s['insertion_speed_mm_s']:g} "
+        f"mm/s ({s['predict']} prediction): {res.status.value}, {res.reason}; path "
+        f"{res.executed.length_mm:.2f} mm, certified clearance to the moving obstacles "
+        + ("-" if clear is None else f"{clear:.3f} mm")
+    ]
+    lines += [f"  - {v}" for v in res.check.violations]
+    if res.static is not None:
+        plan, check = res.static
+        if check is None:
+            lines.append(f"plan made once at t = 0: {plan.status.value}, no plan to execute")
+        else:
+            verdict = "passes" if check.ok else "fails"
+            lines.append(
+                f"plan made once at t = 0, executed open-loop: {verdict} the check "
+                f"(certified clearance to the moving obstacles "
+                f"{check.metrics['certified_moving_clearance_mm']:.3f} mm)"
+            )
+            lines += [f"  - {v}" for v in check.violations]
+    return lines

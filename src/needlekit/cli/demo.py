@@ -143,4 +143,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="out/demo",
         help="output folder (default out/demo)",
     )
+    _flags.PLOTLY.add(demo)
     demo.set_defaults(command_handler=_cmd_demo)

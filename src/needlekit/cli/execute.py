@@ -4,6 +4,7 @@ loop, over many trials (docs/execute.md)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from needlekit._numbers import MIN_POSITIVE
 from needlekit.cli import _flags, _sizes
@@ -276,6 +277,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
+    from needlekit.io.results import scenario_reference
     from needlekit.studies.execute_study import read_partial_execute, run_execute_study
 
     source, problem, plan, name = load_checked_plan(args)
@@ -297,6 +299,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
             args.out, source, plan, trials=trials, seed=args.seed, options=options,
             executor=None if args.executor == "serial" else ex,
             progress=lambda _: bar.update(1), resume=resume, scenario_name=name, hooks=hooks,
+            scenario_file=scenario_reference(args.scenario, Path(args.out) / "execute.json"),
         )  # fmt: skip
     if link is not None:
         link.flush()
@@ -526,6 +529,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     from needlekit.cli.execute_multi import STEERABLE_ONLY
 
+    _flags.PLOTLY.add(ex)
     ex.set_defaults(
         command_handler=_cmd_execute,
         sizes=_sizes.execute_sizes,

@@ -5,6 +5,7 @@ simulated Panda under Tang et al.'s controller, needle after needle (docs/execut
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from needlekit.cli._common import EXIT_OK, _fmt_table
 from needlekit.errors import InvalidInputError
@@ -170,6 +171,7 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
+    from needlekit.io.results import scenario_reference
     from needlekit.studies.execute_multi import run_multi_execution
 
     sc, multi, coverage = load_checked_multi(args, record)
@@ -186,6 +188,7 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
             executor=None if args.executor == "serial" else ex,
             progress=lambda _: bar.update(1), scenario_name=sc.name or args.scenario.name,
             resume=args.resume,
+            scenario_file=scenario_reference(args.scenario, Path(args.out) / "execute.json"),
         )  # fmt: skip
     if args.report is not None:
         from needlekit.report.execute_multi_report import write_multi_execute_report

@@ -19,7 +19,7 @@ from needlekit.cli._common import (
     sweep_progress,
 )
 from needlekit.cli._paths import add_input, add_output
-from needlekit.cli._verdicts import clearance_line, flags_named, say_plan
+from needlekit.cli._verdicts import clearance_line, dynamic_summary, flags_named, say_plan
 from needlekit.errors import InvalidInputError, NeedlekitError
 from needlekit.io.files import json_text
 from needlekit.io.results import scenario_reference
@@ -100,8 +100,6 @@ def _cmd_plan(args: argparse.Namespace) -> int:
         _refuse_dynamic_flags(args)
         if args.goals is not None:
             _check_goals(args, planner)
-        elif args.report is not None:
-            raise InvalidInputError("--report", "draws the plans of --goals; give several goals")
     # every check on the input done: now the planners (numba)
     if args.dynamic:
         return _plan_dynamic(args, doc, settings, dynamic)
@@ -109,13 +107,17 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     if args.goals is not None:
         return _plan_goals(args, doc, settings, built[planner])
 
-    from needlekit.io.plans import write_plan_json
     from needlekit.planning.steerable.solve import solve
 
-    _, problem = _source(args).load(doc)
+    sc, problem = _source(args).load(doc)
     res = solve(problem, built[planner], termination=settings.termination())
-    write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
-    return say_plan(res, problem, built[planner], settings, args.out)
+    from needlekit.cli.report import write_plan_and_page
+
+    write_plan_and_page(args, sc, problem, res)
+    code = say_plan(res, problem, built[planner], settings, args.out)
+    if args.report is not None:
+        print(f"drew the plan -> {args.report}")
+    return code
 
 
 #: The flags that only go with ``plan --dynamic``.
@@ -162,36 +164,10 @@ def _plan_dynamic(args: argparse.Namespace, doc: dict, settings, dynamic: dict) 
             from needlekit.report.dynamic_report import write_dynamic_report
 
             write_dynamic_report(args.report, static, res, title=sc.name or args.scenario.name)
-    for line in _dynamic_summary(res):
+    for line in dynamic_summary(res):
         print(line)
     print(f"-> {args.out}" + ("" if args.report is None else f", {args.report}"))
     return EXIT_OK if res.reached else 1
-
-
-def _dynamic_summary(res) -> list[str]:
-    """Lines telling how the re-planning run and the plan made at t = 0 went."""
-    s, m = res.settings, res.check.metrics
-    clear = m.get("certified_moving_clearance_mm")
-    lines = [
-        f"{s['planner']}, re-planning every {s['step_mm']:g} mm at {s['insertion_speed_mm_s']:g} "
-        f"mm/s ({s['predict']} prediction): {res.status.value}, {res.reason}; path "
-        f"{res.executed.length_mm:.2f} mm, certified clearance to the moving obstacles "
-        + ("-" if clear is None else f"{clear:.3f} mm")
-    ]
-    lines += [f"  - {v}" for v in res.check.violations]
-    if res.static is not None:
-        plan, check = res.static
-        if check is None:
-            lines.append(f"plan made once at t = 0: {plan.status.value}, no plan to execute")
-        else:
-            verdict = "passes" if check.ok else "fails"
-            lines.append(
-                f"plan made once at t = 0, executed open-loop: {verdict} the check "
-                f"(certified clearance to the moving obstacles "
-                f"{check.metrics['certified_moving_clearance_mm']:.3f} mm)"
-            )
-            lines += [f"  - {v}" for v in check.violations]
-    return lines
 
 
 def _check_goals(args: argparse.Namespace, planner: str) -> None:
@@ -501,9 +477,13 @@ def _register_plan(sub) -> None:
     out = planp.add_argument_group("output")
     _flags.OUT.add(out, default="plan.json", help="plan file to write (default plan.json)")
     add_output(
-        out, "--report", help="with --goals or --dynamic: a self-contained HTML view of the plans"
+        out,
+        "--report",
+        help="also write the plan's page (HTML: the path in the anatomy, its check, its "
+        "motions); with --goals or --dynamic, the page of the plans",
     )
     _flags.add_cache_options(planp.add_argument_group("anatomy cache (Med-RAD scenarios)"))
+    _flags.PLOTLY.add(planp)
     planp.set_defaults(command_handler=flags_named(_cmd_plan))
 
 
@@ -555,6 +535,7 @@ def _register_sweep(sub) -> None:
         help="carry on from the record an interrupted run wrote beside --out "
         "(sweep.partial.json beside sweep.json): only the rest is planned",
     )
+    _flags.PLOTLY.add(sw)
     sw.set_defaults(command_handler=flags_named(_cmd_sweep), sizes=_sizes.sweep_sizes)
 
 

@@ -243,4 +243,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="carry on from the DIR/puncture.partial.json an interrupted run wrote (Ctrl-C "
         "keeps the trials done): the same trials, seed and settings; only the rest run",
     )
+    _flags.PLOTLY.add(pu)
     pu.set_defaults(command_handler=_cmd_puncture, sizes=_sizes.puncture_sizes)

@@ -44,13 +44,43 @@ def _cmd_report(args: argparse.Namespace) -> int:
     )
     for part in report.parts:
         print(f"{part.result.path}: {part.result.kind.value}: {part.summary}")
-    print(f"-> {report.path}")
+    drew = ", ".join(f"{p.result.path.name} ({p.result.kind.word})" for p in report.parts)
+    print(f"drew {drew} -> {report.path}")
     failed = [p for p in report.parts if p.checks_ok is False]
     if failed:
         names = ", ".join(str(p.result.path) for p in failed)
         print(f"error: an independent check failed ({names}); the page shows why")
         return 1
     return EXIT_OK
+
+
+def write_plan_and_page(args: argparse.Namespace, sc, problem, res) -> None:
+    """``needlekit plan``'s files: plan.json, and with ``--report`` the plan's page (as
+    ``needlekit report plan.json`` draws it), put in place together.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``out``, ``report``, ``scenario``.
+    sc : Scenario
+    problem : SteerableProblem
+    res : PlanResult
+
+    Returns
+    -------
+    None
+    """
+    from needlekit.io.files import staged_outputs
+    from needlekit.io.plans import write_plan_json
+    from needlekit.io.results import scenario_reference
+
+    with staged_outputs():
+        write_plan_json(args.out, res, scenario=scenario_reference(args.scenario, args.out))
+        if args.report is not None:
+            from needlekit.report.steerable_report import write_plan_report
+
+            title = f"Steerable-needle plan: {sc.name or args.scenario.name}"
+            write_plan_report(args.report, problem, res, title=title)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -67,11 +97,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     """
     rp = sub.add_parser(
         "report",
-        help="draw result files (plan, sweep, cfrw, multi, puncture, dynamic) on one self-contained page",
-        description="Read result files written by plan, plan --goals, plan --dynamic, sweep, cfrw, multi and "
-        "puncture, load the scenarios they name, check their plans again and write one HTML "
-        "page (opens offline) with a part per result: 3D scenes, tables, figures. Exit 1 "
-        "when an independent check fails (the page is written).",
+        help="draw result files (plan, sweep, cfrw, multi, puncture, dynamic, execute, "
+        "bench scale) on one page",
+        description="Read result files written by plan, plan --goals, plan --dynamic, sweep, "
+        "cfrw, multi, puncture, execute (its execute.json) and bench scale, alone or several "
+        "together, load the scenarios they name, check their plans again and write one HTML "
+        "page (opens offline) with a part per result: 3D scenes, tables, figures. Says on "
+        "stdout which kinds it drew. Exit 1 when an independent check fails (the page is "
+        "written).",
     )
     rp.add_argument("results", type=Path, nargs="+", metavar="RESULT", help="result files (JSON)")
     _flags.OUT.add(rp, required=True, help="HTML page to write")
@@ -84,5 +117,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "that reads one, or repeated, once per such result in order",
     )
     rp.add_argument("--title", help="page title (default: from the results)")
+    _flags.PLOTLY.add(rp)
     _flags.add_cache_options(rp)
     rp.set_defaults(command_handler=_cmd_report)

@@ -83,4 +83,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _flags.QUICK.add(rq, help="the reduced version (under 2 minutes per paper)")
     _flags.add_executor_options(rq)
+    _flags.PLOTLY.add(rq)
     rq.set_defaults(command_handler=_cmd_reproduce)

@@ -7,6 +7,7 @@ import argparse
 from needlekit.cli import _flags, _sizes
 from needlekit.cli._common import EXIT_OK, _fmt_table, _Parser, _positive_int
 from needlekit.cli._paths import add_input
+from needlekit.errors import InvalidInputError
 from needlekit.io.files import json_text
 
 
@@ -26,10 +27,26 @@ def _fmt_extent(extent) -> str:
     return " x ".join(f"{v:.1f}" for v in size)
 
 
+def _read_plan(args: argparse.Namespace):
+    """``scene render --plan``: the plan file read and checked, before the anatomy loads."""
+    if getattr(args, "plan", None) is None:
+        return None
+    from needlekit.scenario.results import read_plan_json
+
+    plan, goal, data = read_plan_json(args.plan)
+    if plan is None:
+        status = data.get("status")
+        raise InvalidInputError(
+            "--plan", f"{args.plan.name} holds no path to draw (status {status})"
+        )
+    return plan, goal, data
+
+
 def _cmd_scene(args: argparse.Namespace) -> int:
     from needlekit.io.scenario_schema import read_scenario_document
 
     doc = read_scenario_document(args.scenario)  # a bad file is answered before numba
+    planned = _read_plan(args) if args.scene_command == "render" else None
     from needlekit.scenario.loading import load_scenario
 
     sc = load_scenario(args.scenario, document=doc)
@@ -87,9 +104,34 @@ def _cmd_scene(args: argparse.Namespace) -> int:
     elif sc.base is not None and getattr(sc.base, "start_poses", None) is not None:
         starts = sc.base.start_poses
     targets = None if sc.goal is None else sc.goal.point_mm[None]
-    fig = scene_figure(sc.scene, start_poses=starts, targets_mm=targets, max_cells=args.max_cells)
-    print(write_scene_html(fig, args.out))
+    if planned is None:
+        fig = scene_figure(
+            sc.scene, start_poses=starts, targets_mm=targets, max_cells=args.max_cells
+        )
+        print(write_scene_html(fig, args.out))
+        return EXIT_OK
+    plan, goal, data = planned
+    path = plan.points_mm(0.5)
+    cost = data.get("cost_mm")
+    label = f"{data.get('planner') or 'plan'}" + (f": {cost:.2f} mm" if cost is not None else "")
+    fig = scene_figure(
+        sc.scene,
+        start_poses=np.asarray(plan.start_pose)[None],
+        targets_mm=np.asarray(goal, dtype=float)[None],
+        paths_mm=[path],
+        path_names=[label],
+        max_cells=args.max_cells,
+        title=f"{sc.name or args.scenario.name}: {args.plan.name}",
+        focus_mm=np.vstack([path, np.asarray(goal, dtype=float)[None]]),
+    )
+    print(f"drew {args.plan.name} ({data.get('status')}, {_plan_length(plan):.1f} mm path) -> "
+          f"{write_scene_html(fig, args.out)}")  # fmt: skip
     return EXIT_OK
+
+
+def _plan_length(plan) -> float:
+    """The path's length (mm): the motions' lengths summed."""
+    return float(sum(float(m[2]) for m in plan.primitives))
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -131,4 +173,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=160,
         help="surface resolution: samples per axis (default 160)",
     )
+    add_input(
+        render,
+        "--plan",
+        help="a plan file (plan.json) to draw in the scene: the view is framed on its path",
+    )
+    _flags.PLOTLY.add(render)
     render.set_defaults(command_handler=_cmd_scene, sizes=_sizes.cells_sizes)

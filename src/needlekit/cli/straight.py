@@ -373,6 +373,7 @@ def _register_multi(sub) -> None:
     )
     _flags.TIME_LIMIT_S.add(mu, default=3600.0, help="budget (default 3600 s)")
     _flags.add_cache_options(mu)
+    _flags.PLOTLY.add(mu)
     mu.set_defaults(command_handler=_cmd_multi, sizes=_sizes.cfrw_sizes)
 
 
@@ -397,6 +398,7 @@ def _register_approach(sub) -> None:
     )
     ap.add_argument("--summary-only", action="store_true", help="leave the per-triangle arrays out")
     _flags.add_cache_options(ap)
+    _flags.PLOTLY.add(ap)
     ap.set_defaults(command_handler=_cmd_approach, sizes=_sizes.cells_sizes)
 
 

@@ -349,6 +349,7 @@ def _register_feng_lungs(study_sub) -> None:
         help="carry on from the goal1/ and goal2/sweep.partial.json an interrupted run wrote "
         "(Ctrl-C keeps the directions done): the same settings; only the rest is planned",
     )
+    _flags.PLOTLY.add(sf)
     sf.set_defaults(command_handler=_cmd_study_feng_lungs, sizes=_sizes.feng_lungs_sizes)
 
 

@@ -2,7 +2,7 @@
 
 The commands write their results as JSON (``plan.json``, ``sweep.json``, ``cfrw.json``,
 ``multi.json``, ``puncture.json``, the ``dynamic.json`` of ``plan --dynamic``, the
-``scale.json`` of ``bench scale``);
+``execute.json`` of ``execute``, the ``scale.json`` of ``bench scale``);
 ``needlekit report`` draws any of them again. Here, file handling only:
 :func:`result_kind`, the kind of a result document from the fields that only that kind
 has (:data:`KIND_FIELDS`), and :class:`ResultFile`, a file read and checked. Reading one
@@ -58,11 +58,18 @@ class ResultKind(enum.Enum):
     PUNCTURE = "puncture"
     DYNAMIC = "dynamic"  # needlekit plan --dynamic
     SCALE = "scale"  # needlekit bench scale
+    EXECUTE = "execute"  # needlekit execute
+    EXECUTE_MULTI = "execute-multi"  # needlekit execute SCENARIO multi.json
 
     @property
     def label(self) -> str:
         """The kind in words, with the command that writes it."""
         return _LABELS[self]
+
+    @property
+    def word(self) -> str:
+        """The kind in a word or two (what ``needlekit report`` says it drew)."""
+        return _WORDS[self]
 
     @property
     def needs_scenario(self) -> bool:
@@ -79,6 +86,21 @@ _LABELS = {
     ResultKind.PUNCTURE: "puncture simulation study (needlekit puncture)",
     ResultKind.DYNAMIC: "re-planning among moving obstacles (needlekit plan --dynamic)",
     ResultKind.SCALE: "scaling curves (needlekit bench scale)",
+    ResultKind.EXECUTE: "plan execution, open beside closed loop (needlekit execute)",
+    ResultKind.EXECUTE_MULTI: "straight plan inserted by the robot (needlekit execute multi.json)",
+}
+
+_WORDS = {
+    ResultKind.PLAN: "plan",
+    ResultKind.GOALS: "plans to several targets",
+    ResultKind.SWEEP: "sweep",
+    ResultKind.CFRW: "CFRW map",
+    ResultKind.MULTI: "multi-needle plan",
+    ResultKind.PUNCTURE: "puncture study",
+    ResultKind.DYNAMIC: "moving-obstacle run",
+    ResultKind.SCALE: "scaling curves",
+    ResultKind.EXECUTE: "execution",
+    ResultKind.EXECUTE_MULTI: "multi-needle execution",
 }
 
 #: The top-level fields that mark each kind, tried in this order (a sweep's best plans and
@@ -90,6 +112,8 @@ KIND_FIELDS: dict[ResultKind, tuple[str, ...]] = {
     ResultKind.MULTI: ("needles", "order", "gamma_mm"),
     ResultKind.CFRW: ("feasible", "theta_deg", "phi_deg", "world_T_sigma"),
     ResultKind.DYNAMIC: ("moving", "executed", "cycles", "settings"),
+    ResultKind.EXECUTE: ("plan_primitives", "trials", "summary", "seed", "options"),
+    ResultKind.EXECUTE_MULTI: ("plan_needles", "registration", "trials", "summary"),
     ResultKind.PLAN: ("status", "primitives", "start_pose", "goal_mm"),
     ResultKind.SCALE: ("benchmark", "planning", "sweep", "study", "machine"),
 }
@@ -148,7 +172,9 @@ class ResultFile:
     data : dict
         The whole document.
     scenario : Path or None
-        The scenario it was made from, located (None for kinds that need none).
+        The scenario it was made from, located (None for kinds that need none). An
+        execution names it in ``scenario_file`` (its ``scenario`` is the scenario's name);
+        one written before it did takes the scenario of the plan drawn with it.
     """
 
     path: Path

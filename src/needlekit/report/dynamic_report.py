@@ -86,14 +86,20 @@ def dynamic_figure(problem, result, *, title: str = "", max_cells: int = 96):
     """
     import plotly.graph_objects as go
 
-    from needlekit.report.scene3d import scene_figure, zoom_onto
+    from needlekit.report.scene3d import scene_figure
 
+    focus = [problem.start_pose[None, :3, 3], problem.goal_mm[None], result.executed.points_mm(0.5)]
+    focus += [c.result.plan.points_mm(0.5) for c in result.cycles if c.result.plan is not None]
+    if result.static is not None and result.static[0].plan is not None:
+        focus.append(result.static[0].plan.points_mm(0.5))
     fig = scene_figure(
         problem.scene,
         start_poses=np.asarray(problem.start_pose)[None],
         targets_mm=problem.goal_mm[None],
         max_cells=max_cells,
         title=title,
+        focus_mm=np.vstack(focus),
+        focus_margin_mm=ZOOM_MARGIN_MM,
     )
     shown = [problem.start_pose[None, :3, 3], problem.goal_mm[None]]
     n = len(result.cycles)
@@ -118,7 +124,6 @@ def dynamic_figure(problem, result, *, title: str = "", max_cells: int = 96):
     fig.add_trace(_line(go, executed, f"executed path ({result.status.value})", _EXECUTED, 8))
     if result.static is not None and result.static[0].plan is not None:
         _add_static(go, fig, result, shown)
-    zoom_onto(fig, np.vstack(shown), margin_mm=ZOOM_MARGIN_MM)
     fig.update_layout(height=FIGURE_HEIGHT_PX, scene_camera={"eye": _eye(problem, result)})
     return fig
 

@@ -11,9 +11,13 @@ import numpy as np
 
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
 
-__all__ = ["multi_execute_sections", "placed_figure", "write_multi_execute_report"]
+__all__ = ["TITLE", "multi_execute_sections", "placed_figure", "write_multi_execute_report"]
 
 _PLANNED, _PLACED = "#1f77b4", "#d62728"
+
+
+#: The page's title.
+TITLE = "needlekit execute: the straight plan, inserted by the robot"
 
 
 def _needle_rows(s: dict) -> list[dict]:
@@ -48,7 +52,7 @@ def placed_figure(scene, record: dict, trial: dict):
     -------
     plotly.graph_objects.Figure
     """
-    from needlekit.report.scene3d import scene_figure, zoom_onto
+    from needlekit.report.scene3d import scene_figure
 
     planned = {n["order"]: n for n in record["needles"] if n.get("entry_mm")}
     paths, names = [], []
@@ -60,11 +64,11 @@ def placed_figure(scene, record: dict, trial: dict):
         paths += [np.array([entry, aimed]), np.array([tip - depth * np.asarray(n["axis"]), tip])]
         names += [f"needle {n['order']} planned", f"needle {n['order']} placed"]
     targets = np.array([n["target_mm"] for n in trial["needles"]], float)
-    fig = scene_figure(scene, targets_mm=targets, paths_mm=paths, path_names=names, max_cells=96)
+    fig = scene_figure(scene, targets_mm=targets, paths_mm=paths, path_names=names, max_cells=96,
+                       focus_mm=np.vstack([*paths, targets]))  # fmt: skip
     for i, tr in enumerate(fig.data[-len(paths) :]):
         tr.line.color = _PLANNED if i % 2 == 0 else _PLACED
         tr.line.width = 5 if i % 2 == 0 else 7
-    zoom_onto(fig, np.vstack(paths), margin_mm=30.0)
     return fig
 
 
@@ -157,6 +161,6 @@ def write_multi_execute_report(path: str | os.PathLike, doc: dict, scene, record
     Path
     """
     return write_report_html(
-        path, title="needlekit execute: the straight plan, inserted by the robot",
+        path, title=TITLE,
         sections=multi_execute_sections(doc, scene, record),
     )  # fmt: skip

@@ -12,9 +12,19 @@ import numpy as np
 
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
 
-__all__ = ["animated_trial_figure", "execute_sections", "shown_trial", "write_execute_report"]
+__all__ = [
+    "TITLE",
+    "animated_trial_figure",
+    "execute_sections",
+    "shown_trial",
+    "write_execute_report",
+]
 
-#: Colours: the plan, open loop, closed loop, the plan being followed.
+#: The page's title.
+TITLE = "Plan execution: open beside closed loop"
+
+#: Colours: the plan, open loop, closed loop (in 2D figures; the 3D view draws the
+#: closed-loop path in :data:`needlekit.report.scene3d.PATH_COLOUR`), the plan followed.
 _PLAN, _OPEN, _CLOSED, _FOLLOWED = "#2a9d8f", "#e76f51", "#264653", "#e9c46a"
 #: Insertion between two frames of the animation (mm).
 FRAME_STEP_MM: float = 2.0
@@ -75,13 +85,15 @@ def animated_trial_figure(problem, plan, trial: dict, *, title: str = ""):
     """
     import plotly.graph_objects as go
 
-    from needlekit.report.scene3d import scene_figure, zoom_onto
+    from needlekit.report.scene3d import PATH_COLOUR, scene_figure
 
-    fig = scene_figure(problem.scene, start_poses=np.asarray(problem.start_pose)[None],
-                       targets_mm=problem.goal_mm[None], max_cells=MAX_CELLS, title=title)  # fmt: skip
     plan_pts = plan.points_mm(1.0)
     closed, opened = trial["closed_loop"], trial["open_loop"]
     path = np.asarray(closed["points_mm"])
+    focus = np.vstack([plan_pts, path, np.asarray(opened["points_mm"]), problem.goal_mm[None]])
+    fig = scene_figure(problem.scene, start_poses=np.asarray(problem.start_pose)[None],
+                       targets_mm=problem.goal_mm[None], max_cells=MAX_CELLS, title=title,
+                       focus_mm=focus)  # fmt: skip
     spacing = np.linalg.norm(np.diff(path, axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(spacing)])
     events = closed.get("replan_events", [])
@@ -90,7 +102,7 @@ def animated_trial_figure(problem, plan, trial: dict, *, title: str = ""):
                         _OPEN, 4))  # fmt: skip
     first = len(fig.data)
     fig.add_trace(_line(go, path[:1], f"closed loop ({closed['final_error_mm']:.2f} mm off)",
-                        _CLOSED, 8))  # fmt: skip
+                        PATH_COLOUR, 8))  # fmt: skip
     fig.add_trace(_line(go, plan_pts, "plan followed (re-plans as they apply)", _FOLLOWED, 5))
     stops = [*np.arange(0.0, arc[-1], FRAME_STEP_MM), arc[-1]]
     frames = []
@@ -99,19 +111,17 @@ def animated_trial_figure(problem, plan, trial: dict, *, title: str = ""):
         followed = _followed(plan_pts, events, s)
         frames.append(go.Frame(
             name=f"{s:.0f}",
-            data=[_line(go, path[: max(k, 1)], None, _CLOSED, 8), _line(go, followed, None, _FOLLOWED, 5)],
+            data=[_line(go, path[: max(k, 1)], None, PATH_COLOUR, 8), _line(go, followed, None, _FOLLOWED, 5)],
             traces=[first, first + 1],
         ))  # fmt: skip
     fig.frames = frames
     fig.data[first].x, fig.data[first].y, fig.data[first].z = path[:, 0], path[:, 1], path[:, 2]
     last = _followed(plan_pts, events, arc[-1])
     fig.data[first + 1].x, fig.data[first + 1].y, fig.data[first + 1].z = last.T
-    zoom_onto(fig, np.vstack([plan_pts, path, np.asarray(opened["points_mm"])]), margin_mm=15.0)
     steps = [{"label": f.name, "method": "animate",
               "args": [[f.name], {"mode": "immediate", "frame": {"duration": 0, "redraw": True}}]}
              for f in frames]  # fmt: skip
     fig.update_layout(
-        height=720,
         sliders=[{"steps": steps, "active": len(steps) - 1,
                   "currentvalue": {"prefix": "inserted (mm): "}}],
         updatemenus=[{"type": "buttons", "showactive": False, "buttons": [{
@@ -238,5 +248,5 @@ def write_execute_report(path: str | os.PathLike, doc: dict, problem, plan) -> P
     -------
     Path
     """
-    return write_report_html(path, title="Plan execution: open beside closed loop",
+    return write_report_html(path, title=TITLE,
                              sections=execute_sections(doc, problem, plan))  # fmt: skip

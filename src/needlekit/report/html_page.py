@@ -1,7 +1,12 @@
-"""One self-contained HTML page of plotly figures, tables and text (opens offline).
+"""One HTML page of plotly figures, tables and text (opens offline).
 
-:func:`write_report_html` inlines plotly.js once, with the first figure, escapes all text,
-formats table numbers by their column's unit suffix, and writes the page atomically.
+:func:`write_report_html` loads plotly.js once, in the page's head (inlined, or shared
+beside the page: :mod:`needlekit.report.plotly_js`), escapes all text, formats table
+numbers by their column's unit suffix, and writes the page atomically. Tables fit the
+page: their headers wrap, and a table wider than the page scrolls in its own box. Each
+figure notes when it has drawn (``window.needlekitDrawn``: how many figures the page
+has, how many drew, and ``performance.now()`` when the last one did), the figure the
+browser benchmark reads.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import atomic_write
+from needlekit.report.plotly_js import plotly_script
 
 __all__ = [
     "FigureSection",
@@ -97,7 +103,9 @@ h2.part{font-size:1.45rem;margin-top:3rem;padding-top:.8rem;border-top:2px solid
 h3{font-weight:600;font-size:1.1rem;margin:1.6rem 0 .5rem}nav li{margin:.15rem 0}
 p{max-width:60rem}p.caption{color:#555;font-size:.9rem;margin-top:.3rem}
 table{border-collapse:collapse;font-size:.92rem;font-variant-numeric:tabular-nums}
-th,td{padding:.35rem .8rem;border-bottom:1px solid #e3e3e3;text-align:left;white-space:nowrap}
+.table-box{max-width:100%;overflow-x:auto}
+th,td{padding:.35rem .6rem;border-bottom:1px solid #e3e3e3;text-align:left;white-space:nowrap}
+th{white-space:normal;vertical-align:bottom;min-width:3.5em;max-width:9em}
 th{background:#f3f5f7;font-weight:600;border-bottom:2px solid #cfd4da}td.num{text-align:right}
 tbody tr:nth-child(even){background:#fafbfc}tbody tr:hover{background:#eef4fb}
 .figure{border:1px solid #eee;border-radius:6px;padding:.3rem}
@@ -139,7 +147,10 @@ def _table_html(rows: Sequence[Mapping]) -> str:
         cells = [_cell(k, r.get(k)) for k in keys]
         tds = "".join(f"<td{' class=num' * num}>{html.escape(t)}</td>" for t, num in cells)
         body.append(f"<tr>{tds}</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+    return (
+        f"<div class='table-box'><table><thead><tr>{head}</tr></thead>"
+        f"<tbody>{''.join(body)}</tbody></table></div>"
+    )
 
 
 def _check_sections(sections) -> list:
@@ -193,10 +204,26 @@ CANVAS_READBACK_HINT = (
 )
 
 
-def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
-    """Write figures, tables and text as one self-contained HTML page, atomically.
+def drawn_note(figures: int) -> str:
+    """Put in a page's head: ``window.needlekitDrawn`` counts the page's figures and, as
+    each draws (:data:`DRAWN_SCRIPT`, its plot's ``post_script``), the figures drawn and
+    ``performance.now()`` at the last (ms from the page's start)."""
+    return f"<script>window.needlekitDrawn={{figures:{int(figures)},drawn:0,ms:null}};</script>"
 
-    plotly.js is inlined once, with the first figure, so the page needs no network. The
+
+#: Each figure's ``post_script`` (run once plotly drew it): see :func:`drawn_note`.
+DRAWN_SCRIPT = (
+    "var d=window.needlekitDrawn;if(d){d.drawn+=1;if(d.drawn>=d.figures){d.ms=performance.now();}}"
+)
+
+
+def write_report_html(
+    path: str | os.PathLike, *, title: str, sections, plotly: str | None = None
+) -> Path:
+    """Write figures, tables and text as one HTML page, atomically.
+
+    plotly.js is loaded once, in the head: inlined (the page needs no network nor any
+    other file) or from ``plotly.min.js`` beside the page (``plotly="shared"``). The
     page is written to a temporary file that replaces ``path`` only when complete: on any
     error ``path`` keeps its old content.
 
@@ -213,6 +240,9 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
         plain text (escaped). Table numbers are formatted: 3 decimals in ``*_mm``, ``*_s``,
         ``*_deg`` and ``*direction`` columns, 4 significant digits elsewhere, missing
         values (None, NaN, inf) as an en dash.
+    plotly : {"inline", "shared"}, optional
+        Where plotly.js comes from (:func:`needlekit.report.plotly_js.plotly_script`);
+        default: the mode in force (``--plotly``; ``inline`` outside the command line).
 
     Returns
     -------
@@ -222,13 +252,15 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
     if not isinstance(title, str):
         raise InvalidInputError("title", f"expected text (str), got {type(title).__name__}")
     items, esc = _check_sections(sections), html.escape
+    figures = sum(isinstance(s, FigureSection) for s in items)
+    library = plotly_script(path, plotly) if figures else ""
 
     def write(tmp: Path) -> None:
         with open(tmp, "w", encoding="utf-8") as f:
             f.write("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'>")
             f.write("<meta name='viewport' content='width=device-width, initial-scale=1'>")
             f.write(f"<title>{esc(title)}</title><style>{_CSS}</style>")
-            f.write(f"{CANVAS_READBACK_HINT}</head>\n")
+            f.write(f"{CANVAS_READBACK_HINT}{drawn_note(figures)}{library}</head>\n")
             f.write(f"<body><main><h1>{esc(title)}</h1>\n")
             parts = [s.heading for s in items if isinstance(s, PartSection)]
             if parts:
@@ -236,7 +268,7 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
                     f"<li><a href='#part-{i}'>{esc(h)}</a></li>" for i, h in enumerate(parts, 1)
                 )
                 f.write(f"<nav><ol>{links}</ol></nav>\n")
-            with_js, level, part = True, "h2", 0
+            level, part = "h2", 0
             for s in items:
                 if isinstance(s, PartSection):
                     part, level = part + 1, "h3"
@@ -260,9 +292,14 @@ def write_report_html(path: str | os.PathLike, *, title: str, sections) -> Path:
                     f.write("<ul>" + "".join(f"<li>{esc(t)}</li>" for t in s.items) + "</ul>")
                 else:
                     config = {"displaylogo": False, "responsive": True}
-                    div = s.figure.to_html(full_html=False, include_plotlyjs=with_js, config=config)
+                    div = s.figure.to_html(
+                        full_html=False,
+                        include_plotlyjs=False,
+                        config=config,
+                        post_script=DRAWN_SCRIPT,
+                        auto_play=False,  # an animation waits for its play button
+                    )
                     f.write(f"<div class='figure'>{div}</div>")
-                    with_js = False
                 if getattr(s, "caption", None):
                     f.write(f"<p class='caption'>{esc(s.caption)}</p>")
                 f.write("</section>\n")

@@ -365,5 +365,6 @@ def neck_figure(trials: list[dict], phantom=None, *, outside_mm: float = 60.0):
         targets_mm=target[None],
         paths_mm=paths,
         path_names=names,
+        focus_mm=np.vstack([*paths, start[None, :3, 3], target[None]]),
         title="needle-tip paths of the example trials, carried onto the neck phantom's guide line",
     )

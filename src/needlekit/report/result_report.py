@@ -25,7 +25,9 @@ builders its own command uses, from the objects rebuilt from the file:
   the executed path and of the plan made at ``t = 0`` run again, beside the verdicts the
   file records;
 - scaling curves (``needlekit bench scale``): :func:`~.scale_figures.scale_sections`, the
-  record's series as measured (nothing to check again).
+  record's series as measured (nothing to check again);
+- a plan's execution (``needlekit execute``): :func:`~.execute_report.execute_sections`,
+  the plan rebuilt from the motions the file keeps (:mod:`.result_execute`).
 
 :func:`write_result_report` takes its scenarios from the caller
 (:class:`needlekit.scenario.results.ResultScenarios` loads each once, however many results
@@ -49,6 +51,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile, ResultKind
 from needlekit.report.html_page import PartSection, write_report_html
 from needlekit.report.result_dynamic import _dynamic_part
+from needlekit.report.result_execute import _execute_multi_part, _execute_part
 from needlekit.report.result_parts import ReportPart  # re-exported (it lived here)
 from needlekit.report.result_steerable import _goals_part, _plan_part, _sweep_part
 from needlekit.report.result_straight import (  # cfrw_sections re-exported
@@ -127,6 +130,8 @@ _BUILDERS = {
     ResultKind.PUNCTURE: _puncture_part,
     ResultKind.DYNAMIC: _dynamic_part,
     ResultKind.SCALE: _scale_part,
+    ResultKind.EXECUTE: _execute_part,
+    ResultKind.EXECUTE_MULTI: _execute_multi_part,
 }
 
 

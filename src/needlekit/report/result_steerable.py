@@ -10,30 +10,16 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.io.results import ResultFile
-from needlekit.planning.result import PlanStatus
 from needlekit.report.html_page import TableSection
 from needlekit.report.result_parts import ReportPart, _steerable_problem
-from needlekit.report.steerable_report import goals_sections, plan_rows, plan_sections
+from needlekit.report.steerable_report import goals_sections, plan_check, plan_rows, plan_sections
 
 __all__: list[str] = []
 
 
 def _check(problem, result, *, free_direction: bool = False):
-    """The independent check of a result's plan (None without one), as ``needlekit verify``
-    makes it: from the scenario's start (its point; its direction too unless a sweep chose
-    the plan's, ``free_direction``), to the goal the plan was made for. A plan edited to
-    start elsewhere fails. A path that stops short of the goal is checked as such."""
-    from needlekit.planning.steerable.verify import verify_approximate, verify_plan
-
-    if result.plan is None:
-        return None
-    p = problem.with_goal(result.goal_mm)
-    if free_direction:
-        p = p.with_free_start_direction()
-    if result.status is PlanStatus.APPROXIMATE:
-        return verify_approximate(p, result.plan)
-    cost = None if not np.isfinite(result.cost_mm) else result.cost_mm
-    return verify_plan(p, result.plan, expected_cost_mm=cost)
+    """:func:`~needlekit.report.steerable_report.plan_check` (the name the builders use)."""
+    return plan_check(problem, result, free_direction=free_direction)
 
 
 def _own_goal(problem, results) -> str:

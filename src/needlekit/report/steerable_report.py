@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from needlekit.planning.result import PlanStatus
 from needlekit.report.html_page import FigureSection, TableSection, TextSection, write_report_html
 
 __all__ = [
@@ -28,9 +29,11 @@ __all__ = [
     "goals_figure",
     "goals_sections",
     "plan_rows",
+    "plan_check",
     "plan_sections",
     "plans_figure",
     "write_goals_report",
+    "write_plan_report",
 ]
 
 
@@ -54,7 +57,7 @@ def plans_figure(problem, results, names, *, title: str = "", max_cells: int = 9
     -------
     plotly.graph_objects.Figure
     """
-    from needlekit.report.scene3d import scene_figure, zoom_onto
+    from needlekit.report.scene3d import scene_figure
 
     poses = [r.start_pose if r.start_pose is not None else problem.start_pose for r in results]
     starts = np.array([p for p in poses if p is not None], dtype=float).reshape(-1, 4, 4)
@@ -70,8 +73,8 @@ def plans_figure(problem, results, names, *, title: str = "", max_cells: int = 9
         path_names=[n for _, n in drawn],
         max_cells=max_cells,
         title=title,
+        focus_mm=np.vstack([*paths, goals, starts[:, :3, 3].reshape(-1, 3)]),
     )
-    zoom_onto(fig, np.vstack([*paths, goals, starts[:, :3, 3].reshape(-1, 3)]))
     return fig
 
 
@@ -94,6 +97,61 @@ def goals_figure(problem, results, *, title: str = "", max_cells: int = 96):
     """
     names = [f"target {i}: {r.cost_mm:.2f} mm ({r.status.value})" for i, r in enumerate(results, 1)]
     return plans_figure(problem, results, names, title=title, max_cells=max_cells)
+
+
+def plan_check(problem, result, *, free_direction: bool = False):
+    """The independent check of a result's plan (None without one), as ``needlekit verify``
+    makes it: from the problem's start (its point; its direction too unless a sweep chose
+    the plan's, ``free_direction``), to the goal the plan was made for. A plan edited to
+    start elsewhere fails. A path that stops short of the goal is checked as such.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    result : PlanResult
+    free_direction : bool
+
+    Returns
+    -------
+    VerificationReport or None
+    """
+    from needlekit.planning.steerable.verify import verify_approximate, verify_plan
+
+    if result.plan is None:
+        return None
+    p = problem.with_goal(result.goal_mm)
+    if free_direction:
+        p = p.with_free_start_direction()
+    if result.status is PlanStatus.APPROXIMATE:
+        return verify_approximate(p, result.plan)
+    cost = None if not np.isfinite(result.cost_mm) else result.cost_mm
+    return verify_plan(p, result.plan, expected_cost_mm=cost)
+
+
+def write_plan_report(
+    path: str | os.PathLike, problem, result, *, title: str | None = None
+) -> Path:
+    """The page of one plan (``needlekit plan SCENARIO --report plan.html``), as
+    ``needlekit report plan.json`` draws it: the summary, the path in the anatomy, the
+    independent check run on it, the motions.
+
+    Parameters
+    ----------
+    path : path-like
+    problem : SteerableProblem
+        The problem the plan was made for.
+    result : PlanResult
+    title : str, optional
+        Default: "Steerable-needle plan: " and the scene's name.
+
+    Returns
+    -------
+    Path
+    """
+    check = plan_check(problem, result)
+    sections = plan_sections(problem.with_goal(result.goal_mm), result, check)
+    title = title or f"Steerable-needle plan: {problem.scene.name or 'scenario'}"
+    return write_report_html(path, title=title, sections=sections)
 
 
 def plan_rows(plan) -> list[dict]:
@@ -204,6 +262,15 @@ def plan_sections(problem, result, check, *, max_cells: int = 96) -> list:
     fig = plans_figure(problem, [result], [label], max_cells=max_cells)
     return [
         TextSection(text, "Summary"),
+        FigureSection(
+            "Path in the anatomy",
+            fig,
+            "The tip path (magenta) from the start pose (cone) to the goal (diamond), RAS mm, "
+            "framed on the path and looked at from where the fewest of its points are behind "
+            "an obstacle. Surfaces that enclose the workspace (pleura, fissures, skin) are "
+            "see-through, the obstacles the path passes solid; click a legend entry to hide "
+            "or show a structure, drag to turn the view.",
+        ),
         TableSection(
             "Independent check",
             check_rows(check),
@@ -215,11 +282,6 @@ def plan_sections(problem, result, check, *, max_cells: int = 96) -> list:
             plan_rows(result.plan),
             "Each motion: spin the tip about its axis, then insert along an arc of that "
             "curvature (0: straight).",
-        ),
-        FigureSection(
-            "Path in the anatomy",
-            fig,
-            "The tip path from the start pose (cone) to the goal (diamond), RAS mm.",
         ),
     ]
 

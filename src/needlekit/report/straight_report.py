@@ -189,11 +189,20 @@ def scene_figure(
         raise InvalidInputError("plan", f"expected a MultiNeedlePlan, got {type(plan).__name__}")
     head = LIU_HEAD if head is None else (None if head is False else head)
     targets = np.array([r.planned_target_mm for r in plan.needles]).reshape(-1, 3)
+    entries = []  # each needle's entry, and the end of its head outside the skin
+    for r in plan.needles:
+        if r.entry is not None:
+            e, t = np.asarray(r.entry.entry_mm, float), np.asarray(r.entry.target_mm, float)
+            out = (e - t) / max(float(np.linalg.norm(e - t)), 1e-12)
+            reach = 0.0 if head is None else float(shaft_outside_mm) + head.length_mm
+            entries.append(np.array([e, e + reach * out]))
     fig = _anatomy_figure(
         scene,
         targets_mm=targets if len(targets) else None,
         max_cells=max_cells,
         title=title if title is not None else "Planned needles",
+        # framed on the needles and their targets, when there are needles to frame
+        focus_mm=np.vstack([targets, *entries]) if entries else None,
     )
     aimed = np.array([r.target_mm for r in plan.needles]).reshape(-1, 3)
     if len(aimed) and not np.allclose(aimed, targets):

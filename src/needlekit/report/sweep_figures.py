@@ -16,7 +16,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.planning.steerable.sweep import SweepResult
 from needlekit.report._style import _GREEN, _ORANGE, _PALETTE, _PURPLE, _SKY
-from needlekit.report.scene3d import scene_figure, zoom_onto
+from needlekit.report.scene3d import scene_figure
 
 __all__ = [
     "FIG9_OFFSET",
@@ -350,20 +350,9 @@ def best_paths_figure(scene, sweeps: Mapping[str, SweepResult], *, max_cells: in
         path_names=[f"{_label(k)} best ({r.cost_mm:.2f} mm)" for k, r in best.items()],
         max_cells=max_cells,
         title="",
+        # framed on the paths (they are small beside the whole scene), looked at across them
+        focus_mm=np.vstack([*paths, *goals]) if paths else None,
     )
-    pts = np.vstack([*paths, *goals]) if paths else None
-    if pts is not None:  # zoom onto the paths: they are small beside the whole scene
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        half = 0.5 * float(np.max(hi - lo)) + 20.0
-        ranges = {
-            f"{a}axis_range": [c - half, c + half]
-            for a, c in zip("xyz", (lo + hi) / 2, strict=True)
-        }
-        chord = paths[0][-1] - paths[0][0]  # look across the paths, not along them
-        side = np.cross(chord, [0.0, 0.0, 1.0])
-        side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([1.0, 0, 0])
-        eye = dict(zip("xyz", (1.6 * side + [0.0, 0.0, 0.6]).tolist(), strict=True))
-        fig.update_scenes(aspectmode="cube", camera={"eye": eye}, **ranges)
     return fig
 
 
@@ -390,11 +379,13 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
         if r is not None and r.plan is not None and r.status.value == "solved"
     ]  # fmt: skip
     goals = [r.goal_mm for _, r in solved][:1]
+    every = [r.plan.points_mm(0.5) for _, r in solved]
     fig = scene_figure(
         scene,
         targets_mm=np.array(goals) if goals else None,
         max_cells=max_cells,
         title="",
+        focus_mm=np.vstack([*every, *goals]) if every else None,
     )
     if not solved:
         return fig
@@ -403,10 +394,8 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
     t = (costs - lo) / (hi - lo) if hi > lo else np.zeros_like(costs)
     colours = sample_colorscale(_COST_SCALE, t.tolist())
     best = sweep.stats.get("best_index")
-    paths = []
     for (i, r), colour in zip(solved, colours, strict=True):
         p = r.plan.points_mm(0.5)
-        paths.append(p)
         is_best = i == best
         fig.add_trace(
             go.Scatter3d(
@@ -417,5 +406,4 @@ def valid_paths_figure(scene, sweep: SweepResult, *, max_cells: int = 96):
                 hovertemplate=f"direction #{i}<br>cost {r.cost_mm:.3f} mm<extra></extra>",
             )
         )  # fmt: skip
-    zoom_onto(fig, np.vstack(paths))
     return fig

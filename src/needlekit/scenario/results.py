@@ -179,12 +179,60 @@ def _short(text: str, limit: int = 120) -> str:
     return repr(text if len(text) <= limit else text[: limit - 3] + "...")
 
 
-def _locate_scenario(data: dict, path: Path, flag: str) -> Path:
+def _check_execute(data: dict, where: str) -> None:
+    """An ``execute.json``: the plan's motions, the summary the page tabulates and each
+    trial that ran with its two paths."""
+    prims = field_of(data, "plan_primitives", where, "list")
+    if not prims or not all(isinstance(p, list) and len(p) == 3 for p in prims):
+        raise InvalidInputError(
+            f"{where}: plan_primitives", "expected a list of [spin, curvature, length]"
+        )
+    field_of(data, "seed", where, "int")
+    field_of(data, "options", where, "dict")
+    s = field_of(data, "summary", where, "dict")
+    for key in ("trials", "margin_mm", "open_loop", "closed_loop", "crashed", "literature"):
+        if key not in s:
+            raise InvalidInputError(f"{where}: summary.{key}", "missing")
+    for i, t in enumerate(field_of(data, "trials", where, "list")):
+        at = f"{where}: trials[{i}]"
+        field_of(t, "trial", at, "int")
+        if "closed_loop" not in t:
+            continue  # a trial that crashed: the summary lists it
+        for loop in ("open_loop", "closed_loop"):
+            run = field_of(t, loop, at, "dict")
+            field_of(run, "points_mm", f"{at}.{loop}", "list")
+            field_of(run, "final_error_mm", f"{at}.{loop}")
+    field_of(data, "scenario_file", where, "str", optional=True)
+
+
+def _check_execute_multi(data: dict, where: str) -> None:
+    """A multi-needle ``execute.json``: the plan's needles and the summary the page draws."""
+    for i, n in enumerate(field_of(data, "plan_needles", where, "list")):
+        at = f"{where}: plan_needles[{i}]"
+        field_of(n, "order", at, "int")
+        field_of(n, "entry_mm", at, "point")
+        field_of(n, "target_mm", at, "point")
+    s = field_of(data, "summary", where, "dict")
+    for key in ("trials", "crashed", "touched", "constraints"):
+        if key not in s:
+            raise InvalidInputError(f"{where}: summary.{key}", "missing")
+    field_of(data, "trials", where, "list")
+    field_of(data, "scenario_file", where, "str", optional=True)
+
+
+def _locate_scenario(data: dict, path: Path, flag: str, key: str = "scenario") -> Path:
     """The scenario a result names, relative to the result's own folder (as the commands
     write it: :func:`needlekit.io.results.scenario_reference`), never to the working
     folder: the same result file reads the same scenario wherever the report runs."""
-    named = data.get("scenario")
+    named = data.get(key)
     if not isinstance(named, str) or not named or "\0" in named:
+        if key == "scenario_file":
+            raise InvalidInputError(
+                flag,
+                f"{path}: the execution names no scenario file (written before needlekit "
+                f"kept it); give the scenario with {flag} (a steerable one: or draw it with "
+                "its plan.json)",
+            )
         raise InvalidInputError(flag, f"{path}: the result names no scenario; give it with {flag}")
     located = path.parent / named  # an absolute path stays itself
     if located.is_file():
@@ -222,6 +270,10 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
         DynamicRecord.from_dict(data, where)
     elif kind is ResultKind.SCALE:
         _check_scale(data, where)
+    elif kind is ResultKind.EXECUTE:
+        _check_execute(data, where)
+    elif kind is ResultKind.EXECUTE_MULTI:
+        _check_execute_multi(data, where)
     else:
         _check_puncture(data, where)
 
@@ -275,9 +327,13 @@ def _read(p: Path, data: dict, scenario, flag: str) -> ResultFile:
     _check_kind(kind, data, p.name)
     located = None
     if kind.needs_scenario:
-        located = Path(scenario) if scenario is not None else _locate_scenario(data, p, flag)
+        executions = (ResultKind.EXECUTE, ResultKind.EXECUTE_MULTI)
+        key = "scenario_file" if kind in executions else "scenario"
+        located = Path(scenario) if scenario is not None else _locate_scenario(data, p, flag, key)
         doc = read_scenario_document(located)
-        if kind in (ResultKind.CFRW, ResultKind.MULTI) and not doc.get("straight"):
+        if kind in (ResultKind.CFRW, ResultKind.MULTI, ResultKind.EXECUTE_MULTI) and not doc.get(
+            "straight"
+        ):
             msg = f"{located} has no straight block; {p.name} was made from another scenario"
             raise InvalidInputError(flag if scenario is not None else str(p), msg)
         if kind is ResultKind.DYNAMIC:
@@ -330,7 +386,28 @@ def read_results(
     for k, i in enumerate(needing):
         if scenarios:
             chosen[i] = Path(scenarios[k if len(scenarios) > 1 else 0])
+    for i, (p, d) in enumerate(docs):  # an execution that names no scenario file: its plan's
+        if chosen[i] is None and result_kind(d, str(p)) is ResultKind.EXECUTE:
+            if not d.get("scenario_file"):
+                chosen[i] = _plan_scenario(d, docs, flag)
     return [_read(p, d, chosen[i], flag) for i, (p, d) in enumerate(docs)]
+
+
+def _plan_scenario(execution: dict, docs, flag: str) -> Path | None:
+    """The scenario of the plan, among ``docs``, whose motions the execution carried out
+    (None when no plan there has them)."""
+    prims = np.asarray(execution.get("plan_primitives") or [], dtype=float)
+    for p, d in docs:
+        if result_kind(d, str(p)) is not ResultKind.PLAN:
+            continue
+        keys = ("rotation_rad", "curvature_per_mm", "length_mm")
+        try:
+            theirs = np.array([[m[k] for k in keys] for m in d.get("primitives") or []], float)
+        except (KeyError, TypeError, ValueError):
+            continue  # its reader names what is wrong
+        if theirs.shape == prims.shape and np.allclose(theirs, prims, rtol=0.0, atol=1e-9):
+            return _locate_scenario(d, p, flag)
+    return None
 
 
 class ResultScenarios:

@@ -241,6 +241,7 @@ def run_multi_execution(
     progress=None,
     scenario_name: str = "",
     resume: bool = False,
+    scenario_file: str | None = None,
 ) -> MultiExecution:
     """Insert a checked multi-needle plan ``len(trials)`` times and write
     ``out_dir/execute.json`` (atomically; Ctrl-C writes the trials done, marked partial,
@@ -272,6 +273,8 @@ def run_multi_execution(
     resume : bool
         Carry on from the ``execute.partial.json`` an interrupted run with the same
         settings wrote (checked before any trial).
+    scenario_file : str, optional
+        The scenario's path relative to ``out_dir``, kept for ``needlekit report``.
 
     Returns
     -------
@@ -335,6 +338,8 @@ def run_multi_execution(
     planned = (record.get("coverage") or {}).get("planned")
     doc = {**head, "summary": multi_summary(records, cs, options, planned),
            "wall_s": time.perf_counter() - t0, "trials": records}  # fmt: skip
+    if scenario_file is not None:
+        doc["scenario_file"] = scenario_file
     write_json(path, doc)
     return MultiExecution(doc, path)
 

@@ -1,27 +1,25 @@
 """Monte Carlo of a plan carried out: every trial open loop and closed loop on the same
 needle in the same tissue (``needlekit execute``).
 
-Trial ``i`` draws everything from the ``i``-th child of ``SeedSequence(seed)`` (its
-``entropy`` and ``spawn_key`` are written beside it, and ``--replay-trial K`` replays it alone):
-the needle's radius, the tissue's push and the orientation noise, then the sensor's
-noise. The open-loop run commands the plan's primitives; the closed-loop run tracks the
-tip, steers back to the plan and re-plans from the estimated tip
-(:mod:`needlekit.execute.run`, :mod:`needlekit.execute.replan`).
+Trial ``i`` draws everything from the ``i``-th child of ``SeedSequence(seed)`` (its ``entropy``
+and ``spawn_key`` are written beside it, and ``--replay-trial K`` replays it alone): the needle's
+radius, the tissue's push and the orientation noise, then the sensor's noise. The open-loop run
+commands the plan's primitives; the closed-loop run tracks the tip, steers back to the plan and
+re-plans from the estimated tip (:mod:`needlekit.execute.run`, :mod:`needlekit.execute.replan`).
 
 What a run is judged by, on the true tip (never the estimate):
 
 - ``final_error_mm``: its distance from the goal where the insertion stopped;
-- ``min_clearance_mm``: the certified clearance of the executed path against the
-  scenario's anatomy and collision model *without* the noise margin: the needle's
-  surface to the obstacles, less half the gap between the recorded points and the model's
-  stated error bound (:meth:`~needlekit.anatomy.collision.FieldChecker.certify`);
+- ``min_clearance_mm``: the certified clearance of the executed path against the scenario's
+  anatomy and collision model *without* the noise margin: the needle's surface to the obstacles,
+  less half the gap between the recorded points and the model's stated error bound
+  (:meth:`~needlekit.anatomy.collision.FieldChecker.certify`);
 - ``violated``: the model's verdict on that path (an obstacle crossed, or a point that
   could not be checked); never hidden, and counted in the summary.
 
 The plans and re-plans keep the scenario's ``needle.safety_margin_mm`` (the noise margin:
-:func:`needlekit.execute.replan.noise_margin_mm`), written as ``margin_mm``.
-
-A trial that raises is recorded with its seed and the error, and the others go on.
+:func:`needlekit.execute.replan.noise_margin_mm`), written as ``margin_mm``. A trial that
+raises is recorded with its seed and the error, and the others go on.
 """
 
 from __future__ import annotations
@@ -478,6 +476,7 @@ def run_execute_study(
     resume: list[dict] | None = None,
     scenario_name: str = "",
     hooks=None,
+    scenario_file: str | None = None,
 ) -> ExecuteStudy:
     """Run the trials and write ``out_dir/execute.json`` (atomically).
 
@@ -498,7 +497,8 @@ def run_execute_study(
         Called with each finished trial.
     resume : list of dict, optional
         Trials an interrupted run finished (:func:`read_partial_execute`).
-    scenario_name : str
+    scenario_name, scenario_file : str
+        The scenario's name, and its path relative to ``out_dir`` (for ``needlekit report``).
     hooks : LoopHooks, optional
         Attached to every closed-loop run (a live link): trials then run in this process.
 
@@ -527,7 +527,7 @@ def run_execute_study(
         progress=progress,
     )  # fmt: skip
     doc = {**head, "summary": study_summary(records, margin), "wall_s": time.perf_counter() - t0}
-    doc["trials"] = records
+    doc |= ({} if scenario_file is None else {"scenario_file": scenario_file}) | {"trials": records}
     write_json(path, doc)
     return ExecuteStudy(doc, path)
 
