@@ -766,7 +766,7 @@ ROWS = [
     ),
     (
         ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.mrb"],
-        "error: {d}/goal_only.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale)",
+        "error: {d}/goal_only.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
     ),
     (
         ["slicer", "{TOY}", "{d}/deep.json", "--out", "{d}/x.mrb"],

@@ -206,7 +206,9 @@ def test_slicer_reads_back_every_model_point_in_ras(toy, tmp_path, where):
     # the colours and opacities of the roles (report's 3D views)
     display = sc.nodes["vessel"].GetDisplayNode()
     assert display.GetColor() == pytest.approx((0xD1 / 255, 0x49 / 255, 0x5B / 255), abs=1e-6)
-    assert display.GetOpacity() == pytest.approx(0.75)
+    assert display.GetOpacity() == pytest.approx(1.0)  # an obstacle: solid
+    lung = sc.nodes["lung"].GetDisplayNode()  # the allowed region: see-through
+    assert lung.GetOpacity() == pytest.approx(0.08)
 
 
 @pytest.mark.parametrize("where", ["toy.mrb", "toy/case.mrml"])

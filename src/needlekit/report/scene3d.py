@@ -47,6 +47,7 @@ __all__ = [
     "focus_box",
     "scene_figure",
     "view_direction",
+    "structure_style",
     "write_scene_html",
     "write_scenes_html",
     "zoom_onto",
@@ -90,6 +91,26 @@ ACROSS_WEIGHT: float = 0.25
 VIEW_HEIGHT_PX: int = 760
 #: Distance of the camera from the cube's centre, in plotly's units (the cube spans 1).
 _EYE = 1.7
+
+
+def structure_style(structure) -> tuple[str, float]:
+    """The colour and opacity a structure's surface is drawn with, in every 3D view and in
+    the Slicer scene: its role's, and :data:`SEE_THROUGH` for an obstacle that encloses
+    the workspace (:func:`encloses`).
+
+    Parameters
+    ----------
+    structure : Structure
+
+    Returns
+    -------
+    tuple of (str, float)
+        A CSS colour (``#rrggbb``; the role's, not the structure's own) and an opacity.
+    """
+    colour, opacity = _ROLE_STYLE[structure.role]
+    if structure.role is Role.OBSTACLE and encloses(structure):
+        opacity = SEE_THROUGH
+    return colour, opacity
 
 
 def encloses(structure) -> bool:
@@ -335,12 +356,10 @@ def scene_figure(
     crop = None if focus_mm is None else focus_box(focus_mm, focus_margin_mm)
     meshes = []
     for s in scene.structures:
-        colour, opacity = _ROLE_STYLE[s.role]
+        colour, opacity = structure_style(s)
         if not see_through:
             opacity = {Role.ALLOWED_REGION: 0.12, Role.OBSTACLE: 0.75, Role.TARGET: 0.95, Role.ENTRY_SURFACE: 0.35,
                        Role.CONTEXT: 0.25}.get(s.role, opacity)  # fmt: skip
-        elif encloses(s) and s.role is Role.OBSTACLE:
-            opacity = SEE_THROUGH
         verts, faces = surface_mesh(
             s.field,
             max_cells=max_cells,

@@ -30,7 +30,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io.markups import markups_curve, markups_line
 from needlekit.io.slicer_scene import SlicerMarkup, SlicerModel, fiducials_markup
 from needlekit.planning.steerable.plan import plan_from_dict
-from needlekit.report.scene3d import _ROLE_STYLE
+from needlekit.report.scene3d import structure_style
 
 __all__ = [
     "DEFAULT_TRIALS",
@@ -93,7 +93,7 @@ def structure_models(scene, *, max_cells: int = 256) -> list[SlicerModel]:
         normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         if float(np.einsum("ij,ij->", field.gradient(centres), normals)) < 0.0:
             f = f[:, ::-1]
-        css, opacity = _ROLE_STYLE[s.role]
+        css, opacity = structure_style(s)
         models.append(SlicerModel(s.name, v, f, color=_rgb(s.color or css), opacity=opacity))
     return models
 
