@@ -13,6 +13,8 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile
+from needlekit.planning.straight.approach import ApproachAnalysis, approach_meshes
+from needlekit.report.approach_report import approach_sections, approach_title
 from needlekit.report.result_parts import ReportPart
 
 __all__: list[str] = []
@@ -33,9 +35,6 @@ def _another(rf: ResultFile, what: str) -> InvalidInputError:
 
 
 def _approach_part(rf: ResultFile, load) -> ReportPart:
-    from needlekit.planning.straight.approach import ApproachAnalysis, approach_meshes
-    from needlekit.report.approach_report import approach_sections, approach_title
-
     d = rf.data
     a = ApproachAnalysis.from_dict(d, rf.path.name)
     sc = load(rf.scenario)

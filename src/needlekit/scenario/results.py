@@ -23,8 +23,9 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import read_json_object
-from needlekit.io.results import ResultFile, ResultKind, result_kind
+from needlekit.io.results import FENG_GOAL_FILES, ResultFile, ResultKind, result_kind
 from needlekit.io.scenario_schema import read_scenario_document
+from needlekit.planning.straight.approach import ApproachAnalysis
 from needlekit.records import field_of, trial_solved
 from needlekit.scenario.dynamic import DYNAMIC_SETTINGS, dynamic_settings, moving_case
 from needlekit.scenario.problems import problem_from_scenario
@@ -248,7 +249,6 @@ def _check_feng_lungs(data: dict, where: str) -> None:
 def _feng_lungs_files(data: dict, p: Path) -> None:
     """The scenario and sweep of each target the study wrote beside its record, read and
     checked (cheap: no anatomy is read); a sweep must keep every solved plan."""
-    from needlekit.io.results import FENG_GOAL_FILES
     from needlekit.planning.steerable.sweep_result import solved_plans_from_dict, sweeps_from_dict
 
     for g in data["goals"]:
@@ -327,8 +327,6 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
     elif kind is ResultKind.EXECUTE_MULTI:
         _check_execute_multi(data, where)
     elif kind is ResultKind.APPROACH:
-        from needlekit.planning.straight.approach import ApproachAnalysis
-
         ApproachAnalysis.from_dict(data, where)
         field_of(data, "max_cells", where, "int", optional=True)
     elif kind is ResultKind.FENG_LUNGS:
