@@ -5,6 +5,7 @@ directions, 300 iterations per direction: the same on every machine) against its
 files, the independent check, the direct connection and the anatomy's masks.
 """
 
+import html
 import json
 import re
 import shutil
@@ -313,9 +314,10 @@ def test_report_draws_the_study_record_as_the_study_drew_it(quick, tmp_path, cap
     with another kind; a record away from its folder, or from before the sweeps kept
     their plans, is named in one line."""
     out, record, sweeps = quick
-    for g, rec in record["goals"].items():  # every solved path kept, per planner
+    for g, rec in record["goals"].items():  # every plan kept, per planner, the solved ones
         for name, t in rec["table4"].items():
-            assert len(sweeps[g]["solved_plans"][name]) == t["n_solved"]
+            kept = sweeps[g]["solved_plans"][name].values()
+            assert sum(p["status"] == "solved" for p in kept) == t["n_solved"]
     study = out / "feng_lungs.json"
     page = tmp_path / "page.html"
     capsys.readouterr()
@@ -338,9 +340,14 @@ def test_report_draws_the_study_record_as_the_study_drew_it(quick, tmp_path, cap
     assert main(["report", str(study), str(out / "goal1" / "plan.json"), "--out", str(both)]) == 0
     said = capsys.readouterr().out.splitlines()
     assert said[-1] == f"drew feng_lungs.json (Feng lung study), plan.json (plan) -> {both}"
-    nav = re.findall(r"<li><a href='#part-(\d)'>([^<]*)</a></li>", both.read_text("utf-8"))
-    assert [n for n, _ in nav] == ["1", "2"]
+    nav = re.findall(
+        r"<li><a href='#part-(\d)'>([^<]*)</a></li>", html.unescape(both.read_text("utf-8"))
+    )
+    # the study's part, its own parts per target, then the plan's
+    assert [n for n, _ in nav] == ["1", "2", "3", "4"]
     assert nav[0][1] == "Feng et al.'s protocol on a Med-RAD lung (patient 5, start 1)"
+    assert nav[1][1].startswith("Goal 1: (") and nav[2][1].startswith("Goal 2: (")
+    assert nav[3][1] == "Steerable-needle plan: Med-RAD lung 5, start 1, Feng's goal 1"
     # the record alone, away from its folder
     alone = tmp_path / "alone" / "feng_lungs.json"
     alone.parent.mkdir()

@@ -521,7 +521,13 @@ def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settin
     if best is not None:
         check = record["goals"][g]["checks"][FENG_PLANNERS[0]]["best"]
         files[f"{g}/plan.json"] = write_plan_json(
-            out / g / "plan.json", best, scenario="scenario.yaml", check=check
+            out / g / "plan.json",
+            best,
+            scenario="scenario.yaml",
+            # the sweep chose the direction: `verify --any-start-direction` and `report`
+            # check it so, as for the plan.json of `sweep --plan`
+            start_direction="swept",
+            check=check,
         )
     return files
 
