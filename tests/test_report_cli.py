@@ -316,8 +316,11 @@ def test_a_failed_check_is_shown_and_exits_1(made, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("content", "expected"),
     [
-        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)"),
-        ('{"paa": {}, "needlekit": {}, "blocked": {}}', "is an approach analysis"),
+        ('{"an": "object"}', "not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi, approach, feng-lungs)"),
+        ('{"study": "medrad_livers", "settings": {}, "summary": {}, "rows": []}',
+         "is a study of the Med-RAD livers (`needlekit study livers`), which has no page"),
+        ('{"patients": [1], "cases": [], "holds": true, "targets": {}}',
+         "is a study of executions on Med-RAD lungs (`needlekit study execute-lungs`), which has no page"),
         ("{not json", "not a JSON result file"),
         ("[1, 2]", "expected a JSON object at the top level"),
     ],
@@ -740,15 +743,123 @@ def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path,
     )
 
 
-def test_every_kind_is_drawn_in_one_call_and_named(made, dynamic, executed, tmp_path, capsys):
+def test_every_kind_is_drawn_in_one_call_and_named(
+    made, dynamic, executed, approached, tmp_path, capsys
+):
     files = [made / "plan.json", made / "goals.json", made / "sweep.json", made / "cfrw.json",
-             made / "multi.json", dynamic / "dynamic.json", executed]  # fmt: skip
+             made / "multi.json", dynamic / "dynamic.json", executed,
+             approached[0] / "out" / "approach.json"]  # fmt: skip
     out = tmp_path / "all.html"
     assert main(["report", *map(str, files), "--out", str(out)]) in (0, 1)
     said = capsys.readouterr().out.splitlines()
     kinds = ["plan", "plans to several targets", "sweep", "CFRW map", "multi-needle plan",
-             "moving-obstacle run", "execution"]  # fmt: skip
+             "moving-obstacle run", "execution", "approach analysis"]  # fmt: skip
     drew = ", ".join(f"{f.name} ({k})" for f, k in zip(files, kinds, strict=True))
     assert said[-1] == f"drew {drew} -> {out}"
     page = _page(out)
     assert len(re.findall(r"<section id='part-\d'>", page)) == len(files)
+
+
+# ---------------------------------------------------------------------------------------
+# an approach analysis (``needlekit approach``)
+
+#: The skin is an icosphere (radius 60 mm, 1280 triangles) around the target at the
+#: origin, the obstacle a 30 x 30 x 2 mm plate above it (tests/test_browser.py's case).
+PLATE_LO, PLATE_HI = np.array([-10.0, -15.0, 24.0]), np.array([20.0, 15.0, 26.0])
+UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}")
+
+
+@pytest.fixture(scope="module")
+def approached(tmp_path_factory):
+    """``needlekit approach`` on the plate case: approach.json and the page it drew."""
+    import trimesh
+
+    d = tmp_path_factory.mktemp("approach")
+    skin = trimesh.creation.icosphere(subdivisions=3, radius=60.0)
+    plate = trimesh.creation.box(PLATE_HI - PLATE_LO)
+    plate.apply_translation((PLATE_LO + PLATE_HI) / 2)
+    skin.export(d / "skin.stl")
+    plate.export(d / "plate.stl")
+    (d / "plate.yaml").write_text(
+        "version: 1\nstructures:\n"
+        "  - {name: skin, role: entry_surface, mesh: {path: skin.stl}}\n"
+        "  - {name: plate, role: obstacle, mesh: {path: plate.stl}}\n"
+        "needle: {diameter_mm: 2.0, max_length_mm: 100}\n"
+        "straight: {entry_surface: skin, targets: [[0, 0, 0]], gamma_mm: 1.5}\n"
+    )
+    _run(["approach", d / "plate.yaml", "--out", d / "out" / "approach.json", "--report",
+          d / "command.html"])  # fmt: skip
+    return d, skin
+
+
+def _paa_score_by_slabs(skin) -> float:
+    """PAA's score by another route: each line from a triangle's centre to the target
+    clipped against the plate's slabs (no triangle test), area-weighted."""
+    c = np.asarray(skin.triangles_center)
+    d = -c  # to the target at the origin
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (PLATE_LO - c) / d, (PLATE_HI - c) / d
+    lo = np.nanmax(np.minimum(t0, t1), axis=1).clip(0.0)
+    hi = np.nanmin(np.maximum(t0, t1), axis=1).clip(None, 1.0)
+    hit = lo <= hi
+    return float(skin.area_faces[~hit].sum() / skin.area_faces.sum())
+
+
+def test_an_approach_analysis_is_drawn_as_its_command_draws_it(approached, tmp_path, capsys):
+    d, skin = approached
+    record = d / "out" / "approach.json"
+    doc = json.loads(record.read_text())
+    assert doc["scenario"] == os.path.join("..", "plate.yaml") and doc["max_cells"] == 200
+    capsys.readouterr()
+    out = tmp_path / "page.html"
+    assert main(["report", str(record), "--out", str(out)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew approach.json (approach analysis) -> {out}"
+    assert said[0].startswith(f"{record}: approach: 1280 skin triangles: score ")
+    page, command = _page(out), _page(d / "command.html")
+    # the same page as the command's, figure data and all (the plot's div id apart)
+    assert UUID.sub("ID", page) == UUID.sub("ID", command)
+    rows = _rows(page, "Scores")
+    assert [r[1] for r in rows[1:]] == [
+        f"{doc['paa']['score']:.4f}",
+        f"{doc['needlekit']['score']:.4f}",
+    ]
+    assert rows[1][1] == f"{_paa_score_by_slabs(skin):.4f}" == "0.9112"
+    # with another kind: a part each
+    two = tmp_path / "two.html"
+    plan = d / "plan.json"
+    _run(["plan", TOY, "--max-iterations", "200", "--out", plan])
+    capsys.readouterr()
+    assert main(["report", str(plan), str(record), "--out", str(two)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew plan.json (plan), approach.json (approach analysis) -> {two}"
+    both = _page(two)
+    assert _rows(both, "Scores") == rows
+    nav = re.findall(r"<li><a href='#part-(\d)'>([^<]*)</a></li>", both)
+    assert nav == [("1", "Steerable-needle plan: toy lung"), ("2", "Approach analysis: plate.yaml")]
+
+
+def test_an_approach_record_that_cannot_be_drawn_is_named(approached, tmp_path, capsys):
+    d, _ = approached
+    doc = json.loads((d / "out" / "approach.json").read_text())
+    moved = tmp_path / "approach.json"  # its scenario is not beside it: given with --scenario
+    moved.write_text(json.dumps(doc))
+    err = _one_error_line(capsys, ["report", moved, "--out", tmp_path / "x.html"])
+    assert err.startswith("error: --scenario: ") and "which is not there" in err
+    assert main(["report", str(moved), "--scenario", str(d / "plate.yaml"), "--out",
+                 str(tmp_path / "x.html")]) == 0  # fmt: skip
+    summary = tmp_path / "summary.json"  # written with --summary-only
+    summary.write_text(json.dumps({k: v for k, v in doc.items() if k != "per_face"}))
+    err = _one_error_line(capsys, ["report", summary, "--scenario", d / "plate.yaml", "--out",
+                                   tmp_path / "y.html"])  # fmt: skip
+    assert err == (
+        "error: summary.json: per_face: missing: the record keeps no per-triangle arrays "
+        "(written with --summary-only); run `needlekit approach` again without it"
+    )
+    other = dict(doc, target_mm=[0.0, 0.0, 5.0])  # not the scenario's target
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    capsys.readouterr()
+    code = main(["report", str(tmp_path / "other.json"), "--scenario", str(d / "plate.yaml"),
+                 "--out", str(tmp_path / "z.html")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "its target is not one of the targets of" in err

@@ -766,7 +766,7 @@ ROWS = [
     ),
     (
         ["slicer", "{TOY}", "{d}/goal_only.json", "--out", "{d}/x.mrb"],
-        "error: {d}/goal_only.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
+        "error: {d}/goal_only.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi, approach, feng-lungs)",
     ),
     (
         ["slicer", "{TOY}", "{d}/deep.json", "--out", "{d}/x.mrb"],
@@ -899,11 +899,11 @@ ROWS = [
     ),
     (
         ["report", "{d}/unknown_kind.json", "--out", "{d}/r.html"],
-        "error: {d}/unknown_kind.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
+        "error: {d}/unknown_kind.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi, approach, feng-lungs)",
     ),
     (
         ["report", "{d}/moved_plan.json", "--out", "{d}/r.html"],
-        "error: {d}/moved_plan.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi)",
+        "error: {d}/moved_plan.json: not a result of a known kind (plan, goals, sweep, cfrw, multi, puncture, dynamic, scale, execute, execute-multi, approach, feng-lungs)",
     ),
     # -- reproduce
     (

@@ -11,7 +11,11 @@ import trimesh
 from needlekit.anatomy.mesh import ExactMeshDistance
 from needlekit.cli import main
 from needlekit.errors import InvalidInputError
-from needlekit.planning.straight.approach import approach_analysis, approach_scores
+from needlekit.planning.straight.approach import (
+    ApproachAnalysis,
+    approach_analysis,
+    approach_scores,
+)
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -94,6 +98,34 @@ def test_needle_thickness_and_gamma_only_take_triangles_away():
         exact = field.signed_distance(pts).min() - 1.0
         assert thick.clearance_mm[i] <= exact + 1e-9
         assert thick.clearance_mm[i] >= 3.0
+
+
+def test_the_record_reads_back_to_the_analysis_it_was_written_from():
+    """approach.json -> ApproachAnalysis.from_dict -> to_dict gives the record's
+    per-triangle answers again (rounded as the record keeps them) and its chosen line; a record
+    without them (--summary-only) or with a column of another length is named."""
+    skin, obstacles = _scene()
+    field = ExactMeshDistance(trimesh.util.concatenate(obstacles))
+    a = approach_analysis([0.0, 0.0, 0.0], skin, obstacles, field=field, needle_radius_mm=1.0,
+                          gamma_mm=3.0, max_normal_angle_deg=60.0)  # fmt: skip
+    rec = json.loads(json.dumps(a.to_dict(), allow_nan=False))
+    back = ApproachAnalysis.from_dict(rec, "approach.json")
+    again = json.loads(json.dumps(back.to_dict(), allow_nan=False))
+    for key in ("target_mm", "faces", "settings", "per_face"):
+        assert again[key] == rec[key], key
+    assert again["needlekit"]["shortest"] == rec["needlekit"]["shortest"]
+    # the sums over the rounded areas: to their rounding
+    assert again["skin_area_mm2"] == pytest.approx(rec["skin_area_mm2"], abs=1280 * 5e-7)
+    assert np.array_equal(back.hit, a.hit) and np.array_equal(back.accessible, a.accessible)
+    assert np.array_equal(back.leaves_body, a.leaves_body)
+    assert back.score == pytest.approx(a.score, abs=1e-6) and back.shortest() == a.shortest()
+    assert np.isnan(back.clearance_mm[a.hit]).all()  # no clearance where the line is blocked
+    assert back.settings["max_length_mm"] == np.inf
+    with pytest.raises(InvalidInputError, match="per_face: missing: the record keeps no"):
+        ApproachAnalysis.from_dict(a.to_dict(per_face=False), "approach.json")
+    rec["per_face"]["accessible"] = rec["per_face"]["accessible"][:-1]
+    with pytest.raises(InvalidInputError, match=r"per_face.accessible: expected 1280 numbers"):
+        ApproachAnalysis.from_dict(rec, "approach.json")
 
 
 def test_lines_that_leave_the_body_are_refused_by_needlekit_only():

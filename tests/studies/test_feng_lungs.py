@@ -5,7 +5,10 @@ directions, 300 iterations per direction: the same on every machine) against its
 files, the independent check, the direct connection and the anatomy's masks.
 """
 
+import html
 import json
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -298,3 +301,84 @@ def test_an_interrupted_study_keeps_its_sweeps_and_resume_gives_the_whole_tables
         assert [(r["status"], r["cost_mm"]) for r in a["directions"]] == [
             (r["status"], r["cost_mm"]) for r in b["directions"]
         ]
+
+
+UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}")
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_report_draws_the_study_record_as_the_study_drew_it(quick, tmp_path, capsys):
+    """``needlekit report feng_lungs.json``: the study's own page again, from the record
+    and the scenarios and sweeps beside it (each sweep keeps every solved plan), alone and
+    with another kind; a record away from its folder, or from before the sweeps kept
+    their plans, is named in one line."""
+    out, record, sweeps = quick
+    for g, rec in record["goals"].items():  # every plan kept, per planner, the solved ones
+        for name, t in rec["table4"].items():
+            kept = sweeps[g]["solved_plans"][name].values()
+            assert sum(p["status"] == "solved" for p in kept) == t["n_solved"]
+    study = out / "feng_lungs.json"
+    page = tmp_path / "page.html"
+    capsys.readouterr()
+    assert main(["report", str(study), "--out", str(page)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    solved = sum(c["solved"] for rec in record["goals"].values() for c in rec["checks"].values())
+    passed = sum(c["passed"] for rec in record["goals"].values() for c in rec["checks"].values())
+    assert passed == solved > 0
+    assert said == [
+        f"{study}: feng-lungs: 2 targets, 136 directions, rcs_star, rcs, rrt: {solved} of "
+        f"{solved} solved plans pass the independent check run again (the study's: {solved})",
+        f"drew feng_lungs.json (Feng lung study) -> {page}",
+    ]
+    drawn = page.read_text(encoding="utf-8")
+    # the same page as the study's, tables and figure data (the plots' div ids apart)
+    assert UUID.sub("ID", drawn) == UUID.sub("ID", (out / "report.html").read_text("utf-8"))
+    assert f"wall time {record['page_wall_s']:.0f} s." in drawn
+    # with another kind: the best RCS* plan to goal 1, its scenario loaded once for both
+    both = tmp_path / "both.html"
+    assert main(["report", str(study), str(out / "goal1" / "plan.json"), "--out", str(both)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert said[-1] == f"drew feng_lungs.json (Feng lung study), plan.json (plan) -> {both}"
+    nav = re.findall(
+        r"<li><a href='#part-(\d)'>([^<]*)</a></li>", html.unescape(both.read_text("utf-8"))
+    )
+    # the study's part, its own parts per target, then the plan's
+    assert [n for n, _ in nav] == ["1", "2", "3", "4"]
+    assert nav[0][1] == "Feng et al.'s protocol on a Med-RAD lung (patient 5, start 1)"
+    assert nav[1][1].startswith("Goal 1: (") and nav[2][1].startswith("Goal 2: (")
+    assert nav[3][1] == "Steerable-needle plan: Med-RAD lung 5, start 1, Feng's goal 1"
+    # the record alone, away from its folder
+    alone = tmp_path / "alone" / "feng_lungs.json"
+    alone.parent.mkdir()
+    shutil.copy(study, alone)
+    err = _one_error_line(capsys, ["report", alone, "--out", tmp_path / "x.html"])
+    assert err == (
+        f"error: {alone}: the study's goal1/scenario.yaml is not beside it "
+        f"({str(alone.parent / 'goal1' / 'scenario.yaml')!r}): `needlekit report` draws the "
+        "record in the folder the study wrote"
+    )
+    # a study from before its sweeps kept every solved plan
+    old = tmp_path / "old"
+    for f in ("feng_lungs.json", "goal1/scenario.yaml", "goal1/sweep.json",
+              "goal2/scenario.yaml", "goal2/sweep.json"):  # fmt: skip
+        (old / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(out / f, old / f)
+    (old / "goal2" / "sweep.json").write_text(
+        json.dumps({k: v for k, v in sweeps["goal2"].items() if k != "solved_plans"})
+    )
+    err = _one_error_line(capsys, ["report", old / "feng_lungs.json", "--out", tmp_path / "y.html"])
+    assert err == (
+        "error: goal2/sweep.json: solved_plans: missing: the study was run before it kept "
+        "every solved path, which its page draws (Fig. 7); run `needlekit study feng-lungs` "
+        "again"
+    )
+
+
+def _one_error_line(capsys, argv) -> str:
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and not captured.out, captured
+    return lines[0]

@@ -98,13 +98,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     rp = sub.add_parser(
         "report",
         help="draw result files (plan, sweep, cfrw, multi, puncture, dynamic, execute, "
-        "bench scale) on one page",
+        "bench scale, approach, study feng-lungs) on one page",
         description="Read result files written by plan, plan --goals, plan --dynamic, sweep, "
-        "cfrw, multi, puncture, execute (its execute.json) and bench scale, alone or several "
-        "together, load the scenarios they name, check their plans again and write one HTML "
-        "page (opens offline) with a part per result: 3D scenes, tables, figures. Says on "
-        "stdout which kinds it drew. Exit 1 when an independent check fails (the page is "
-        "written).",
+        "cfrw, multi, puncture, execute (its execute.json), bench scale, approach and study "
+        "feng-lungs (its feng_lungs.json, in its folder), alone or several together, load the "
+        "scenarios they name, check their plans again and write one HTML page (opens "
+        "offline) with a part per result, as each command draws its own: 3D scenes, tables, "
+        "figures. Says on stdout which kinds it drew. Exit 1 when an independent check fails "
+        "(the page is written).",
     )
     rp.add_argument("results", type=Path, nargs="+", metavar="RESULT", help="result files (JSON)")
     _flags.OUT.add(rp, required=True, help="HTML page to write")

@@ -234,29 +234,21 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     doc = _document(args)
     import numpy as np
 
-    from needlekit.anatomy.scene import Role
     from needlekit.io.files import staged_outputs, write_json
     from needlekit.planning.straight.approach import (
+        ApproachAnalysis,
         approach_analysis,
-        reach_box,
-        structure_mesh,
+        approach_meshes,
     )
 
-    _, multi, _ = _multi_problem(args, doc)
+    sc, multi, _ = _multi_problem(args, doc)
     k = len(multi.targets_mm)
     if not 1 <= args.target <= k:
         raise InvalidInputError("--target", f"expected 1 to {k}, got {args.target}")
     problem = multi.problem
     target = np.asarray(multi.targets_mm[args.target - 1], dtype=float)
     t0 = time.perf_counter()
-    box = reach_box(target, problem.needle.max_length_mm)  # for unbounded surfaces
-    skin = structure_mesh(
-        problem.scene[problem.entry_surface], max_cells=args.max_cells, bounds=box
-    )
-    obstacles = {
-        s.name: structure_mesh(s, max_cells=args.max_cells, bounds=box)
-        for s in problem.scene.by_role(Role.OBSTACLE)
-    }
+    skin, obstacles = approach_meshes(problem, target, max_cells=args.max_cells)
     mesh_s = time.perf_counter() - t0
     t1 = time.perf_counter()
     a = approach_analysis(
@@ -272,16 +264,22 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     analysis_s = time.perf_counter() - t1
     record = a.to_dict(per_face=not args.summary_only)
     record["scenario"] = scenario_reference(args.scenario, args.out)
+    # what `needlekit report approach.json` meshes the scenario again with
+    record["target"] = args.target
+    record["max_cells"] = args.max_cells
     record["skin"] = {"structure": problem.entry_surface, "faces": int(len(skin.faces))}
     record["obstacles"] = {name: int(len(m.faces)) for name, m in obstacles.items()}
     record["timings_s"] = {"meshes": mesh_s, "analysis": analysis_s}
     with staged_outputs():
         write_json(args.out, record)
         if args.report is not None:
-            from needlekit.report.approach_report import write_approach_report
+            from needlekit.report.approach_report import approach_title, write_approach_report
 
+            # drawn from the record as written (`needlekit report approach.json` draws the
+            # same page from it), or, without its per-triangle arrays, from the analysis
+            shown = a if args.summary_only else ApproachAnalysis.from_dict(record, str(args.out))
             write_approach_report(
-                args.report, a, skin, obstacles, title=f"Approach analysis: {args.scenario}"
+                args.report, shown, skin, obstacles, title=approach_title(sc, args.scenario)
             )
     for label, key in (("PAA (line, no thickness)", "paa"), ("needlekit", "needlekit")):
         s = record[key]

@@ -2,7 +2,8 @@
 
 The commands write their results as JSON (``plan.json``, ``sweep.json``, ``cfrw.json``,
 ``multi.json``, ``puncture.json``, the ``dynamic.json`` of ``plan --dynamic``, the
-``execute.json`` of ``execute``, the ``scale.json`` of ``bench scale``);
+``execute.json`` of ``execute``, the ``scale.json`` of ``bench scale``, the
+``approach.json`` of ``approach``, the ``feng_lungs.json`` of ``study feng-lungs``);
 ``needlekit report`` draws any of them again. Here, file handling only:
 :func:`result_kind`, the kind of a result document from the fields that only that kind
 has (:data:`KIND_FIELDS`), and :class:`ResultFile`, a file read and checked. Reading one
@@ -24,7 +25,14 @@ from pathlib import Path
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["KIND_FIELDS", "ResultFile", "ResultKind", "result_kind", "scenario_reference"]
+__all__ = [
+    "FENG_GOAL_FILES",
+    "KIND_FIELDS",
+    "ResultFile",
+    "ResultKind",
+    "result_kind",
+    "scenario_reference",
+]
 
 
 def scenario_reference(scenario: str | os.PathLike, result_path: str | os.PathLike) -> str:
@@ -60,6 +68,8 @@ class ResultKind(enum.Enum):
     SCALE = "scale"  # needlekit bench scale
     EXECUTE = "execute"  # needlekit execute
     EXECUTE_MULTI = "execute-multi"  # needlekit execute SCENARIO multi.json
+    APPROACH = "approach"  # needlekit approach
+    FENG_LUNGS = "feng-lungs"  # needlekit study feng-lungs (its feng_lungs.json)
 
     @property
     def label(self) -> str:
@@ -73,8 +83,9 @@ class ResultKind(enum.Enum):
 
     @property
     def needs_scenario(self) -> bool:
-        """Whether drawing it needs the scenario it was made from."""
-        return self not in (ResultKind.PUNCTURE, ResultKind.SCALE)
+        """Whether drawing it needs the scenario it was made from (the Feng study reads
+        the scenarios it wrote in its own folder)."""
+        return self not in (ResultKind.PUNCTURE, ResultKind.SCALE, ResultKind.FENG_LUNGS)
 
 
 _LABELS = {
@@ -88,6 +99,8 @@ _LABELS = {
     ResultKind.SCALE: "scaling curves (needlekit bench scale)",
     ResultKind.EXECUTE: "plan execution, open beside closed loop (needlekit execute)",
     ResultKind.EXECUTE_MULTI: "straight plan inserted by the robot (needlekit execute multi.json)",
+    ResultKind.APPROACH: "approach analysis of a skin mesh (needlekit approach)",
+    ResultKind.FENG_LUNGS: "Feng et al.'s protocol on a Med-RAD lung (needlekit study feng-lungs)",
 }
 
 _WORDS = {
@@ -101,6 +114,8 @@ _WORDS = {
     ResultKind.SCALE: "scaling curves",
     ResultKind.EXECUTE: "execution",
     ResultKind.EXECUTE_MULTI: "multi-needle execution",
+    ResultKind.APPROACH: "approach analysis",
+    ResultKind.FENG_LUNGS: "Feng lung study",
 }
 
 #: The top-level fields that mark each kind, tried in this order (a sweep's best plans and
@@ -116,13 +131,27 @@ KIND_FIELDS: dict[ResultKind, tuple[str, ...]] = {
     ResultKind.EXECUTE_MULTI: ("plan_needles", "registration", "trials", "summary"),
     ResultKind.PLAN: ("status", "primitives", "start_pose", "goal_mm"),
     ResultKind.SCALE: ("benchmark", "planning", "sweep", "study", "machine"),
+    ResultKind.APPROACH: ("paa", "needlekit", "blocked", "target_mm"),
+    ResultKind.FENG_LUNGS: ("study", "case", "feng", "goals", "settings"),
 }
 
-#: Other needlekit records, named in the error when one is given.
+#: What ``needlekit study feng-lungs`` writes per target beside its ``feng_lungs.json``
+#: (in ``goal1/``, ``goal2/``), which drawing the record reads: the scenario, the sweep.
+FENG_GOAL_FILES: tuple[str, str] = ("scenario.yaml", "sweep.json")
+
+#: Other needlekit records, named in the error when one is given: no command draws a
+#: page of them, so neither does ``needlekit report``.
 _OTHER_RECORDS = (
-    (("paa", "needlekit", "blocked"), "an approach analysis (`needlekit approach --report`)"),
-    (("livers", "cases"), "a study record (`needlekit study`)"),
-    (("machine", "versions"), "a benchmark record (`needlekit bench`)"),
+    (
+        ("study", "settings", "summary", "rows"),
+        "a study of the Med-RAD livers (`needlekit study livers`), which has no page",
+    ),
+    (
+        ("patients", "cases", "holds", "targets"),
+        "a study of executions on Med-RAD lungs (`needlekit study execute-lungs`), which has no "
+        "page (each lung's plan.json and execute.json have one)",
+    ),
+    (("machine", "versions"), "a benchmark record (`needlekit bench`), which has no page"),
 )
 
 

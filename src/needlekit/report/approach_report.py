@@ -16,7 +16,7 @@ import numpy as np
 
 from needlekit.report.html_page import FigureSection, TableSection, write_report_html
 
-__all__ = ["approach_figure", "write_approach_report"]
+__all__ = ["approach_figure", "approach_sections", "approach_title", "write_approach_report"]
 
 _BLOCKED = "#4d4d4d"  # an obstacle on the line
 _PAA_ONLY = "#c7c7c7"  # PAA lets it through, needlekit does not
@@ -104,6 +104,24 @@ def approach_figure(analysis, skin, obstacles: dict, *, title: str = "Approach a
     return fig
 
 
+def approach_title(scenario, path: str | os.PathLike) -> str:
+    """The page's title: the scenario's name, else its file's name (the same whether
+    ``needlekit approach`` or ``needlekit report approach.json`` draws it).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``name`` (may be empty).
+    path : path-like
+        The scenario file.
+
+    Returns
+    -------
+    str
+    """
+    return f"Approach analysis: {scenario.name or Path(path).name}"
+
+
 def write_approach_report(
     path: str | os.PathLike, analysis, skin, obstacles: dict, *, title: str = "Approach analysis"
 ) -> Path:
@@ -120,6 +138,27 @@ def write_approach_report(
     Returns
     -------
     Path
+    """
+    sections = approach_sections(analysis, skin, obstacles, title=title)
+    return write_report_html(path, title=title, sections=sections)
+
+
+def approach_sections(analysis, skin, obstacles: dict, *, title: str = "Approach analysis") -> list:
+    """The page's sections: the scores and shortest lines by both criteria, and the skin
+    map (:func:`approach_figure`).
+
+    Parameters
+    ----------
+    analysis : ApproachAnalysis
+    skin : trimesh.Trimesh
+    obstacles : dict of str to trimesh.Trimesh
+    title : str
+        The figure's title.
+
+    Returns
+    -------
+    list
+        For :func:`~needlekit.report.html_page.write_report_html`.
     """
     a = analysis
     s = a.settings
@@ -160,4 +199,4 @@ def write_approach_report(
             "an obstacle lies on the line.",
         ),
     ]
-    return write_report_html(path, title=title, sections=sections)
+    return sections

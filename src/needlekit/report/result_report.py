@@ -27,7 +27,13 @@ builders its own command uses, from the objects rebuilt from the file:
 - scaling curves (``needlekit bench scale``): :func:`~.scale_figures.scale_sections`, the
   record's series as measured (nothing to check again);
 - a plan's execution (``needlekit execute``): :func:`~.execute_report.execute_sections`,
-  the plan rebuilt from the motions the file keeps (:mod:`.result_execute`).
+  the plan rebuilt from the motions the file keeps (:mod:`.result_execute`);
+- an approach analysis (``needlekit approach``): :func:`~.approach_report.approach_sections`,
+  the skin and obstacles meshed again from the scenario and checked against the file's
+  triangles (:mod:`.result_approach`);
+- Feng et al.'s protocol on a Med-RAD lung (``needlekit study feng-lungs``):
+  :func:`~.feng_lungs_report.feng_lungs_sections`, from the record and the two targets'
+  scenarios and sweeps the study wrote beside it (:mod:`.result_feng`).
 
 :func:`write_result_report` takes its scenarios from the caller
 (:class:`needlekit.scenario.results.ResultScenarios` loads each once, however many results
@@ -50,8 +56,10 @@ from pathlib import Path
 from needlekit.errors import InvalidInputError
 from needlekit.io.results import ResultFile, ResultKind
 from needlekit.report.html_page import PartSection, write_report_html
+from needlekit.report.result_approach import _approach_part
 from needlekit.report.result_dynamic import _dynamic_part
 from needlekit.report.result_execute import _execute_multi_part, _execute_part
+from needlekit.report.result_feng import _feng_lungs_part
 from needlekit.report.result_parts import ReportPart  # re-exported (it lived here)
 from needlekit.report.result_steerable import _goals_part, _plan_part, _sweep_part
 from needlekit.report.result_straight import (  # cfrw_sections re-exported
@@ -132,6 +140,8 @@ _BUILDERS = {
     ResultKind.SCALE: _scale_part,
     ResultKind.EXECUTE: _execute_part,
     ResultKind.EXECUTE_MULTI: _execute_multi_part,
+    ResultKind.APPROACH: _approach_part,
+    ResultKind.FENG_LUNGS: _feng_lungs_part,
 }
 
 

@@ -23,8 +23,9 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io.files import read_json_object
-from needlekit.io.results import ResultFile, ResultKind, result_kind
+from needlekit.io.results import FENG_GOAL_FILES, ResultFile, ResultKind, result_kind
 from needlekit.io.scenario_schema import read_scenario_document
+from needlekit.planning.straight.approach import ApproachAnalysis
 from needlekit.records import field_of, trial_solved
 from needlekit.scenario.dynamic import DYNAMIC_SETTINGS, dynamic_settings, moving_case
 from needlekit.scenario.problems import problem_from_scenario
@@ -220,6 +221,57 @@ def _check_execute_multi(data: dict, where: str) -> None:
     field_of(data, "scenario_file", where, "str", optional=True)
 
 
+def _check_feng_lungs(data: dict, where: str) -> None:
+    """A ``feng_lungs.json``: the settings, Feng's figures and each target's tables and
+    checks, what its page draws."""
+    settings = field_of(data, "settings", where, "dict")
+    at = f"{where}: settings"
+    field_of(settings, "directions", at, "int")
+    field_of(settings, "options", at, "dict")
+    field_of(settings, "needle", at, "dict")
+    if not all(isinstance(p, str) for p in field_of(settings, "planners", at, "list")):
+        raise InvalidInputError(f"{at}.planners", "expected planner names")
+    field_of(data, "case", where, "dict")
+    field_of(field_of(data, "feng", where, "dict"), "table4", f"{where}: feng", "dict")
+    goals = field_of(data, "goals", where, "dict")
+    if not goals:
+        raise InvalidInputError(f"{where}: goals", "expected the study's targets")
+    for g, rec in goals.items():
+        at = f"{where}: goals.{g}"
+        field_of(rec, "goal_mm", at, "point")
+        for name, t in field_of(rec, "table4", at, "dict").items():
+            field_of(t, "n_solved", f"{at}.table4.{name}", "int")
+        for name, c in field_of(rec, "checks", at, "dict").items():
+            for key in ("passed", "solved"):
+                field_of(c, key, f"{at}.checks.{name}", "int")
+
+
+def _feng_lungs_files(data: dict, p: Path) -> None:
+    """The scenario and sweep of each target the study wrote beside its record, read and
+    checked (cheap: no anatomy is read); a sweep must keep every solved plan."""
+    from needlekit.planning.steerable.sweep_result import solved_plans_from_dict, sweeps_from_dict
+
+    for g in data["goals"]:
+        scenario, sweep = (p.parent / g / name for name in FENG_GOAL_FILES)
+        for f in (scenario, sweep):
+            if not f.is_file():
+                raise InvalidInputError(
+                    str(p),
+                    f"the study's {g}/{f.name} is not beside it ({_short(str(f))}): "
+                    "`needlekit report` draws the record in the folder the study wrote",
+                )
+        read_scenario_document(scenario)
+        doc = read_json_object(sweep, "sweep")
+        where = f"{g}/{sweep.name}"
+        if not isinstance(doc.get("solved_plans"), dict):
+            raise InvalidInputError(
+                f"{where}: solved_plans",
+                "missing: the study was run before it kept every solved path, which its page "
+                "draws (Fig. 7); run `needlekit study feng-lungs` again",
+            )
+        solved_plans_from_dict(sweeps_from_dict(doc, where), doc["solved_plans"], where)
+
+
 def _locate_scenario(data: dict, path: Path, flag: str, key: str = "scenario") -> Path:
     """The scenario a result names, relative to the result's own folder (as the commands
     write it: :func:`needlekit.io.results.scenario_reference`), never to the working
@@ -274,6 +326,11 @@ def _check_kind(kind: ResultKind, data: dict, where: str) -> None:
         _check_execute(data, where)
     elif kind is ResultKind.EXECUTE_MULTI:
         _check_execute_multi(data, where)
+    elif kind is ResultKind.APPROACH:
+        ApproachAnalysis.from_dict(data, where)
+        field_of(data, "max_cells", where, "int", optional=True)
+    elif kind is ResultKind.FENG_LUNGS:
+        _check_feng_lungs(data, where)
     else:
         _check_puncture(data, where)
 
@@ -331,14 +388,20 @@ def _read(p: Path, data: dict, scenario, flag: str) -> ResultFile:
         key = "scenario_file" if kind in executions else "scenario"
         located = Path(scenario) if scenario is not None else _locate_scenario(data, p, flag, key)
         doc = read_scenario_document(located)
-        if kind in (ResultKind.CFRW, ResultKind.MULTI, ResultKind.EXECUTE_MULTI) and not doc.get(
-            "straight"
-        ):
+        straight = (
+            ResultKind.CFRW,
+            ResultKind.MULTI,
+            ResultKind.EXECUTE_MULTI,
+            ResultKind.APPROACH,
+        )
+        if kind in straight and not doc.get("straight"):
             msg = f"{located} has no straight block; {p.name} was made from another scenario"
             raise InvalidInputError(flag if scenario is not None else str(p), msg)
         if kind is ResultKind.DYNAMIC:
             where = flag if scenario is not None else str(p)
             _check_dynamic_scenario(data, p, located, doc, where)
+    if kind is ResultKind.FENG_LUNGS:
+        _feng_lungs_files(data, p)
     return ResultFile(p, kind, data, located)
 
 

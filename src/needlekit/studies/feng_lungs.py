@@ -422,7 +422,8 @@ def run_feng_lungs(
         for g in _GOALS:
             files.update(_write_goal(out, g, docs[g], sweeps[g], record, settings, seed, options))
         write_s = time.perf_counter() - t_write
-        record["wall_s"] = time.perf_counter() - t0  # the page's figure: up to the page
+        # the page's figure, up to the page (kept: `needlekit report` draws the same page)
+        record["page_wall_s"] = time.perf_counter() - t0
         t_report = time.perf_counter()
         if report:
             from needlekit.report.feng_lungs_report import write_feng_lungs_report
@@ -508,17 +509,25 @@ def _write_goal(out: Path, g: str, doc: dict, sweeps: dict, record: dict, settin
                 seed: int, options: dict) -> dict:  # fmt: skip
     """One goal's ``scenario.yaml``, ``sweep.json`` and (when RCS* found one) ``plan.json``
     with its check; returns them by name."""
-    from needlekit.planning.steerable.sweep import sweeps_to_dict
+    from needlekit.planning.steerable.sweep_result import solved_plans_to_dict, sweeps_to_dict
 
     files = {f"{g}/scenario.yaml": _write_scenario(out / g / "scenario.yaml", doc, g)}
-    files[f"{g}/sweep.json"] = write_json(
-        out / g / "sweep.json", {**_sweep_head(settings, seed, options), **sweeps_to_dict(sweeps)}
-    )
+    # every solved plan kept: the study's page draws each path (Fig. 7), and so does
+    # `needlekit report feng_lungs.json`
+    sweep = {**_sweep_head(settings, seed, options), **sweeps_to_dict(sweeps)}
+    sweep["solved_plans"] = solved_plans_to_dict(sweeps)
+    files[f"{g}/sweep.json"] = write_json(out / g / "sweep.json", sweep)
     best = sweeps[FENG_PLANNERS[0]].best
     if best is not None:
         check = record["goals"][g]["checks"][FENG_PLANNERS[0]]["best"]
         files[f"{g}/plan.json"] = write_plan_json(
-            out / g / "plan.json", best, scenario="scenario.yaml", check=check
+            out / g / "plan.json",
+            best,
+            scenario="scenario.yaml",
+            # the sweep chose the direction: `verify --any-start-direction` and `report`
+            # check it so, as for the plan.json of `sweep --plan`
+            start_direction="swept",
+            check=check,
         )
     return files
 

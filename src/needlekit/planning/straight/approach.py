@@ -43,10 +43,12 @@ import numpy as np
 from needlekit._validation import as_points
 from needlekit.anatomy.fields import LazyField
 from needlekit.errors import InvalidInputError
+from needlekit.records import field_of
 
 __all__ = [
     "ApproachAnalysis",
     "approach_analysis",
+    "approach_meshes",
     "approach_scores",
     "reach_box",
     "structure_mesh",
@@ -187,6 +189,8 @@ class ApproachAnalysis:
                 "length_mm": np.round(self.length_mm, 4).tolist(),
                 "accessible_paa": self.accessible_paa.astype(int).tolist(),
                 "accessible": self.accessible.astype(int).tolist(),
+                "leaves_body": self.leaves_body.astype(int).tolist(),
+                "normal_angle_deg": np.round(self.normal_angle_deg, 4).tolist(),
                 "clearance_mm": (
                     None
                     if self.clearance_mm is None
@@ -196,6 +200,105 @@ class ApproachAnalysis:
                 ),
             }
         return out
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str) -> ApproachAnalysis:
+        """The analysis of an ``approach.json`` record, as :meth:`to_dict` writes it with
+        its per-triangle arrays (rounded as the record holds them).
+
+        Parameters
+        ----------
+        data : dict
+        where : str
+            Names the record in messages.
+
+        Returns
+        -------
+        ApproachAnalysis
+
+        Raises
+        ------
+        InvalidInputError
+            A field not as :meth:`to_dict` writes it (named), or a record written without
+            its per-triangle arrays (``needlekit approach --summary-only``).
+        """
+        target = field_of(data, "target_mm", where, "point")
+        n = field_of(data, "faces", where, "int")
+        raw = field_of(data, "settings", where, "dict")
+        settings = {}
+        for key, unset in (("needle_radius_mm", None), ("gamma_mm", None),
+                           ("max_length_mm", np.inf), ("max_normal_angle_deg", np.inf)):  # fmt: skip
+            v = field_of(raw, key, f"{where}: settings", optional=unset is not None)
+            settings[key] = float(unset if v is None else v)
+        if "per_face" not in data:
+            raise InvalidInputError(
+                f"{where}: per_face",
+                "missing: the record keeps no per-triangle arrays (written with "
+                "--summary-only); run `needlekit approach` again without it",
+            )
+        per = field_of(data, "per_face", where, "dict")
+        at = f"{where}: per_face"
+
+        def column(key: str, width: int = 0, *, nulls: bool = False) -> np.ndarray:
+            values = field_of(per, key, at, "list")
+            if nulls:
+                values = [np.nan if v is None else v for v in values]
+            try:
+                arr = np.asarray(values, dtype=float)
+            except (TypeError, ValueError):
+                arr = None
+            shape = (n, width) if width else (n,)
+            if arr is None or arr.shape != shape or not np.all(np.isfinite(arr) | nulls):
+                what = f"{n} points" if width else f"{n} numbers"
+                raise InvalidInputError(f"{at}.{key}", f"expected {what} (one per skin triangle)")
+            return arr
+
+        def flags(key: str) -> np.ndarray:
+            arr = column(key)
+            if not np.all((arr == 0) | (arr == 1)):
+                raise InvalidInputError(f"{at}.{key}", "expected 0 or 1 per skin triangle")
+            return arr.astype(bool)
+
+        clearance = (
+            None if per.get("clearance_mm", "") is None else column("clearance_mm", nulls=True)
+        )
+        paa = flags("accessible_paa")
+        shortest = field_of(field_of(data, "needlekit", where, "dict"), "shortest",
+                            f"{where}: needlekit", "dict", optional=True)  # fmt: skip
+        return cls(
+            target, column("centre_mm", 3), column("area_mm2"), column("length_mm"), ~paa,
+            flags("leaves_body"), column("normal_angle_deg"), clearance, paa, flags("accessible"),
+            settings, None if shortest is None else dict(shortest),
+        )  # fmt: skip
+
+
+def approach_meshes(problem, target_mm, *, max_cells: int = 200):
+    """The meshes an approach analysis of a straight-needle problem runs on: its entry
+    surface (the skin) and each obstacle, meshed within the needle's reach of the target
+    where a surface is unbounded (:func:`reach_box`, :func:`structure_mesh`).
+
+    Parameters
+    ----------
+    problem : StraightProblem
+        A scenario's straight problem (its scene, entry surface and needle).
+    target_mm : array_like, shape (3,)
+    max_cells : int
+        Marching-cubes samples along an axis for structures without a mesh file.
+
+    Returns
+    -------
+    skin : trimesh.Trimesh
+    obstacles : dict of str to trimesh.Trimesh
+    """
+    from needlekit.anatomy.scene import Role
+
+    box = reach_box(target_mm, problem.needle.max_length_mm)
+    skin = structure_mesh(problem.scene[problem.entry_surface], max_cells=max_cells, bounds=box)
+    obstacles = {
+        s.name: structure_mesh(s, max_cells=max_cells, bounds=box)
+        for s in problem.scene.by_role(Role.OBSTACLE)
+    }
+    return skin, obstacles
 
 
 def _mesh_arrays(mesh, name: str) -> tuple[np.ndarray, np.ndarray]:
