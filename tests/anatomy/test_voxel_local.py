@@ -263,6 +263,14 @@ def test_mask_bounds_are_the_built_fields_bounds_bit_for_bit(seed):
             part, AFFINE, offset=lo, shape=mask.shape, crop=crop, padding_mm=pad
         )
         assert np.array_equal(cropped, built), (crop, pad)
+        # the crop a prepared patient stores (cut to its set voxels): read off its shape
+        from needlekit.io.medrad_cache import _cropped
+        from needlekit.io.volumes import Mask
+
+        stored, meta = _cropped(Mask(mask, AFFINE, None))
+        tight = VoxelSDF.mask_bounds(stored, AFFINE, offset=meta["offset"], shape=meta["shape"],
+                                     crop=crop, padding_mm=pad, tight=True)  # fmt: skip
+        assert np.array_equal(tight, built), (crop, pad)
     lazy = LazyField(lambda: VoxelSDF.from_mask(mask, AFFINE), "blobs",
                      bounds=lambda: VoxelSDF.mask_bounds(mask, AFFINE))  # fmt: skip
     assert np.array_equal(lazy.bounds(), VoxelSDF.from_mask(mask, AFFINE).bounds())

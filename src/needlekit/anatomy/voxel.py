@@ -321,6 +321,7 @@ class VoxelSDF(DistanceField):
         shape=None,
         crop: bool = True,
         padding_mm: float = DEFAULT_MASK_PADDING_MM,
+        tight: bool = False,
     ) -> np.ndarray:
         """What :meth:`bounds` of ``from_mask(mask, affine, crop=crop,
         padding_mm=padding_mm)`` returns, bit for bit, without the distance transforms:
@@ -338,6 +339,10 @@ class VoxelSDF(DistanceField):
             The whole grid's shape (default: the mask's).
         crop, padding_mm :
             As :meth:`from_mask`.
+        tight : bool, optional
+            The mask is already cut to its set voxels (each face holds one, as a prepared
+            patient's stored masks are): its box is its shape, known without reading it
+            (a memory-mapped mask stays on disk).
 
         Returns
         -------
@@ -352,7 +357,10 @@ class VoxelSDF(DistanceField):
         True
         """
         m = np.asarray(mask, dtype=bool)
-        box = _bbox(m)
+        if tight and m.size > 1:
+            box = (np.zeros(3, dtype=np.intp), np.array(m.shape, dtype=np.intp) - 1)
+        else:  # a one-voxel crop is an empty mask's, or a one-voxel structure's
+            box = _bbox(m)
         if box is not None and offset is not None:
             off = np.asarray(offset, dtype=np.int64).reshape(3)
             box = (box[0] + off, box[1] + off)

@@ -122,7 +122,7 @@ def _cached_sdf_bounds(entry: anatomy_cache.CacheEntry, name: str) -> np.ndarray
     meta = mask.meta
     return VoxelSDF.mask_bounds(
         mask.values, np.array(meta["affine"], dtype=np.float64), offset=meta["offset"],
-        shape=meta["shape"],
+        shape=meta["shape"], tight=True,  # stored cut to its set voxels (_cropped)
     )  # fmt: skip
 
 
