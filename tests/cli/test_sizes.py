@@ -179,3 +179,46 @@ def test_a_mesh_voxel_size_too_small_for_memory_is_refused_naming_the_field(
         "error: mesh.yaml: structures[0].mesh.voxel_size_mm: a 0.01 mm grid (3.43e+11 "
         "voxels) would need at least 320 GiB; this machine has 16 GiB available"
     )
+
+
+def test_a_replayed_trial_is_one_trial_whatever_trials_says():
+    """``execute --replay-trial K`` runs one trial: ``--trials`` (here 10^9, past any
+    machine) only says which seeds K is among, and asks for no memory. Parsed by the real
+    parser, so a renamed flag cannot leave the size rule reading a name that is gone."""
+    from needlekit.cli._parser import _build_parser
+
+    argv = ["execute", "s.yaml", "p.json", "--trials", "1000000000", "--out", "o"]
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    assert [s.flag for s in args.sizes(args)] == ["--trials"]
+    args = parser.parse_args([*argv, "--replay-trial", "3"])
+    assert args.sizes(args) == []
+
+
+def test_every_size_rule_reads_flags_its_command_has():
+    """Each command's size rule reads only its own flags (read off the parser): a flag
+    renamed or dropped cannot leave a rule reading a name that ``getattr`` quietly
+    defaults. ``scenario_document`` is the scenario the path check has already read."""
+    import inspect
+    import re
+
+    from needlekit.cli import _sizes
+    from needlekit.cli._parser import _build_parser, walk_commands
+
+    def names(fn) -> set[str]:
+        src = inspect.getsource(fn)
+        found = set(re.findall(r'getattr\(args, "([a-z_]+)"', src))
+        found |= set(re.findall(r"\bargs\.([a-z_]+)", src))
+        for helper in re.findall(r"\b([a-z_]+_sizes)\(args\)", src):
+            found |= names(getattr(_sizes, helper))
+        return found
+
+    checked = 0
+    for words, parser, dest in walk_commands(_build_parser()):
+        rule = None if dest is not None else parser.get_default("sizes")
+        if rule is None:
+            continue
+        own = {a.dest for a in parser._actions} | {"sizes", "scenario_document"}
+        assert names(rule) <= own, (" ".join(words), sorted(names(rule) - own))
+        checked += 1
+    assert checked >= 20

@@ -179,7 +179,7 @@ def execute_sizes(args: argparse.Namespace) -> list[Size]:
     -------
     list of Size
     """
-    return [] if getattr(args, "trial", None) is not None else _trials("--trials", args.trials)
+    return [] if getattr(args, "replay_trial", None) is not None else _trials("--trials", args.trials)
 
 
 def execute_lungs_sizes(args: argparse.Namespace) -> list[Size]:
