@@ -210,17 +210,7 @@ def _mask_and_affine(mask, affine) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """Index bounding box (inclusive) of the set voxels, or None if there are none.
-
-    A mask already cut to its set voxels (a prepared patient's stored masks) is its own
-    box: when each of its six faces holds a set voxel, the answer is read off the faces,
-    without a pass over the whole mask."""
-    if mask.ndim == 3 and mask.size and all(
-        mask[face].any()
-        for axis in range(3)
-        for face in ((slice(None),) * axis + (0,), (slice(None),) * axis + (-1,))
-    ):
-        return np.zeros(3, dtype=np.intp), np.array(mask.shape, dtype=np.intp) - 1
+    """Index bounding box (inclusive) of the set voxels, or None if there are none."""
     lo, hi = [], []
     for axis in range(3):
         other = tuple(a for a in range(3) if a != axis)

@@ -340,9 +340,7 @@ class VoxelSDF(DistanceField):
         crop, padding_mm :
             As :meth:`from_mask`.
         tight : bool, optional
-            The mask is already cut to its set voxels (each face holds one, as a prepared
-            patient's stored masks are): its box is its shape, known without reading it
-            (a memory-mapped mask stays on disk).
+            The mask is cut to its set voxels (a stored mask): its box is its shape, unread.
 
         Returns
         -------
@@ -357,10 +355,8 @@ class VoxelSDF(DistanceField):
         True
         """
         m = np.asarray(mask, dtype=bool)
-        if tight and m.size > 1:
-            box = (np.zeros(3, dtype=np.intp), np.array(m.shape, dtype=np.intp) - 1)
-        else:  # a one-voxel crop is an empty mask's, or a one-voxel structure's
-            box = _bbox(m)
+        tight = tight and m.size > 1  # a one-voxel crop may be an empty mask's
+        box = (np.zeros(3, np.intp), np.array(m.shape, np.intp) - 1) if tight else _bbox(m)
         if box is not None and offset is not None:
             off = np.asarray(offset, dtype=np.int64).reshape(3)
             box = (box[0] + off, box[1] + off)
