@@ -1,0 +1,99 @@
+"""The calibration of the loop's own needle model, against needles whose constants are
+known: the kinematic needle without noise (exact), with its default noise (sampling
+theory's bounds: three standard errors), and a needle whose radius is not the planner's."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from needlekit.errors import InvalidInputError
+from needlekit.execute.calibration import Calibration, CalibrationSettings, calibrate
+from needlekit.execute.needle_sim import ExecutionNoise, SimulatedNeedle
+
+
+def kinematic(r_mm: float, noise: ExecutionNoise):
+    return lambda pose, rng: SimulatedNeedle(pose, r_mm, noise, rng)
+
+
+def test_a_needle_without_noise_is_learnt_exactly():
+    cal = calibrate(kinematic(50.0, ExecutionNoise.none()), 1 / 50.0,
+                    CalibrationSettings(curved=3, straight=2))  # fmt: skip
+    assert cal.r_min_mm == pytest.approx(50.0, rel=1e-12)
+    for name in ("radius_sigma_mm", "orientation_sigma_rad", "deflection_sigma",
+                 "residual_rms_mm", "residual_max_mm", "end_error_mean_mm"):  # fmt: skip
+        assert getattr(cal, name) < 1e-9, name
+
+
+def test_the_default_noise_is_recovered_within_three_standard_errors():
+    noise = ExecutionNoise()
+    s = CalibrationSettings(curved=200, straight=100, seed=7)
+    cal = calibrate(kinematic(50.0, noise), 1 / 50.0, s)
+    # r_i = 50 + N(0, 3^2): the mean's SE 3 / sqrt(200), the SD's 3 / sqrt(2 * 199)
+    assert abs(cal.r_min_mm - 50.0) < 3 * 3 / math.sqrt(200)
+    assert abs(cal.radius_sigma_mm - 3.0) < 3 * 3 / math.sqrt(398)
+    # 200 insertions of 160 steps, three axes: the SD's relative SE 1 / sqrt(2 * 95400)
+    assert cal.orientation_sigma_rad == pytest.approx(noise.orientation_sigma_rad, rel=0.01)
+    # 100 insertions, two lateral components each: relative SE 1 / sqrt(2 * 200)
+    assert cal.deflection_sigma == pytest.approx(noise.deflection_sigma, rel=3 / math.sqrt(400))
+
+
+def test_a_needle_that_curves_less_than_planned_is_commanded_in_its_own_units():
+    # the truth reads 1/50 as the bevel held, but curves with r = 80 mm in this tissue
+    cal = calibrate(lambda p, rng: SimulatedNeedle(p, 50.0, ExecutionNoise.none(), rng),
+                    1 / 50.0, CalibrationSettings(curved=2, straight=2))  # fmt: skip
+    assert cal.r_min_mm == pytest.approx(50.0, rel=1e-12)
+    slow = calibrate(
+        lambda p, rng: _Scaled(SimulatedNeedle(p, 50.0, ExecutionNoise.none(), rng), 50 / 80),
+        1 / 50.0,
+        CalibrationSettings(curved=2, straight=2),
+    )
+    assert slow.r_min_mm == pytest.approx(80.0, rel=1e-9)
+    # the model's full curvature 1/80 is the truth's full duty; half of it, half the duty
+    assert slow.command(1 / 80.0) == pytest.approx(1 / 50.0, rel=1e-12)
+    assert slow.command(1 / 160.0) == pytest.approx(1 / 100.0, rel=1e-12)
+
+
+class _Scaled:
+    """A needle that bends ``factor`` times what it is told (a stiffer tissue's needle)."""
+
+    def __init__(self, needle, factor):
+        self.needle, self.factor = needle, factor
+
+    @property
+    def pose(self):
+        return self.needle.pose
+
+    def step(self, spin, kappa, ds, dt):
+        return self.needle.step(spin, kappa * self.factor, ds, dt)
+
+
+def test_the_record_round_trips_and_its_fields_are_checked():
+    cal = calibrate(kinematic(50.0, ExecutionNoise()), 1 / 50.0,
+                    CalibrationSettings(curved=3, straight=2))  # fmt: skip
+    assert Calibration.from_dict(cal.to_dict()) == cal
+    assert cal.noise().radius_sigma_mm == cal.radius_sigma_mm
+    bad = cal.to_dict() | {"r_min_mm": "fifty"}
+    with pytest.raises(InvalidInputError, match="r_min_mm"):
+        Calibration.from_dict(bad, "execute.json: calibration")
+
+
+@pytest.mark.parametrize(
+    ("field", "kwargs"),
+    [("curved", {"curved": 1}), ("straight", {"straight": 0}), ("length_mm", {"length_mm": -1.0}),
+     ("step_mm", {"step_mm": 30.0}), ("speed_mm_s", {"speed_mm_s": 0.0}),
+     ("seed", {"seed": 1.5})],
+)  # fmt: skip
+def test_bad_settings_name_their_field(field, kwargs):
+    with pytest.raises(InvalidInputError, match=field):
+        CalibrationSettings(**kwargs)
+
+
+def test_bad_calibration_inputs_name_their_field():
+    make = kinematic(50.0, ExecutionNoise.none())
+    with pytest.raises(InvalidInputError, match="full_duty"):
+        calibrate(make, 0.0)
+    with pytest.raises(InvalidInputError, match="start_pose"):
+        calibrate(make, 0.02, start_pose=np.full((4, 4), np.nan))
