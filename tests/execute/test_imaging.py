@@ -1,0 +1,100 @@
+"""Imaging checkpoints and target tracking: when they sample, what they deliver and when,
+their noise, and the gate every target sample passes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from needlekit.errors import InvalidInputError
+from needlekit.execute.imaging import (
+    CheckpointImaging,
+    CheckpointSpec,
+    TargetTracking,
+    TrackingSpec,
+    admit_target,
+)
+
+
+def test_checkpoints_fall_every_twenty_millimetres_and_hold_the_needle_for_the_scan():
+    img = CheckpointImaging(CheckpointSpec(), np.random.default_rng(0))
+    target = np.array([1.0, 2.0, 3.0])
+    scans, t, inserted = [], 0.0, 0.0
+    while inserted < 93.0:  # 0.1 mm per 0.05 s (2 mm/s)
+        if img.due(inserted):
+            img.scan(t, inserted, np.eye(4), target)
+        got = img.update(t)
+        if got is not None:
+            scans.append(got)
+        if not img.scanning:
+            inserted = round(inserted + 0.1, 10)
+        t = round(t + 0.05, 10)
+    assert [s.depth_mm for s in scans] == pytest.approx([20.0, 40.0, 60.0, 80.0])
+    assert img.scans == 4
+    # each scan arrives scan_s after it was taken; the needle stood still meanwhile
+    assert [s.arrives_s - s.taken_s for s in scans] == pytest.approx([20.0] * 4)
+    assert t == pytest.approx(93.0 / 2.0 + 4 * 20.0, abs=0.1)
+
+
+def test_scans_and_tracker_samples_have_the_stated_noise():
+    rng = np.random.default_rng(3)
+    img = CheckpointImaging(CheckpointSpec(every_mm=1.0, scan_s=0.0), rng)
+    seen = []
+    for k in range(1, 4001):
+        img.scan(float(k), float(k), np.eye(4), np.zeros(3))
+        seen.append(img.update(float(k)).target_mm)
+    sd = np.std(np.array(seen), axis=0, ddof=1)
+    # 4000 samples: the SD's relative SE 1 / sqrt(7998), three of them allowed
+    assert sd == pytest.approx([0.5] * 3, rel=3 / math.sqrt(7998))
+    tr = TargetTracking(TrackingSpec(rate_hz=100.0), np.random.default_rng(4))
+    got = [tr.update(k / 100.0, lambda: np.zeros(3)) for k in range(4011)]
+    pos = np.array([g.target_mm for g in got if g is not None])
+    assert np.std(pos, axis=0, ddof=1) == pytest.approx([0.7] * 3, rel=3 / math.sqrt(2 * 4000))
+
+
+def test_tracker_samples_arrive_their_latency_late_and_carry_the_time_they_were_taken():
+    tr = TargetTracking(TrackingSpec(rate_hz=10.0, position_sigma_mm=0.0, latency_s=0.25),
+                        np.random.default_rng(0))  # fmt: skip
+
+    def target_at(t):
+        return lambda: np.array([t, 0.0, 0.0])  # moves 1 mm/s along x
+
+    arrivals = {}
+    for k in range(0, 101):
+        t = k / 100.0
+        got = tr.update(t, target_at(t))
+        if got is not None:
+            arrivals[round(t, 6)] = (got.taken_s, got.target_mm[0])
+    # taken every 0.1 s from 0, arriving 0.25 s later; what it saw is where it was then
+    assert sorted(arrivals) == pytest.approx([0.25 + 0.1 * k for k in range(8)])
+    for t, (taken, x) in arrivals.items():
+        assert t - taken == pytest.approx(0.25)
+        assert x == pytest.approx(taken)
+    assert tr.taken == 11
+
+
+def test_the_target_gate_refuses_what_is_not_finite_or_moved_too_far():
+    last = np.zeros(3)
+    assert admit_target([1.0, 0.0, 0.0], last, 0.1, 10.0, 0.0) is None
+    assert admit_target([1.01, 0.0, 0.0], last, 0.1, 10.0, 0.0) == "jump"
+    assert admit_target([1.01, 0.0, 0.0], last, 0.1, 10.0, 0.01) is None  # within the noise
+    assert admit_target([np.nan, 0.0, 0.0], last, 0.1, 10.0, 0.0) == "not_finite"
+    assert admit_target([0.0, 0.0], last, 0.1, 10.0, 0.0) == "not_finite"
+
+
+@pytest.mark.parametrize(
+    ("make", "field"),
+    [
+        (lambda: TrackingSpec(rate_hz=0.0), "rate_hz"),
+        (lambda: TrackingSpec(latency_s=-0.1), "latency_s"),
+        (lambda: TrackingSpec(position_sigma_mm=float("nan")), "position_sigma_mm"),
+        (lambda: CheckpointSpec(every_mm=0.0), "every_mm"),
+        (lambda: CheckpointSpec(scan_s=float("inf")), "scan_s"),
+        (lambda: CheckpointSpec(orientation_sigma_deg=200.0), "orientation_sigma_deg"),
+    ],
+)
+def test_bad_sensor_settings_name_their_field(make, field):
+    with pytest.raises(InvalidInputError, match=field):
+        make()
