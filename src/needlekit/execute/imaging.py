@@ -298,4 +298,3 @@ def admit_target(sample_mm, last_mm, elapsed_s: float, max_speed_mm_s: float,
     if float(np.linalg.norm(p - np.asarray(last_mm, dtype=np.float64))) > reach:
         return "jump"
     return None
-
