@@ -98,3 +98,31 @@ def test_the_target_gate_refuses_what_is_not_finite_or_moved_too_far():
 def test_bad_sensor_settings_name_their_field(make, field):
     with pytest.raises(InvalidInputError, match=field):
         make()
+
+
+def test_the_target_belief_is_the_kalman_update_of_a_random_walk():
+    from needlekit.execute.imaging import TargetEstimator
+
+    est = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=1.0)
+    # 4 s on: prior variance 4; a sample taken 1 s ago with SD 1: R = 1 + 1 = 2
+    assert est.update(4.0, 3.0, [3.0, 0.0, 0.0], 1.0)
+    assert est.target_mm == pytest.approx([2.0, 0.0, 0.0])  # gain 4 / 6
+    assert est.variance_mm2 == pytest.approx(4.0 / 3.0)
+    # without drift the plan's target is kept: EM alone assumes the target still
+    still = TargetEstimator([1.0, 1.0, 1.0], drift_sigma_mm=0.0)
+    still.update(10.0, 10.0, [1.2, 1.0, 1.0], 0.5)
+    assert still.target_mm == pytest.approx([1.0, 1.0, 1.0])
+
+
+def test_the_target_belief_follows_a_moved_target_and_refuses_a_wild_sample():
+    from needlekit.execute.imaging import TargetEstimator
+
+    rng = np.random.default_rng(5)
+    est = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=0.5)
+    moved = np.array([4.0, -2.0, 1.0])  # the needle pushed it 4.6 mm
+    for k in range(1, 201):
+        est.update(0.1 * k, 0.1 * k, moved + rng.normal(0.0, 0.7, 3), 0.7)
+    assert np.linalg.norm(est.target_mm - moved) < 0.5
+    assert not est.update(20.1, 20.1, moved + [40.0, 0.0, 0.0], 0.7)
+    assert not est.update(20.2, 20.2, [np.inf, 0.0, 0.0], 0.7)
+    assert est.refused == {"jump": 1, "not_finite": 1} and est.used == 200

@@ -39,6 +39,7 @@ __all__ = [
     "CheckpointImaging",
     "CheckpointSpec",
     "ImageSample",
+    "TargetEstimator",
     "TargetSample",
     "TargetTracking",
     "TrackingSpec",
@@ -298,3 +299,90 @@ def admit_target(sample_mm, last_mm, elapsed_s: float, max_speed_mm_s: float,
     if float(np.linalg.norm(p - np.asarray(last_mm, dtype=np.float64))) > reach:
         return "jump"
     return None
+
+
+class TargetEstimator:
+    """Where the loop believes the target is: a Kalman filter on its position under a
+    random walk (each axis gains ``drift_sigma_mm**2`` of variance per second).
+
+    A sample taken ``L`` s before it is used is applied to the current estimate with
+    ``drift_sigma_mm**2 L`` added to its noise: for a random walk that is exact, what
+    the target did since the sample was taken being independent of it. Samples pass
+    :func:`admit_target` first; a refused one is counted by its reason and changes
+    nothing.
+
+    Parameters
+    ----------
+    target_mm : array_like, shape (3,)
+        The plan's target: the belief before any sample.
+    drift_sigma_mm : float
+        How fast the target may wander (mm per sqrt(s)).
+    max_speed_mm_s : float
+        The gate's bound on the target's speed.
+
+    Attributes
+    ----------
+    target_mm : ndarray, shape (3,)
+    variance_mm2 : float
+        Per axis.
+    used : int
+    refused : dict
+        Refused samples by reason.
+    """
+
+    def __init__(self, target_mm, drift_sigma_mm: float = 0.5, max_speed_mm_s: float = 30.0):
+        self.target_mm = np.array(target_mm, dtype=np.float64)
+        Bounds(0.0, MAX_ABS_MM, unit="mm").check(drift_sigma_mm, "drift_sigma_mm")
+        Bounds(0.0, MAX_ABS_MM, low_open=True, unit="mm/s").check(max_speed_mm_s,
+                                                                     "max_speed_mm_s")  # fmt: skip
+        self.drift_var = float(drift_sigma_mm) ** 2
+        self.max_speed_mm_s = float(max_speed_mm_s)
+        self.variance_mm2 = 0.0
+        self.t = 0.0
+        self._last_taken = 0.0
+        self.used = 0
+        self.refused: dict[str, int] = {}
+
+    def predict(self, t: float) -> None:
+        """Advance the belief to time ``t`` (its variance grows).
+
+        Parameters
+        ----------
+        t : float
+        """
+        if t > self.t:
+            self.variance_mm2 += self.drift_var * (t - self.t)
+            self.t = t
+
+    def update(self, t: float, taken_s: float, sample_mm, sigma_mm: float) -> bool:
+        """Use one sample, if the gate admits it.
+
+        Parameters
+        ----------
+        t : float
+            Now.
+        taken_s : float
+            When the sample was taken.
+        sample_mm : array_like, shape (3,)
+        sigma_mm : float
+            The sample's noise SD per axis.
+
+        Returns
+        -------
+        bool
+            Whether it was used.
+        """
+        self.predict(t)
+        why = admit_target(sample_mm, self.target_mm, taken_s - self._last_taken,
+                           self.max_speed_mm_s, max(sigma_mm, math.sqrt(self.variance_mm2)))  # fmt: skip
+        if why is not None:
+            self.refused[why] = self.refused.get(why, 0) + 1
+            return False
+        r = sigma_mm**2 + self.drift_var * max(t - taken_s, 0.0)
+        gain = self.variance_mm2 / (self.variance_mm2 + r) if self.variance_mm2 + r > 0 else 1.0
+        self.target_mm = self.target_mm + gain * (np.asarray(sample_mm, dtype=np.float64)
+                                                  - self.target_mm)  # fmt: skip
+        self.variance_mm2 = (1.0 - gain) * self.variance_mm2
+        self._last_taken = max(self._last_taken, taken_s)
+        self.used += 1
+        return True
