@@ -1,0 +1,205 @@
+"""The shaft held by the tissue along its channel: one quasi-static solve.
+
+The needle runs from a guide (clamped: position and direction held) over a free gap
+``g`` to the tissue's surface, then along the channel its tip has cut. Arc length ``s``
+(mm) is measured from the guide; the rod's length is ``g + depth``.
+
+The solve is linearised about the *reference curve*: the guide's straight line over
+``[0, g]``, then the channel. The rod's position is the reference plus small offsets
+``u_x e_x + u_y e_y`` in the reference's transported normal frame, so paths that bend
+far from the straight line (radii of 50-200 mm over 100-150 mm) stay exact to first
+order in the offsets (tenths of a millimetre), not in the overall bend. The rod is
+straight when unloaded, so following the reference costs bending energy: per element, in
+the frame of its first node, the reference is the Hermite cubic with end offsets
+``(0, 0, (p_1 - p_0) . e, t_1 . e)`` and the total deflection is that plus the offsets;
+its bending stiffness times the reference gives the load that pulls the rod off a bent
+channel. The tissue holds the shaft toward the channel (the anchors) by a Winkler
+foundation ``k`` over ``[g, g + depth - L_u]``; the last ``L_u`` behind the tip (the
+bevel) is not held. The tip carries the bevel's lateral load. The two bending planes
+share one banded Cholesky factorisation.
+
+Left out (docs/mechanics.md): axial load in the bending equation (buckling; the tip's
+axial resistance is small beside ``EI / L^2``), shaft friction, torsion (the shaft is
+torsionally rigid: the bevel turns as the base does).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from needlekit.mechanics.channel import Channel
+from needlekit.mechanics.rod import (
+    assemble_upper_band,
+    element_foundation,
+    element_stiffness,
+    solve_band,
+)
+
+__all__ = ["ShaftSolution", "node_positions", "solve_shaft"]
+
+
+@dataclass
+class ShaftSolution:
+    """One solve of the shaft in its channel.
+
+    Attributes
+    ----------
+    s_mm : ndarray, shape (n,)
+        Node arc lengths from the guide (mm).
+    ref_mm, tangents, e_x, e_y : ndarray, shape (n, 3)
+        The reference curve at the nodes and its frame.
+    offsets_mm : ndarray, shape (n, 2)
+        Deflection off the reference along ``e_x`` and ``e_y`` (mm).
+    slopes : ndarray, shape (n, 2)
+        Slope off the reference's tangent toward ``e_x`` and ``e_y`` (rad).
+    tissue_forces_n : ndarray, shape (n, 3)
+        The tissue's force on the shaft lumped at each node (consistent nodal forces of
+        the foundation), world frame (N).
+    """
+
+    s_mm: np.ndarray
+    ref_mm: np.ndarray
+    tangents: np.ndarray
+    e_x: np.ndarray
+    e_y: np.ndarray
+    offsets_mm: np.ndarray
+    slopes: np.ndarray
+    tissue_forces_n: np.ndarray
+
+    @property
+    def points_mm(self) -> np.ndarray:
+        """The rod's node positions (world mm), shape (n, 3)."""
+        u = self.offsets_mm
+        return self.ref_mm + u[:, :1] * self.e_x + u[:, 1:] * self.e_y
+
+
+def node_positions(gap_mm: float, depth_mm: float, support_end_mm: float, h_mm: float):
+    """Node arc lengths: fixed to the tissue's entry, plus the support's end and the tip.
+
+    Parameters
+    ----------
+    gap_mm : float
+        Free length between guide and tissue (mm).
+    depth_mm : float
+        Inserted depth (mm).
+    support_end_mm : float
+        Arc length where the tissue stops holding the shaft (mm).
+    h_mm : float
+        Element length (mm).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Increasing node positions; elements are wholly held or wholly free.
+    """
+    tip = gap_mm + depth_mm
+    n_gap = max(1, math.ceil(gap_mm / h_mm - 1e-9)) if gap_mm > 0 else 0
+    parts = [np.linspace(0.0, gap_mm, n_gap + 1)] if n_gap else [np.zeros(1)]
+    inner = gap_mm + h_mm * np.arange(1, max(1, math.ceil(depth_mm / h_mm)))
+    must = [tip]
+    if gap_mm < support_end_mm < tip:
+        must.append(support_end_mm)
+    tol = 0.3 * h_mm
+    keep = np.ones(inner.size, dtype=bool)
+    for m in must:
+        keep &= np.abs(inner - m) >= tol
+    parts.append(inner[keep & (inner < tip)])
+    parts.append(np.array(must))
+    s = np.unique(np.concatenate(parts))
+    return s[(s <= tip) & np.concatenate(([True], np.diff(s) > 1e-9))]
+
+
+def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
+    """Reference points, tangents and frames at the nodes."""
+    g_pos, g_tan, g_ex = guide
+    n = s.size
+    pos = np.empty((n, 3))
+    tan = np.empty((n, 3))
+    ex = np.empty((n, 3))
+    on_guide = s <= gap
+    pos[on_guide] = g_pos + s[on_guide, None] * g_tan
+    tan[on_guide] = g_tan
+    ex[on_guide] = g_ex
+    inside = ~on_guide
+    if np.any(inside):
+        pos[inside], tan[inside], ex[inside] = channel.sample(s[inside] - gap)
+    ey = np.cross(tan, ex)
+    return pos, tan, ex, ey
+
+
+def solve_shaft(
+    channel: Channel,
+    guide,
+    gap_mm: float,
+    depth_mm: float,
+    ei: float,
+    k: float,
+    unsupported_mm: float,
+    tip_force_xy: tuple[float, float],
+    h_mm: float,
+) -> ShaftSolution:
+    """Solve the shaft against its channel with a lateral tip force (module notes).
+
+    Parameters
+    ----------
+    channel : Channel
+        The channel cut so far; its end is at ``depth_mm``.
+    guide : tuple of ndarray
+        The guide's exit point, direction and normal ``e_x`` (world).
+    gap_mm : float
+        Free length between guide and tissue (mm).
+    depth_mm : float
+        Inserted depth (mm).
+    ei : float
+        Flexural rigidity (N mm^2).
+    k : float
+        Foundation modulus (N/mm^2).
+    unsupported_mm : float
+        Length behind the tip the tissue does not hold (mm).
+    tip_force_xy : tuple of float
+        Lateral force on the tip along the channel end's ``e_x`` and ``e_y`` (N).
+    h_mm : float
+        Element length (mm).
+
+    Returns
+    -------
+    ShaftSolution
+    """
+    support_end = gap_mm + depth_mm - unsupported_mm
+    s = node_positions(gap_mm, depth_mm, support_end, h_mm)
+    pos, tan, ex, ey = _reference(channel, guide, s, gap_mm)
+    lengths = np.diff(s)
+    mid = 0.5 * (s[1:] + s[:-1])
+    k_e = np.where((mid > gap_mm) & (mid < support_end), k, 0.0)
+    kb = element_stiffness(lengths, ei)
+    kf = element_foundation(lengths, k_e)
+    ab = assemble_upper_band(kb + kf)
+
+    # the reference's end offsets in each element's first-node frame, both planes
+    chord = pos[1:] - pos[:-1]
+    ref = np.zeros((lengths.size, 4, 2))
+    ref[:, 2, 0] = np.sum(chord * ex[:-1], axis=1)
+    ref[:, 3, 0] = np.sum(tan[1:] * ex[:-1], axis=1)
+    ref[:, 2, 1] = np.sum(chord * ey[:-1], axis=1)
+    ref[:, 3, 1] = np.sum(tan[1:] * ey[:-1], axis=1)
+    f_el = -np.einsum("eab,ebp->eap", kb, ref)
+    rhs = np.zeros((2 * s.size, 2))
+    for a in range(4):
+        rhs[a : a + 2 * lengths.size : 2] += f_el[:, a]
+    rhs[-2, 0] += tip_force_xy[0]
+    rhs[-2, 1] += tip_force_xy[1]
+
+    sol = solve_band(ab, rhs, 2)
+    u = sol[0::2]
+    th = sol[1::2]
+    # the tissue's nodal forces on the shaft: -F_e u_e, translational rows
+    ue = np.stack([sol[0:-2:2], sol[1:-2:2], sol[2::2], sol[3::2]], axis=1)  # (e, 4, 2)
+    fe = -np.einsum("eab,ebp->eap", kf, ue)
+    nodal = np.zeros((s.size, 2))
+    nodal[:-1] += fe[:, 0]
+    nodal[1:] += fe[:, 2]
+    forces = nodal[:, :1] * ex + nodal[:, 1:] * ey
+    return ShaftSolution(s, pos, tan, ex, ey, u, th, forces)
