@@ -109,6 +109,10 @@ class Channel:
             > 0.
         tangent : ndarray, shape (3,)
             Unit tangent the tip cut along at the new end.
+
+        Returns
+        -------
+        None
         """
         if self.n == self._depth.size:
             self._grow()
@@ -122,6 +126,16 @@ class Channel:
         self._ex[i + 1] = ex / np.linalg.norm(ex)
         self._depth[i + 1] = self._depth[i] + length_mm
         self.n += 1
+
+    def retract(self) -> None:
+        """Remove the last point (undo the last :meth:`extend`).
+
+        Returns
+        -------
+        None
+        """
+        if self.n > 1:
+            self.n -= 1
 
     def sample(self, depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points, unit tangents and unit normals ``e_x`` at the given depths.
@@ -181,6 +195,10 @@ class Channel:
         ----------
         displacement_mm : ndarray, shape (n, 3)
             One finite displacement per point of :attr:`points_mm`.
+
+        Returns
+        -------
+        None
         """
         disp = np.asarray(displacement_mm, dtype=np.float64)
         if disp.shape != (self.n, 3) or not np.all(np.isfinite(disp)):

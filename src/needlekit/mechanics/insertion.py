@@ -103,7 +103,7 @@ class MechanicalNeedle:
         *,
         guide_gap_mm: float = 10.0,
         element_mm: float = 1.0,
-        max_substep_mm: float = 0.5,
+        max_substep_mm: float = 1.0,
         inhomogeneity: float = 0.0,
     ) -> None:
         pose = np.array(start_pose, dtype=np.float64)
@@ -203,16 +203,23 @@ class MechanicalNeedle:
         self._tip_tan = tan
 
     def _substep(self, length: float, duty: float) -> None:
-        self.channel.extend(length, self._tip_tan.copy())
-        self.inserted_mm += length
-        noise = self._noise_at(self.inserted_mm)
+        """Cut ``length`` and re-solve: a predictor-corrector (Heun) step.
+
+        The predictor cuts along the tip's tangent now and solves; the corrector cuts
+        again, ending with the predicted tangent (the chord along the mean of the two),
+        and solves: the path is second order in the sub-step.
+        """
+        noise = self._noise_at(self.inserted_mm + length)
         q = duty * self.tip_load.lateral_n * noise[0]
         c, s = math.cos(self._spin), math.sin(self._spin)
-        # toward the tip's -y axis: -(-s e_x + c e_y)
         q0 = self.tip_load.lateral_n
-        fx = q * s + q0 * noise[1]
-        fy = -q * c + q0 * noise[2]
-        self._last_force_xy = (fx, fy)
+        # toward the tip's -y axis, -(-s e_x + c e_y), plus the inhomogeneity's push
+        self._last_force_xy = (q * s + q0 * noise[1], -q * c + q0 * noise[2])
+        self.inserted_mm += length
+        self.channel.extend(length, self._tip_tan.copy())
+        self._solve()
+        self.channel.retract()
+        self.channel.extend(length, self._tip_tan.copy())
         self._solve()
 
     def step(self, spin_rad: float, kappa_per_mm: float, ds_mm: float, dt_s: float) -> np.ndarray:
@@ -271,8 +278,10 @@ class MechanicalNeedle:
 
         Returns
         -------
-        tuple of ndarray
-            ``(points_mm (n, 3), forces_n (n, 3))``, RAS mm and N.
+        points_mm : ndarray, shape (n, 3)
+            The rod's nodes, the tip last (RAS mm).
+        forces_n : ndarray, shape (n, 3)
+            The tissue's force on the needle at each (N).
         """
         if self.solution is None:
             return np.zeros((0, 3)), np.zeros((0, 3))
@@ -319,7 +328,7 @@ def steady_curvature(
     tissue: TissueSpec,
     guide_gap_mm: float = 10.0,
     element_mm: float = 1.0,
-    max_substep_mm: float = 0.5,
+    max_substep_mm: float = 1.0,
 ) -> float:
     """The path's curvature with the bevel held, after the start's transient (1/mm).
 

@@ -86,7 +86,8 @@ class NeedleSpec:
         b = _positive("bevel_angle_rad", self.bevel_angle_rad)
         if not b < math.pi / 2:
             raise InvalidInputError(
-                "bevel_angle_rad", f"expected an angle in (0, pi/2) rad, got {self.bevel_angle_rad!r}"
+                "bevel_angle_rad",
+                f"expected an angle in (0, pi/2) rad, got {self.bevel_angle_rad!r}",
             )
 
     @property

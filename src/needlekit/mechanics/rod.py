@@ -199,6 +199,10 @@ def solve_beam(
     k = np.broadcast_to(np.asarray(k_per_element, dtype=np.float64), lengths.shape)
     if not np.all(np.isfinite(k)) or np.any(k < 0):
         raise InvalidInputError("k_per_element", "expected finite foundation moduli >= 0")
+    if not clamp_first and not np.any(k > 0):
+        raise InvalidInputError(
+            "rod", "the beam is not held (no clamp and no foundation): singular stiffness"
+        )
     rhs = np.zeros(2 * s.size) if loads is None else np.asarray(loads, dtype=np.float64)
     if rhs.shape[0] != 2 * s.size:
         raise InvalidInputError("loads", f"expected {2 * s.size} rows, got {rhs.shape[0]}")

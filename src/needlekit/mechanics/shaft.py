@@ -148,7 +148,7 @@ def solve_shaft(
     channel : Channel
         The channel cut so far; its end is at ``depth_mm``.
     guide : tuple of ndarray
-        The guide's exit point, direction and normal ``e_x`` (world).
+        The guide's exit point, direction and normal ``e_x`` (world), each shape (3,).
     gap_mm : float
         Free length between guide and tissue (mm).
     depth_mm : float
