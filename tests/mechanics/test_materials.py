@@ -34,6 +34,10 @@ GOOD_TISSUE = dict(youngs_modulus_mpa=0.02, rupture_toughness_n_per_mm=0.001)
         ("bevel_angle_rad", 2.0),
         ("bevel_angle_rad", -0.3),
         ("bevel_angle_rad", True),
+        ("prebend_rad", -0.1),
+        ("prebend_rad", math.pi / 2),
+        ("prebend_length_mm", -1.0),
+        ("prebend_length_mm", float("nan")),
     ],
 )
 def test_bad_needle_field_is_named(field, value):
@@ -61,6 +65,14 @@ def test_bad_tissue_field_is_named(field, value):
     with pytest.raises(InvalidInputError) as info:
         TissueSpec(**{**GOOD_TISSUE, field: value})
     assert info.value.field == field
+
+
+def test_prebend_needs_a_length():
+    with pytest.raises(InvalidInputError) as info:
+        NeedleSpec(**GOOD_NEEDLE, prebend_rad=0.2)
+    assert info.value.field == "prebend_length_mm"
+    bent = NeedleSpec(**GOOD_NEEDLE).with_prebend(20.0, 5.0)
+    assert bent.rest_curvature_per_mm == pytest.approx(math.radians(20.0) / 5.0)
 
 
 def test_unknown_presets_are_named():

@@ -19,7 +19,7 @@ from needlekit.mechanics.insertion import MechanicalNeedle, steady_curvature
 from needlekit.mechanics.materials import NeedleSpec, TissueSpec
 from needlekit.provenance import machine_info
 
-__all__ = ["run_mechanics_benchmark"]
+__all__ = ["curvature_table", "run_mechanics_benchmark"]
 
 
 def run_mechanics_benchmark(
@@ -95,3 +95,63 @@ def run_mechanics_benchmark(
             "rod_nodes_at_end": int(sim.shaft_points_mm().shape[0]),
         },
     }
+
+
+def curvature_table(
+    needles: tuple[str, ...] = ("nitinol", "steel"),
+    tissues: tuple[str, ...] = ("gelatin", "plastisol", "chicken", "liver", "lung"),
+    bevels_deg: tuple[float, ...] = (10.0, 20.0, 30.0, 45.0, 60.0),
+    stiffness_factors: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0),
+    prebends_deg: tuple[float, ...] = (10.0, 20.0, 30.0),
+) -> dict[str, list[dict[str, Any]]]:
+    """The model's steady curvature with the bevel held, over presets and sweeps.
+
+    Parameters
+    ----------
+    needles, tissues : tuple of str
+        Preset names for the preset table.
+    bevels_deg : tuple of float
+        Bevel angles (degrees) swept on the nitinol needle in chicken.
+    stiffness_factors : tuple of float
+        Factors on the chicken preset's Young's modulus, swept with the nitinol needle.
+    prebends_deg : tuple of float
+        Pre-bent tips (degrees over 5 mm) on the nitinol needle, in chicken (ex vivo)
+        and liver (in vivo).
+
+    Returns
+    -------
+    dict
+        ``presets``, ``bevel``, ``stiffness`` and ``prebend``: rows with the inputs, the tip load
+        ``q_n`` (N), the foundation length ``one_over_lambda_mm``, ``kappa_per_mm`` and
+        ``radius_mm``.
+    """
+    from needlekit.mechanics.tip_load import bevel_tip_load
+
+    def row(n: NeedleSpec, t: TissueSpec, **extra: Any) -> dict[str, Any]:
+        kappa = steady_curvature(n, t)
+        k = t.foundation_modulus(n)
+        return {
+            **extra,
+            "q_n": bevel_tip_load(n, t).lateral_n,
+            "one_over_lambda_mm": (4.0 * n.bending_stiffness_nmm2 / k) ** 0.25,
+            "kappa_per_mm": kappa,
+            "radius_mm": 1.0 / kappa if kappa > 0 else math.inf,
+        }
+
+    presets = [
+        row(NeedleSpec.preset(n), TissueSpec.preset(t), needle=n, tissue=t)
+        for n in needles
+        for t in tissues
+    ]
+    nit, chicken = NeedleSpec.preset("nitinol"), TissueSpec.preset("chicken")
+    bevel = [row(nit.with_bevel_deg(b), chicken, bevel_deg=b) for b in bevels_deg]
+    stiff = [
+        row(nit, chicken.scaled(f), tissue_modulus_kpa=1e3 * chicken.youngs_modulus_mpa * f)
+        for f in stiffness_factors
+    ]
+    prebend = [
+        row(nit.with_prebend(b, 5.0), TissueSpec.preset(t), prebend_deg=b, tissue=t)
+        for t in ("chicken", "liver")
+        for b in prebends_deg
+    ]
+    return {"presets": presets, "bevel": bevel, "stiffness": stiff, "prebend": prebend}

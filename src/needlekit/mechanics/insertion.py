@@ -19,6 +19,12 @@ after the transient is ``f kappa_max`` exactly. A negative command bends toward 
 spinning by pi would); ``|f|`` is clipped at 1: the needle cannot bend more than its
 held bevel makes it.
 
+**Pre-bent tips** (:meth:`NeedleSpec.with_prebend
+<needlekit.mechanics.materials.NeedleSpec.with_prebend>`): the tip segment's stress-free
+curvature points to the bevel's side and is duty-cycled like the bevel's load. Its radii
+are indicative: the shaft's slope off the channel reaches 0.1-0.4 rad, past the
+small-offset premise of the solve.
+
 **Torsion** is left out: the shaft is torsionally rigid, so a spin of the base turns the
 bevel by the same angle, and the tip frame is the channel's transported frame turned by
 the accumulated spin about the tangent.
@@ -141,6 +147,7 @@ class MechanicalNeedle:
         self._tip_ex = x
         self._noise = np.zeros((0, 3))
         self._last_force_xy = (0.0, 0.0)
+        self._rest_xy = (0.0, 0.0)
         self.solution: ShaftSolution | None = None
         self.inserted_mm = 0.0
         self.pose = self._compose_pose()
@@ -191,6 +198,8 @@ class MechanicalNeedle:
             self.unsupported_mm,
             (fx, fy),
             self.element_mm,
+            self._rest_xy,
+            self.needle.prebend_length_mm,
         )
         self.solution = sol
         u, th = sol.offsets_mm[-1], sol.slopes[-1]
@@ -215,6 +224,8 @@ class MechanicalNeedle:
         q0 = self.tip_load.lateral_n
         # toward the tip's -y axis, -(-s e_x + c e_y), plus the inhomogeneity's push
         self._last_force_xy = (q * s + q0 * noise[1], -q * c + q0 * noise[2])
+        rest = duty * self.needle.rest_curvature_per_mm
+        self._rest_xy = (rest * s, -rest * c)
         self.inserted_mm += length
         self.channel.extend(length, self._tip_tan.copy())
         self._solve()

@@ -24,6 +24,7 @@ Every field is checked before any work: a value out of its physical range raises
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -66,6 +67,11 @@ class NeedleSpec:
         Angle between the bevel face and the needle's axis, in (0, pi/2).
     name : str
         A label for records.
+    prebend_rad : float
+        Angle of a pre-bent tip toward the bevel's side, in [0, pi/2) (0: straight).
+    prebend_length_mm : float
+        Length of the pre-bent tip segment (mm), > 0 when ``prebend_rad > 0``; the
+        bend is spread evenly over it (stress-free curvature ``prebend / length``).
     """
 
     outer_diameter_mm: float
@@ -73,6 +79,8 @@ class NeedleSpec:
     youngs_modulus_mpa: float
     bevel_angle_rad: float
     name: str = "needle"
+    prebend_rad: float = 0.0
+    prebend_length_mm: float = 0.0
 
     def __post_init__(self) -> None:
         d = _positive("outer_diameter_mm", self.outer_diameter_mm)
@@ -89,6 +97,23 @@ class NeedleSpec:
                 "bevel_angle_rad",
                 f"expected an angle in (0, pi/2) rad, got {self.bevel_angle_rad!r}",
             )
+        bend = _non_negative("prebend_rad", self.prebend_rad)
+        if not bend < math.pi / 2:
+            raise InvalidInputError(
+                "prebend_rad", f"expected an angle in [0, pi/2) rad, got {self.prebend_rad!r}"
+            )
+        length = _non_negative("prebend_length_mm", self.prebend_length_mm)
+        if bend > 0 and length == 0:
+            raise InvalidInputError(
+                "prebend_length_mm", "expected a length > 0 for a pre-bent tip, got 0"
+            )
+
+    @property
+    def rest_curvature_per_mm(self) -> float:
+        """Stress-free curvature of the pre-bent tip segment (1/mm); 0 when straight."""
+        if self.prebend_rad == 0.0:
+            return 0.0
+        return self.prebend_rad / self.prebend_length_mm
 
     @property
     def second_moment_mm4(self) -> float:
@@ -116,12 +141,28 @@ class NeedleSpec:
         -------
         NeedleSpec
         """
-        return NeedleSpec(
-            self.outer_diameter_mm,
-            self.inner_diameter_mm,
-            self.youngs_modulus_mpa,
-            math.radians(_positive("bevel_deg", bevel_deg)),
-            self.name,
+        return dataclasses.replace(
+            self, bevel_angle_rad=math.radians(_positive("bevel_deg", bevel_deg))
+        )
+
+    def with_prebend(self, prebend_deg: float, length_mm: float) -> NeedleSpec:
+        """The same needle with a pre-bent tip (degrees, mm).
+
+        Parameters
+        ----------
+        prebend_deg : float
+            Bend toward the bevel's side, in [0, 90) degrees.
+        length_mm : float
+            Length of the bent segment (mm).
+
+        Returns
+        -------
+        NeedleSpec
+        """
+        return dataclasses.replace(
+            self,
+            prebend_rad=math.radians(_non_negative("prebend_deg", prebend_deg)),
+            prebend_length_mm=length_mm,
         )
 
     @classmethod

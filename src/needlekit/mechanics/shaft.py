@@ -15,7 +15,8 @@ the frame of its first node, the reference is the Hermite cubic with end offsets
 its bending stiffness times the reference gives the load that pulls the rod off a bent
 channel. The tissue holds the shaft toward the channel (the anchors) by a Winkler
 foundation ``k`` over ``[g, g + depth - L_u]``; the last ``L_u`` behind the tip (the
-bevel) is not held. The tip carries the bevel's lateral load. The two bending planes
+bevel) is not held. The tip carries the bevel's lateral load; a pre-bent tip adds its
+stress-free curvature over its last ``L_k`` (the reference minus the rest shape). The two bending planes
 share one banded Cholesky factorisation.
 
 Left out (docs/mechanics.md): axial load in the bending equation (buckling; the tip's
@@ -76,8 +77,8 @@ class ShaftSolution:
         return self.ref_mm + u[:, :1] * self.e_x + u[:, 1:] * self.e_y
 
 
-def node_positions(gap_mm: float, depth_mm: float, support_end_mm: float, h_mm: float):
-    """Node arc lengths: fixed to the tissue's entry, plus the support's end and the tip.
+def node_positions(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
+    """Node arc lengths: fixed to the tissue's entry, plus the given breaks and the tip.
 
     Parameters
     ----------
@@ -85,23 +86,22 @@ def node_positions(gap_mm: float, depth_mm: float, support_end_mm: float, h_mm: 
         Free length between guide and tissue (mm).
     depth_mm : float
         Inserted depth (mm).
-    support_end_mm : float
-        Arc length where the tissue stops holding the shaft (mm).
+    breaks_mm : sequence of float
+        Arc lengths that must be nodes (mm): where the tissue stops holding the shaft,
+        where a pre-bent tip starts; those outside ``(gap_mm, tip)`` are ignored.
     h_mm : float
         Element length (mm).
 
     Returns
     -------
     ndarray, shape (n,)
-        Increasing node positions; elements are wholly held or wholly free.
+        Increasing node positions; elements lie wholly on one side of each break.
     """
     tip = gap_mm + depth_mm
     n_gap = max(1, math.ceil(gap_mm / h_mm - 1e-9)) if gap_mm > 0 else 0
     parts = [np.linspace(0.0, gap_mm, n_gap + 1)] if n_gap else [np.zeros(1)]
     inner = gap_mm + h_mm * np.arange(1, max(1, math.ceil(depth_mm / h_mm)))
-    must = [tip]
-    if gap_mm < support_end_mm < tip:
-        must.append(support_end_mm)
+    must = [tip] + [b for b in breaks_mm if gap_mm < b < tip - 1e-9]
     tol = 0.3 * h_mm
     keep = np.ones(inner.size, dtype=bool)
     for m in must:
@@ -140,6 +140,8 @@ def solve_shaft(
     unsupported_mm: float,
     tip_force_xy: tuple[float, float],
     h_mm: float,
+    rest_curvature_xy: tuple[float, float] = (0.0, 0.0),
+    rest_length_mm: float = 0.0,
 ) -> ShaftSolution:
     """Solve the shaft against its channel with a lateral tip force (module notes).
 
@@ -163,13 +165,19 @@ def solve_shaft(
         Lateral force on the tip along the channel end's ``e_x`` and ``e_y`` (N).
     h_mm : float
         Element length (mm).
+    rest_curvature_xy : tuple of float
+        Stress-free curvature of a pre-bent tip, toward ``e_x`` and ``e_y`` (1/mm).
+    rest_length_mm : float
+        Length of the pre-bent tip segment (mm); 0 for none.
 
     Returns
     -------
     ShaftSolution
     """
-    support_end = gap_mm + depth_mm - unsupported_mm
-    s = node_positions(gap_mm, depth_mm, support_end, h_mm)
+    tip = gap_mm + depth_mm
+    support_end = tip - unsupported_mm
+    bend_start = tip - rest_length_mm
+    s = node_positions(gap_mm, depth_mm, (support_end, bend_start), h_mm)
     pos, tan, ex, ey = _reference(channel, guide, s, gap_mm)
     lengths = np.diff(s)
     mid = 0.5 * (s[1:] + s[:-1])
@@ -185,6 +193,12 @@ def solve_shaft(
     ref[:, 3, 0] = np.sum(tan[1:] * ex[:-1], axis=1)
     ref[:, 2, 1] = np.sum(chord * ey[:-1], axis=1)
     ref[:, 3, 1] = np.sum(tan[1:] * ey[:-1], axis=1)
+    if rest_length_mm > 0.0:
+        # a pre-bent tip: the stress-free shape's Hermite offsets, c l^2 / 2 and c l
+        bent = mid > max(bend_start, 0.0)
+        for p, c in enumerate(rest_curvature_xy):
+            ref[bent, 2, p] -= 0.5 * c * lengths[bent] ** 2
+            ref[bent, 3, p] -= c * lengths[bent]
     f_el = -np.einsum("eab,ebp->eap", kb, ref)
     rhs = np.zeros((2 * s.size, 2))
     for a in range(4):
