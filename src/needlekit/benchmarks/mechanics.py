@@ -17,6 +17,7 @@ import numpy as np
 
 from needlekit.mechanics.insertion import MechanicalNeedle, steady_curvature
 from needlekit.mechanics.materials import NeedleSpec, TissueSpec
+from needlekit.mechanics.tip_load import bevel_tip_load
 from needlekit.provenance import machine_info
 
 __all__ = ["curvature_table", "run_mechanics_benchmark"]
@@ -125,8 +126,6 @@ def curvature_table(
         ``q_n`` (N), the foundation length ``one_over_lambda_mm``, ``kappa_per_mm`` and
         ``radius_mm``.
     """
-    from needlekit.mechanics.tip_load import bevel_tip_load
-
     def row(n: NeedleSpec, t: TissueSpec, **extra: Any) -> dict[str, Any]:
         kappa = steady_curvature(n, t)
         k = t.foundation_modulus(n)
