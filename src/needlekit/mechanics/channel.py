@@ -178,10 +178,10 @@ class Channel:
             + (-6 * tau2 + 6 * tau) * p1
             + (3 * tau2 - 2 * tau) * m1
         )
-        tan = dpos / np.linalg.norm(dpos, axis=1, keepdims=True)
+        tan = dpos / np.sqrt(np.sum(dpos * dpos, axis=1, keepdims=True))
         ex = (1.0 - tau) * self._ex[i] + tau * self._ex[i + 1]
         ex -= np.sum(ex * tan, axis=1, keepdims=True) * tan
-        ex /= np.linalg.norm(ex, axis=1, keepdims=True)
+        ex /= np.sqrt(np.sum(ex * ex, axis=1, keepdims=True))
         return pos, tan, ex
 
     def displace(self, displacement_mm: np.ndarray) -> None:

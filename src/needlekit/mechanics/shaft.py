@@ -126,7 +126,10 @@ def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
     inside = ~on_guide
     if np.any(inside):
         pos[inside], tan[inside], ex[inside] = channel.sample(s[inside] - gap)
-    ey = np.cross(tan, ex)
+    ey = np.empty_like(ex)  # tan x ex, written out (np.cross is slow on small arrays)
+    ey[:, 0] = tan[:, 1] * ex[:, 2] - tan[:, 2] * ex[:, 1]
+    ey[:, 1] = tan[:, 2] * ex[:, 0] - tan[:, 0] * ex[:, 2]
+    ey[:, 2] = tan[:, 0] * ex[:, 1] - tan[:, 1] * ex[:, 0]
     return pos, tan, ex, ey
 
 
@@ -199,7 +202,7 @@ def solve_shaft(
         for p, c in enumerate(rest_curvature_xy):
             ref[bent, 2, p] -= 0.5 * c * lengths[bent] ** 2
             ref[bent, 3, p] -= c * lengths[bent]
-    f_el = -np.einsum("eab,ebp->eap", kb, ref)
+    f_el = -(kb @ ref)
     rhs = np.zeros((2 * s.size, 2))
     for a in range(4):
         rhs[a : a + 2 * lengths.size : 2] += f_el[:, a]
@@ -211,7 +214,7 @@ def solve_shaft(
     th = sol[1::2]
     # the tissue's nodal forces on the shaft: -F_e u_e, translational rows
     ue = np.stack([sol[0:-2:2], sol[1:-2:2], sol[2::2], sol[3::2]], axis=1)  # (e, 4, 2)
-    fe = -np.einsum("eab,ebp->eap", kf, ue)
+    fe = -(kf @ ue)
     nodal = np.zeros((s.size, 2))
     nodal[:-1] += fe[:, 0]
     nodal[1:] += fe[:, 2]
