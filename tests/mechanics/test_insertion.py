@@ -6,9 +6,10 @@ The configurations are small and stiff (a 0.5 mm nitinol wire in a 100 kPa tissu
 Measured (these tests' arguments): with the tissue holding the shaft up to the tip
 (``unsupported_mm = 0``) the steady curvature of a held bevel approaches the closed form
 ``kappa = Q / (2 lambda EI)`` of a semi-infinite beam on a Winkler foundation with end
-force ``Q``, zero end moment and zero end slope off the channel: relative error 2.4e-4
-at a 1 mm sub-step, 2.9e-5 at 0.5 mm; successive differences fall at order 2 (Heun's
-predictor-corrector advance), on a path of radius 90 mm (1.7 rad over 150 mm).
+force ``Q``, zero end moment and zero end slope off the channel: relative error 1.9e-3
+at a 2 mm sub-step, 2.3e-4 at 1 mm, 1.5e-5 at 0.5 mm; successive differences fall at
+orders 2.9 and 2.5 (Heun's predictor-corrector advance: 2 in theory), on a path of radius
+95 mm (1.6 rad over 150 mm).
 """
 
 import math
