@@ -264,3 +264,18 @@ def test_prebent_tip_bends_tighter_than_the_bevel_alone():
     sim = MechanicalNeedle(np.eye(4), nitinol.with_prebend(20.0, 5.0), chicken)
     pts = _insert(sim, 20.0, 0.0, ds=5.0)
     assert np.max(np.abs(pts[:, :2])) < 1e-12
+
+
+def test_the_path_does_not_depend_on_the_step_size():
+    """40 mm inserted in 400 steps of 0.1 mm or 10 of 4 mm: the same tip, to 2e-3 mm
+    (sub-steps of at most 1 mm, a tenth of that while the tissue takes hold)."""
+    tips = []
+    for ds in (0.1, 4.0):
+        sim = MechanicalNeedle(np.eye(4), WIRE, STIFF_BEVEL)
+        kmax = sim.kappa_max_per_mm
+        for _ in range(round(40.0 / ds)):
+            sim.step(0.0, kmax, ds, 0.025)
+        tips.append(sim.pose[:3, 3])
+        assert sim.inserted_mm == pytest.approx(40.0, abs=1e-9)
+    assert np.linalg.norm(tips[0] - tips[1]) < 2e-3
+    assert abs(tips[0][1]) > 10.0

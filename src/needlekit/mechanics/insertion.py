@@ -3,7 +3,8 @@
 The tissue holds the shaft toward the channel the tip has cut (virtual springs anchored
 on the cut path, as in Roesthuis et al. 2012, here a continuous Winkler foundation); a
 guide at the base holds position and direction; between the guide and the tissue the rod
-is free. Each step inserts ``ds``, in sub-steps of at most ``max_substep_mm``: the tip
+is free. Each step inserts ``ds``, in sub-steps of at most ``max_substep_mm`` (a tenth of
+that over the first ``4 max(L_u, L_k, 1 mm)``, where the tissue takes hold): the tip
 cuts the sub-step along its current (deflected) tangent, extending the channel; then the
 rod is solved against the channel with the bevel's load at the tip
 (:func:`needlekit.mechanics.shaft.solve_shaft`), which gives the tip's new position and
@@ -137,6 +138,8 @@ class MechanicalNeedle:
         self.k = tissue.foundation_modulus(needle)
         self.unsupported_mm = tissue.unsupported_length(needle)
         self.tip_load = bevel_tip_load(needle, tissue)
+        # the start, where the tissue takes hold of the shaft: sub-steps a tenth as long
+        self._onset_mm = 4.0 * max(self.unsupported_mm, needle.prebend_length_mm, 1.0)
 
         z, x = rot[:, 2].copy(), rot[:, 0].copy()
         self.channel = Channel(pose[:3, 3].copy(), z, x)
@@ -260,9 +263,15 @@ class MechanicalNeedle:
         self._spin = math.remainder(self._spin + spin, 2.0 * math.pi)
         if ds > 0.0:
             duty = 0.0 if kappa == 0.0 else max(-1.0, min(1.0, kappa / self.kappa_max_per_mm))
-            n = max(1, math.ceil(ds / self.max_substep_mm - 1e-12))
-            for _ in range(n):
-                self._substep(ds / n, duty)
+            remaining = ds
+            while remaining > 0.0:
+                limit = self.max_substep_mm
+                if self.inserted_mm < self._onset_mm:
+                    # the tissue takes hold: finer sub-steps keep the start step-size free
+                    limit = min(0.1 * limit, max(self._onset_mm - self.inserted_mm, 1e-3))
+                sub = remaining / max(1, math.ceil(remaining / limit - 1e-9))
+                self._substep(sub, duty)
+                remaining = remaining - sub if remaining - sub > 1e-12 * ds else 0.0
         self.pose = self._compose_pose()
         return self.pose.copy()
 

@@ -39,7 +39,11 @@ from needlekit.mechanics.rod import (
     solve_band,
 )
 
-__all__ = ["ShaftSolution", "node_positions", "solve_shaft"]
+__all__ = ["MIN_ELEMENT_FRACTION", "ShaftSolution", "node_positions", "solve_shaft"]
+
+#: Shortest element, as a fraction of the element length: nodes closer are merged (a
+#: break such as the support's end then moves by at most this much).
+MIN_ELEMENT_FRACTION = 0.05
 
 
 @dataclass
@@ -95,7 +99,9 @@ def node_positions(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
     Returns
     -------
     ndarray, shape (n,)
-        Increasing node positions; elements lie wholly on one side of each break.
+        Increasing node positions from 0 to ``gap_mm + depth_mm``; elements lie wholly on
+        one side of each break, no element is shorter than ``MIN_ELEMENT_FRACTION h_mm``
+        (closer breaks are merged) unless the rod itself is.
     """
     tip = gap_mm + depth_mm
     n_gap = max(1, math.ceil(gap_mm / h_mm - 1e-9)) if gap_mm > 0 else 0
@@ -109,7 +115,15 @@ def node_positions(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
     parts.append(inner[keep & (inner < tip)])
     parts.append(np.array(must))
     s = np.unique(np.concatenate(parts))
-    return s[(s <= tip) & np.concatenate(([True], np.diff(s) > 1e-9))]
+    s = s[s < tip]
+    # no element shorter than MIN_ELEMENT_FRACTION h (its stiffness would swamp the rest)
+    min_len = MIN_ELEMENT_FRACTION * h_mm
+    keep = [0.0]
+    for x in s[1:]:
+        if x - keep[-1] >= min_len and tip - x >= min_len:
+            keep.append(float(x))
+    keep.append(tip)
+    return np.asarray(keep)
 
 
 def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
