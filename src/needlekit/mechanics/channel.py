@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.mechanics._kernels import sample_channel_kernel
 
 __all__ = ["Channel", "transport"]
 
@@ -138,7 +139,31 @@ class Channel:
             self.n -= 1
 
     def sample(self, depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Points, unit tangents and unit normals ``e_x`` at the given depths.
+        """Points, unit tangents and unit normals ``e_x`` at the given depths (compiled).
+
+        Parameters
+        ----------
+        depth_mm : ndarray, shape (m,)
+            Depths within ``[0, end_depth_mm]`` (clipped to it).
+
+        Returns
+        -------
+        tuple of ndarray, each shape (m, 3)
+            ``(points_mm, tangents, normals_x)``, as :meth:`sample_reference`.
+        """
+        if self.n == 1:
+            return self.sample_reference(depth_mm)
+        n = self.n
+        return sample_channel_kernel(
+            self._depth[:n],
+            self._pos[:n],
+            self._tan[:n],
+            self._ex[:n],
+            np.ascontiguousarray(depth_mm, dtype=np.float64),
+        )
+
+    def sample_reference(self, depth_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points, unit tangents and unit normals ``e_x`` at the given depths (numpy).
 
         Parameters
         ----------

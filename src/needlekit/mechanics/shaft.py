@@ -31,6 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from needlekit.errors import InvalidInputError
+from needlekit.mechanics._kernels import rod_solve_kernel
 from needlekit.mechanics.channel import Channel
 from needlekit.mechanics.rod import (
     assemble_upper_band,
@@ -39,7 +41,13 @@ from needlekit.mechanics.rod import (
     solve_band,
 )
 
-__all__ = ["MIN_ELEMENT_FRACTION", "ShaftSolution", "node_positions", "solve_shaft"]
+__all__ = [
+    "MIN_ELEMENT_FRACTION",
+    "ShaftSolution",
+    "node_positions",
+    "solve_linear_reference",
+    "solve_shaft",
+]
 
 #: Shortest element, as a fraction of the element length: nodes closer are merged (a
 #: break such as the support's end then moves by at most this much).
@@ -117,13 +125,53 @@ def node_positions(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
     s = np.unique(np.concatenate(parts))
     s = s[s < tip]
     # no element shorter than MIN_ELEMENT_FRACTION h (its stiffness would swamp the rest)
+    # (a node dropped for its predecessor leaves its successor at least min_len away)
     min_len = MIN_ELEMENT_FRACTION * h_mm
-    keep = [0.0]
-    for x in s[1:]:
-        if x - keep[-1] >= min_len and tip - x >= min_len:
-            keep.append(float(x))
-    keep.append(tip)
-    return np.asarray(keep)
+    keep = np.ones(s.size, dtype=bool)
+    keep[1:] = (np.diff(s) >= min_len) & (tip - s[1:] >= min_len)
+    return np.append(s[keep], tip)
+
+
+def solve_linear_reference(lengths, ei, k_e, ref, fx: float, fy: float):
+    """The rod's linear solve in numpy: the reference of the compiled kernel.
+
+    Parameters
+    ----------
+    lengths : ndarray, shape (e,)
+        Element lengths (mm).
+    ei : float
+        Flexural rigidity (N mm^2).
+    k_e : ndarray, shape (e,)
+        Foundation modulus per element (N/mm^2).
+    ref : ndarray, shape (e, 4, 2)
+        Each element's reference offsets (minus a rest shape), both planes.
+    fx, fy : float
+        Tip force in the two planes (N).
+
+    Returns
+    -------
+    sol : ndarray, shape (2 (e + 1), 2)
+        Deflections and slopes (zero at the clamped first node).
+    nodal : ndarray, shape (e + 1, 2)
+        The foundation's consistent nodal forces on the rod (N).
+    """
+    kb = element_stiffness(lengths, ei)
+    kf = element_foundation(lengths, k_e)
+    ab = assemble_upper_band(kb + kf)
+    f_el = -(kb @ ref)
+    n = lengths.size + 1
+    rhs = np.zeros((2 * n, 2))
+    for a in range(4):
+        rhs[a : a + 2 * lengths.size : 2] += f_el[:, a]
+    rhs[-2, 0] += fx
+    rhs[-2, 1] += fy
+    sol = solve_band(ab, rhs, 2)
+    ue = np.stack([sol[0:-2:2], sol[1:-2:2], sol[2::2], sol[3::2]], axis=1)  # (e, 4, 2)
+    fe = -(kf @ ue)
+    nodal = np.zeros((n, 2))
+    nodal[:-1] += fe[:, 0]
+    nodal[1:] += fe[:, 2]
+    return sol, nodal
 
 
 def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
@@ -159,6 +207,8 @@ def solve_shaft(
     h_mm: float,
     rest_curvature_xy: tuple[float, float] = (0.0, 0.0),
     rest_length_mm: float = 0.0,
+    *,
+    reference: bool = False,
 ) -> ShaftSolution:
     """Solve the shaft against its channel with a lateral tip force (module notes).
 
@@ -186,6 +236,8 @@ def solve_shaft(
         Stress-free curvature of a pre-bent tip, toward ``e_x`` and ``e_y`` (1/mm).
     rest_length_mm : float
         Length of the pre-bent tip segment (mm); 0 for none.
+    reference : bool
+        Solve with the numpy reference instead of the compiled kernel.
 
     Returns
     -------
@@ -199,9 +251,6 @@ def solve_shaft(
     lengths = np.diff(s)
     mid = 0.5 * (s[1:] + s[:-1])
     k_e = np.where((mid > gap_mm) & (mid < support_end), k, 0.0)
-    kb = element_stiffness(lengths, ei)
-    kf = element_foundation(lengths, k_e)
-    ab = assemble_upper_band(kb + kf)
 
     # the reference's end offsets in each element's first-node frame, both planes
     chord = pos[1:] - pos[:-1]
@@ -216,21 +265,15 @@ def solve_shaft(
         for p, c in enumerate(rest_curvature_xy):
             ref[bent, 2, p] -= 0.5 * c * lengths[bent] ** 2
             ref[bent, 3, p] -= c * lengths[bent]
-    f_el = -(kb @ ref)
-    rhs = np.zeros((2 * s.size, 2))
-    for a in range(4):
-        rhs[a : a + 2 * lengths.size : 2] += f_el[:, a]
-    rhs[-2, 0] += tip_force_xy[0]
-    rhs[-2, 1] += tip_force_xy[1]
-
-    sol = solve_band(ab, rhs, 2)
+    if reference:
+        sol, nodal = solve_linear_reference(lengths, ei, k_e, ref, *tip_force_xy)
+    else:
+        sol, nodal, ok = rod_solve_kernel(
+            lengths, float(ei), k_e, ref, float(tip_force_xy[0]), float(tip_force_xy[1])
+        )
+        if not ok:
+            raise InvalidInputError("rod", "the shaft's stiffness is not positive definite")
     u = sol[0::2]
     th = sol[1::2]
-    # the tissue's nodal forces on the shaft: -F_e u_e, translational rows
-    ue = np.stack([sol[0:-2:2], sol[1:-2:2], sol[2::2], sol[3::2]], axis=1)  # (e, 4, 2)
-    fe = -(kf @ ue)
-    nodal = np.zeros((s.size, 2))
-    nodal[:-1] += fe[:, 0]
-    nodal[1:] += fe[:, 2]
     forces = nodal[:, :1] * ex + nodal[:, 1:] * ey
     return ShaftSolution(s, pos, tan, ex, ey, u, th, forces)
