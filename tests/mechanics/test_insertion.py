@@ -279,3 +279,11 @@ def test_the_path_does_not_depend_on_the_step_size():
         assert sim.inserted_mm == pytest.approx(40.0, abs=1e-9)
     assert np.linalg.norm(tips[0] - tips[1]) < 2e-3
     assert abs(tips[0][1]) > 10.0
+
+
+def test_a_tip_that_cannot_bend_goes_straight_whatever_the_command():
+    stuck = TissueSpec(0.1, 0.5, 0.45, 5.0, 0.0, "stuck")  # friction cancels Q
+    sim = MechanicalNeedle(np.eye(4), WIRE, stuck)
+    assert sim.kappa_max_per_mm == 0.0
+    pts = _insert(sim, 10.0, 0.01, ds=2.0)
+    assert np.max(np.abs(pts[:, :2])) < 1e-12

@@ -133,6 +133,7 @@ def curvature_table(
         ``q_n`` (N), the foundation length ``one_over_lambda_mm``, ``kappa_per_mm`` and
         ``radius_mm``.
     """
+
     def row(n: NeedleSpec, t: TissueSpec, **extra: Any) -> dict[str, Any]:
         kappa = steady_curvature(n, t)
         k = t.foundation_modulus(n)

@@ -262,7 +262,8 @@ class MechanicalNeedle:
         _number("dt_s", dt_s)
         self._spin = math.remainder(self._spin + spin, 2.0 * math.pi)
         if ds > 0.0:
-            duty = 0.0 if kappa == 0.0 else max(-1.0, min(1.0, kappa / self.kappa_max_per_mm))
+            kmax = self.kappa_max_per_mm if kappa != 0.0 else 0.0
+            duty = 0.0 if kmax <= 0.0 else max(-1.0, min(1.0, kappa / kmax))
             remaining = ds
             while remaining > 0.0:
                 limit = self.max_substep_mm
