@@ -27,6 +27,7 @@ LAYERS: dict[str, int] = {
     "planning.steerable": 4,
     "planning.straight": 4,
     "control": 4,
+    "mechanics": 4,
     "io": 4,
     "execute": 5,
     "report": 6,
