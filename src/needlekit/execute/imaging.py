@@ -191,6 +191,10 @@ class CheckpointImaging:
             The true tip.
         target_mm : array_like, shape (3,)
             The true target.
+
+        Returns
+        -------
+        None
         """
         s = self.spec
         seen_tip = noisy_pose(tip_pose, s.position_sigma_mm,
@@ -349,6 +353,10 @@ class TargetEstimator:
         Parameters
         ----------
         t : float
+
+        Returns
+        -------
+        None
         """
         if t > self.t:
             self.variance_mm2 += self.drift_var * (t - self.t)
