@@ -16,16 +16,16 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.errors import Interrupted
+from needlekit.execute import trials as execute_study
 from needlekit.execute.replan import ReplanPolicy
 from needlekit.execute.run import ExecutionSettings
-from needlekit.scenario.problems import ScenarioSource
-from needlekit.scenario.results import read_plan_json
-from needlekit.studies import execute_study
-from needlekit.studies.execute_study import (
+from needlekit.execute.trials import (
     ExecuteOptions,
     read_partial_execute,
     run_execute_study,
 )
+from needlekit.scenario.problems import ScenarioSource
+from needlekit.scenario.results import read_plan_json
 
 TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
 REPRODUCIBLE = ["--replan-delay-ms", "5", "--replan-iterations", "500", "--seed", "3"]
