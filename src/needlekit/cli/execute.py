@@ -85,9 +85,9 @@ def _check_flags(args: argparse.Namespace) -> None:
     from needlekit.cli.execute_models import checked_models
     from needlekit.cli.execute_multi import check_trial_flags
 
+    args.models = checked_models(args)  # first: light (the guard's check loads numba)
     check_noise_flags(args)
     check_trial_flags(args)
-    args.models = checked_models(args)
     if args.tip_from_igtl is not None and args.igtl is None:
         raise InvalidInputError(
             "--tip-from-igtl", "takes the tip from the --igtl link: give that too"

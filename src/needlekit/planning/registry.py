@@ -507,11 +507,13 @@ def check_replanner(name: str, field: str = "--replanner") -> None:
     InvalidInputError
         Unknown planner, another family, or no ``warm_start``.
     """
-    try:
-        entry = _entry(name)
-    except InvalidInputError as exc:
-        raise InvalidInputError(field, exc.reason) from None
     able = [n for n in planner_names("steerable") if "warm_start" in planner_capabilities(n)]
+    if name not in planner_names():
+        raise InvalidInputError(
+            field, f"unknown planner {name!r}; planners that re-plan: {', '.join(able)}"
+            + did_you_mean(str(name), able),
+        )  # fmt: skip
+    entry = _entry(name)
     if entry.family != "steerable" or "warm_start" not in planner_capabilities(name):
         raise InvalidInputError(
             field, f"planner {name!r} does not declare the 'warm_start' capability a re-planner "
