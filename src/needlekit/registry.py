@@ -94,10 +94,10 @@ class Registry:
     ['red']
     >>> r.get("red")("x")
     'x'
-    >>> r.check("rde")
+    >>> r.check("redd")
     Traceback (most recent call last):
     ...
-    needlekit.errors.InvalidInputError: colour: unknown colour 'rde'; available: red; did you mean red?
+    needlekit.errors.InvalidInputError: colour: unknown colour 'redd'; available: red; did you mean red?
     """
 
     def __init__(
