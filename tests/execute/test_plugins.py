@@ -26,6 +26,7 @@ from needlekit.execute.plugins import (
     TipSensor,
     Truth,
 )
+from needlekit.execute.replan import Replanner, ReplanPolicy
 from needlekit.execute.run import ExecutionSettings, execute_plan
 from needlekit.planning.registry import check_replanner, planner_capabilities
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -239,3 +240,10 @@ def test_the_command_line_refuses_a_wrong_name_before_any_work(tmp_path, capsys)
     assert err == ("error: --feedback: unknown feedback law 'pure_persuit'; available: "
                    "pure_pursuit, sliding_mode; did you mean pure_pursuit?")  # fmt: skip
     assert not (tmp_path / "out").exists()
+
+
+def test_the_replanner_searches_with_the_planner_asked_for():
+    assert Replanner(None, ReplanPolicy()).planner.name == "rcs_star"
+    assert Replanner(None, ReplanPolicy(planner="rcs")).planner.name == "rcs"
+    with pytest.raises(InvalidInputError, match=r"^planner: planner 'rrt' does not declare"):
+        ReplanPolicy(planner="rrt")
