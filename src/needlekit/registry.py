@@ -176,15 +176,20 @@ class Registry:
             # loaded when first asked for, as a built-in is
             self._entries[ep.name] = _EntryPoint(ep.name, ep.value, summary=f"entry point {ep.value}")
 
-    def names(self) -> list[str]:
+    def names(self, keep: Callable[[str], bool] | None = None) -> list[str]:
         """Every name: needlekit's, then others in registration order, then entry points.
+
+        Parameters
+        ----------
+        keep : callable, optional
+            Only the names it keeps (e.g. those declaring a capability).
 
         Returns
         -------
         list of str
         """
         self._read_entry_points()
-        return list(self._entries)
+        return [n for n in list(self._entries) if keep is None or keep(n)]
 
     def _entry(self, name: str) -> Any:
         if name not in self._entries:

@@ -46,6 +46,7 @@ def test_a_builtin_is_checked_and_listed_without_its_module_imported():
                    [Builtin("w", "needlekit_no_such_module:make", ("fast",))])  # fmt: skip
     reg.check("w")
     assert reg.names() == ["w"] and reg.capabilities("w") == ("fast",)
+    assert reg.names(keep=lambda n: "slow" in reg.capabilities(n)) == []
     assert "needlekit_no_such_module" not in sys.modules
     with pytest.raises(InvalidInputError, match=r"^widget: widget 'w' \(needlekit_no_such"):
         reg.get("w")  # loaded only now: one line naming it
