@@ -55,6 +55,7 @@ BASE = {
     "batch",
     "memory",
     "plausibility",
+    "registry",
 }
 
 #: Cycles tolerated for now (none: the test fails on any cycle, and on an entry here that

@@ -1,7 +1,7 @@
 """Every request is checked once (issue 20, point 3): one ``needlekit plan`` or ``sweep``
 reads its scenario file once, checks it against the schema once, checks each planner's
 name and options once and builds each planner once, however many directions or goals it
-then plans."""
+then plans; one ``needlekit execute`` reads its scenario and its plan once."""
 
 from __future__ import annotations
 
@@ -101,3 +101,46 @@ def test_a_sweep_of_two_planners_builds_each_once(counts, tmp_path):
     assert main(argv) == 0
     assert counts == {"schema": 1, "yaml": 1, "check": 2, "built": 2}
     assert json.loads(out.read_text())["options"]["rrt"]["seed"] == 3
+
+
+def _count_json_reads(monkeypatch) -> dict[str, int]:
+    """Counts every read of a JSON document, by file name (wherever the reader is held)."""
+    from needlekit.io import files
+
+    reads: dict[str, int] = {}
+    real = files.read_json_object
+
+    def counting(path, *a, **k):
+        name = Path(path).name
+        reads[name] = reads.get(name, 0) + 1
+        return real(path, *a, **k)
+
+    importlib.import_module("needlekit.scenario.results")
+    for module in [m for name, m in list(sys.modules.items()) if name.startswith("needlekit")]:
+        if getattr(module, "read_json_object", None) is real:
+            monkeypatch.setattr(module, "read_json_object", counting)
+    return reads
+
+
+def test_execute_reads_its_scenario_and_its_plan_once(tmp_path, monkeypatch):
+    plan = tmp_path / "plan.json"
+    assert main(["plan", TOY, "--max-iterations", "200", "--out", str(plan)]) == 0
+    # counted from here: the execution only
+    n = {"schema": 0, "yaml": 0}
+    validator = scenario_schema._validator()
+    monkeypatch.setattr(scenario_schema, "_validator", lambda: _Counting(validator, n))
+    load = safe_yaml.load_bounded
+
+    def counting_load(text, **kw):
+        n["yaml"] += 1
+        return load(text, **kw)
+
+    monkeypatch.setattr(safe_yaml, "load_bounded", counting_load)
+    reads = _count_json_reads(monkeypatch)
+    out = tmp_path / "run"
+    argv = ["execute", TOY, str(plan), "--trials", "2", "--replan-iterations", "100",
+            "--replan-delay-ms", "5", "--no-cache", "--out", str(out)]  # fmt: skip
+    assert main(argv) in (0, 1)
+    assert len(json.loads((out / "execute.json").read_text())["trials"]) == 2
+    assert n == {"schema": 1, "yaml": 1}
+    assert reads == {"plan.json": 1}

@@ -93,11 +93,11 @@ def _cases():
 
 @pytest.fixture
 def fake_study(monkeypatch, tmp_path):
-    import needlekit.studies.execute_study as study
+    import needlekit.execute.trials as study
 
     outcome = {}
 
-    def load(args):
+    def load(args, record=None):
         return None, SimpleNamespace(kappa_max_per_mm=0.02), None, "toy"
 
     def run(out, source, plan, *, trials, options, **_):

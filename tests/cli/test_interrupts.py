@@ -280,8 +280,8 @@ def test_ctrl_c_inside_a_kernel_keeps_the_trials_done_serial_and_in_a_trial_catc
     serial executor, the trials' loop, a trial's own catch-all (execute)."""
     from needlekit.batch import SerialExecutor
     from needlekit.errors import Interrupted
-    from needlekit.studies import execute_study
-    from needlekit.studies.trial_runs import collect_trials
+    from needlekit.execute import trials as execute_study
+    from needlekit.execute.trial_runs import collect_trials
 
     with pytest.raises(KeyboardInterrupt):
         SerialExecutor().submit(lambda: (_ for _ in ()).throw(_compiled_interrupt()))

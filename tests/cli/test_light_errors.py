@@ -254,6 +254,18 @@ CASES["formerly heavy"] = [
 ]  # fmt: skip
 
 
+#: ``execute``'s plug points: a wrong name, a sensor without its link, a re-planner that
+#: cannot warm-start; each refused before the plan is read.
+CASES["execute plug points"] = [
+    ["execute", TOY, "{d}/malformed.json", "--truth", "kinematik"],
+    ["execute", TOY, "{d}/malformed.json", "--estimator", "kalmann"],
+    ["execute", TOY, "{d}/malformed.json", "--feedback", "nope"],
+    ["execute", TOY, "{d}/malformed.json", "--sensor", "igtl"],
+    ["execute", TOY, "{d}/malformed.json", "--replanner", "rrt"],
+    ["execute", TOY, "{d}/malformed.json", "--replanner", "rcs_sta"],
+]
+
+
 #: A command group without its sub-command is a usage error (exit 2), not its help.
 CASES["groups"] = [["bench"], ["study"], ["scene"], ["kinematics"], ["cache"]]
 

@@ -8,24 +8,28 @@ reproducible to the bit, so replays are compared for equality."""
 
 from __future__ import annotations
 
+import copy
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from needlekit.cli import main
-from needlekit.errors import Interrupted
+from needlekit.errors import Interrupted, InvalidInputError
+from needlekit.execute import trials as execute_study
+from needlekit.execute.record import TrialRecord, trial_status
 from needlekit.execute.replan import ReplanPolicy
 from needlekit.execute.run import ExecutionSettings
-from needlekit.scenario.problems import ScenarioSource
-from needlekit.scenario.results import read_plan_json
-from needlekit.studies import execute_study
-from needlekit.studies.execute_study import (
+from needlekit.execute.trials import (
     ExecuteOptions,
     read_partial_execute,
     run_execute_study,
 )
+from needlekit.records import Status
+from needlekit.scenario.problems import ScenarioSource
+from needlekit.scenario.results import read_plan_json
 
 TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
 REPRODUCIBLE = ["--replan-delay-ms", "5", "--replan-iterations", "500", "--seed", "3"]
@@ -137,6 +141,8 @@ def test_a_trial_that_crashes_is_recorded_with_its_seed_and_the_others_go_on(
     assert len(crashed) == 1 and crashed[0]["trial"] == 1
     assert "FloatingPointError: the needle broke" in crashed[0]["error"]
     assert doc["trials"][1]["seed"] == 3 and "open_loop" not in doc["trials"][1]
+    assert doc["trials"][1]["status"] == "invalid_input"
+    assert doc["summary"]["status"] == {"invalid_input": 1, "solved": 2}
     assert doc["trials"][2] == three_trials["trials"][2]
     assert doc["summary"]["closed_loop"]["runs"] == 2
 
@@ -194,3 +200,43 @@ def test_the_page_renders_the_trial_and_the_histograms(
     shown = max(doc["trials"], key=lambda t: (t["closed_loop"]["replans"], -t["trial"]))
     assert f"Trial {shown['trial']} going in" in text and shown["closed_loop"]["replans"] >= 1
     assert len(shown["closed_loop"]["replan_events"]) == shown["closed_loop"]["replans"]
+
+
+def test_each_trial_record_reads_back_as_written_with_its_status(three_trials):
+    for t in three_trials["trials"]:
+        where = f"execute.json: trials[{t['trial']}]"
+        rec = TrialRecord.from_dict(t, where)
+        assert rec.to_dict() == t
+        assert TrialRecord.from_dict(json.loads(json.dumps(rec.to_dict())), where) == rec
+        # closed loop within the toy's goal tolerance, nothing crossed, nothing aborted
+        assert rec.status is Status.SOLVED and rec.closed_loop.samples > 0
+    assert three_trials["summary"]["status"] == {"solved": 3}
+
+
+def test_a_trial_record_refuses_a_field_not_as_written(three_trials):
+    good = three_trials["trials"][0]
+    cases = [
+        (("closed_loop", "samples"), "12", "closed_loop: samples: expected a whole number"),
+        (("open_loop", "points_mm"), [[0, 1]], "open_loop: points_mm: expected a list of points"),
+        (("closed_loop", "violated"), "no", "closed_loop: violated: expected true or false"),
+        (("status",), "done", "status: expected one of solved, approximate, infeasible"),
+        (("open_loop", "colour"), "red", "open_loop: colour: not a field of a run's record"),
+    ]
+    for keys, value, words in cases:
+        bad = copy.deepcopy(good)
+        target = bad
+        for k in keys[:-1]:
+            target = target[k]
+        target[keys[-1]] = value
+        with pytest.raises(InvalidInputError) as exc:
+            TrialRecord.from_dict(bad, "execute.json: trials[0]")
+        assert str(exc.value).startswith(f"execute.json: trials[0]: {words}"), str(exc.value)
+
+
+def test_the_status_says_how_the_judged_run_ended(three_trials):
+    run = TrialRecord.from_dict(three_trials["trials"][0], "t").closed_loop
+    assert trial_status(run, 1.0) is Status.SOLVED
+    assert trial_status(replace(run, final_error_mm=1.5), 1.0) is Status.APPROXIMATE
+    assert trial_status(replace(run, violated=True), 1.0) is Status.INFEASIBLE
+    assert trial_status(replace(run, aborted=True), 1.0) is Status.TIMEOUT
+    assert trial_status(run, 1.0, "FloatingPointError: x") is Status.INVALID_INPUT

@@ -4,6 +4,7 @@ without importing the planners) against the planner classes themselves."""
 from __future__ import annotations
 
 import dataclasses
+import inspect
 
 import pytest
 
@@ -26,6 +27,10 @@ def test_each_entry_says_what_its_class_is(entry):
     assert cls.name == entry.name and cls.family == entry.family
     assert entry.option_names == tuple(f.name for f in dataclasses.fields(cls.options_type))
     assert entry.names(cls)
+    # a declared capability is the class's, and "warm_start" is a keyword its solve takes
+    assert entry.capabilities == tuple(getattr(cls, "capabilities", ()))
+    takes = "warm_start" in inspect.signature(cls.solve).parameters
+    assert ("warm_start" in entry.capabilities) == takes
 
 
 def test_the_builtins_are_the_registry_s_first_planners_in_order():

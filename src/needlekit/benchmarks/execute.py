@@ -31,11 +31,12 @@ from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.timing import step_statistics
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
 from needlekit.execute.run import LoopHooks, execute_plan
+from needlekit.execute.trials import warm_up_replanner
 from needlekit.geometry.so3 import so3_exp
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
 from needlekit.scenario.problems import ScenarioSource
-from needlekit.studies.execute_study import lung_scenario_document, warm_up_replanner
+from needlekit.studies.execute_lungs import lung_scenario_document
 
 __all__ = ["FEEDBACK_P99_MS", "REPLAN_P95_MS", "run_execute_benchmark"]
 

@@ -82,8 +82,10 @@ def check_noise_flags(args: argparse.Namespace) -> None:
 
 def _check_flags(args: argparse.Namespace) -> None:
     """Every flag's value, before the anatomy loads."""
+    from needlekit.cli.execute_models import checked_models
     from needlekit.cli.execute_multi import check_trial_flags
 
+    args.models = checked_models(args)  # first: light (the guard's check loads numba)
     check_noise_flags(args)
     check_trial_flags(args)
     if args.tip_from_igtl is not None and args.igtl is None:
@@ -123,7 +125,7 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     from needlekit.execute.needle_sim import ExecutionNoise
     from needlekit.execute.replan import ReplanPolicy
     from needlekit.execute.run import ExecutionSettings
-    from needlekit.studies.execute_study import ExecuteOptions
+    from needlekit.execute.trials import ExecuteOptions
 
     noise = ExecutionNoise()
     if args.orientation_noise_rad is not None:
@@ -148,7 +150,10 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     settings = ExecutionSettings(
         insertion_speed_mm_s=args.speed_mm_s, noise=noise, guard=_guard(args),
         faults=None if args.faults is None else PROFILES[args.faults],
+        **({"models": args.models} if getattr(args, "models", None) is not None else {}),
     )  # fmt: skip
+    if hasattr(args, "replanner"):
+        policy = replace(policy, planner=args.replanner)
     return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args))
 
 
@@ -205,14 +210,16 @@ def _breathing(args: argparse.Namespace):
         raise InvalidInputError(BREATHING_FLAGS.get(exc.field, "--breathing"), exc.reason) from None
 
 
-def load_checked_plan(args: argparse.Namespace):
+def load_checked_plan(args: argparse.Namespace, record: dict | None = None):
     """The scenario's source and problem and the plan, the plan checked against the
-    scenario (made for it, and passing its check) before any trial.
+    scenario (made for it, and passing its check) before any trial; each file read once.
 
     Parameters
     ----------
     args : argparse.Namespace
         ``scenario``, ``plan``, ``cache_dir``, ``no_cache``.
+    record : dict, optional
+        The plan file's document, already read (default: read it here).
 
     Returns
     -------
@@ -226,20 +233,23 @@ def load_checked_plan(args: argparse.Namespace):
     """
     import numpy as np
 
+    from needlekit.io.files import read_json_object
     from needlekit.io.scenario_schema import read_scenario_document
+    from needlekit.planning.steerable.plan import plan_from_dict
     from needlekit.planning.steerable.verify import verify_plan
     from needlekit.scenario.problems import ScenarioSource
-    from needlekit.scenario.results import read_plan_json
 
-    read_scenario_document(args.scenario)  # a bad scenario file: before the anatomy loads
-    plan, goal, _ = read_plan_json(args.plan)
+    document = read_scenario_document(args.scenario)  # a bad one: before the anatomy loads
+    if record is None:
+        record = read_json_object(args.plan, "plan")
+    plan, goal = plan_from_dict(record, Path(args.plan).name)
     if plan is None:
         raise InvalidInputError("plan", f"{args.plan.name} holds no plan to carry out")
     source = ScenarioSource.of(
         args.scenario, cache_dir=args.cache_dir, use_cache=not args.no_cache,
         safety_margin_mm=getattr(args, "safety_margin_mm", None),
     )  # fmt: skip
-    scenario, problem = source.cached()
+    scenario, problem = source.cached(document)  # the document read above, not read again
     other = []
     if not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
         other.append("its start pose")
@@ -264,9 +274,9 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     from needlekit.io.files import read_json_object
 
     try:
-        record = read_json_object(args.plan, "plan")
-    except InvalidInputError:
-        record = {}  # the plan's reader says what is wrong, after the flags
+        record, unread = read_json_object(args.plan, "plan"), None
+    except InvalidInputError as exc:
+        record, unread = {}, exc  # said after the flags
     if "needles" in record:  # a straight multi-needle plan: the robot inserts it
         from needlekit.cli.execute_multi import run_multi
 
@@ -277,10 +287,12 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
+    from needlekit.execute.trials import read_partial_execute, run_execute_study
     from needlekit.io.results import scenario_reference
-    from needlekit.studies.execute_study import read_partial_execute, run_execute_study
 
-    source, problem, plan, name = load_checked_plan(args)
+    if unread is not None:
+        raise unread
+    source, problem, plan, name = load_checked_plan(args, record)
     options = execute_options(args, 1.0 / problem.kappa_max_per_mm)
     trials = [args.replay_trial] if args.replay_trial is not None else list(range(args.trials))
     resume = None
@@ -505,6 +517,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output folder (default out/execute)",
     )  # fmt: skip
     add_noise_flags(ex)
+    from needlekit.cli.execute_models import add_model_flags
+
+    add_model_flags(ex)
     live = ex.add_argument_group("a live link to 3D Slicer (pip install 'needlekit[igtl]')")
     live.add_argument("--igtl", metavar="[HOST:]PORT",
                       help="stream the closed-loop insertion over OpenIGTLink (tip TRANSFORMs, "

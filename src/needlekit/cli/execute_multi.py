@@ -17,7 +17,8 @@ STEERABLE_ONLY = (
     "breathing_amplitude_mm", "breathing_period_s", "breathing_shape", "breathing_direction",
     "no_replan", "no_warm_start", "cross_track_mm", "replan_time_limit_s", "replan_iterations",
     "replan_delay_ms", "igtl", "tip_from_igtl", "igtl_realtime", "igtl_wait_s", "faults",
-    "on_fault", "hold_timeout_s", "safety_margin_mm",
+    "on_fault", "hold_timeout_s", "safety_margin_mm", "truth", "sensor", "estimator",
+    "feedback", "replanner",
 )  # fmt: skip
 #: ``--registration-sd-mm`` at most this: beyond it the robot works on another patient.
 REGISTRATION_SD_MAX_MM = 10.0

@@ -193,8 +193,7 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
 
     from needlekit.batch import open_executor
     from needlekit.cli.execute import execute_options
-    from needlekit.studies.execute_lungs import run_execute_lungs
-    from needlekit.studies.execute_study import LUNG_R_MIN_MM
+    from needlekit.studies.execute_lungs import LUNG_R_MIN_MM, run_execute_lungs
 
     options = execute_options(args, LUNG_R_MIN_MM)
     patients = tuple(args.patients)

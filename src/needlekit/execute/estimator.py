@@ -34,7 +34,7 @@ from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.geometry.so3 import hat_unchecked, so3_exp_unchecked, so3_log
 
-__all__ = ["TipEstimator"]
+__all__ = ["TipEstimator", "estimator_arguments", "kalman_estimator"]
 
 #: How much of the past the filter keeps to place a late sample (s).
 HISTORY_S: float = 0.5
@@ -126,13 +126,18 @@ class TipEstimator:
         self.last_d2 = 0.0  # the latest sample's squared Mahalanobis distance
 
     def _propagate(self, pose, P, command):
-        spin, kappa, ds, dt, shift, shift_sigma = command
+        spin, kappa, ds, _, shift, _ = command
         new = arc_end_unchecked(pose, spin, kappa, ds)
         a = new[:3, 3] - pose[:3, 3]
         if shift is not None:  # a translation of the whole needle (the robot, the tissue)
             new[:3, 3] += shift
         F = np.eye(6)
         F[:3, 3:] = -hat_unchecked(a)
+        return new, F @ P @ F.T + self._process_noise(new, command)
+
+    def _process_noise(self, new, command) -> np.ndarray:
+        """The process noise ``Q`` of one commanded step ending at ``new``."""
+        _, kappa, ds, dt, _, shift_sigma = command
         n = self.noise
         # the needle turns by noise only while it is inserted
         q_rot = (n.orientation_sigma_rad**2) * dt / n.reference_interval_s if ds > 0 else 0.0
@@ -141,7 +146,7 @@ class TipEstimator:
         Q = np.zeros((6, 6))
         Q[:3, :3] = np.eye(3) * ((n.deflection_sigma * ds * self.bias_scale) ** 2 + shift_sigma**2)
         Q[3:, 3:] = np.eye(3) * q_rot + np.outer(x, x) * spread**2
-        return new, F @ P @ F.T + Q
+        return Q
 
     def predict(
         self,
@@ -236,3 +241,44 @@ class TipEstimator:
         float
         """
         return math.sqrt(float(np.trace(self.P[:3, :3])) / 3.0)
+
+
+def estimator_arguments(setup) -> dict:
+    """The filter's arguments from a run's setup: it starts where the robot placed the
+    tip, as well known as the sensor measures it, and assumes the run's noise and sensor.
+
+    Parameters
+    ----------
+    setup : needlekit.execute.plugins.Setup
+
+    Returns
+    -------
+    dict
+        Keyword arguments of :class:`TipEstimator` (and of the other estimators).
+    """
+    sensor = setup.settings.sensor
+    return {
+        "start_sigma_mm": sensor.position_sigma_mm,
+        "start_sigma_rad": math.radians(sensor.orientation_sigma_deg),
+        "r_min_mm": setup.r_min_mm,
+        "noise": setup.settings.noise,
+        "position_sigma_mm": sensor.position_sigma_mm,
+        "orientation_sigma_rad": math.radians(sensor.orientation_sigma_deg),
+    }
+
+
+def kalman_estimator(setup) -> TipEstimator:
+    """The ``kalman`` estimator (:data:`needlekit.execute.plugins.ESTIMATORS`).
+
+    Parameters
+    ----------
+    setup : needlekit.execute.plugins.Setup
+
+    Returns
+    -------
+    TipEstimator
+    """
+    return TipEstimator(setup.start_pose, **estimator_arguments(setup))
+
+
+kalman_estimator.parameters = lambda settings: {"bias_scale": 3.0, "history_s": HISTORY_S}

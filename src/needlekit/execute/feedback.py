@@ -20,7 +20,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.planning.steerable.plan import SteerablePlan
 
-__all__ = ["PlanReference", "pure_pursuit"]
+__all__ = ["PlanReference", "PurePursuit", "pure_pursuit", "pure_pursuit_law"]
 
 #: Spacing of the reference's points along the plan (mm).
 REFERENCE_SPACING_MM: float = 0.25
@@ -137,3 +137,52 @@ def pure_pursuit(pose, target_mm, kappa_max_per_mm: float) -> tuple[float, float
         return spin, kappa_max_per_mm
     kappa = 2.0 * lateral / float(q @ q)
     return spin, min(kappa, kappa_max_per_mm)
+
+
+class PurePursuit:
+    """The ``pure_pursuit`` feedback law (:data:`needlekit.execute.plugins.FEEDBACK_LAWS`):
+    :func:`pure_pursuit` toward the plan's point ``lookahead_mm`` ahead of the nearest.
+
+    Parameters
+    ----------
+    lookahead_mm : float
+    kappa_max_per_mm : float
+    """
+
+    def __init__(self, lookahead_mm: float, kappa_max_per_mm: float) -> None:
+        self.lookahead_mm = float(lookahead_mm)
+        self.kappa_max_per_mm = float(kappa_max_per_mm)
+
+    def __call__(self, pose, reference: PlanReference, index: int) -> tuple[float, float]:
+        """The command from the estimated tip.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        reference : PlanReference
+        index : int
+            The reference point nearest the tip.
+
+        Returns
+        -------
+        (float, float)
+            ``(spin_rad, kappa_per_mm)``.
+        """
+        return pure_pursuit(pose, reference.ahead(index, self.lookahead_mm), self.kappa_max_per_mm)
+
+
+def pure_pursuit_law(setup) -> PurePursuit:
+    """The ``pure_pursuit`` law of a run: its look-ahead, the needle's ``1 / r_min``.
+
+    Parameters
+    ----------
+    setup : needlekit.execute.plugins.Setup
+
+    Returns
+    -------
+    PurePursuit
+    """
+    return PurePursuit(setup.settings.lookahead_mm, 1.0 / setup.r_min_mm)
+
+
+pure_pursuit_law.parameters = lambda settings: {"lookahead_mm": settings.lookahead_mm}

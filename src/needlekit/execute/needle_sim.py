@@ -25,7 +25,7 @@ the insertion direction, a primitive bending toward the spun tip's -y axis.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.geometry.so3 import so3_exp_unchecked
 
-__all__ = ["ExecutionNoise", "SimulatedNeedle"]
+__all__ = ["ExecutionNoise", "SimulatedNeedle", "kinematic_truth"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +147,25 @@ class SimulatedNeedle:
         self.pose = g
         self.inserted_mm += ds_mm
         return g
+
+
+def kinematic_truth(setup) -> SimulatedNeedle:
+    """The ``kinematic`` truth (:data:`needlekit.execute.plugins.TRUTHS`): a
+    :class:`SimulatedNeedle` with the run's noise, drawn from the setup's stream.
+
+    Parameters
+    ----------
+    setup : needlekit.execute.plugins.Setup
+
+    Returns
+    -------
+    SimulatedNeedle
+    """
+    return SimulatedNeedle(setup.start_pose, setup.r_min_mm, setup.settings.noise, setup.rng)
+
+
+def _kinematic_parameters(settings) -> dict:
+    return {"noise": asdict(settings.noise)}
+
+
+kinematic_truth.parameters = _kinematic_parameters

@@ -36,6 +36,7 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.planning.interface import Termination
+from needlekit.planning.registry import check_replanner
 from needlekit.planning.result import PlanStatus
 from needlekit.planning.steerable.continuation import continuation_from_pose
 from needlekit.planning.steerable.goal import goal_connection_unchecked
@@ -201,6 +202,10 @@ class ReplanPolicy:
         The time a re-plan takes in the simulation; None: the search's measured time.
     warm_start : bool
         Start the search from the rest of the plan being followed (:func:`rest_of_plan`).
+    planner : str
+        The registered steerable planner that searches; it must declare the
+        ``"warm_start"`` capability (:func:`needlekit.planning.registry.check_replanner`):
+        RCS* (the default) or RCS among needlekit's own.
     """
 
     cross_track_mm: float = 0.5
@@ -209,10 +214,14 @@ class ReplanPolicy:
     max_iterations: int | None = None
     delay_s: float | None = None
     warm_start: bool = True
+    planner: str = "rcs_star"
+
+    def __post_init__(self) -> None:
+        check_replanner(self.planner, "planner")
 
 
 class Replanner:
-    """RCS* from the estimated tip (see the module notes).
+    """The policy's planner (RCS* by default) from the estimated tip (see the module notes).
 
     Parameters
     ----------
@@ -233,7 +242,7 @@ class Replanner:
     def __init__(self, problem: SteerableProblem, policy: ReplanPolicy | None = None) -> None:
         self.problem = problem
         self.policy = policy or ReplanPolicy()
-        self.planner = build_planner("rcs_star")
+        self.planner = build_planner(self.policy.planner)
         self.latencies_s: list[float] = []
         self.adopted = 0
         self.refused = 0

@@ -21,13 +21,12 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from needlekit.control.em import EMSensor, EMSensorSpec
+from needlekit.control.em import EMSensorSpec
 from needlekit.errors import InvalidInputError
-from needlekit.execute.estimator import TipEstimator
 from needlekit.execute.faults import (
     REPLAN_OVERRUN_S,
     FaultProfile,
@@ -35,9 +34,10 @@ from needlekit.execute.faults import (
     FaultySensor,
     fault_seed,
 )
-from needlekit.execute.feedback import PlanReference, pure_pursuit
+from needlekit.execute.feedback import PlanReference
 from needlekit.execute.guard import GuardSpec, SensorGuard
-from needlekit.execute.needle_sim import ExecutionNoise, SimulatedNeedle
+from needlekit.execute.needle_sim import ExecutionNoise
+from needlekit.execute.plugins import ESTIMATORS, FEEDBACK_LAWS, SENSORS, TRUTHS, Models, Setup
 from needlekit.execute.replan import Replanner
 from needlekit.planning.steerable.plan import SteerablePlan
 
@@ -80,6 +80,9 @@ class ExecutionSettings:
     faults : FaultProfile or None
         Faults injected into the simulated sensor and the re-plans
         (:mod:`needlekit.execute.faults`); None: none.
+    models : Models
+        The registered truth, sensor, estimator and feedback law the run uses
+        (:mod:`needlekit.execute.plugins`).
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -91,6 +94,7 @@ class ExecutionSettings:
     sensor: EMSensorSpec = DEFAULT_SENSOR
     guard: GuardSpec = field(default_factory=GuardSpec)
     faults: FaultProfile | None = None
+    models: Models = field(default_factory=Models)
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
@@ -135,6 +139,8 @@ class ExecutionRun:
         and holds as ``{"time_s", "kind", "action"}``, the samples rejected by kind.
     faults_injected : tuple of dict
         Closed loop with a fault profile, the faults the run met.
+    shaft_loads : dict or None
+        The truth's ``shaft_loads()`` at the end, when it has them.
     """
 
     closed_loop: bool
@@ -150,6 +156,7 @@ class ExecutionRun:
     procedure_s: float = 0.0
     guard: dict | None = None
     faults_injected: tuple = ()
+    shaft_loads: dict | None = None
 
 
 @dataclass
@@ -237,9 +244,11 @@ def execute_plan(
         for k in range(2)
     )
     goal = np.asarray(goal_mm, dtype=np.float64)
-    needle = SimulatedNeedle(plan.start_pose, r_min_mm, s.noise, np.random.default_rng(needle_seed))
+    setup = Setup(plan.start_pose, goal, float(r_min_mm), s, np.random.default_rng(needle_seed))
+    needle = TRUTHS.get(s.models.truth)(setup)
+    to_rest = getattr(needle, "to_rest", None)  # the truth's optional capabilities
     ds = s.insertion_speed_mm_s * s.dt_s
-    points = [needle.pose[:3, 3].copy()]
+    points = [_tip(needle, to_rest)]
     last = 0.0
 
     def record(offset=None) -> None:
@@ -248,10 +257,10 @@ def execute_plan(
         nonlocal last
         if offset is None:
             if needle.inserted_mm - last >= s.record_mm - 1e-9:
-                points.append(needle.pose[:3, 3].copy())
+                points.append(_tip(needle, to_rest))
                 last = needle.inserted_mm
         else:
-            p = needle.pose[:3, 3] - offset
+            p = _tip(needle, to_rest) - offset
             if np.linalg.norm(p - points[-1]) >= s.record_mm - 1e-9:
                 points.append(p)
 
@@ -259,14 +268,14 @@ def execute_plan(
         for spin, kappa, step in _open_loop_commands(plan, ds):
             needle.step(spin, kappa, step, step / s.insertion_speed_mm_s)
             record()
-        points.append(needle.pose[:3, 3].copy())
-        err = float(np.linalg.norm(needle.pose[:3, 3] - goal))
-        return ExecutionRun(False, err, np.array(points), needle.inserted_mm)
+        points.append(_tip(needle, to_rest))
+        err = float(np.linalg.norm(points[-1] - _judged_goal(needle, goal, to_rest)))
+        return ExecutionRun(False, err, np.array(points), needle.inserted_mm,
+                            shaft_loads=_loads(needle))  # fmt: skip
     return _closed_loop(
         plan,
         goal,
-        r_min_mm,
-        s,
+        setup,
         needle,
         (sensor_seed, fault_seed(ss)),
         points,
@@ -276,11 +285,35 @@ def execute_plan(
     )
 
 
-def _sensor_and_guard(plan, s, seeds, hooks):
-    """The closed loop's sensor (the simulated one, its faults, or the hooks'), the guard
+def _tip(needle, to_rest) -> np.ndarray:
+    """The true tip as the path records it: in the undeformed anatomy when the truth maps
+    its tissue back (``to_rest``)."""
+    p = needle.pose[:3, 3].copy()
+    return p if to_rest is None else np.asarray(to_rest(p[None]), dtype=np.float64)[0]
+
+
+def _judged_goal(needle, goal, to_rest) -> np.ndarray:
+    """The target the final error is measured to, in the recorded path's frame: the
+    scenario's goal, or a moving target's place now when the path is not mapped back."""
+    target = getattr(needle, "target_mm", None)
+    if target is None or to_rest is not None:
+        return goal
+    return np.asarray(target(), dtype=np.float64)
+
+
+def _loads(needle) -> dict | None:
+    loads = getattr(needle, "shaft_loads", None)
+    return None if loads is None else dict(loads())
+
+
+def _sensor_and_guard(plan, s, setup, seeds, hooks):
+    """The closed loop's sensor (the registered one, its faults, or the hooks'), the guard
     every sample passes through, and the fault schedule (None: none)."""
     sensor_seed, faults_seed = seeds
-    sensor = hooks.sensor or EMSensor(s.sensor, np.random.default_rng(sensor_seed))
+    sensor = hooks.sensor
+    if sensor is None:
+        sensor_setup = replace(setup, rng=np.random.default_rng(sensor_seed))
+        sensor = SENSORS.get(s.models.sensor)(sensor_setup)
     schedule = None
     if s.faults is not None:
         nominal = plan.length_mm / s.insertion_speed_mm_s
@@ -296,20 +329,15 @@ def _sensor_and_guard(plan, s, seeds, hooks):
     return sensor, guard, schedule
 
 
-def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replanner, hooks):
-    sensor, guard, schedule = _sensor_and_guard(plan, s, seeds, hooks)
+def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, hooks):
+    s = setup.settings
+    sensor, guard, schedule = _sensor_and_guard(plan, s, setup, seeds, hooks)
     tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
-    est = TipEstimator(
-        plan.start_pose,
-        start_sigma_mm=s.sensor.position_sigma_mm,
-        start_sigma_rad=math.radians(s.sensor.orientation_sigma_deg),
-        r_min_mm=r_min_mm,
-        noise=s.noise,
-        position_sigma_mm=s.sensor.position_sigma_mm,
-        orientation_sigma_rad=math.radians(s.sensor.orientation_sigma_deg),
-    )
+    est = ESTIMATORS.get(s.models.estimator)(setup)
+    law = FEEDBACK_LAWS.get(s.models.feedback)(setup)
+    target = getattr(needle, "target_mm", None)  # a target the tissue carries
+    to_rest = getattr(needle, "to_rest", None)
     current, ref = plan, PlanReference.of_plan(plan, goal)
-    kappa_max = 1.0 / r_min_mm
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
     index, t, pending, k = 0, 0.0, None, 0
@@ -343,6 +371,9 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replann
                 observe(t, needle.pose, est.pose, ref.points_mm,
                         _state(needle, est.pose, goal, replanner, phase))  # fmt: skip
             continue
+        if target is not None:  # steer to where the target is now
+            goal = np.asarray(target(), dtype=np.float64)
+            ref = PlanReference(ref.points_mm, ref.arc_mm, goal)
         pose = est.pose
         if policy is not None:  # the controller's frame: the sensed tip less its offset
             pose = pose.copy()
@@ -372,7 +403,7 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replann
                 pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
                            float(needle.inserted_mm))  # fmt: skip
             c0 += clock() - c1  # the search is not the feedback step
-        spin, kappa = pure_pursuit(pose, ref.ahead(index, s.lookahead_mm), kappa_max)
+        spin, kappa = law(pose, ref, index)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         c1 = clock()
         needle.step(spin, kappa, step, s.dt_s)
@@ -397,17 +428,17 @@ def _closed_loop(plan, goal, r_min_mm, s, needle, seeds, points, record, replann
             true = points[-1]
             cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
     offset = 0.0 if policy is None else policy.trace.actual(t)
-    points.append(needle.pose[:3, 3] - offset)
+    points.append(_tip(needle, to_rest) - offset)
     if observe is not None:
         observe(t, needle.pose, est.pose, ref.points_mm,
                 _state(needle, est.pose, goal, replanner, "aborted" if guard.aborted else "done"))  # fmt: skip
-    err = float(np.linalg.norm(points[-1] - goal))
+    err = float(np.linalg.norm(points[-1] - _judged_goal(needle, setup.goal_mm, to_rest)))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     injected = () if schedule is None else tuple(schedule.to_list())
     return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err,
                         guard.accepted, adopted, tuple(lat), np.array(cross), tuple(events), t,
-                        guard.record(), injected)  # fmt: skip
+                        guard.record(), injected, _loads(needle))  # fmt: skip
 
 
 def _ride(needle, est, policy, t: float, dt: float) -> None:

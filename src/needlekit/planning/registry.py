@@ -27,6 +27,8 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "BuiltinPlanner",
     "check_planner_options",
+    "check_replanner",
+    "planner_capabilities",
     "get_planner",
     "option_names",
     "option_types",
@@ -70,6 +72,10 @@ class BuiltinPlanner:
         ``int``, ``float``, ``bool``, ``str``, ``tuple`` (whole numbers), or the
         ``(name, type)`` pairs of a dataclass-typed option's own fields; as
         :func:`option_types` derives them from the class (a test keeps them equal).
+    capabilities : tuple of str
+        What the planner declares beyond planning, as its class's ``capabilities`` (a test
+        keeps them equal): ``"warm_start"``, its ``solve`` takes ``warm_start=`` plans
+        (a re-planner of ``needlekit execute``: :func:`check_replanner`).
     """
 
     name: str
@@ -77,6 +83,7 @@ class BuiltinPlanner:
     option_names: tuple[str, ...]
     factory: str
     option_types: tuple[tuple[str, Any], ...] = ()
+    capabilities: tuple[str, ...] = ()
 
     def load(self) -> PlannerFactory:
         """The planner class (imports its module).
@@ -114,6 +121,7 @@ BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
         ("resolution",),
         "needlekit.planning.steerable.rcs:RCSStarPlanner",
         (("resolution", _RESOLUTION),),
+        ("warm_start",),
     ),
     BuiltinPlanner(
         "rcs",
@@ -121,6 +129,7 @@ BUILTIN_PLANNERS: tuple[BuiltinPlanner, ...] = (
         ("resolution",),
         "needlekit.planning.steerable.rcs:RCSPlanner",
         (("resolution", _RESOLUTION),),
+        ("warm_start",),
     ),
     BuiltinPlanner(
         "rrt",
@@ -455,3 +464,58 @@ def get_planner(name: str, options: Mapping | Any | None = None) -> Any:
     """
     factory = _lookup(name)
     return factory(options_from_mapping(factory.options_type, options, name))
+
+
+def planner_capabilities(name: str) -> tuple[str, ...]:
+    """What a planner declares it can do beyond planning (a built-in's without importing
+    it; another planner's class attribute ``capabilities``, none when absent).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    tuple of str
+
+    Raises
+    ------
+    InvalidInputError
+        No planner of that name.
+    """
+    entry = _entry(name)
+    return tuple(getattr(entry, "capabilities", ()))
+
+
+def check_replanner(name: str, field: str = "--replanner") -> None:
+    """Refuse, in one line named ``field``, a planner that cannot re-plan an execution: a
+    steerable planner declaring the ``"warm_start"`` capability (its search starts from the
+    rest of the plan being followed).
+
+    Parameters
+    ----------
+    name : str
+    field : str
+        The flag or field named in the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown planner, another family, or no ``warm_start``.
+    """
+    able = [n for n in planner_names("steerable") if "warm_start" in planner_capabilities(n)]
+    if name not in planner_names():
+        raise InvalidInputError(
+            field, f"unknown planner {name!r}; planners that re-plan: {', '.join(able)}"
+            + did_you_mean(str(name), able),
+        )  # fmt: skip
+    entry = _entry(name)
+    if entry.family != "steerable" or "warm_start" not in planner_capabilities(name):
+        raise InvalidInputError(
+            field, f"planner {name!r} does not declare the 'warm_start' capability a re-planner "
+            f"needs; planners that do: {', '.join(able)}"
+        )  # fmt: skip

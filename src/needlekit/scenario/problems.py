@@ -399,6 +399,18 @@ class ScenarioSource:
             ("ScenarioSource", self), lambda: self._load(share_base=True, document=document)
         )
 
+    def without_margin(self):
+        """The scenario's problem without its safety margin, built once per process: the
+        anatomy and collision model that ``needlekit execute`` judges executed paths by.
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        sc, _ = self.cached()
+        return worker_cached(("ScenarioSource without margin", self),
+                             lambda: problem_from_scenario(sc, safety_margin_mm=0.0))  # fmt: skip
+
     def _load(self, share_base: bool, document=None):
         from needlekit.scenario.loading import load_scenario
 

@@ -16,7 +16,7 @@ For each lung (start 1 to its target; the needle and the exact voxel-centre test
 3. **The study.** ``DIR/lungN/scenario.yaml`` (with the margin) and ``plan.json`` are
    written, and the trials run exactly as ``needlekit execute DIR/lungN/scenario.yaml
    DIR/lungN/plan.json --trials T --seed S --out DIR/lungN`` runs them
-   (:func:`~needlekit.studies.execute_study.run_execute_study`), into
+   (:func:`~needlekit.execute.trials.run_execute_study`), into
    ``DIR/lungN/execute.json``.
 
 ``DIR/execute_lungs.json`` gathers the cases and judges each against the closed loop's targets:
@@ -39,25 +39,26 @@ import yaml
 from needlekit import __version__
 from needlekit.errors import Interrupted, is_interrupt
 from needlekit.execute.replan import noise_margin_mm
+from needlekit.execute.trials import (
+    EXECUTE_FILE,
+    ExecuteOptions,
+    read_partial_execute,
+    run_execute_study,
+    run_execute_trial,
+)
 from needlekit.io.files import write_json, write_text
 from needlekit.io.partial import partial_path, read_partial, write_partial
 from needlekit.io.plans import write_plan_json
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
 from needlekit.scenario.problems import ScenarioSource
-from needlekit.studies.execute_study import (
-    EXECUTE_FILE,
-    ExecuteOptions,
-    lung_scenario_document,
-    read_partial_execute,
-    run_execute_study,
-    run_execute_trial,
-)
 
 __all__ = [
     "CROSSING_PROBABILITY",
+    "LUNG_R_MIN_MM",
     "PILOT_KEY",
     "TARGETS",
+    "lung_scenario_document",
     "pilot_deviation",
     "plan_with_margin",
     "run_execute_lungs",
@@ -78,6 +79,50 @@ MARGIN_STEP_MM: float = 0.1
 PLAN_TIME_LIMIT_S: float = 1.0
 
 
+#: The needle of the lung scenarios (:func:`lung_scenario_document`): its r_min (mm).
+LUNG_R_MIN_MM: float = 50.0
+
+
+def lung_scenario_document(patient: int, margin_mm: float, medrad_dir=None) -> dict:
+    """The scenario of Med-RAD lung ``patient``, start 1, to its target, as
+    ``examples/medrad_lung1.yaml`` has it for patient 1 (the reference planner's needle and
+    exact voxel-centre test), with a clearance margin.
+
+    Parameters
+    ----------
+    patient : int
+    margin_mm : float
+        ``needle.safety_margin_mm``.
+    medrad_dir : path-like, optional
+        The Med-RAD folder (default: ``$NEEDLEKIT_MEDRAD`` or ``../shared/data/med-rad``).
+
+    Returns
+    -------
+    dict
+        A scenario document (:class:`~needlekit.scenario.problems.ScenarioSource.of_document`).
+    """
+    medrad = {"organ": "lung", "patient": int(patient)}
+    if medrad_dir is not None:
+        medrad["root"] = str(Path(medrad_dir).expanduser().resolve())
+    return {
+        "version": 1,
+        "name": f"Med-RAD lung {patient}, start 1",
+        "base": {"medrad": medrad},
+        "needle": {
+            "diameter_mm": 1.0,
+            "r_min_mm": LUNG_R_MIN_MM,
+            "max_length_mm": 150,
+            "max_heading_change_deg": 90,
+            "start_exclusion_mm": 3,
+            "safety_margin_mm": float(margin_mm),
+        },
+        "start": {"case_start": "start1"},
+        "goal": {"case_target": "target", "tolerance_mm": 1.0},
+        "collision_model": "voxel_centres",
+        "planner": {"name": "rcs_star", "time_limit_s": 1.0},
+    }
+
+
 def pilot_deviation(problem, truth, plan, options: ExecuteOptions, seed: int, trials: int) -> float:
     """The RMS of the true tip's distance from the plan it follows, over closed-loop pilot
     trials.
@@ -86,7 +131,7 @@ def pilot_deviation(problem, truth, plan, options: ExecuteOptions, seed: int, tr
     ----------
     problem, truth : SteerableProblem
         The problem (re-plans) and its margin-free twin (as for
-        :func:`~needlekit.studies.execute_study.run_execute_trial`).
+        :func:`~needlekit.execute.trials.run_execute_trial`).
     plan : SteerablePlan
     options : ExecuteOptions
     seed, trials : int
@@ -103,7 +148,7 @@ def pilot_deviation(problem, truth, plan, options: ExecuteOptions, seed: int, tr
     for k in range(trials):
         ss = np.random.SeedSequence(seed, spawn_key=(PILOT_KEY, k))
         rec = run_execute_trial(problem, truth, plan, ss, options, loops=("closed_loop",))
-        squares += [d * d for d in rec["closed_loop"]["cross_track_mm"]]
+        squares += [d * d for d in rec.closed_loop.cross_track_mm]
     return math.sqrt(sum(squares) / len(squares)) if squares else 0.0
 
 

@@ -42,12 +42,12 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.errors import raise_if_interrupt
+from needlekit.execute.trial_runs import collect_trials
 from needlekit.io.files import write_json
 from needlekit.io.partial import read_partial
 from needlekit.studies.puncture_study import PunctureScenario, TrialOptions, trial_settings
 from needlekit.studies.puncture_summary import _Bounds, _violations
 from needlekit.studies.robot_registration import place_patient
-from needlekit.studies.trial_runs import collect_trials
 
 __all__ = [
     "LIU_IN_VITRO",

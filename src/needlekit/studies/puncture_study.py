@@ -40,6 +40,7 @@ import numpy as np
 
 from needlekit import __version__
 from needlekit.errors import InvalidInputError
+from needlekit.execute.trial_runs import collect_trials
 from needlekit.io.files import json_text, staged_outputs, write_text
 from needlekit.io.partial import read_partial
 from needlekit.records import trial_solved
@@ -52,7 +53,6 @@ from needlekit.studies.guide_filter import (
     redraw_summary,
 )
 from needlekit.studies.puncture_summary import _Bounds, _violations, summary_stats
-from needlekit.studies.trial_runs import collect_trials
 
 __all__ = [
     "PAPER_RESULTS",

@@ -265,6 +265,8 @@ class RCSStarPlanner:
 
     name = "rcs_star"
     family = "steerable"
+    #: Its solve takes ``warm_start=`` plans (a re-planner of ``needlekit execute``).
+    capabilities = ("warm_start",)
     options_type = RCSOptions
     optimal = True
 
