@@ -93,8 +93,24 @@ class Truth(Protocol):
     inserted_mm: float
 
     def step(self, spin_rad: float, kappa_per_mm: float, ds_mm: float, dt_s: float) -> np.ndarray:
-        """Spin the tip, then insert ``ds_mm`` at the commanded curvature over ``dt_s``;
-        returns the new pose."""
+        """Spin the tip, then insert ``ds_mm`` at the commanded curvature over ``dt_s``.
+
+        Parameters
+        ----------
+        spin_rad : float
+            Rotation about the tip's axis before inserting.
+        kappa_per_mm : float
+            The commanded curvature, ``0 <= kappa <= 1 / r_min`` (a duty cycle).
+        ds_mm : float
+            Inserted length, >= 0 (0: nothing moves).
+        dt_s : float
+            How long the step takes.
+
+        Returns
+        -------
+        ndarray, shape (4, 4)
+            The true tip pose after the step.
+        """
 
 
 @runtime_checkable
@@ -102,8 +118,20 @@ class TipSensor(Protocol):
     """What senses the tip: a simulated EM sensor, a tracker."""
 
     def update(self, t: float, true_pose) -> EMSample | None:
-        """The sample that arrives by time ``t`` (None: none); ``true_pose()`` gives the
-        true tip for a simulated sensor."""
+        """The sample that arrives by time ``t``.
+
+        Parameters
+        ----------
+        t : float
+            The loop's time (s).
+        true_pose : callable
+            ``true_pose()`` gives the true tip (a simulated sensor samples it).
+
+        Returns
+        -------
+        EMSample or None
+            None when no sample arrived.
+        """
 
 
 @runtime_checkable
@@ -125,10 +153,37 @@ class Estimator(Protocol):
 
     def predict(self, spin_rad, kappa_per_mm, ds_mm, dt_s, shift_mm=None,
                 shift_sigma_mm: float = 0.0) -> None:  # fmt: skip
-        """Move the estimate for one commanded step."""
+        """Move the estimate for one commanded step.
+
+        Parameters
+        ----------
+        spin_rad, kappa_per_mm, ds_mm, dt_s : float
+            The command, as :meth:`Truth.step` takes it.
+        shift_mm : array_like, shape (3,), optional
+            A known translation of the whole needle during the step.
+        shift_sigma_mm : float
+            SD per axis of what is not known of it.
+
+        Returns
+        -------
+        None
+        """
 
     def update(self, taken_s: float, measured_pose, gate_d2: float | None = None) -> bool:
-        """Correct it with a sample taken at ``taken_s``; False: refused by the gate."""
+        """Correct it with a sample taken at ``taken_s``.
+
+        Parameters
+        ----------
+        taken_s : float
+        measured_pose : ndarray, shape (4, 4)
+        gate_d2 : float, optional
+            Refuse the sample when its squared Mahalanobis distance exceeds this.
+
+        Returns
+        -------
+        bool
+            False when the gate refused it.
+        """
 
     @property
     def position_sigma_mm(self) -> float:
