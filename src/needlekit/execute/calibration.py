@@ -47,7 +47,7 @@ from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.geometry.so3 import so3_log
 from needlekit.records import field_of
 
-__all__ = ["Calibration", "CalibrationSettings", "calibrate"]
+__all__ = ["Calibration", "CalibrationSettings", "calibrate", "calibrate_truth"]
 
 #: The orientation noise is stated per this interval (s), as :class:`ExecutionNoise` has it.
 REFERENCE_INTERVAL_S: float = 0.1
@@ -308,3 +308,33 @@ def calibrate(
         step_mm=float(step),
         speed_mm_s=float(s.speed_mm_s),
     )
+
+
+def calibrate_truth(settings, start_pose, r_min_mm: float,
+                    calibration: CalibrationSettings | None = None) -> Calibration:  # fmt: skip
+    """Calibrate the loop's model on the run's own truth (``settings.models.truth``, with
+    the run's noise and mechanics), commanded as the plan commands it: ``1 / r_min_mm`` is
+    the bevel held throughout.
+
+    Parameters
+    ----------
+    settings : needlekit.execute.run.ExecutionSettings
+    start_pose : ndarray, shape (4, 4)
+        Where the calibration's insertions start (the plan's start: the truth's frame).
+    r_min_mm : float
+        The planner's radius (the command's unit).
+    calibration : CalibrationSettings, optional
+
+    Returns
+    -------
+    Calibration
+    """
+    from needlekit.execute.plugins import TRUTHS, Setup
+
+    factory = TRUTHS.get(settings.models.truth)
+    goal = np.asarray(start_pose, dtype=np.float64)[:3, 3]
+
+    def make(pose, rng):
+        return factory(Setup(pose, goal, float(r_min_mm), settings, rng))
+
+    return calibrate(make, 1.0 / float(r_min_mm), calibration, start_pose)

@@ -14,7 +14,8 @@ carry ``parameters(settings) -> dict``: what ``execute.json`` records of it.
 kind       needlekit's own                                                    default
 =========  =================================================================  ==============
 truth      ``kinematic`` (:class:`~needlekit.execute.needle_sim.SimulatedNeedle`),  kinematic
-           ``layered`` (:class:`~needlekit.execute.tissue_layers.LayeredNeedle`)
+           ``layered`` (:class:`~needlekit.execute.tissue_layers.LayeredNeedle`),
+           ``mechanics`` (:class:`~needlekit.execute.physical.MechanicsTruth`)
 sensor     ``em`` (:class:`~needlekit.control.em.EMSensor`), ``igtl``                em
            (:class:`~needlekit.execute.igtl_link.IGTLTipSensor`)
 estimator  ``kalman`` (:class:`~needlekit.execute.estimator.TipEstimator`),        kalman
@@ -265,6 +266,8 @@ TRUTHS = Registry("truth", TRUTH_GROUP, (
             summary="the unicycle with orientation noise, a curvature spread and a uniform push"),
     Builtin("layered", f"{_HERE}.tissue_layers:layered_truth",
             summary="the kinematic needle in tissue whose push and stiffness change with depth"),
+    Builtin("mechanics", f"{_HERE}.physical:mechanics_truth",
+            summary="an elastic rod held by the tissue along its channel, bent by its tip load"),
 ), field="--truth", check=_callable("truth"))  # fmt: skip
 
 #: The tip sensors: ``factory(setup) -> TipSensor``.

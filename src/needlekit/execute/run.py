@@ -27,6 +27,7 @@ import numpy as np
 
 from needlekit.control.em import EMSensorSpec
 from needlekit.errors import InvalidInputError
+from needlekit.execute.calibration import Calibration
 from needlekit.execute.faults import (
     REPLAN_OVERRUN_S,
     FaultProfile,
@@ -37,6 +38,7 @@ from needlekit.execute.faults import (
 from needlekit.execute.feedback import PlanReference
 from needlekit.execute.guard import GuardSpec, SensorGuard
 from needlekit.execute.needle_sim import ExecutionNoise
+from needlekit.execute.physical import MechanicsSettings
 from needlekit.execute.plugins import ESTIMATORS, FEEDBACK_LAWS, SENSORS, TRUTHS, Models, Setup
 from needlekit.execute.replan import Replanner
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -83,6 +85,13 @@ class ExecutionSettings:
     models : Models
         The registered truth, sensor, estimator and feedback law the run uses
         (:mod:`needlekit.execute.plugins`).
+    mechanics : MechanicsSettings
+        The needle and tissue of the ``mechanics`` truth (:mod:`needlekit.execute.physical`).
+    model : Calibration or None
+        Closed loop, the needle model the estimator, the feedback law and the re-plans use,
+        calibrated from insertions of the truth (:mod:`needlekit.execute.calibration`): its
+        radius and noise, and the command that carries its curvature out. None: the
+        simulator's own radius and noise (the ``kinematic`` truth's legacy set-up).
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -95,6 +104,8 @@ class ExecutionSettings:
     guard: GuardSpec = field(default_factory=GuardSpec)
     faults: FaultProfile | None = None
     models: Models = field(default_factory=Models)
+    mechanics: MechanicsSettings = field(default_factory=MechanicsSettings)
+    model: Calibration | None = None
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
@@ -333,6 +344,11 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
     s = setup.settings
     sensor, guard, schedule = _sensor_and_guard(plan, s, setup, seeds, hooks)
     tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
+    model = s.model
+    if model is not None:  # the loop's own needle model, calibrated (execute.calibration)
+        setup = replace(setup, r_min_mm=model.r_min_mm,
+                        settings=replace(s, noise=model.noise()))  # fmt: skip
+    to_truth = 1.0 if model is None else model.r_min_mm * model.full_duty
     est = ESTIMATORS.get(s.models.estimator)(setup)
     law = FEEDBACK_LAWS.get(s.models.feedback)(setup)
     target = getattr(needle, "target_mm", None)  # a target the tissue carries
@@ -406,7 +422,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
         spin, kappa = law(pose, ref, index)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         c1 = clock()
-        needle.step(spin, kappa, step, s.dt_s)
+        needle.step(spin, kappa * to_truth, step, s.dt_s)
         c2 = clock()
         if policy is None:
             est.predict(spin, kappa, step, s.dt_s)

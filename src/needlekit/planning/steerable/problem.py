@@ -504,6 +504,21 @@ class SteerableProblem:
         """
         return self._derived(goal_tolerance_mm=as_positive(goal_tolerance_mm, "goal_tolerance_mm"))
 
+    def with_r_min(self, r_min_mm: float) -> SteerableProblem:
+        """The same problem for a needle of another radius of curvature (only it is
+        checked: nothing else depends on it).
+
+        Parameters
+        ----------
+        r_min_mm : float
+            > 0.
+
+        Returns
+        -------
+        SteerableProblem
+        """
+        return self._derived(r_min_mm=as_positive(r_min_mm, "r_min_mm"))
+
     def with_safety_margin(self, safety_margin_mm: float) -> SteerableProblem:
         """The same problem with another safety margin: built again (the collision
         checkers depend on it); a voxel-centre model's obstacle test is rebuilt from the
