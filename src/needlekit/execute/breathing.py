@@ -160,9 +160,7 @@ class BreathingTrace:
 
     def _wave(self, t: float) -> tuple[int, float]:
         """The cycle at ``t`` and its ``sin^(2n)`` of the phase (the shape, 0 to 1)."""
-        k = max(
-            0, min(int(np.searchsorted(self.starts_s, t, "right")) - 1, len(self.starts_s) - 1)
-        )
+        k = max(0, min(int(np.searchsorted(self.starts_s, t, "right")) - 1, len(self.starts_s) - 1))
         x = min(max((t - self.starts_s[k]) / self.periods_s[k], 0.0), 1.0)
         return k, math.sin(math.pi * x) ** (2 * self.breathing.shape)
 

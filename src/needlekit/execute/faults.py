@@ -160,7 +160,9 @@ class FaultSchedule:
             offset, variant = (), ""
             if kind == "distortion":
                 d = rng.normal(size=3)
-                offset = tuple(float(v) for v in d / np.linalg.norm(d) * rng.uniform(*DISTORTION_MM))
+                offset = tuple(
+                    float(v) for v in d / np.linalg.norm(d) * rng.uniform(*DISTORTION_MM)
+                )
             elif kind == "freeze":
                 variant = ("value", "stamp")[int(rng.integers(2))]
             elif kind == "replan":

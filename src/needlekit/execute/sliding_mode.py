@@ -63,7 +63,9 @@ class SlidingMode:
             if not (math.isfinite(v) and v > 0):
                 raise InvalidInputError(name, f"expected a number > 0, got {v!r}")
         if not 0.0 <= straight_fraction < 1.0:
-            raise InvalidInputError("straight_fraction", f"expected [0, 1), got {straight_fraction!r}")
+            raise InvalidInputError(
+                "straight_fraction", f"expected [0, 1), got {straight_fraction!r}"
+            )
         self.lookahead_mm = float(lookahead_mm)
         self.kappa_max_per_mm = float(kappa_max_per_mm)
         self.max_spin_rad = float(spin_rate_rad_s * dt_s)

@@ -190,5 +190,3 @@ def _breathing_summary(records: list[dict]) -> dict:
             for name in POLICIES
         }
     }
-
-

@@ -60,6 +60,7 @@ __all__ = [
 #: What ``needlekit execute`` writes in its --out folder.
 EXECUTE_FILE = "execute.json"
 
+
 @dataclass(frozen=True)
 class ExecuteOptions:
     """How each trial's insertions run.
@@ -230,9 +231,7 @@ def warm_up_replanner(problem, plan: SteerablePlan, planner: str = "rcs_star") -
     half = 0.5 * plan.length_mm
     pose = SteerablePlan(plan.start_pose, first_mm(plan.primitives, half)).end_pose()
     policy = ReplanPolicy(max_iterations=200, time_limit_s=5.0, planner=planner)
-    Replanner(problem, policy).replan(
-        pose, half, (plan, half)
-    )
+    Replanner(problem, policy).replan(pose, half, (plan, half))
 
 
 def _settings_record(scenario_name: str, plan, seed: int, trials, options, margin) -> dict:
