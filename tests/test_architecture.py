@@ -18,7 +18,7 @@ SRC = Path(needlekit.__file__).resolve().parent
 #: The floor of each block, low to high (docs/architecture.md). Blocks on one floor share
 #: only what sits below them. A module's block is the longest key that prefixes its name
 #: (``needlekit.planning.steerable.rcs`` -> ``planning.steerable``).
-LAYERS: dict[str, int] = {
+LAYERS: dict[str, float] = {
     "base": 0,
     "geometry": 1,
     "anatomy": 2,
@@ -28,6 +28,9 @@ LAYERS: dict[str, int] = {
     "planning.straight": 4,
     "control": 4,
     "io": 4,
+    # the deforming organ: above io (its precomputation is cached there), below execute
+    # (which runs it in the loop)
+    "tissue": 4.5,
     "execute": 5,
     "report": 6,
     "scenario": 6,
