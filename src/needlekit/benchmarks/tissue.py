@@ -1,8 +1,10 @@
 """The deforming organ's cost on a Med-RAD patient: the precomputation cold and warm, and
 the loop's step (loads -> displacements of the corridor and tracked points).
 
-The corridor is the straight line from the patient's first start to its target, a point
-every ``spacing_mm``; the tracked points are the target and up to ``per_structure``
+The organ body is the organ's mask with the nodule and the vessels and airways lying in it
+(:func:`~needlekit.tissue.meshing.organ_body`), meshed at the default setting keeping the
+component of the target (one lung). The corridor is the straight line from the patient's
+first start to its target, a point every ``spacing_mm``; the tracked points are the target and up to ``per_structure``
 voxels of every vessel and airway structure within ``radius_mm`` of the corridor. A step
 is :meth:`needlekit.tissue.runtime.DeformingTissue.apply` with ``n_loads`` loads spread
 along the inserted part of the corridor as it is now (0.5 mm beside it, forces of about 0.1 N, as an
@@ -27,8 +29,8 @@ from needlekit.execute.breathing import PRESETS
 from needlekit.io.medrad_paths import patient_folder
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import read_mask
-from needlekit.tissue.compliance import precompute, resample_polyline, sample_near
-from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, dihedral_angles_deg
+from needlekit.tissue.compliance import locate, precompute, resample_polyline, sample_near
+from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, dihedral_angles_deg, organ_body
 from needlekit.tissue.runtime import DeformingTissue
 
 __all__ = ["ORGAN_FILES", "run_tissue_benchmark", "step_times"]
@@ -103,33 +105,36 @@ def run_tissue_benchmark(
     dict
     """
     folder = patient_folder(organ, patient, root)
-    body, structures = ORGAN_FILES[organ]
+    body_name, structures = ORGAN_FILES[organ]
     t0 = time.perf_counter()
-    mask = read_mask(folder / f"{body}.nii.gz")
-    read_s = time.perf_counter() - t0
+    mask = read_mask(folder / f"{body_name}.nii.gz")
     target = read_point_txt(folder / "target.txt")
     start = read_pose_txt(folder / "start1.txt")[:3, 3]
     corridor = resample_polyline([start, target], spacing_mm)
-    tracked, labels = [target[None]], ["target"]
-    for name in structures:
+    tracked, labels, inside = [target[None]], ["target"], []
+    for name in ("nodule", *structures):
         path = folder / f"{name}.nii.gz"
         if not path.is_file():
             continue
         m = read_mask(path, allow_empty=True)
-        near = sample_near(m.data, m.affine, corridor, radius_mm, per_structure)
-        tracked.append(near)
-        labels += [name] * len(near)
+        inside.append((m.data, m.affine))
+        if name != "nodule":
+            near = sample_near(m.data, m.affine, corridor, radius_mm, per_structure)
+            tracked.append(near)
+            labels += [name] * len(near)
     tracked = np.concatenate(tracked)
+    body = organ_body(mask.data, mask.affine, inside)  # the liver's masks leave them out
+    read_s = time.perf_counter() - t0
+    settings = {"target_tets": target_tets, "seed_mm": target}  # the target's lung
     with tempfile.TemporaryDirectory(prefix="needlekit-tissue-bench-") as cache:
         t0 = time.perf_counter()
-        cold = precompute(mask.data, mask.affine, organ, corridor, tracked, labels,
-                          target_tets=target_tets, cache_dir=cache)  # fmt: skip
+        cold = precompute(body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings)
         cold_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        warm = precompute(mask.data, mask.affine, organ, corridor, tracked, labels,
-                          target_tets=target_tets, cache_dir=cache)  # fmt: skip
+        warm = precompute(body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings)
         warm_s = time.perf_counter() - t0
     mesh = cold.mesh
+    _, _, in_mesh = locate(mesh, np.concatenate([corridor, target[None]]))
     tissue = DeformingTissue(warm)
     steps = step_times(tissue, n_steps, n_loads)
     # the size of the effect: the target's displacement under 0.5 N along the corridor at
@@ -145,6 +150,7 @@ def run_tissue_benchmark(
         "tets": mesh.n_tets, "nodes": mesh.n_nodes, "cell_mm": mesh.cell_mm.tolist(),
         "min_dihedral_deg": float(dihedral_angles_deg(mesh.nodes_mm, mesh.tets).min()),
         "corridor_points": len(corridor), "tracked_points": len(tracked),
+        "corridor_points_in_mesh": int(in_mesh[:-1].sum()), "target_in_mesh": bool(in_mesh[-1]),
         "precompute_cold_s": cold_s, "cold_timings_s": cold.info["timings_s"],
         "precompute_warm_s": warm_s, "warm_timings_s": warm.info["timings_s"],
         "step_us": steps, "n_loads": n_loads,

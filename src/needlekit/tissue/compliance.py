@@ -328,6 +328,7 @@ def precompute(
     cell_mm: float | None = None,
     seed_mm=None,
     boundary_mode: str = "organ",
+    solver: str = "auto",
     use_cache: bool = True,
     cache_dir=None,
     label: str | None = None,
@@ -353,6 +354,9 @@ def precompute(
         Mesh settings (:func:`~needlekit.tissue.meshing.mesh_mask`).
     boundary_mode : str
         ``"organ"`` or ``"uniform"`` (:func:`~needlekit.tissue.fem.organ_boundary`).
+    solver : str
+        The sparse factorisation (:class:`~needlekit.tissue.fem.ElasticProblem`); not part
+        of the key (the solvers agree to round-off).
     use_cache : bool
     cache_dir : path-like, optional
     label : str, optional
@@ -405,11 +409,11 @@ def precompute(
     mesh = mesh_mask(data, a, target_tets=target_tets, cell_mm=cell_mm, seed_mm=seed_mm)
     timings["mesh_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    problem = ElasticProblem(mesh, material, organ_boundary(mesh, organ, boundary_mode))
+    problem = ElasticProblem(mesh, material, organ_boundary(mesh, organ, boundary_mode), solver)
     timings["factor_s"] = time.perf_counter() - t0
     comp = compute_compliance(problem, corridor, tracked, labels)
     timings["solve_s"] = comp.info.pop("solve_s")
-    comp.info.update(organ=organ, boundary_mode=boundary_mode)
+    comp.info.update(organ=organ, boundary_mode=boundary_mode, solver=problem.solver)
     if key is not None:
         t0 = time.perf_counter()
         arrays = _arrays(comp)

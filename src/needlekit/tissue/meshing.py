@@ -5,7 +5,8 @@ about ``cell_mm`` (whole blocks of voxels, as near a cube in millimetres as the 
 spacing allows); a cell belongs to the organ when more than half its voxels are set. Cells
 that touch by a face form components (6-connectivity); components smaller than
 :data:`MIN_COMPONENT_FRACTION` of the largest are dropped (specks of segmentation that
-would float free), or, given ``seed_mm``, only the component holding that point is kept.
+would float free), or, given ``seed_mm``, only the component holding (or nearest) that
+point is kept.
 Every kept cell is cut into six tetrahedra around its main diagonal (Kuhn's subdivision):
 neighbouring cells cut their shared face the same way, so the mesh is conforming, and
 every tetrahedron of a cube has dihedral angles of 45, 60 and 90 degrees (on a box that
@@ -46,6 +47,7 @@ __all__ = [
     "TetMesh",
     "dihedral_angles_deg",
     "mesh_mask",
+    "organ_body",
     "shape_quality",
     "tet_volumes",
 ]
@@ -205,6 +207,37 @@ def _boundary_faces(tets: np.ndarray) -> np.ndarray:
     return faces[first[counts == 1]]
 
 
+def organ_body(mask, affine, inside=()) -> np.ndarray:
+    """The organ's body on its own grid: the organ's mask with the structures lying in it
+    (nodules, vessels, airways) set too, each given on its own grid (Med-RAD's liver masks
+    leave the nodules and vessels out, on grids of other slices). Every set voxel of a
+    structure sets the organ-grid voxel holding its centre.
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (i, j, k)
+    affine : ndarray, shape (4, 4)
+    inside : iterable of (ndarray of bool, ndarray (4, 4))
+        The structures and their affines.
+
+    Returns
+    -------
+    ndarray of bool, shape (i, j, k)
+    """
+    body, a = _check_mask(mask, affine, "mask")
+    body = body.copy()
+    to_index = np.linalg.inv(a)
+    for k, (m, aff) in enumerate(inside):
+        data, b = _check_mask(m, aff, f"inside[{k}]")
+        vox = np.argwhere(data)
+        if len(vox) == 0:
+            continue
+        idx = np.rint((vox @ b[:3, :3].T + b[:3, 3]) @ to_index[:3, :3].T + to_index[:3, 3]).astype(int)
+        ok = np.all((idx >= 0) & (idx < np.array(body.shape)), axis=1)
+        body[tuple(idx[ok].T)] = True
+    return body
+
+
 def _check_mask(mask, affine, field: str) -> tuple[np.ndarray, np.ndarray]:
     data = np.asarray(mask)
     if data.ndim != 3:
@@ -241,7 +274,7 @@ def _blocks_for(cell_mm: float, spacing: np.ndarray) -> tuple[int, int, int]:
     return tuple(max(1, round(cell_mm / s)) for s in spacing)
 
 
-def _cells(data: np.ndarray, block, seed_index) -> tuple[np.ndarray, np.ndarray]:
+def _cells(data: np.ndarray, block, seed_index, spacing_of_block=1.0) -> tuple[np.ndarray, np.ndarray]:
     from scipy import ndimage
 
     counts, lo = _block_counts(data, block)
@@ -250,10 +283,11 @@ def _cells(data: np.ndarray, block, seed_index) -> tuple[np.ndarray, np.ndarray]
     if n == 0:
         return cells, lo
     if seed_index is not None:
-        c = np.floor((np.asarray(seed_index) - lo) / np.asarray(block)).astype(int)
-        inside = np.all(c >= 0) and np.all(c < np.array(cells.shape))
-        keep_label = labels[tuple(c)] if inside else 0
-        return (labels == keep_label) & (keep_label > 0), lo
+        # the component of the cell nearest the seed (the seed's own when it is in one)
+        c = (np.asarray(seed_index) - lo + 0.5) / np.asarray(block) - 0.5
+        occupied = np.argwhere(labels > 0)
+        near = occupied[np.argmin(np.sum(((occupied - c) * spacing_of_block) ** 2, axis=1))]
+        return labels == labels[tuple(near)], lo
     sizes = np.bincount(labels.ravel())[1:]
     keep = np.flatnonzero(sizes >= MIN_COMPONENT_FRACTION * sizes.max()) + 1
     return np.isin(labels, keep), lo
@@ -299,7 +333,9 @@ def mesh_mask(
     cell_mm : float, optional
         Cell edge (mm); overrides ``target_tets``.
     seed_mm : array-like, shape (3,), optional
-        Keep only the face-connected component holding this point (RAS mm).
+        Keep only the face-connected component holding this point (RAS mm), or nearest
+        to it (e.g. the lung of the target: the two lungs lie in separate pleural
+        cavities and do not load each other).
     field : str
         What errors name.
 
@@ -344,7 +380,7 @@ def mesh_mask(
         seed_index = np.linalg.solve(a[:3, :3], s - a[:3, 3])
     block = _blocks_for(h, spacing)
     for _ in range(_MAX_REFINE + 1):
-        cells, lo = _cells(data, block, seed_index)
+        cells, lo = _cells(data, block, seed_index, np.asarray(block) * spacing)
         n_cells = int(np.count_nonzero(cells))
         if cell_mm is not None or 6 * n_cells >= target_tets or block == (1, 1, 1):
             break
