@@ -222,7 +222,7 @@ def test_the_walk_sees_imports_inside_functions(tmp_path):
 DEFERRABLE = {
     "numba", "scipy", "plotly", "matplotlib", "nibabel", "nrrd", "isal", "edt", "trimesh",
     "rtree", "skimage", "yaml", "jsonschema", "tqdm", "dqrobotics", "daqp", "dask",
-    "distributed", "vtk", "marinholab", "quadprog", "selenium", "pyigtl",
+    "distributed", "vtk", "marinholab", "quadprog", "selenium", "pyigtl", "pypardiso",
 }  # fmt: skip
 
 #: The command line and its start-up helpers defer what they like (a command loads only

@@ -145,3 +145,29 @@ def test_bad_masks_name_the_field():
         precompute(np.zeros((10, 10, 10), bool), AFFINE, "lung", CORRIDOR, use_cache=False)
     with pytest.raises(InvalidInputError, match=r"^organ: "):
         precompute(_box(), AFFINE, "heart", CORRIDOR, use_cache=False)
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_medrad_lung1_compliance_equals_full_solve(medrad_dir, tmp_path):
+    from needlekit.io.medrad_paths import patient_folder
+    from needlekit.io.poses import read_point_txt, read_pose_txt
+    from needlekit.io.volumes import read_mask
+
+    folder = patient_folder("lung", 1, medrad_dir)
+    m = read_mask(folder / "pleuralBoundary.nii.gz")
+    target = read_point_txt(folder / "target.txt")
+    start = read_pose_txt(folder / "start1.txt")[:3, 3]
+    corridor = resample_polyline([start, target], 2.0)
+    mesh = mesh_mask(m.data, m.affine, seed_mm=target)
+    assert mesh.n_tets >= 50_000
+    problem = ElasticProblem(mesh, LUNG, organ_boundary(mesh, "lung"))
+    comp = compute_compliance(problem, corridor, target[None], ("target",))
+    w_c, inside = interpolation(mesh, corridor)
+    assert inside.sum() >= len(corridor) - 2  # the start lies on the airway wall
+    f = np.random.default_rng(0).normal(0, 0.05, (len(corridor), 3))
+    d = np.array([0.0, 0.0, -5.0])
+    w_all, _ = interpolation(mesh, np.concatenate([corridor, target[None]]))
+    expected = w_all @ problem.solve(w_c.T @ f.ravel(), problem.breathing_held(d)).ravel()
+    got = comp.C @ f.ravel() + comp.B @ d
+    assert np.max(np.abs(got - expected)) <= 1e-9 * np.abs(expected).max()

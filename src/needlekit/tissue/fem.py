@@ -108,7 +108,12 @@ class Material:
         return e * nu / ((1 + nu) * (1 - 2 * nu)), e / (2 * (1 + nu))
 
     def as_dict(self) -> dict:
-        """The material as a plain dict (cache keys, records)."""
+        """The material as a plain dict (cache keys, records).
+
+        Returns
+        -------
+        dict
+        """
         return {"young_modulus_kpa": float(self.young_modulus_kpa),
                 "poisson_ratio": float(self.poisson_ratio)}  # fmt: skip
 

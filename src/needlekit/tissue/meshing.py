@@ -105,20 +105,40 @@ class TetMesh:
         return int(self.tets.shape[0])
 
     def volumes_mm3(self) -> np.ndarray:
-        """Signed volume of every tetrahedron (mm^3; all positive), shape (m,)."""
+        """Signed volume of every tetrahedron (mm^3; all positive).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+        """
         return tet_volumes(self.nodes_mm, self.tets)
 
     def boundary_faces(self) -> np.ndarray:
-        """Faces of one tetrahedron only (the surface), oriented outward, shape (f, 3)."""
+        """Faces of one tetrahedron only (the surface), oriented outward.
+
+        Returns
+        -------
+        ndarray of int, shape (f, 3)
+        """
         return _boundary_faces(self.tets)
 
     def boundary_nodes(self) -> np.ndarray:
-        """Sorted indices of the nodes on the surface."""
+        """Sorted indices of the nodes on the surface.
+
+        Returns
+        -------
+        ndarray of int, shape (b,)
+        """
         return np.unique(self.boundary_faces())
 
     def boundary_normals(self) -> np.ndarray:
-        """Area-weighted outward normal at every node (zero inside), shape (n, 3), unit
-        length on the surface."""
+        """Area-weighted outward normal at every node: unit length on the surface, zero
+        inside.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+        """
         faces = self.boundary_faces()
         p = self.nodes_mm[faces]
         area_n = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])

@@ -172,7 +172,16 @@ class DeformingTissue:
 
     def positions_mm(self, which: str = "tracked") -> np.ndarray:
         """World positions (rest + displacement) of ``"corridor"``, ``"tracked"`` or
-        ``"all"`` points, shape (k, 3)."""
+        ``"all"`` points.
+
+        Parameters
+        ----------
+        which : str
+
+        Returns
+        -------
+        ndarray, shape (k, 3)
+        """
         rest = {"corridor": self._rest[: self.m], "tracked": self._rest[self.m :], "all": self._rest}
         return rest[which] + self.displacement_at(which)
 
@@ -184,7 +193,12 @@ class DeformingTissue:
         return self._u[self.m + self._target].copy()
 
     def target_mm(self) -> np.ndarray:
-        """The target's current world position (RAS mm), shape (3,)."""
+        """The target's current world position (RAS mm).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
         return self.compliance.tracked_mm[self._target if self._target is not None else 0] + (
             self.target_displacement_mm
         )
@@ -192,8 +206,13 @@ class DeformingTissue:
     # -- the whole field (not in the loop) -----------------------------------------------
 
     def mesh_displacement(self) -> np.ndarray:
-        """Every node's displacement under the current loads and breathing, shape (n, 3):
-        ``G f + H d``, the full solve's answer for loads at the corridor points."""
+        """Every node's displacement under the current loads and breathing: ``G f + H d``,
+        the full solve's answer for loads at the corridor points.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+        """
         c = self.compliance
         return (c.G @ self._f.ravel() + c.H @ self._d).reshape(-1, 3)
 
