@@ -171,3 +171,32 @@ def test_medrad_lung1_compliance_equals_full_solve(medrad_dir, tmp_path):
     expected = w_all @ problem.solve(w_c.T @ f.ravel(), problem.breathing_held(d)).ravel()
     got = comp.C @ f.ravel() + comp.B @ d
     assert np.max(np.abs(got - expected)) <= 1e-9 * np.abs(expected).max()
+
+
+def test_sliding_surface_holds_only_the_normal():
+    from needlekit.tissue.fem import Boundary
+
+    mesh = mesh_mask(_box(), AFFINE, cell_mm=2.75)
+    sliding = organ_boundary(mesh, "lung", mode="sliding")
+    problem = ElasticProblem(mesh, LUNG, sliding)
+    comp = compute_compliance(problem, CORRIDOR, TRACKED, LABELS)
+    w_c, _ = interpolation(mesh, CORRIDOR)
+    w_all, _ = interpolation(mesh, np.concatenate([CORRIDOR, TRACKED]))
+    f = np.random.default_rng(4).normal(0, 0.05, (len(CORRIDOR), 3))
+    d = np.array([0.3, 0.0, -3.0])
+    u = problem.solve(w_c.T @ f.ravel(), problem.breathing_held(d))
+    expected = w_all @ u.ravel()
+    assert np.max(np.abs(comp.C @ f.ravel() + comp.B @ d - expected)) <= 1e-9 * np.abs(expected).max()
+    n = sliding.sliding_normals
+    us = u[sliding.held]
+    normal = np.einsum("ij,ij->i", us, n)
+    assert np.max(np.abs(normal - sliding.weight * (n @ d))) < 1e-12
+    tangential = us - normal[:, None] * n
+    assert np.max(np.linalg.norm(tangential, axis=1)) > 0.1  # the surface slid
+    # the whole surface moved by d along its normals: a rigid translation, exactly
+    rigid = ElasticProblem(mesh, LUNG, Boundary(sliding.held, np.ones(len(sliding.held)), "", n))
+    assert np.max(np.abs(rigid.solve(None, rigid.breathing_held(d)) - d)) < 1e-12
+    # softer than the held surface: the same loads move the target farther
+    held = compute_compliance(ElasticProblem(mesh, LUNG, organ_boundary(mesh, "lung")),
+                              CORRIDOR, TRACKED, LABELS)  # fmt: skip
+    assert np.linalg.norm(comp.C[-9:-6] @ f.ravel()) > np.linalg.norm(held.C[-9:-6] @ f.ravel())

@@ -30,7 +30,7 @@ from needlekit.io.medrad_paths import patient_folder
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import read_mask
 from needlekit.tissue.compliance import locate, precompute, resample_polyline, sample_near
-from needlekit.tissue.fem import SOLVERS
+from needlekit.tissue.fem import BOUNDARY_MODES, SOLVERS
 from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, dihedral_angles_deg, organ_body
 from needlekit.tissue.runtime import DeformingTissue
 
@@ -92,6 +92,7 @@ def run_tissue_benchmark(
     n_steps: int = 4000,
     n_loads: int = 40,
     solver: str = "auto",
+    boundary_mode: str = "organ",
 ) -> dict:
     """Mesh, precompute (cold, then warm from the cache) and time the step on one patient.
 
@@ -105,6 +106,8 @@ def run_tissue_benchmark(
     per_structure, target_tets, n_steps, n_loads : int
     solver : str
         :class:`~needlekit.tissue.fem.ElasticProblem`'s.
+    boundary_mode : str
+        :func:`~needlekit.tissue.fem.organ_boundary`'s.
 
     Returns
     -------
@@ -131,7 +134,8 @@ def run_tissue_benchmark(
     tracked = np.concatenate(tracked)
     body = organ_body(mask.data, mask.affine, inside)  # the liver's masks leave them out
     read_s = time.perf_counter() - t0
-    settings = {"target_tets": target_tets, "seed_mm": target, "solver": solver}  # the target's lung
+    settings = {"target_tets": target_tets, "seed_mm": target, "solver": solver,  # the target's lung
+                "boundary_mode": boundary_mode}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="needlekit-tissue-bench-") as cache:
         t0 = time.perf_counter()
         cold = precompute(body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings)
@@ -159,7 +163,7 @@ def run_tissue_benchmark(
         "corridor_points_in_mesh": int(in_mesh[:-1].sum()), "target_in_mesh": bool(in_mesh[-1]),
         "precompute_cold_s": cold_s, "cold_timings_s": cold.info["timings_s"],
         "precompute_warm_s": warm_s, "warm_timings_s": warm.info["timings_s"],
-        "solver": cold.info["solver"], "step_us": steps, "n_loads": n_loads,
+        "solver": cold.info["solver"], "boundary": boundary_mode, "step_us": steps, "n_loads": n_loads,
         "target_push_0.5N_mm": push, "target_breathing_peak_mm": breath,
         "breathing_amplitude_mm": b.amplitude_mm,
     }  # fmt: skip
@@ -174,9 +178,11 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=4000)
     p.add_argument("--target-tets", type=int, default=DEFAULT_TARGET_TETS)
     p.add_argument("--solver", choices=SOLVERS, default="auto")
+    p.add_argument("--boundary", choices=BOUNDARY_MODES, default="organ")
     a = p.parse_args(argv)
     out = run_tissue_benchmark(a.organ, a.patient, a.medrad, n_steps=a.steps,
-                               target_tets=a.target_tets, solver=a.solver)  # fmt: skip
+                               target_tets=a.target_tets, solver=a.solver,
+                               boundary_mode=a.boundary)  # fmt: skip
     sys.stdout.write(json.dumps(out, indent=1) + "\n")
     return 0
 

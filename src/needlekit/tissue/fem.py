@@ -26,6 +26,11 @@ rest of the surface traction-free. :func:`organ_boundary` gives the organ's:
   triangular ligaments fixing it to the diaphragm); breathing moves that surface by ``d``
   (``w = 1``), so the liver, free elsewhere, translates with the diaphragm.
 
+``mode="sliding"`` (lung) lets the pleural surface slide: each surface node's
+displacement is held only along its normal (to ``n . w d``), free along the surface; the
+degrees of freedom of those nodes are turned into their (normal, tangent, tangent) frame
+and the normal one eliminated, exactly (no penalty).
+
 ``mode="uniform"`` holds and moves the whole surface by ``d``: the displacement is then
 ``d`` everywhere, exactly: the rigid breathing of :mod:`needlekit.execute.breathing`.
 
@@ -50,6 +55,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.tissue.meshing import TetMesh, tet_volumes
 
 __all__ = [
+    "BOUNDARY_MODES",
     "LIVER",
     "LUNG",
     "MATERIALS",
@@ -196,15 +202,20 @@ class Boundary:
         A breathing displacement ``d`` moves held node ``held[k]`` by ``weight[k] d``.
     description : str
         The choice, in words (records, docs).
+    sliding_normals : ndarray, shape (h, 3), or None
+        Unit normals when the held nodes slide (only the normal component of their
+        displacement prescribed, the tangential free), a zero row for a node held in all
+        directions; None: every node held in all directions.
     """
 
     held: np.ndarray
     weight: np.ndarray
     description: str
+    sliding_normals: np.ndarray | None = None
 
 
 #: The boundary modes of :func:`organ_boundary`.
-BOUNDARY_MODES: tuple[str, ...] = ("organ", "uniform")
+BOUNDARY_MODES: tuple[str, ...] = ("organ", "uniform", "sliding")
 
 
 def organ_boundary(mesh: TetMesh, organ: str, mode: str = "organ") -> Boundary:
@@ -216,8 +227,9 @@ def organ_boundary(mesh: TetMesh, organ: str, mode: str = "organ") -> Boundary:
     organ : str
         ``"lung"`` or ``"liver"``.
     mode : str
-        ``"organ"`` (the organ's own) or ``"uniform"`` (the whole surface held and moved by
-        the breathing displacement: rigid breathing).
+        ``"organ"`` (the organ's own), ``"uniform"`` (the whole surface held and moved by
+        the breathing displacement: rigid breathing) or ``"sliding"`` (lung: the pleural
+        surface slides, only its normal displacement prescribed, ``n . w d``).
 
     Returns
     -------
@@ -231,6 +243,14 @@ def organ_boundary(mesh: TetMesh, organ: str, mode: str = "organ") -> Boundary:
     if mode == "uniform":
         return Boundary(surface, np.ones(len(surface)), "whole surface held, moved by d")
     s = mesh.nodes_mm[surface, 2]  # superior (RAS S)
+    if mode == "sliding":
+        if organ != "lung":
+            raise InvalidInputError("boundary", f"expected sliding for a lung only, got {organ!r}")
+        w = (s.max() - s) / max(float(s.max() - s.min()), 1e-9)
+        return Boundary(
+            surface, w, "pleural surface sliding: its normal displacement n . w d, w 0 at the "
+            "apex to 1 at the base", _sliding_normals(mesh, surface),
+        )  # fmt: skip
     if organ == "lung":
         w = (s.max() - s) / max(float(s.max() - s.min()), 1e-9)
         return Boundary(
@@ -280,10 +300,19 @@ class ElasticProblem:
             )
         self.held_nodes = np.flatnonzero(held)
         held_dof = np.repeat(held, 3)
+        # sliding nodes: their dofs in the frame (n, t1, t2), only the normal one held
+        self._R, k = None, self.K
+        if boundary.sliding_normals is not None:
+            self._R = _normal_frames(n, boundary.held, boundary.sliding_normals)
+            k = (self._R @ self.K @ self._R.T).tocsr()
+            held_dof = np.zeros(3 * n, dtype=bool)
+            held_dof[3 * np.asarray(boundary.held)] = True
+            creased = np.asarray(boundary.held)[np.linalg.norm(boundary.sliding_normals, axis=1) < 0.5]
+            held_dof[(3 * creased[:, None] + np.arange(3)).ravel()] = True
         self.free_dofs = np.flatnonzero(~held_dof)
         self.held_dofs = np.flatnonzero(held_dof)
-        kf = self.K[self.free_dofs][:, self.free_dofs]
-        self.K_fh = self.K[self.free_dofs][:, self.held_dofs].tocsr()
+        kf = k[self.free_dofs][:, self.free_dofs]
+        self.K_fh = k[self.free_dofs][:, self.held_dofs].tocsr()
         self.solver = _pick_solver(solver)
         if self.solver == "pardiso":
             import pypardiso
@@ -327,14 +356,42 @@ class ElasticProblem:
         """
         n3 = 3 * self.mesh.n_nodes
         f = np.zeros(n3) if nodal_forces is None else np.asarray(nodal_forces, float).reshape(n3)
+        if self._R is not None:
+            f = self._R @ f
         u = np.zeros(n3)
         rhs = f[self.free_dofs]
         if held_displacement is not None:
-            g = np.asarray(held_displacement, float).reshape(-1)
+            g = np.asarray(held_displacement, float).reshape(-1, 3)
+            if self._R is not None:  # the normal component of each sliding node's
+                full = np.zeros((self.mesh.n_nodes, 3))
+                full[self.held_nodes] = g
+                g = (self._R @ full.ravel())[self.held_dofs]
+            g = g.reshape(-1)
             u[self.held_dofs] = g
             rhs = rhs - self.K_fh @ g
         u[self.free_dofs] = self.solve_free(rhs)
+        if self._R is not None:
+            u = self._R.T @ u
         return u.reshape(-1, 3)
+
+    def response(self, nodal_forces: np.ndarray) -> np.ndarray:
+        """Nodal displacements under many load cases at once, the held nodes still.
+
+        Parameters
+        ----------
+        nodal_forces : ndarray, shape (3n, k)
+            One load case a column (N, dofs node-major).
+
+        Returns
+        -------
+        ndarray, shape (3n, k)
+        """
+        f = np.asarray(nodal_forces, dtype=float)
+        if self._R is not None:
+            f = self._R @ f
+        u = np.zeros(f.shape)
+        u[self.free_dofs] = self.solve_free(f[self.free_dofs])
+        return self._R.T @ u if self._R is not None else u
 
     def breathing_held(self, d) -> np.ndarray:
         """The held nodes' displacement under a breathing displacement ``d`` (mm).
@@ -350,6 +407,46 @@ class ElasticProblem:
         w = np.zeros(self.mesh.n_nodes)
         w[self.boundary.held] = self.boundary.weight
         return w[self.held_nodes, None] * np.asarray(d, float)[None, :]
+
+
+def _sliding_normals(mesh: TetMesh, surface: np.ndarray) -> np.ndarray:
+    """Unit normals of the surface nodes; zero where the surface has no one normal (the
+    area-weighted normals of the faces around the node cancel: cells touching by an edge
+    or a corner, a crease folded back), which are then held in every direction."""
+    faces = mesh.boundary_faces()
+    p = mesh.nodes_mm[faces]
+    area_n = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    area = np.linalg.norm(area_n, axis=1)
+    sums = np.zeros((mesh.n_nodes, 3))
+    total = np.zeros(mesh.n_nodes)
+    for c in range(3):
+        np.add.at(sums, faces[:, c], area_n)
+        np.add.at(total, faces[:, c], area)
+    s, t = sums[surface], total[surface]
+    norm = np.linalg.norm(s, axis=1)
+    ok = norm > 0.3 * t
+    out = np.zeros_like(s)
+    out[ok] = s[ok] / norm[ok, None]
+    return out
+
+
+def _normal_frames(n: int, nodes: np.ndarray, normals: np.ndarray):
+    """The block-diagonal rotation taking node-major dofs to each listed node's frame
+    (n, t1, t2), the identity elsewhere: sparse, shape (3n, 3n)."""
+    from scipy import sparse
+
+    nrm = np.asarray(normals, dtype=float)
+    keep = np.linalg.norm(nrm, axis=1) > 0.5  # the others keep the identity (held fully)
+    nodes, nrm = np.asarray(nodes)[keep], nrm[keep]
+    helper = np.where(np.abs(nrm[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(nrm, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(nrm, t1)
+    blocks = np.repeat(np.eye(3)[None], n, axis=0)
+    blocks[nodes] = np.stack([nrm, t1, t2], axis=1)  # rows: the frame's axes
+    rows = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
+    cols = (3 * np.arange(n)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    return sparse.csr_matrix((blocks.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * n, 3 * n))
 
 
 #: The sparse direct solvers of :class:`ElasticProblem`.
