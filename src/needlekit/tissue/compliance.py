@@ -40,7 +40,7 @@ from needlekit.errors import InvalidInputError
 from needlekit.io import anatomy_cache, cache_entries
 from needlekit.io.cache_key import CacheKeyError
 from needlekit.tissue.fem import MATERIALS, ElasticProblem, Material, organ_boundary
-from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, TetMesh, mesh_mask
+from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, TetMesh, _check_mask, mesh_mask
 
 __all__ = [
     "TISSUE_FORMAT",
@@ -372,15 +372,16 @@ def precompute(
     if not isinstance(material, Material):
         raise InvalidInputError("material", f"expected a Material, got {type(material).__name__}")
     corridor = _points(corridor_mm, "corridor")
+    data, a = _check_mask(mask, affine, "mask")  # bad masks: one line, before any work
+    if not data.any():
+        raise InvalidInputError("mask", "expected a mask with set voxels, got an empty one")
     tracked = np.zeros((0, 3)) if tracked_mm is None else np.asarray(tracked_mm, float).reshape(-1, 3)
     labels = tuple(tracked_labels) if tracked_labels is not None else ("tracked",) * len(tracked)
-    data = np.asarray(mask)
-    a = np.asarray(affine, dtype=float)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     key = inputs = None
     label = label or f"tissue-{organ}"
-    if use_cache and data.ndim == 3 and data.dtype == bool and a.shape == (4, 4):
+    if use_cache:
         inputs = {
             "tissue_format": TISSUE_FORMAT, "mask": _mask_digest(data, a), "organ": organ,
             "mesh": {"target_tets": int(target_tets), "cell_mm": cell_mm,
@@ -418,7 +419,8 @@ def precompute(
         need = sum(np.asarray(v).nbytes + 2048 for v, _ in arrays.values())
         try:
             if cache_entries.make_room(cache_dir, need):
-                usage = cache_entries.usage_record(f"{label} ({organ} tissue)", "tissue.precompute")
+                what = f"{organ} tissue" if label == f"tissue-{organ}" else f"{label} ({organ} tissue)"
+                usage = cache_entries.usage_record(what, "tissue.precompute")
                 entry = anatomy_cache.write_entry(cache_dir, label, key, inputs, arrays, usage)
                 cache_entries.mark_used(entry.path)
                 comp.info["cache_entry"] = str(entry.path)
