@@ -18,7 +18,7 @@ SRC = Path(needlekit.__file__).resolve().parent
 #: The floor of each block, low to high (docs/architecture.md). Blocks on one floor share
 #: only what sits below them. A module's block is the longest key that prefixes its name
 #: (``needlekit.planning.steerable.rcs`` -> ``planning.steerable``).
-LAYERS: dict[str, int] = {
+LAYERS: dict[str, float] = {
     "base": 0,
     "geometry": 1,
     "anatomy": 2,
@@ -29,6 +29,9 @@ LAYERS: dict[str, int] = {
     "control": 4,
     "mechanics": 4,
     "io": 4,
+    # the deforming organ: above io (its precomputation is cached there), below execute
+    # (which runs it in the loop)
+    "tissue": 4.5,
     "execute": 5,
     "report": 6,
     "scenario": 6,
@@ -221,7 +224,7 @@ def test_the_walk_sees_imports_inside_functions(tmp_path):
 DEFERRABLE = {
     "numba", "scipy", "plotly", "matplotlib", "nibabel", "nrrd", "isal", "edt", "trimesh",
     "rtree", "skimage", "yaml", "jsonschema", "tqdm", "dqrobotics", "daqp", "dask",
-    "distributed", "vtk", "marinholab", "quadprog", "selenium", "pyigtl",
+    "distributed", "vtk", "marinholab", "quadprog", "selenium", "pyigtl", "pypardiso",
 }  # fmt: skip
 
 #: The command line and its start-up helpers defer what they like (a command loads only
