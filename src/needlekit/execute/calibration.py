@@ -43,6 +43,7 @@ import numpy as np
 from needlekit._numbers import MAX_ABS_MM, MAX_ABS_NUMBER, MAX_CURVATURE_PER_MM, Bounds
 from needlekit.errors import InvalidInputError
 from needlekit.execute.needle_sim import ExecutionNoise
+from needlekit.execute.plugins import TRUTHS, Setup
 from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.geometry.so3 import so3_log
 from needlekit.records import field_of
@@ -329,8 +330,6 @@ def calibrate_truth(settings, start_pose, r_min_mm: float,
     -------
     Calibration
     """
-    from needlekit.execute.plugins import TRUTHS, Setup
-
     factory = TRUTHS.get(settings.models.truth)
     goal = np.asarray(start_pose, dtype=np.float64)[:3, 3]
 

@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.mechanics.materials import NEEDLE_PRESETS, TISSUE_PRESETS, NeedleSpec, TissueSpec
 
 __all__ = ["MechanicsSettings", "MechanicsTruth", "mechanics_truth"]
 
@@ -65,8 +66,6 @@ class MechanicsSettings:
     solve_rate_hz: float = 40.0
 
     def __post_init__(self) -> None:
-        from needlekit.mechanics.materials import NEEDLE_PRESETS, TISSUE_PRESETS
-
         if self.needle not in NEEDLE_PRESETS:
             raise InvalidInputError(
                 "needle", f"expected one of {sorted(NEEDLE_PRESETS)}, got {self.needle!r}"
@@ -100,8 +99,6 @@ class MechanicsSettings:
         -------
         needlekit.mechanics.materials.NeedleSpec
         """
-        from needlekit.mechanics.materials import NeedleSpec
-
         spec = NeedleSpec.preset(self.needle)
         if self.prebend_deg > 0:
             spec = spec.with_prebend(self.prebend_deg, self.prebend_length_mm)
@@ -114,8 +111,6 @@ class MechanicsSettings:
         -------
         needlekit.mechanics.materials.TissueSpec
         """
-        from needlekit.mechanics.materials import TissueSpec
-
         return TissueSpec.preset(self.tissue)
 
 
