@@ -137,5 +137,5 @@ def test_an_unknown_plug_in_name_is_one_line_with_the_outside_names_offered(
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in done.stderr
     assert lines[0].startswith("error: --truth: unknown truth 'rigdi'")
-    assert "kinematic, layered, mechanics, rigid" in lines[0] and lines[0].endswith("did you mean rigid?")
+    assert "kinematic, layered, mechanics, physical, rigid" in lines[0] and lines[0].endswith("did you mean rigid?")
     assert not (tmp_path / "execute.json").exists()

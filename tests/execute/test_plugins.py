@@ -56,7 +56,7 @@ def test_a_wrong_name_gets_the_names_and_the_nearest():
     with pytest.raises(InvalidInputError) as exc:
         TRUTHS.check("layerd")
     assert exc.value.field == "--truth"
-    assert str(exc.value) == ("--truth: unknown truth 'layerd'; available: kinematic, layered, mechanics; "
+    assert str(exc.value) == ("--truth: unknown truth 'layerd'; available: kinematic, layered, mechanics, physical; "
                               "did you mean layered?")  # fmt: skip
 
 

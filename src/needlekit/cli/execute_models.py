@@ -8,7 +8,12 @@ import argparse
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_model_flags", "checked_models"]
+__all__ = ["add_model_flags", "checked_models", "physics_options"]
+
+#: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
+#: named here so that the parser refuses a wrong one without importing the mechanics.
+NEEDLES = ("nitinol", "steel")
+TISSUES = ("chicken", "gelatin", "liver", "lung", "plastisol")
 
 #: The flags, by their argparse destination, and the default each has (today's loop).
 MODEL_DEFAULTS = {"truth": "kinematic", "sensor": "em", "estimator": "kalman",
@@ -44,6 +49,24 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--replanner", default="rcs_star", metavar="PLANNER",
                    help="the planner that re-plans: a steerable planner declaring "
                    "'warm_start' (rcs_star, the default, or rcs)")  # fmt: skip
+    from needlekit.cli._common import number
+
+    m = p.add_argument_group(
+        "the needle and tissue of --truth mechanics and physical (docs/mechanics.md, "
+        "docs/tissue.md); the loop's own model is then calibrated on the truth"
+    )
+    m.add_argument("--needle", choices=NEEDLES, default="nitinol",
+                   help="the needle preset (default nitinol: a 0.83 mm wire, 30 deg bevel)")  # fmt: skip
+    m.add_argument("--tissue", choices=TISSUES, default=None,
+                   help="the tissue preset (default: the scenario's organ, lung otherwise)")  # fmt: skip
+    m.add_argument("--prebend-deg", type=number(0.0, 89.0, unit="deg"), default=0.0,
+                   help="a pre-bent tip: its bend toward the bevel over 5 mm (default 0)")  # fmt: skip
+    m.add_argument("--inhomogeneity", type=number(0.0, 2.0), default=0.1,
+                   help="SD of the tissue's mm-to-mm variation of the tip load (default 0.1)")  # fmt: skip
+    m.add_argument("--calibration-insertions", type=number(2, 10_000, integer=True),
+                   default=24, metavar="N",
+                   help="curved insertions the loop's model is calibrated from (and N/2 "
+                   "straight ones; default 24)")  # fmt: skip
 
 
 def checked_models(args: argparse.Namespace):
@@ -82,3 +105,53 @@ def checked_models(args: argparse.Namespace):
     if not args.no_replan:
         check_replanner(args.replanner)
     return models
+
+
+def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
+    """The options with what a physical truth needs: the needle and tissue
+    (``settings.mechanics``), the deforming organ for ``physical`` (``settings.tissue``),
+    and the loop's model calibrated on the truth (``settings.model``). For the other truths
+    (kinematic, layered, a registered one) the options are unchanged: their loop is given the
+    simulator's radius and noise.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    scenario : needlekit.scenario.loading.Scenario
+    plan : SteerablePlan
+    problem : SteerableProblem
+    options : ExecuteOptions
+
+    Returns
+    -------
+    ExecuteOptions
+    """
+    from dataclasses import replace
+
+    from needlekit.execute.calibration import CalibrationSettings, calibrate_truth
+    from needlekit.execute.physical import MechanicsSettings
+
+    s = options.settings
+    truth = s.models.truth
+    if truth not in ("mechanics", "physical"):  # the simulator's own model (legacy)
+        return options
+    base = getattr(scenario, "base", None)
+    tissue = args.tissue or {"liver": "liver"}.get(getattr(base, "organ", None), "lung")
+    mech = MechanicsSettings(needle=args.needle, tissue=tissue, prebend_deg=args.prebend_deg,
+                             inhomogeneity=args.inhomogeneity)  # fmt: skip
+    s = replace(s, mechanics=mech)
+    if truth == "physical":
+        from needlekit.execute.deforming import tissue_model_for
+
+        model = tissue_model_for(scenario, plan, problem.goal_mm)
+        if model is None:
+            raise InvalidInputError(
+                "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
+            )
+        s = replace(s, tissue=model)
+    n = args.calibration_insertions
+    # calibrated on the needle alone: the organ's motion is the loop's to see, not its model's
+    on = replace(s, models=replace(s.models, truth="mechanics")) if truth == "physical" else s
+    cal = calibrate_truth(on, plan.start_pose, 1.0 / problem.kappa_max_per_mm,
+                          CalibrationSettings(curved=n, straight=max(2, n // 2), seed=args.seed))  # fmt: skip
+    return replace(options, settings=replace(s, model=cal))

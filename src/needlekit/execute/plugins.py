@@ -15,7 +15,8 @@ kind       needlekit's own                                                    de
 =========  =================================================================  ==============
 truth      ``kinematic`` (:class:`~needlekit.execute.needle_sim.SimulatedNeedle`),  kinematic
            ``layered`` (:class:`~needlekit.execute.tissue_layers.LayeredNeedle`),
-           ``mechanics`` (:class:`~needlekit.execute.physical.MechanicsTruth`)
+           ``mechanics`` (:class:`~needlekit.execute.physical.MechanicsTruth`),
+           ``physical`` (:class:`~needlekit.execute.deforming.DeformingTruth`)
 sensor     ``em`` (:class:`~needlekit.control.em.EMSensor`), ``igtl``                em
            (:class:`~needlekit.execute.igtl_link.IGTLTipSensor`)
 estimator  ``kalman`` (:class:`~needlekit.execute.estimator.TipEstimator`),        kalman
@@ -268,6 +269,8 @@ TRUTHS = Registry("truth", TRUTH_GROUP, (
             summary="the kinematic needle in tissue whose push and stiffness change with depth"),
     Builtin("mechanics", f"{_HERE}.physical:mechanics_truth",
             summary="an elastic rod held by the tissue along its channel, bent by its tip load"),
+    Builtin("physical", f"{_HERE}.deforming:physical_truth",
+            summary="the mechanics' rod in the organ's FEM, which the needle and breathing move"),
 ), field="--truth", check=_callable("truth"))  # fmt: skip
 
 #: The tip sensors: ``factory(setup) -> TipSensor``.

@@ -92,6 +92,8 @@ class ExecutionSettings:
         calibrated from insertions of the truth (:mod:`needlekit.execute.calibration`): its
         radius and noise, and the command that carries its curvature out. None: the
         simulator's own radius and noise (the ``kinematic`` truth's legacy set-up).
+    tissue : TissueModel or None
+        The deforming organ of the ``physical`` truth (:mod:`needlekit.execute.deforming`).
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -106,6 +108,7 @@ class ExecutionSettings:
     models: Models = field(default_factory=Models)
     mechanics: MechanicsSettings = field(default_factory=MechanicsSettings)
     model: Calibration | None = None
+    tissue: object | None = None
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):

@@ -151,7 +151,11 @@ def run_execute_trial(
     out = {}
     for name in loops:
         closed = name == "closed_loop"
-        rep = Replanner(problem, options.policy) if closed and options.replan else None
+        rep = (
+            Replanner(model_problem(problem, options.settings), options.policy)
+            if closed and options.replan
+            else None
+        )
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=closed, seed=seed,
                            settings=options.settings, replanner=rep,
                            hooks=hooks if closed else None)  # fmt: skip
@@ -170,6 +174,23 @@ def run_execute_trial(
     )  # fmt: skip
 
 
+def model_problem(problem, settings):
+    """The re-plans' problem: the plan's, for the needle the loop's model says it has (its
+    calibrated radius, when it has one).
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+    settings : ExecutionSettings
+
+    Returns
+    -------
+    SteerableProblem
+    """
+    model = settings.model
+    return problem if model is None else problem.with_r_min(model.r_min_mm)
+
+
 def _breathing_runs(problem, judge, plan, seed, options: ExecuteOptions) -> dict:
     """The closed loop under each breathing policy, on the trial's needle and sensor draws
     and one breathing trace (the trial seed's third child)."""
@@ -180,7 +201,11 @@ def _breathing_runs(problem, judge, plan, seed, options: ExecuteOptions) -> dict
     trace = options.breathing.trace(np.random.default_rng(child), horizon)
     out = {}
     for name in POLICIES:
-        rep = Replanner(problem, options.policy) if options.replan else None
+        rep = (
+            Replanner(model_problem(problem, options.settings), options.policy)
+            if options.replan
+            else None
+        )
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=True, seed=seed,
                            settings=s, replanner=rep,
                            hooks=LoopHooks(breathing=Policy(name, trace)))  # fmt: skip
@@ -264,6 +289,8 @@ def models_record(options: ExecuteOptions) -> dict:
     s = options.settings
     out = {kind: model_record(kind, getattr(s.models, kind), s)
            for kind in ("truth", "sensor", "estimator", "feedback")}  # fmt: skip
+    # the loop's own needle model, calibrated on the truth (None: the simulator's)
+    out["calibration"] = None if s.model is None else s.model.to_dict()
     policy = options.policy
     out["replanner"] = None if not options.replan else {
         "planner": policy.planner, "warm_start": policy.warm_start,

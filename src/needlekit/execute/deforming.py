@@ -1,0 +1,302 @@
+"""The ``physical`` truth: the needle that bends by mechanics, in an organ that deforms.
+
+Two models, coupled at the rod's solve rate (40 Hz):
+
+- the needle (:class:`~needlekit.execute.physical.MechanicsTruth`: an elastic rod held by
+  the tissue along the channel its tip cuts, docs/mechanics.md);
+- the organ (:class:`~needlekit.tissue.runtime.DeformingTissue`: linear elasticity on the
+  organ's tetrahedral mesh from its Med-RAD mask, condensed onto the plan's corridor, the
+  target and the vessels and airways beside it; docs/tissue.md).
+
+Each solve of the rod gives the tissue's loads on the needle (along the shaft, and the
+bevel's load at the tip). The organ takes the opposite of the tip's load (the bevel's
+lateral load and the cutting resistance along the tangent) and deforms: the target, the
+corridor and the vessels and airways beside it move. The coupling is one way, and why:
+
+- The shaft's lateral loads are the foundation's reactions, the tissue's local answer to
+  the rod, which the Winkler foundation already models; the organ is not given them too
+  (that would count the local compliance twice).
+- The channel's anchors do not follow the organ's displacement under the needle's own
+  load: at the load the elastic solution is singular (Kelvin's ``1 / r``) and a mesh's
+  answer there is its cell size's, not the tissue's; measured, moving the anchors by it
+  threw the rod millimetres per step. The rod's local answer to its own load is the
+  foundation's and the bevel's model. What moves the target is what the organ answers
+  away from the load: the target, ahead of the tip, is pushed on.
+- Friction along the shaft is not modelled (docs/mechanics.md): the organ is pushed at the
+  tip only.
+
+The truth then has the capabilities the loop looks for (:mod:`needlekit.execute.plugins`):
+``target_mm()`` (the target where the tissue has carried it), ``to_rest(points)`` (world
+points to the material points at rest: the recorded path in the undeformed anatomy, which
+the masks judge) and ``shaft_loads()``.
+
+:class:`TissueModel` names the organ and the corridor; its precomputation (mesh,
+factorisation, condensed compliance) goes through the prepared-anatomy cache and is loaded
+once per process.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from needlekit.errors import InvalidInputError
+from needlekit.execute.physical import MechanicsTruth, mechanics_truth
+from needlekit.tissue.compliance import precompute, resample_polyline, sample_near
+from needlekit.tissue.meshing import organ_body
+from needlekit.tissue.runtime import DeformingTissue
+
+__all__ = ["DeformingTruth", "TissueModel", "physical_truth", "tissue_model_for"]
+
+#: The organ's body mask and the structures followed beside the corridor, by organ.
+ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
+    "lung": ("pleuralBoundary", ("vessels", "bronchialTree")),
+    "liver": ("liver", ("hepaticVein", "portalVein", "hepaticArtery")),
+}
+
+
+@dataclass(frozen=True)
+class TissueModel:
+    """The deforming organ of one execution: what its precomputation is made from.
+
+    Attributes
+    ----------
+    organ : str
+        ``"lung"`` or ``"liver"``.
+    folder : str
+        The Med-RAD patient folder.
+    corridor_mm : tuple of float
+        The plan's path, flattened (x, y, z per point), a point every 1.5 mm.
+    target_mm : tuple of float
+    boundary_mode : str
+        ``"organ"`` (the organ's held surfaces, docs/tissue.md) or ``"sliding"``.
+    radius_mm : float
+        Vessels and airways within this of the corridor are tracked.
+    per_structure : int
+        At most this many tracked points per structure.
+    """
+
+    organ: str
+    folder: str
+    corridor_mm: tuple
+    target_mm: tuple
+    boundary_mode: str = "organ"
+    radius_mm: float = 15.0
+    per_structure: int = 100
+
+    def corridor(self) -> np.ndarray:
+        """The corridor's points, shape (m, 3).
+
+        Returns
+        -------
+        ndarray
+        """
+        return np.asarray(self.corridor_mm, dtype=np.float64).reshape(-1, 3)
+
+    def compliance(self):
+        """The precomputed organ (meshed, factorised, condensed; through the cache), once
+        per process.
+
+        Returns
+        -------
+        needlekit.tissue.compliance.Compliance
+        """
+        return _compliance(self)
+
+    def record(self) -> dict:
+        """What ``execute.json`` says of the organ.
+
+        Returns
+        -------
+        dict
+        """
+        c = self.compliance()
+        return {
+            "organ": self.organ,
+            "folder": self.folder,
+            "boundary_mode": self.boundary_mode,
+            "mesh_tetrahedra": int(c.mesh.n_tets),
+            "mesh_nodes": int(c.mesh.n_nodes),
+            "corridor_points": len(c.corridor_mm),
+            "tracked_points": len(c.tracked_mm),
+            "material": c.info.get("material"),
+            "timings_s": c.info.get("timings_s"),
+        }
+
+
+@functools.lru_cache(maxsize=4)
+def _compliance(model: TissueModel):
+    from needlekit.io.volumes import read_mask
+
+    folder = Path(model.folder)
+    body_name, structures = ORGAN_FILES[model.organ]
+    mask = read_mask(folder / f"{body_name}.nii.gz")
+    target = np.asarray(model.target_mm, dtype=np.float64)
+    corridor = model.corridor()
+    tracked, labels, inside = [target[None]], ["target"], []
+    for name in ("nodule", *structures):
+        path = folder / f"{name}.nii.gz"
+        if not path.is_file():
+            continue
+        m = read_mask(path, allow_empty=True)
+        inside.append((m.data, m.affine))
+        if name != "nodule":
+            near = sample_near(m.data, m.affine, corridor, model.radius_mm, model.per_structure)
+            tracked.append(near)
+            labels += [name] * len(near)
+    body = organ_body(mask.data, mask.affine, inside)
+    return precompute(body, mask.affine, model.organ, corridor, np.concatenate(tracked), labels,
+                      seed_mm=target, boundary_mode=model.boundary_mode)  # fmt: skip
+
+
+def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ") -> TissueModel | None:
+    """The deforming organ of a scenario with a Med-RAD base (None for any other).
+
+    Parameters
+    ----------
+    scenario : needlekit.scenario.loading.Scenario
+    plan : SteerablePlan
+        Its path is the corridor.
+    goal_mm : array_like, shape (3,)
+    boundary_mode : str
+
+    Returns
+    -------
+    TissueModel or None
+    """
+    from needlekit.io.medrad import MedradCase
+
+    base = getattr(scenario, "base", None)
+    if not isinstance(base, MedradCase) or base.organ not in ORGAN_FILES:
+        return None
+    path = np.asarray(plan.points_mm(0.5), dtype=np.float64)
+    corridor = resample_polyline(path, 1.5)
+    goal = np.asarray(goal_mm, dtype=np.float64)
+    return TissueModel(base.organ, str(base.folder), tuple(np.round(corridor, 6).ravel().tolist()),
+                       tuple(float(v) for v in goal), boundary_mode)  # fmt: skip
+
+
+class DeformingTruth(MechanicsTruth):
+    """The rod in the deforming organ (see the module notes).
+
+    Parameters
+    ----------
+    needle : needlekit.mechanics.insertion.MechanicalNeedle
+    r_min_mm, solve_rate_hz : float
+        As :class:`~needlekit.execute.physical.MechanicsTruth`.
+    tissue : needlekit.tissue.runtime.DeformingTissue
+
+    Attributes
+    ----------
+    dropped_loads : int
+        Loads the organ could not take (farther than its corridor reaches).
+    target_rest_mm : ndarray, shape (3,)
+    max_target_displacement_mm : float
+    """
+
+    def __init__(self, needle, r_min_mm: float, solve_rate_hz: float, tissue) -> None:
+        self.tissue = tissue
+        self.dropped_loads = 0
+        self.target_rest_mm = tissue.target_mm().copy()
+        self.max_target_displacement_mm = 0.0
+        super().__init__(needle, r_min_mm, solve_rate_hz)
+
+    def _flush(self) -> None:
+        solved = self._len > 0.0
+        super()._flush()
+        if not solved:
+            return
+        pts, forces = self.needle.shaft_loads()
+        if len(pts):  # the tip's load: the bevel's lateral load and the cutting resistance
+            keep = self._near_corridor(pts[-1:])
+            self.dropped_loads += int((~keep).sum())
+            self.tissue.apply(pts[-1:][keep], -forces[-1:][keep])
+        moved = float(np.linalg.norm(self.tissue.target_displacement_mm))
+        self.max_target_displacement_mm = max(self.max_target_displacement_mm, moved)
+
+    def _near_corridor(self, pts: np.ndarray) -> np.ndarray:
+        reach = self.tissue.max_offset_mm
+        now = self.tissue.positions_mm("corridor")
+        d = np.min(np.linalg.norm(pts[:, None, :] - now[None, :, :], axis=2), axis=1)
+        return d <= reach
+
+    def target_mm(self) -> np.ndarray:
+        """Where the tissue has carried the target now (RAS mm).
+
+        Returns
+        -------
+        ndarray, shape (3,)
+        """
+        return self.tissue.target_mm()
+
+    def to_rest(self, points) -> np.ndarray:
+        """World points to the material points at rest.
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 3)
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+        """
+        return self.tissue.to_rest(np.asarray(points, dtype=np.float64))
+
+    def shaft_loads(self) -> dict:
+        """The needle's loads (as :meth:`MechanicsTruth.shaft_loads`) and the organ's
+        answer: the target's displacement now and its largest, the loads it could not take.
+
+        Returns
+        -------
+        dict
+        """
+        out = super().shaft_loads()
+        out["target_displacement_mm"] = float(np.linalg.norm(self.tissue.target_displacement_mm))
+        out["max_target_displacement_mm"] = self.max_target_displacement_mm
+        out["dropped_loads"] = self.dropped_loads
+        return out
+
+
+def physical_truth(setup) -> DeformingTruth:
+    """The ``physical`` truth (:data:`needlekit.execute.plugins.TRUTHS`): the ``mechanics``
+    truth's rod in the run's deforming organ (``settings.tissue``, a :class:`TissueModel`).
+
+    Parameters
+    ----------
+    setup : needlekit.execute.plugins.Setup
+
+    Returns
+    -------
+    DeformingTruth
+
+    Raises
+    ------
+    InvalidInputError
+        ``--truth``: the run has no organ to deform (a scenario without a Med-RAD base).
+    """
+    from needlekit.mechanics.insertion import MechanicalNeedle
+
+    model = setup.settings.tissue
+    if model is None:
+        raise InvalidInputError(
+            "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
+        )
+    m = setup.settings.mechanics
+    needle = MechanicalNeedle(setup.start_pose, m.needle_spec(), m.tissue_spec(),
+                              rng=setup.rng, inhomogeneity=m.inhomogeneity)  # fmt: skip
+    return DeformingTruth(needle, setup.r_min_mm, m.solve_rate_hz,
+                          DeformingTissue(model.compliance()))  # fmt: skip
+
+
+def _physical_parameters(settings) -> dict:
+
+    out = {"mechanics": mechanics_truth.parameters(settings)}
+    if settings.tissue is not None:
+        out["tissue"] = settings.tissue.record()
+    return out
+
+
+physical_truth.parameters = _physical_parameters
