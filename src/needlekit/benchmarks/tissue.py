@@ -43,7 +43,9 @@ ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 
 
-def step_times(tissue: DeformingTissue, n_steps: int = 4000, n_loads: int = 40, seed: int = 0) -> dict:
+def step_times(
+    tissue: DeformingTissue, n_steps: int = 4000, n_loads: int = 40, seed: int = 0
+) -> dict:
     """Time ``n_steps`` calls of :meth:`DeformingTissue.apply`, each with ``n_loads`` loads
     beside the corridor and a breathing displacement.
 
@@ -62,7 +64,9 @@ def step_times(tissue: DeformingTissue, n_steps: int = 4000, n_loads: int = 40, 
     rng = np.random.default_rng(seed)
     corridor = tissue.compliance.corridor_mm
     axis = corridor[-1] - corridor[0]
-    side = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 * np.linalg.norm(axis) else [0, 1, 0])
+    side = np.cross(
+        axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 * np.linalg.norm(axis) else [0, 1, 0]
+    )
     side *= 0.5 / np.linalg.norm(side)
     trace = PRESETS["lung"].trace(rng, 60.0)
     times, cpu = np.empty(n_steps), np.empty(n_steps)
@@ -138,10 +142,14 @@ def run_tissue_benchmark(
                 "boundary_mode": boundary_mode}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="needlekit-tissue-bench-") as cache:
         t0 = time.perf_counter()
-        cold = precompute(body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings)
+        cold = precompute(
+            body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
+        )
         cold_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        warm = precompute(body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings)
+        warm = precompute(
+            body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
+        )
         warm_s = time.perf_counter() - t0
     mesh = cold.mesh
     _, _, in_mesh = locate(mesh, np.concatenate([corridor, target[None]]))
@@ -153,7 +161,9 @@ def run_tissue_benchmark(
     tissue.apply(corridor[-3:], np.tile(0.5 / 3 * f_axis, (3, 1)))
     push = float(np.linalg.norm(tissue.target_displacement_mm))
     b = PRESETS[organ]
-    tissue.apply(np.zeros((0, 3)), np.zeros((0, 3)), breathing=b.amplitude_mm * np.asarray(b.direction))
+    tissue.apply(
+        np.zeros((0, 3)), np.zeros((0, 3)), breathing=b.amplitude_mm * np.asarray(b.direction)
+    )
     breath = float(np.linalg.norm(tissue.target_displacement_mm))
     return {
         "organ": organ, "patient": patient, "read_mask_s": read_s,
@@ -171,7 +181,9 @@ def run_tissue_benchmark(
 
 def main(argv=None) -> int:
     """``python -m needlekit.benchmarks.tissue``: one JSON record on stdout."""
-    p = argparse.ArgumentParser(prog="python -m needlekit.benchmarks.tissue", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m needlekit.benchmarks.tissue", description=__doc__.split("\n\n")[0]
+    )
     p.add_argument("--organ", choices=sorted(ORGAN_FILES), default="lung")
     p.add_argument("--patient", type=int, default=1)
     p.add_argument("--medrad", default=None, help="the Med-RAD folder (default $NEEDLEKIT_MEDRAD)")

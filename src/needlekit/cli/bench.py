@@ -157,6 +157,7 @@ def _execute(args: argparse.Namespace) -> dict:
         seed=args.seed,
         medrad_dir=args.medrad,
         progress=lambda name: print(f"bench execute: {name}", file=sys.stderr),
+        physics=not args.no_physics,
     )
 
 
@@ -335,8 +336,8 @@ def _register_execute(bench_sub) -> None:
         bench_sub,
         "execute",
         _execute,
-        help="closed-loop execution on the Med-RAD lungs: re-plan latency (warm and cold) "
-        "and the feedback step",
+        help="closed-loop execution on the Med-RAD lungs: re-plan latency (warm and cold), "
+        "the feedback step, and the physical truth's coupled needle-tissue step",
     )
     be.add_argument(
         "--patients", type=_count, nargs="+", default=[1, 2, 3, 4, 5],
@@ -352,6 +353,10 @@ def _register_execute(bench_sub) -> None:
     be.add_argument(
         "--trials", type=_positive_int, default=2,
         help="closed-loop trials per lung whose feedback steps are timed (default 2)",
+    )  # fmt: skip
+    be.add_argument(
+        "--no-physics", action="store_true",
+        help="leave out the physical truth (its organ's precomputation and coupled step)",
     )  # fmt: skip
     _flags.SEED.add(be, default=0, help="seed of the tips and trials (default 0)")
     _flags.add_medrad(be)

@@ -49,7 +49,7 @@ from needlekit.tissue.compliance import precompute, resample_polyline, sample_ne
 from needlekit.tissue.meshing import organ_body
 from needlekit.tissue.runtime import DeformingTissue
 
-__all__ = ["DeformingTruth", "TissueModel", "physical_truth", "tissue_model_for"]
+__all__ = ["DeformingTruth", "TissueModel", "load_compliance", "physical_truth", "tissue_model_for"]
 
 #: The organ's body mask and the structures followed beside the corridor, by organ.
 ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -129,6 +129,24 @@ class TissueModel:
 
 @functools.lru_cache(maxsize=4)
 def _compliance(model: TissueModel):
+    return load_compliance(model)
+
+
+def load_compliance(model: TissueModel, cache_dir=None):
+    """Mesh, factorise and condense ``model``'s organ, through the prepared-anatomy cache
+    (:func:`needlekit.tissue.compliance.precompute`; :meth:`TissueModel.compliance` keeps
+    the answer for the process).
+
+    Parameters
+    ----------
+    model : TissueModel
+    cache_dir : path-like, optional
+        Another cache folder (a benchmark's cold run).
+
+    Returns
+    -------
+    needlekit.tissue.compliance.Compliance
+    """
     from needlekit.io.volumes import read_mask
 
     folder = Path(model.folder)
@@ -149,7 +167,8 @@ def _compliance(model: TissueModel):
             labels += [name] * len(near)
     body = organ_body(mask.data, mask.affine, inside)
     return precompute(body, mask.affine, model.organ, corridor, np.concatenate(tracked), labels,
-                      seed_mm=target, boundary_mode=model.boundary_mode)  # fmt: skip
+                      seed_mm=target, boundary_mode=model.boundary_mode,
+                      cache_dir=cache_dir)  # fmt: skip
 
 
 def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ") -> TissueModel | None:
