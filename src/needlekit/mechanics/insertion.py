@@ -265,9 +265,7 @@ class MechanicalNeedle:
         rest = duty * self.needle.rest_curvature_per_mm
         # toward the tip's -y axis, -(-s e_x + c e_y), plus the inhomogeneity's push; the
         # pre-bend's curvature the same way
-        command = np.array(
-            [q * s + q0 * noise[1], -q * c + q0 * noise[2], rest * s, -rest * c]
-        )
+        command = np.array([q * s + q0 * noise[1], -q * c + q0 * noise[2], rest * s, -rest * c])
         self._history.record(self.inserted_mm + length, command)
         # the face carries the load of the tissue it wedged over the last bevel length;
         # the pre-bent segment lies in the tissue it cut over its own length
