@@ -20,6 +20,18 @@ after the transient is ``f kappa_max`` exactly. A negative command bends toward 
 spinning by pi would); ``|f|`` is clipped at 1: the needle cannot bend more than its
 held bevel makes it.
 
+**The load follows the depth cut.** The bevel face, ``L_b = d / tan(alpha)`` long, carries
+the load of the tissue it has wedged: tissue enters contact at the point and leaves at the
+heel as the needle advances ``L_b``. So the rod is solved with the mean of the commanded
+loads over the last ``L_b`` of depth (each recorded in the channel's transported frame),
+and a pre-bent tip's curvature with the mean over its own length; depths before the entry
+count as the first command, so a constant command acts in full from the start. A spin in
+place turns the tip frame but loads nothing until the tip cuts, and a step of ``ds``
+changes the load by at most ``2 Q min(1, ds / L_b)``. Applied at once, a change of the
+duty or the bevel's direction moved the tip by the shaft's whole static compliance times
+the change (up to ``2 lambda / k`` per newton: 9.7 mm per 0.05 mm step for nitinol in
+lung; docs/mechanics.md, "Commands that change every step").
+
 **Pre-bent tips** (:meth:`NeedleSpec.with_prebend
 <needlekit.mechanics.materials.NeedleSpec.with_prebend>`): the tip segment's stress-free
 curvature points to the bevel's side and is duty-cycled like the bevel's load. Its radii
