@@ -20,6 +20,18 @@ after the transient is ``f kappa_max`` exactly. A negative command bends toward 
 spinning by pi would); ``|f|`` is clipped at 1: the needle cannot bend more than its
 held bevel makes it.
 
+**The load follows the depth cut.** The bevel face, ``L_b = d / tan(alpha)`` long, carries
+the load of the tissue it has wedged: tissue enters contact at the point and leaves at the
+heel as the needle advances ``L_b``. So the rod is solved with the mean of the commanded
+loads over the last ``L_b`` of depth (each recorded in the channel's transported frame),
+and a pre-bent tip's curvature with the mean over its own length; depths before the entry
+count as the first command, so a constant command acts in full from the start. A spin in
+place turns the tip frame but loads nothing until the tip cuts, and a step of ``ds``
+changes the load by at most ``2 Q min(1, ds / L_b)``. Applied at once, a change of the
+duty or the bevel's direction moved the tip by the shaft's whole static compliance times
+the change (up to ``2 lambda / k`` per newton: 9.7 mm per 0.05 mm step for nitinol in
+lung; docs/mechanics.md, "Commands that change every step").
+
 **Pre-bent tips** (:meth:`NeedleSpec.with_prebend
 <needlekit.mechanics.materials.NeedleSpec.with_prebend>`): the tip segment's stress-free
 curvature points to the bevel's side and is duty-cycled like the bevel's load. Its radii
@@ -45,6 +57,7 @@ needle toward the tip's -y axis (:mod:`needlekit.conventions`), as the planner's
 
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -69,6 +82,41 @@ def _number(name: str, value, *, low: float = 0.0, strict: bool = False) -> floa
         op = ">" if strict else ">="
         raise InvalidInputError(name, f"expected a finite number {op} {low:g}, got {value!r}")
     return v
+
+
+class _ContactHistory:
+    """What the tip has been commanded per millimetre of depth, and its mean over a window.
+
+    Each sub-step records its command (the lateral load and the pre-bend's curvature,
+    in the channel's transported frame) over the depths it cut. :meth:`mean` is the
+    average of the commands over the last ``window`` of depth: the load the bevel face
+    carries is that of the tissue it wedged, which entered at the point and leaves at the
+    heel as the needle advances one bevel length. Depths before the entry count as the
+    first command (the start as before: a constant command acts in full from depth 0).
+    """
+
+    def __init__(self) -> None:
+        self.depth = [0.0]  # segment ends, increasing
+        self.cum = [np.zeros(4)]  # integral of the command up to each end
+        self.value: list[np.ndarray] = []  # the command over each segment
+
+    def record(self, depth_end: float, value: np.ndarray) -> None:
+        start = self.depth[-1]
+        self.depth.append(depth_end)
+        self.cum.append(self.cum[-1] + (depth_end - start) * value)
+        self.value.append(value)
+
+    def _integral(self, z: float) -> np.ndarray:
+        if z <= 0.0:
+            return z * self.value[0]
+        i = min(bisect.bisect_left(self.depth, z), len(self.depth) - 1)
+        return self.cum[i] - (self.depth[i] - z) * self.value[i - 1]
+
+    def mean(self, window: float) -> np.ndarray:
+        end = self.depth[-1]
+        if window <= 0.0:
+            return self.value[-1].copy()
+        return (self.cum[-1] - self._integral(end - window)) / window
 
 
 class MechanicalNeedle:
@@ -151,6 +199,7 @@ class MechanicalNeedle:
         self._noise = np.zeros((0, 3))
         self._last_force_xy = (0.0, 0.0)
         self._rest_xy = (0.0, 0.0)
+        self._history = _ContactHistory()
         self.solution: ShaftSolution | None = None
         self.inserted_mm = 0.0
         self.pose = self._compose_pose()
@@ -225,10 +274,17 @@ class MechanicalNeedle:
         q = duty * self.tip_load.lateral_n * noise[0]
         c, s = math.cos(self._spin), math.sin(self._spin)
         q0 = self.tip_load.lateral_n
-        # toward the tip's -y axis, -(-s e_x + c e_y), plus the inhomogeneity's push
-        self._last_force_xy = (q * s + q0 * noise[1], -q * c + q0 * noise[2])
         rest = duty * self.needle.rest_curvature_per_mm
-        self._rest_xy = (rest * s, -rest * c)
+        # toward the tip's -y axis, -(-s e_x + c e_y), plus the inhomogeneity's push; the
+        # pre-bend's curvature the same way
+        command = np.array([q * s + q0 * noise[1], -q * c + q0 * noise[2], rest * s, -rest * c])
+        self._history.record(self.inserted_mm + length, command)
+        # the face carries the load of the tissue it wedged over the last bevel length;
+        # the pre-bent segment lies in the tissue it cut over its own length
+        fx, fy = self._history.mean(self.needle.bevel_length_mm)[:2]
+        self._last_force_xy = (float(fx), float(fy))
+        rx, ry = self._history.mean(self.needle.prebend_length_mm)[2:]
+        self._rest_xy = (float(rx), float(ry))
         self.inserted_mm += length
         self.channel.extend(length, self._tip_tan.copy())
         self._solve()
