@@ -72,7 +72,7 @@ def test_bad_mechanics_settings_name_their_field(kw, field):
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_the_tip_pushes_the_lung_target_and_the_path_maps_back_to_rest(medrad_dir):
+def test_the_tip_pushes_the_lung_target_on(medrad_dir):
     from needlekit.execute.deforming import tissue_model_for
     from needlekit.execute.plugins import TRUTHS, Setup
     from needlekit.execute.run import ExecutionSettings
@@ -102,8 +102,5 @@ def test_the_tip_pushes_the_lung_target_and_the_path_maps_back_to_rest(medrad_di
     moved = truth.target_mm() - goal
     # the tip's cutting load pushes the target on, along the insertion
     assert np.linalg.norm(moved) > 0.1 and moved @ z > 0.5 * np.linalg.norm(moved)
-    tip = truth.pose[:3, 3]
-    rest = truth.to_rest(tip[None])[0]
-    # the material point at the tip was pushed on too: at rest it lay behind it
-    assert (tip - rest) @ z > 0.0
-    assert np.linalg.norm(truth.tissue.displacement_field(rest[None])[0] + rest - tip) < 1e-5
+    # one way: the needle's path is not carried by its own push (no to_rest)
+    assert not hasattr(truth, "to_rest")

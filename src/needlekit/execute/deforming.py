@@ -25,10 +25,14 @@ corridor and the vessels and airways beside it move. The coupling is one way, an
 - Friction along the shaft is not modelled (docs/mechanics.md): the organ is pushed at the
   tip only.
 
-The truth then has the capabilities the loop looks for (:mod:`needlekit.execute.plugins`):
-``target_mm()`` (the target where the tissue has carried it), ``to_rest(points)`` (world
-points to the material points at rest: the recorded path in the undeformed anatomy, which
-the masks judge) and ``shaft_loads()``.
+The truth then has two of the capabilities the loop looks for
+(:mod:`needlekit.execute.plugins`): ``target_mm()`` (the target where the tissue has
+carried it: the loop's final error is measured to it) and ``shaft_loads()``. It has no
+``to_rest``: in this one-way model the channel is not carried by the needle's own push, so
+the material points the tip passed through are where it passed, and the executed path is
+judged against the masks as it is (mapping it back through the organ's displacement at the
+tip would read the singular local answer above: measured on lung 1, it put the path's
+first millimetres 1-2 mm outside the lung).
 
 :class:`TissueModel` names the organ and the corridor; its precomputation (mesh,
 factorisation, condensed compliance) goes through the prepared-anatomy cache and is loaded
@@ -250,19 +254,6 @@ class DeformingTruth(MechanicsTruth):
         ndarray, shape (3,)
         """
         return self.tissue.target_mm()
-
-    def to_rest(self, points) -> np.ndarray:
-        """World points to the material points at rest.
-
-        Parameters
-        ----------
-        points : array_like, shape (n, 3)
-
-        Returns
-        -------
-        ndarray, shape (n, 3)
-        """
-        return self.tissue.to_rest(np.asarray(points, dtype=np.float64))
 
     def shaft_loads(self) -> dict:
         """The needle's loads (as :meth:`MechanicsTruth.shaft_loads`) and the organ's
