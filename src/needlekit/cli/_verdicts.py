@@ -169,7 +169,8 @@ def margin_advice(problem, planner, settings) -> str:
 def execute_failures(s: dict) -> list[str]:
     """Why a steerable ``execute`` run exits 1, one line each (none: exit 0), as its
     ``--help`` says: a run that crossed an obstacle (open loop, closed loop, or the closed
-    loop under any breathing policy: ignore, gate or track), a trial that crashed, an
+    loop under any breathing policy: ignore, gate or track, or any sensing policy run side
+    by side), a trial that crashed, an
     insertion aborted on a sensor fault (``--on-fault abort``, or a hold longer than
     ``--hold-timeout-s``).
 

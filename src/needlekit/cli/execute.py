@@ -496,7 +496,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
         "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle (open "
         "loop, closed loop, or the closed loop under any --breathing policy: ignore, gate or "
-        "track), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
+        "track, or any --sensing policy run side by side), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
         "abort, or a hold longer than --hold-timeout-s); each reason is printed on a line "
         "'exit 1: ...'. A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
