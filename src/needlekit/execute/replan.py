@@ -8,6 +8,11 @@ no entry rules, what is left of the length and heading budgets). A re-plan is ad
 when it passes the independent check (:func:`needlekit.planning.steerable.verify.verify_plan`)
 against that problem; otherwise the needle keeps following the plan it has.
 
+When the target is seen to have moved (:mod:`needlekit.execute.target_sensing`), the
+re-plan goes to where it is seen: the continuation problem's goal is replaced
+(``Replanner.replan(..., goal_mm=...)``), the warm starts join the new goal, and the check
+verifies the plan against it.
+
 The needle does not wait for the planner: the search's measured time (or a fixed
 ``delay_s``, for reproducible tests) passes in the simulation while the needle goes on
 along the old plan, and the new plan applies from where the tip is when the search

@@ -10,6 +10,12 @@ insertion stops when the goal is no longer ahead of the estimated tip. Both runs
 trial draw the needle's radius, the tissue's push and the orientation noise from the same
 seed, so they meet the same needle in the same tissue.
 
+Closed loop, a sensing policy (:mod:`needlekit.execute.target_sensing`) says what sees the
+target: nothing (``em``: the plan's target, assumed still), CT checkpoints that hold the
+insertion for each scan, or continuous tracking; the loop steers to the believed target and
+re-plans to it once it has moved. The path is recorded in the world (``points_mm``) and,
+for a truth that maps its tissue back (``to_rest``), at rest beside it (``points_rest_mm``).
+
 Every sample, the simulated sensor's or a tracker's, passes the sensor guard
 (:mod:`needlekit.execute.guard`) before it reaches the filter; while the guard holds, the
 needle does not go in, and when it gives up the insertion ends there. Faults of a profile
