@@ -1078,6 +1078,30 @@ ROWS = [
         "error: --orientation-noise-rad: expected at most 0.05, got 0.1",
     ),
     (
+        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "em,sonar"],
+        "error: argument --sensing: expected policies among em, checkpoints, tracking "
+        "(comma-separated), got 'sonar'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
+         "--tracking-rate-hz", "0"],
+        "error: argument --tracking-rate-hz: expected a number in (0, 1000] Hz, got '0'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
+         "--tracking-latency-ms", "-5"],
+        "error: argument --tracking-latency-ms: expected a number in [0, 10000] ms, got '-5'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "checkpoints",
+         "--checkpoint-every-mm", "0.5"],
+        "error: argument --checkpoint-every-mm: expected a number in [1, 1000] mm, got '0.5'",
+    ),
+    (
+        ["execute", "{TOY}", "{d}/malformed.json", "--scan-s", "5"],
+        "error: --scan-s: sets the checkpoints sensor: add checkpoints to --sensing",
+    ),
+    (
         ["execute", "{TOY}", "{d}/malformed.json", "--registration-sd-mm", "1"],
         "error: --registration-sd-mm: applies to a multi plan (multi.json)",
     ),

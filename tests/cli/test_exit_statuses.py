@@ -1,12 +1,13 @@
 """``execute`` exits as its ``--help`` says, in every mode: 1 when a run crossed an
 obstacle (open loop, closed loop, or the closed loop under any breathing policy: ignore,
-gate, track), a trial crashed, or an insertion was aborted on a sensor fault; else 0. A
+gate, track, or any sensing policy run side by side), a trial crashed, or an insertion was aborted on a sensor fault; else 0. A
 multi plan: 1 when a needle touched a placed one, left its constraints, or a trial
 crashed.
 
 The studies are replaced by records of known outcomes (the simulations have tests of
 their own): what is checked is the command's verdict on each, over every combination of
-its modes (open and closed loop, re-planning or not, breathing, faults held or aborted),
+its modes (open and closed loop, re-planning or not, breathing, sensing policies side by
+side, faults held or aborted),
 through the real parser and handler."""
 
 from __future__ import annotations
@@ -40,7 +41,13 @@ MODES = {
     "breathing and faults, abort": [
         "--breathing", "lung", "--faults", "mixed", "--on-fault", "abort"
     ],
+    "sensing side by side": ["--sensing", "em,checkpoints,tracking"],
+    "sensing and faults, abort": [
+        "--sensing", "checkpoints,tracking", "--faults", "dropout", "--on-fault", "abort"
+    ],
 }
+SENSING = {"sensing side by side": ("em", "checkpoints", "tracking"),
+           "sensing and faults, abort": ("checkpoints", "tracking")}  # fmt: skip
 
 
 def _loop(runs: int, violated: int = 0, aborted: int | None = None, replans: bool = True):
@@ -74,6 +81,12 @@ def _summary(options, runs: int, crossed: str | None, aborted: str | None, crash
         s["breathing"] = {
             p: {**loop(f"breathing, {p}"), "procedure_s": {"mean": 30.0}} for p in POLICIES
         }
+    if len(options.sensing) > 1:
+        s["sensing"] = {
+            p: {**loop(f"sensing, {p}"), "procedure_s": {"mean": 30.0},
+                "target_displacement_max_mm": {}, "target_error_mm": {}, "scans": {}}
+            for p in options.sensing
+        }  # fmt: skip
     return s
 
 
@@ -82,6 +95,7 @@ def _cases():
         runs = ["open loop", "closed loop"]
         if "--breathing" in flags:
             runs += [f"breathing, {p}" for p in POLICIES]
+        runs += [f"sensing, {p}" for p in SENSING.get(mode, ())]
         yield mode, flags, None, None, False, 0
         for name in runs:
             yield mode, flags, name, None, False, 1

@@ -266,6 +266,26 @@ CASES["execute plug points"] = [
 ]
 
 
+#: ``execute``'s target sensing: a policy unknown or twice, a sensor's setting out of its
+#: range, or given without its policy; each refused before the plan is read.
+CASES["execute sensing"] = [
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "em,sonar"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "em,em"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-rate-hz", "0"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-latency-ms",
+     "-1"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-sigma-mm",
+     "nan"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--scan-s", "inf"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--image-sigma-mm",
+     "-0.1"],
+    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints",
+     "--checkpoint-every-mm", "0"],
+    ["execute", TOY, "{d}/malformed.json", "--tracking-rate-hz", "5"],
+    ["execute", TOY, "{d}/malformed.json", "--retarget-mm", "1"],
+]  # fmt: skip
+
+
 #: A command group without its sub-command is a usage error (exit 2), not its help.
 CASES["groups"] = [["bench"], ["study"], ["scene"], ["kinematics"], ["cache"]]
 

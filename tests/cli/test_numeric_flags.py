@@ -37,8 +37,8 @@ HOSTILE = (
 )  # fmt: skip
 
 #: Types that are not numbers: paths, planner options (typed by the planner, through the
-#: same gate: tests/cli/test_flags.py).
-_NOT_NUMBERS = ("Path", "_option_pair")
+#: same gate: tests/cli/test_flags.py), execute's sensing policies (names, comma-separated).
+_NOT_NUMBERS = ("Path", "_option_pair", "_policies")
 
 
 def _commands() -> dict[str, list[argparse.Action]]:

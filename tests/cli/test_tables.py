@@ -18,6 +18,7 @@ import pytest
 
 from needlekit.cli import main
 from needlekit.cli._common import NO_VALUE, _fmt_table
+from needlekit.cli._verdicts import sensing_table
 from needlekit.cli.execute_multi import multi_table
 
 TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
@@ -27,7 +28,7 @@ UNIT = re.compile(r"(\bmm\b|_mm\b|\bdeg\b|_deg\b|\brad\b|\bs\b|_s\b|\bms\b|\bml\
                   re.IGNORECASE)  # fmt: skip
 #: Numeric columns without a unit: counts, indices, unit-vector components, ratios.
 UNITLESS = {"crossed", "re-plans", "target", "dir_x", "dir_y", "dir_z", "feng", "not direct",
-            "needles", "solved"}  # fmt: skip
+            "needles", "solved", "scans"}  # fmt: skip
 
 
 def _tables(text: str) -> list[tuple[list[str], list[list[str]], list[str]]]:
@@ -178,3 +179,20 @@ def test_the_execute_lungs_table(monkeypatch, tmp_path):
     cases, per_policy = check_tables(text, 2)
     assert cases[1][1][:3] == ["lung 2", "no plan", "-"]
     assert per_policy[0][2:4] == ["mean mm", "sd mm"]
+
+
+def test_the_sensing_table():
+    e = {"mean": 0.5, "sd": 0.1, "max": 0.7}
+    row = {"final_error_mm": e, "within_1mm": 1.0, "violated": 0, "procedure_s": {"mean": 32.0}}
+    s = {
+        "em": {**row, "target_displacement_max_mm": {"n": 0}, "target_error_mm": {"n": 0},
+               "scans": {"n": 0}},
+        "checkpoints": {**row, "target_displacement_max_mm": {"max": 4.0},
+                        "target_error_mm": {"mean": 0.8}, "scans": {"mean": 3.0}},
+    }  # fmt: skip
+    ((headers, rows, notes),) = check_tables(sensing_table(s), 1)
+    assert headers == ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed",
+                       "target moved max mm", "target belief error mm", "scans",
+                       "procedure s"]  # fmt: skip
+    assert rows[0][0] == "sensing, em" and rows[0][6:9] == ["-", "-", "-"]
+    assert rows[1][6:9] == ["4.0000", "0.8000", "3.0000"] and len(notes) == 3

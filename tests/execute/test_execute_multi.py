@@ -137,6 +137,8 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
          "plan is a multi plan"),
         (["--faults", "mixed"], "error: --faults: applies to a steerable plan; the plan is a "
          "multi plan"),
+        (["--sensing", "em,tracking"], "error: --sensing: applies to a steerable plan; the plan "
+         "is a multi plan"),
         (["--resume", "--replay-trial", "0"], "error: --resume: carries on a whole study, not one "
          "--replay-trial"),
         (["--registration-sd-mm", "11"], "error: --registration-sd-mm: expected at most 10, "

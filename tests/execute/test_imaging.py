@@ -104,10 +104,21 @@ def test_the_target_belief_is_the_kalman_update_of_a_random_walk():
     from needlekit.execute.imaging import TargetEstimator
 
     est = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=1.0)
-    # 4 s on: prior variance 4; a sample taken 1 s ago with SD 1: R = 1 + 1 = 2
+    # a sample taken at 3 s (SD 1) used at 4 s: the prior where it was taken has variance
+    # 3, the gain is 3 / 4; the 1 s of drift since is added to the belief's variance after
     assert est.update(4.0, 3.0, [3.0, 0.0, 0.0], 1.0)
-    assert est.target_mm == pytest.approx([2.0, 0.0, 0.0])  # gain 4 / 6
-    assert est.variance_mm2 == pytest.approx(4.0 / 3.0)
+    assert est.target_mm == pytest.approx([2.25, 0.0, 0.0])
+    assert est.variance_mm2 == pytest.approx(0.75 + 1.0)
+    # the same by brute force: the joint Gaussian of (x_3, x_4, z) conditioned on z
+    cov = np.array([[3.0, 3.0, 3.0], [3.0, 4.0, 3.0], [3.0, 3.0, 4.0]])
+    gain = cov[1, 2] / cov[2, 2]
+    assert est.target_mm[0] == pytest.approx(gain * 3.0)
+    assert est.variance_mm2 == pytest.approx(cov[1, 1] - cov[1, 2] ** 2 / cov[2, 2])
+    # a sample arriving 20 s late, noise-free, is taken as the truth of its time
+    late = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=0.5)
+    assert late.update(30.0, 10.0, [0.0, 4.0, 0.0], 0.0)
+    assert late.target_mm == pytest.approx([0.0, 4.0, 0.0])
+    assert late.variance_mm2 == pytest.approx(0.25 * 20.0)
     # without drift the plan's target is kept: EM alone assumes the target still
     still = TargetEstimator([1.0, 1.0, 1.0], drift_sigma_mm=0.0)
     still.update(10.0, 10.0, [1.2, 1.0, 1.0], 0.5)

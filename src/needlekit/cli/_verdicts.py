@@ -169,7 +169,8 @@ def margin_advice(problem, planner, settings) -> str:
 def execute_failures(s: dict) -> list[str]:
     """Why a steerable ``execute`` run exits 1, one line each (none: exit 0), as its
     ``--help`` says: a run that crossed an obstacle (open loop, closed loop, or the closed
-    loop under any breathing policy: ignore, gate or track), a trial that crashed, an
+    loop under any breathing policy: ignore, gate or track, or any sensing policy run side
+    by side), a trial that crashed, an
     insertion aborted on a sensor fault (``--on-fault abort``, or a hold longer than
     ``--hold-timeout-s``).
 
@@ -184,6 +185,7 @@ def execute_failures(s: dict) -> list[str]:
     """
     runs = {"open loop": s["open_loop"], "closed loop": s["closed_loop"]}
     runs.update({f"breathing, {k}": r for k, r in (s.get("breathing") or {}).items()})
+    runs.update({f"sensing, {k}": r for k, r in (s.get("sensing") or {}).items()})
     out = []
     for name, r in runs.items():
         if r.get("violated"):
@@ -232,6 +234,8 @@ def summary_table(s: dict) -> str:
     })  # fmt: skip
     if "breathing" in s:
         text += "\n\n" + breathing_table(s["breathing"])
+    if "sensing" in s:
+        text += "\n\n" + sensing_table(s["sensing"])
     return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
 
 
@@ -258,6 +262,39 @@ def breathing_table(per_policy: dict) -> str:
         rows,
         why={"procedure s": "no run ended (every trial crashed)"},
     )
+
+
+def sensing_table(per_policy: dict) -> str:
+    """The closed loop under each sensing policy side by side, a row per policy.
+
+    Parameters
+    ----------
+    per_policy : dict
+        ``summary["sensing"]`` of ``execute.json``.
+
+    Returns
+    -------
+    str
+    """
+    rows = []
+    for name, r in per_policy.items():
+        e, t = r["final_error_mm"], r["procedure_s"]
+        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
+        rows.append([f"sensing, {name}", e.get("mean"), e.get("sd"), e.get("max"), within,
+                     r["violated"], r["target_displacement_max_mm"].get("max"),
+                     r["target_error_mm"].get("mean"), r["scans"].get("mean"), t.get("mean")])  # fmt: skip
+    return _fmt_table(
+        ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed",
+         "target moved max mm", "target belief error mm", "scans", "procedure s"],
+        rows,
+        why={"target moved max mm": _NO_TARGET, "target belief error mm": _NO_TARGET,
+             "scans": _NO_TARGET, "procedure s": "no run ended (every trial crashed)"},
+    )  # fmt: skip
+
+
+#: Why a sensing row has no target figures.
+_NO_TARGET = ("em senses no target and the truth carries none: the plan's target, assumed "
+              "still")  # fmt: skip
 
 
 def dynamic_summary(res) -> list[str]:

@@ -84,8 +84,10 @@ def _check_flags(args: argparse.Namespace) -> None:
     """Every flag's value, before the anatomy loads."""
     from needlekit.cli.execute_models import checked_models
     from needlekit.cli.execute_multi import check_trial_flags
+    from needlekit.cli.execute_sensing import check_sensing_flags
 
     args.models = checked_models(args)  # first: light (the guard's check loads numba)
+    check_sensing_flags(args)
     check_noise_flags(args)
     check_trial_flags(args)
     if args.tip_from_igtl is not None and args.igtl is None:
@@ -154,7 +156,14 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     )  # fmt: skip
     if hasattr(args, "replanner"):
         policy = replace(policy, planner=args.replanner)
-    return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args))
+    names: tuple = ("em",)
+    if hasattr(args, "sensing"):  # execute's own flags (not study execute-lungs')
+        from needlekit.cli.execute_sensing import sensing_policy
+
+        sensing, names = sensing_policy(args)
+        settings = replace(settings, sensing=sensing)
+    return ExecuteOptions(settings, policy, replan=not args.no_replan, breathing=_breathing(args),
+                          sensing=names)  # fmt: skip
 
 
 def _guard(args: argparse.Namespace):
@@ -516,7 +525,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
         "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle (open "
         "loop, closed loop, or the closed loop under any --breathing policy: ignore, gate or "
-        "track), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
+        "track, or any --sensing policy run side by side), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
         "abort, or a hold longer than --hold-timeout-s); each reason is printed on a line "
         "'exit 1: ...'. A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
@@ -547,8 +556,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     add_noise_flags(ex)
     from needlekit.cli.execute_models import add_model_flags
+    from needlekit.cli.execute_sensing import add_sensing_flags
 
     add_model_flags(ex)
+    add_sensing_flags(ex)
     live = ex.add_argument_group("a live link to 3D Slicer (pip install 'needlekit[igtl]')")
     live.add_argument("--igtl", metavar="[HOST:]PORT",
                       help="stream the closed-loop insertion over OpenIGTLink (tip TRANSFORMs, "

@@ -309,9 +309,13 @@ class TargetEstimator:
     """Where the loop believes the target is: a Kalman filter on its position under a
     random walk (each axis gains ``drift_sigma_mm**2`` of variance per second).
 
-    A sample taken ``L`` s before it is used is applied to the current estimate with
-    ``drift_sigma_mm**2 L`` added to its noise: for a random walk that is exact, what
-    the target did since the sample was taken being independent of it. Samples pass
+    The filter's state is the target at the time its latest sample was taken. A sample
+    taken at ``tau`` (at or after that time) moves the state to ``tau`` (its variance grows
+    by the drift meanwhile) and corrects it there; the belief *now* is that mean, with the
+    drift since ``tau`` added to its variance. For a random walk that is exact however late
+    the sample arrives: what the target did after it was taken is independent of it, and
+    its best guess is no motion. A sample taken before the state's time (out of order) is
+    applied to the state with the drift between the two added to its noise. Samples pass
     :func:`admit_target` first; a refused one is counted by its reason and changes
     nothing.
 
@@ -327,8 +331,6 @@ class TargetEstimator:
     Attributes
     ----------
     target_mm : ndarray, shape (3,)
-    variance_mm2 : float
-        Per axis.
     used : int
     refused : dict
         Refused samples by reason.
@@ -341,11 +343,21 @@ class TargetEstimator:
                                                                      "max_speed_mm_s")  # fmt: skip
         self.drift_var = float(drift_sigma_mm) ** 2
         self.max_speed_mm_s = float(max_speed_mm_s)
-        self.variance_mm2 = 0.0
         self.t = 0.0
-        self._last_taken = 0.0
+        self._at = 0.0  # the time the state refers to (the latest sample's taking)
+        self._var = 0.0  # its variance per axis
         self.used = 0
         self.refused: dict[str, int] = {}
+
+    @property
+    def variance_mm2(self) -> float:
+        """The belief's variance per axis now (the state's plus the drift since).
+
+        Returns
+        -------
+        float
+        """
+        return self._var + self.drift_var * max(self.t - self._at, 0.0)
 
     def predict(self, t: float) -> None:
         """Advance the belief to time ``t`` (its variance grows).
@@ -359,7 +371,6 @@ class TargetEstimator:
         None
         """
         if t > self.t:
-            self.variance_mm2 += self.drift_var * (t - self.t)
             self.t = t
 
     def update(self, t: float, taken_s: float, sample_mm, sigma_mm: float) -> bool:
@@ -381,16 +392,18 @@ class TargetEstimator:
             Whether it was used.
         """
         self.predict(t)
-        why = admit_target(sample_mm, self.target_mm, taken_s - self._last_taken,
-                           self.max_speed_mm_s, max(sigma_mm, math.sqrt(self.variance_mm2)))  # fmt: skip
+        lag = taken_s - self._at  # > 0: the state moves on to the sample's time
+        prior = self._var + self.drift_var * max(lag, 0.0)
+        why = admit_target(sample_mm, self.target_mm, lag, self.max_speed_mm_s,
+                           max(sigma_mm, math.sqrt(prior)))  # fmt: skip
         if why is not None:
             self.refused[why] = self.refused.get(why, 0) + 1
             return False
-        r = sigma_mm**2 + self.drift_var * max(t - taken_s, 0.0)
-        gain = self.variance_mm2 / (self.variance_mm2 + r) if self.variance_mm2 + r > 0 else 1.0
+        r = sigma_mm**2 + self.drift_var * max(-lag, 0.0)
+        gain = prior / (prior + r) if prior + r > 0 else 1.0
         self.target_mm = self.target_mm + gain * (np.asarray(sample_mm, dtype=np.float64)
                                                   - self.target_mm)  # fmt: skip
-        self.variance_mm2 = (1.0 - gain) * self.variance_mm2
-        self._last_taken = max(self._last_taken, taken_s)
+        self._var = (1.0 - gain) * prior
+        self._at = max(self._at, taken_s)
         self.used += 1
         return True

@@ -32,10 +32,13 @@ injected faults (``--faults``) wrap whichever sensor runs.
 
 The truth's optional capabilities, used by the loop when the truth has them:
 
-- ``target_mm()``: where the target is now (a target the tissue carries); the loop steers
-  to it, stops when it is no longer ahead, and judges the final error against it;
+- ``target_mm()``: where the target is now (a target the tissue carries); the final error
+  is judged against it, and the sensing policies' sensors sample it
+  (:mod:`needlekit.execute.target_sensing`: under ``em`` nothing sees it and the loop
+  steers to the plan's target);
 - ``to_rest(points)``: points of the deformed tissue mapped to the undeformed anatomy; the
-  recorded tip path is mapped so, and certified against the scenario's anatomy;
+  recorded tip path is mapped so (``points_rest_mm``, beside the world path) and certified
+  against the scenario's anatomy;
 - ``shaft_loads()``: the loads along the shaft (a dict of numbers or lists), written in the
   run's record at the end of the insertion.
 """

@@ -44,7 +44,12 @@ _ALWAYS = ("final_error_mm", "min_clearance_mm", "sampled_clearance_mm", "violat
 #: The closed loop's sensor guard (first in the record), and what only some runs have.
 _GUARD = ("faults", "rejected", "accepted", "holds", "held_s", "aborted", "procedure_s",
           "faults_injected")  # fmt: skip
-_AFTER = ("replans_refused", "warm_start_kept", "shaft_loads")
+_AFTER = ("replans_refused", "warm_start_kept", "shaft_loads", "points_rest_mm")
+#: What a run under a sensing policy records of the target
+#: (:meth:`needlekit.execute.target_sensing.TargetSensing.record`).
+_TARGET = ("sensing", "target_displacement_mm", "target_displacement_max_mm",
+           "target_error_mm", "scans", "target_samples_used", "target_samples_refused",
+           "scan_tip_used", "scan_tip_refused")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,7 +57,11 @@ class LoopRecord:
     """One run's figures (open loop, closed loop, or closed loop under a breathing policy);
     the fields as ``docs/execute.md`` lists them. The guard's fields are those of a closed
     loop (None in an open loop's), ``replans_refused`` and ``warm_start_kept`` those of a
-    run that re-planned, ``shaft_loads`` those of a truth that reports them."""
+    run that re-planned, ``shaft_loads`` those of a truth that reports them,
+    ``points_rest_mm`` those of a truth that maps its tissue back to rest (``to_rest``;
+    ``points_mm`` is then the path in the world and the clearance is judged on this one),
+    and the target's fields (``sensing`` to ``scan_tip_refused``) those of a closed loop
+    under a sensing policy other than ``em`` or with a truth that carries the target."""
 
     final_error_mm: float
     min_clearance_mm: float | None
@@ -79,6 +88,16 @@ class LoopRecord:
     replans_refused: int | None = None
     warm_start_kept: int | None = None
     shaft_loads: dict | None = None
+    points_rest_mm: tuple | None = None
+    sensing: str | None = None
+    target_displacement_mm: float | None = None
+    target_displacement_max_mm: float | None = None
+    target_error_mm: float | None = None
+    scans: int | None = None
+    target_samples_used: int | None = None
+    target_samples_refused: dict | None = None
+    scan_tip_used: int | None = None
+    scan_tip_refused: int | None = None
 
     def to_dict(self) -> dict:
         """The record as ``execute.json`` holds it (fields a run has not, left out).
@@ -88,7 +107,7 @@ class LoopRecord:
         dict
         """
         out: dict[str, Any] = {}
-        for key in (*_GUARD, *_ALWAYS, *_AFTER):
+        for key in (*_GUARD, *_ALWAYS, *_AFTER, *_TARGET):
             value = getattr(self, key)
             if value is None and key not in _ALWAYS:
                 continue
@@ -115,8 +134,8 @@ class LoopRecord:
             ``"<where>: <field>: ..."``.
         """
         f = field_of
-        unknown = sorted(set(data) - set(_ALWAYS) - set(_GUARD) - set(_AFTER)) if isinstance(
-            data, dict) else []  # fmt: skip
+        known = {*_ALWAYS, *_GUARD, *_AFTER, *_TARGET}
+        unknown = sorted(set(data) - known) if isinstance(data, dict) else []
         if unknown:
             raise InvalidInputError(f"{where}: {unknown[0]}", "not a field of a run's record")
         violation = f(data, "violation", where, "str", optional=True)
@@ -148,6 +167,17 @@ class LoopRecord:
             replans_refused=f(data, "replans_refused", where, "int", optional=True),
             warm_start_kept=f(data, "warm_start_kept", where, "int", optional=True),
             shaft_loads=f(data, "shaft_loads", where, "dict", optional=True),
+            points_rest_mm=None if data.get("points_rest_mm") is None
+            else _points(data, "points_rest_mm", where),
+            sensing=f(data, "sensing", where, "str", optional=True),
+            target_displacement_mm=_opt_number(data, "target_displacement_mm", where),
+            target_displacement_max_mm=_opt_number(data, "target_displacement_max_mm", where),
+            target_error_mm=_opt_number(data, "target_error_mm", where),
+            scans=f(data, "scans", where, "int", optional=True),
+            target_samples_used=f(data, "target_samples_used", where, "int", optional=True),
+            target_samples_refused=_counts(data, "target_samples_refused", where),
+            scan_tip_used=f(data, "scan_tip_used", where, "int", optional=True),
+            scan_tip_refused=f(data, "scan_tip_refused", where, "int", optional=True),
         )  # fmt: skip
 
 
@@ -165,6 +195,10 @@ class TrialRecord:
         The runs (None: not run, or the trial raised).
     breathing : dict of str to LoopRecord, or None
         The closed loop under each breathing policy.
+    sensing : dict of str to LoopRecord, or None
+        Several sensing policies side by side: the closed loop under each
+        (:mod:`needlekit.execute.target_sensing`), the first the same run as
+        ``closed_loop``.
     error : str or None
         What the trial raised (``"Type: message (file:line)"``).
     """
@@ -177,6 +211,7 @@ class TrialRecord:
     closed_loop: LoopRecord | None = None
     breathing: dict | None = None
     error: str | None = None
+    sensing: dict | None = None
 
     def to_dict(self) -> dict:
         """The record as ``execute.json`` holds it.
@@ -193,6 +228,8 @@ class TrialRecord:
                 out[key] = getattr(self, key).to_dict()
         if self.breathing is not None:
             out["breathing"] = {k: v.to_dict() for k, v in self.breathing.items()}
+        if self.sensing is not None:
+            out["sensing"] = {k: v.to_dict() for k, v in self.sensing.items()}
         if self.error is not None:
             out["error"] = self.error
         return out
@@ -224,12 +261,17 @@ class TrialRecord:
         if breathing is not None:
             breathing = {k: LoopRecord.from_dict(v, f"{where}: breathing: {k}")
                          for k, v in breathing.items()}  # fmt: skip
+        sensing = f(data, "sensing", where, "dict", optional=True)
+        if sensing is not None:
+            sensing = {k: LoopRecord.from_dict(v, f"{where}: sensing: {k}")
+                       for k, v in sensing.items()}  # fmt: skip
         return cls(
             trial=f(data, "trial", where, "int"),
             seed=f(data, "seed", where, "int"),
             seed_spawn_key=tuple(key),
             status=enum_of(Status, f(data, "status", where, "str"), f"{where}: status"),
             breathing=breathing,
+            sensing=sensing,
             error=f(data, "error", where, "str", optional=True),
             **runs,
         )
@@ -278,8 +320,10 @@ def path_record(run, judge) -> LoopRecord:
     LoopRecord
     """
     pts = np.ascontiguousarray(run.points_mm, dtype=np.float64)
-    gap = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).max()) if len(pts) > 1 else 0.0
-    cert = judge.collision_checker(max(gap, 1e-6)).certify(pts, max(gap, 1e-6))
+    rest = getattr(run, "points_rest_mm", None)
+    judged = pts if rest is None else np.ascontiguousarray(rest, dtype=np.float64)
+    gap = float(np.linalg.norm(np.diff(judged, axis=0), axis=1).max()) if len(judged) > 1 else 0.0
+    cert = judge.collision_checker(max(gap, 1e-6)).certify(judged, max(gap, 1e-6))
     guard: dict[str, Any] = {}
     if run.guard is not None:  # closed loop: its faults, holds and rejected samples
         guard = {**run.guard, "procedure_s": float(run.procedure_s)}
@@ -307,8 +351,17 @@ def path_record(run, judge) -> LoopRecord:
             for a, b, plan in run.replan_events
         ),
         shaft_loads=run.shaft_loads,
+        points_rest_mm=None if rest is None else tuple(map(tuple, np.round(judged, 4).tolist())),
         **guard,
+        **_target(getattr(run, "target", None)),
     )  # fmt: skip
+
+
+def _target(target: dict | None) -> dict:
+    """A run's target record as the record's fields (none when it has none)."""
+    if target is None:
+        return {}
+    return {**target, "target_samples_refused": dict(target["target_samples_refused"])}
 
 
 def _finite(v):

@@ -8,6 +8,11 @@ no entry rules, what is left of the length and heading budgets). A re-plan is ad
 when it passes the independent check (:func:`needlekit.planning.steerable.verify.verify_plan`)
 against that problem; otherwise the needle keeps following the plan it has.
 
+When the target is seen to have moved (:mod:`needlekit.execute.target_sensing`), the
+re-plan goes to where it is seen: the continuation problem's goal is replaced
+(``Replanner.replan(..., goal_mm=...)``), the warm starts join the new goal, and the check
+verifies the plan against it.
+
 The needle does not wait for the planner: the search's measured time (or a fixed
 ``delay_s``, for reproducible tests) passes in the simulation while the needle goes on
 along the old plan, and the new plan applies from where the tip is when the search
@@ -265,16 +270,37 @@ class Replanner:
         -------
         bool
         """
-        p, problem = self.policy, self.problem
+        return cross_track_mm > self.policy.cross_track_mm and self.may(
+            inserted_mm, goal_distance_mm
+        )
+
+    def may(self, inserted_mm: float, goal_distance_mm: float) -> bool:
+        """Whether a re-plan may run now, whatever asks for it (the drift, or a target
+        seen to have moved): ``min_interval_mm`` in since the last re-plan, past the start
+        exclusion, and farther from the goal than its tolerance.
+
+        Parameters
+        ----------
+        inserted_mm, goal_distance_mm : float
+
+        Returns
+        -------
+        bool
+        """
+        problem = self.problem
         return (
-            cross_track_mm > p.cross_track_mm
-            and inserted_mm - self._last_mm >= p.min_interval_mm
+            inserted_mm - self._last_mm >= self.policy.min_interval_mm
             and inserted_mm > problem.start_exclusion_mm
             and goal_distance_mm > problem.goal_tolerance_mm
         )
 
     def replan(
-        self, tip_pose, inserted_mm: float, following: tuple[SteerablePlan, float] | None = None
+        self,
+        tip_pose,
+        inserted_mm: float,
+        following: tuple[SteerablePlan, float] | None = None,
+        *,
+        goal_mm=None,
     ) -> tuple[PlanResult | None, float]:
         """Plan from ``tip_pose`` and check the plan.
 
@@ -285,6 +311,10 @@ class Replanner:
         inserted_mm : float
         following : (SteerablePlan, float), optional
             The plan being followed and the tip's arc length along it: the warm start.
+        goal_mm : array_like, shape (3,), optional
+            Where the target is now seen (:mod:`needlekit.execute.target_sensing`): the
+            continuation problem's goal, instead of the original one. The warm starts join
+            it, and the check verifies the plan against it.
 
         Returns
         -------
@@ -296,6 +326,8 @@ class Replanner:
         t0 = time.perf_counter()
         try:
             cont = continuation_from_pose(self.problem, tip_pose, inserted_mm)
+            if goal_mm is not None:
+                cont = cont.with_goal(goal_mm)
         except InvalidInputError:  # no length or heading left: follow what there is
             cont = None
         result = None

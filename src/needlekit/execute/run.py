@@ -10,6 +10,12 @@ insertion stops when the goal is no longer ahead of the estimated tip. Both runs
 trial draw the needle's radius, the tissue's push and the orientation noise from the same
 seed, so they meet the same needle in the same tissue.
 
+Closed loop, a sensing policy (:mod:`needlekit.execute.target_sensing`) says what sees the
+target: nothing (``em``: the plan's target, assumed still), CT checkpoints that hold the
+insertion for each scan, or continuous tracking; the loop steers to the believed target and
+re-plans to it once it has moved. The path is recorded in the world (``points_mm``) and,
+for a truth that maps its tissue back (``to_rest``), at rest beside it (``points_rest_mm``).
+
 Every sample, the simulated sensor's or a tracker's, passes the sensor guard
 (:mod:`needlekit.execute.guard`) before it reaches the filter; while the guard holds, the
 needle does not go in, and when it gives up the insertion ends there. Faults of a profile
@@ -41,6 +47,7 @@ from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.execute.physical import MechanicsSettings
 from needlekit.execute.plugins import ESTIMATORS, FEEDBACK_LAWS, SENSORS, TRUTHS, Models, Setup
 from needlekit.execute.replan import Replanner
+from needlekit.execute.target_sensing import SensingPolicy, TargetSensing, retarget_reference
 from needlekit.planning.steerable.plan import SteerablePlan
 
 __all__ = ["DEFAULT_SENSOR", "ExecutionRun", "ExecutionSettings", "LoopHooks", "execute_plan"]
@@ -94,6 +101,9 @@ class ExecutionSettings:
         simulator's own radius and noise (the ``kinematic`` truth's legacy set-up).
     tissue : TissueModel or None
         The deforming organ of the ``physical`` truth (:mod:`needlekit.execute.deforming`).
+    sensing : SensingPolicy
+        Closed loop, what sees the target (:mod:`needlekit.execute.target_sensing`):
+        ``em`` (nothing: the plan's target, assumed still), ``checkpoints`` or ``tracking``.
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -109,6 +119,7 @@ class ExecutionSettings:
     mechanics: MechanicsSettings = field(default_factory=MechanicsSettings)
     model: Calibration | None = None
     tissue: object | None = None
+    sensing: SensingPolicy = field(default_factory=SensingPolicy)
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
@@ -130,7 +141,8 @@ class ExecutionRun:
     final_error_mm : float
         The true tip's distance from the goal where the insertion stopped.
     points_mm : ndarray, shape (k, 3)
-        The true tip path (RAS mm), every ``record_mm`` of insertion and at the end.
+        The true tip path (RAS mm, in the world), every ``record_mm`` of insertion and at
+        the end.
     inserted_mm : float
     estimate_error_mm : float or None
         Closed loop, the estimate's distance from the true tip at the end.
@@ -155,6 +167,12 @@ class ExecutionRun:
         Closed loop with a fault profile, the faults the run met.
     shaft_loads : dict or None
         The truth's ``shaft_loads()`` at the end, when it has them.
+    points_rest_mm : ndarray, shape (k, 3), or None
+        A truth with ``to_rest``: each point of ``points_mm`` mapped, when it was recorded,
+        to the anatomy at rest (the path the clearance is judged on).
+    target : dict or None
+        Closed loop under a sensing policy other than ``em``, or with a truth that carries
+        the target: :meth:`TargetSensing.record <needlekit.execute.target_sensing.TargetSensing.record>`.
     """
 
     closed_loop: bool
@@ -171,6 +189,8 @@ class ExecutionRun:
     guard: dict | None = None
     faults_injected: tuple = ()
     shaft_loads: dict | None = None
+    points_rest_mm: np.ndarray | None = None
+    target: dict | None = None
 
 
 @dataclass
@@ -191,7 +211,8 @@ class LoopHooks:
         ``(t_s, true_pose, estimated_pose, plan_points_mm, state)``; ``state`` a dict of
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
         (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"held"`` while the
-        sensor guard holds it, ``"done"``, or ``"aborted"`` when the guard gave up).
+        sensor guard holds it, ``"scanning"`` while a checkpoint's scan holds it, ``"done"``,
+        or ``"aborted"`` when the guard gave up).
     observe_every_s : float
     breathing : needlekit.execute.breathing.Policy or None
         The anatomy breathing, and the policy the robot inserts with: the recorded path
@@ -260,59 +281,79 @@ def execute_plan(
     goal = np.asarray(goal_mm, dtype=np.float64)
     setup = Setup(plan.start_pose, goal, float(r_min_mm), s, np.random.default_rng(needle_seed))
     needle = TRUTHS.get(s.models.truth)(setup)
-    to_rest = getattr(needle, "to_rest", None)  # the truth's optional capabilities
     ds = s.insertion_speed_mm_s * s.dt_s
-    points = [_tip(needle, to_rest)]
-    last = 0.0
-
-    def record(offset=None) -> None:
-        # offset: the tissue's displacement (breathing); the tip then moves in the tissue
-        # while it is not inserted, and is recorded by how far it went there
-        nonlocal last
-        if offset is None:
-            if needle.inserted_mm - last >= s.record_mm - 1e-9:
-                points.append(_tip(needle, to_rest))
-                last = needle.inserted_mm
-        else:
-            p = _tip(needle, to_rest) - offset
-            if np.linalg.norm(p - points[-1]) >= s.record_mm - 1e-9:
-                points.append(p)
-
+    path = _Path(needle, s.record_mm)
     if not closed_loop:
         for spin, kappa, step in _open_loop_commands(plan, ds):
             needle.step(spin, kappa, step, step / s.insertion_speed_mm_s)
-            record()
-        points.append(_tip(needle, to_rest))
-        err = float(np.linalg.norm(points[-1] - _judged_goal(needle, goal, to_rest)))
-        return ExecutionRun(False, err, np.array(points), needle.inserted_mm,
-                            shaft_loads=_loads(needle))  # fmt: skip
+            path.record()
+        path.end()
+        return ExecutionRun(False, path.final_error(goal), np.array(path.points),
+                            needle.inserted_mm, shaft_loads=_loads(needle),
+                            points_rest_mm=path.rest_array())  # fmt: skip
     return _closed_loop(
         plan,
         goal,
         setup,
         needle,
-        (sensor_seed, fault_seed(ss)),
-        points,
-        record,
+        (sensor_seed, fault_seed(ss), _target_seed(ss)),
+        path,
         replanner,
         hooks or LoopHooks(),
     )
 
 
-def _tip(needle, to_rest) -> np.ndarray:
-    """The true tip as the path records it: in the undeformed anatomy when the truth maps
-    its tissue back (``to_rest``)."""
-    p = needle.pose[:3, 3].copy()
-    return p if to_rest is None else np.asarray(to_rest(p[None]), dtype=np.float64)[0]
+class _Path:
+    """The true tip's path as a run records it: world points every ``record_mm`` of
+    insertion and at the end, and beside them, when the truth maps its tissue back
+    (``to_rest``), each point in the anatomy at rest, mapped when it was recorded."""
 
+    def __init__(self, needle, record_mm: float) -> None:
+        self.needle = needle
+        self.to_rest = getattr(needle, "to_rest", None)  # the truth's optional capabilities
+        self.record_mm = record_mm
+        self.points: list[np.ndarray] = []
+        self.rest: list[np.ndarray] = []
+        self.last = 0.0
+        self._add(needle.pose[:3, 3].copy())
 
-def _judged_goal(needle, goal, to_rest) -> np.ndarray:
-    """The target the final error is measured to, in the recorded path's frame: the
-    scenario's goal, or a moving target's place now when the path is not mapped back."""
-    target = getattr(needle, "target_mm", None)
-    if target is None or to_rest is not None:
-        return goal
-    return np.asarray(target(), dtype=np.float64)
+    def _add(self, p: np.ndarray) -> None:
+        self.points.append(p)
+        if self.to_rest is not None:
+            self.rest.append(np.asarray(self.to_rest(p[None]), dtype=np.float64)[0])
+
+    def record(self, offset=None) -> bool:
+        """Record the tip if it has gone far enough (True when it was recorded). ``offset``:
+        the tissue's displacement (breathing); the tip then moves in the tissue while it
+        is not inserted, and is recorded by how far it went there."""
+        if offset is None:
+            if self.needle.inserted_mm - self.last >= self.record_mm - 1e-9:
+                self._add(self.needle.pose[:3, 3].copy())
+                self.last = self.needle.inserted_mm
+                return True
+            return False
+        p = self.needle.pose[:3, 3] - offset
+        if np.linalg.norm(p - self.points[-1]) >= self.record_mm - 1e-9:
+            self._add(p)
+            return True
+        return False
+
+    def end(self, offset=0.0) -> None:
+        """Record the tip where the insertion stopped."""
+        self._add(self.needle.pose[:3, 3] - offset)
+
+    def rest_array(self) -> np.ndarray | None:
+        return None if self.to_rest is None else np.array(self.rest)
+
+    def final_error(self, goal) -> float:
+        """The final error: at rest to the scenario's goal when the truth maps its tissue
+        back, else in the world to the target where it is now (``target_mm()``, or the
+        goal)."""
+        if self.to_rest is not None:
+            return float(np.linalg.norm(self.rest[-1] - goal))
+        target = getattr(self.needle, "target_mm", None)
+        judged = goal if target is None else np.asarray(target(), dtype=np.float64)
+        return float(np.linalg.norm(self.points[-1] - judged))
 
 
 def _loads(needle) -> dict | None:
@@ -323,7 +364,7 @@ def _loads(needle) -> dict | None:
 def _sensor_and_guard(plan, s, setup, seeds, hooks):
     """The closed loop's sensor (the registered one, its faults, or the hooks'), the guard
     every sample passes through, and the fault schedule (None: none)."""
-    sensor_seed, faults_seed = seeds
+    sensor_seed, faults_seed = seeds[:2]
     sensor = hooks.sensor
     if sensor is None:
         sensor_setup = replace(setup, rng=np.random.default_rng(sensor_seed))
@@ -343,7 +384,7 @@ def _sensor_and_guard(plan, s, setup, seeds, hooks):
     return sensor, guard, schedule
 
 
-def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, hooks):
+def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
     s = setup.settings
     sensor, guard, schedule = _sensor_and_guard(plan, s, setup, seeds, hooks)
     tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
@@ -354,8 +395,8 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
     to_truth = 1.0 if model is None else model.r_min_mm * model.full_duty
     est = ESTIMATORS.get(s.models.estimator)(setup)
     law = FEEDBACK_LAWS.get(s.models.feedback)(setup)
-    target = getattr(needle, "target_mm", None)  # a target the tissue carries
-    to_rest = getattr(needle, "to_rest", None)
+    sensing = TargetSensing.of(s.sensing, goal, needle, np.random.default_rng(seeds[2]))
+    aim = goal  # the goal the followed plan aims at (the believed target's, re-planned)
     current, ref = plan, PlanReference.of_plan(plan, goal)
     ds = s.insertion_speed_mm_s * s.dt_s
     limit = plan.length_mm + s.overrun_mm
@@ -374,8 +415,9 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
         if guard.aborted:
             break
         held = guard.holding
-        if held or (policy is not None and not policy.may_advance(t)):  # it does not go in
-            phase = "held" if held else "gated"
+        scanning = sensing is not None and sensing.tick(t, needle.inserted_mm, needle.pose, est)
+        if held or scanning or (policy is not None and not policy.may_advance(t)):
+            phase = "held" if held else "scanning" if scanning else "gated"  # it does not go in
             if policy is not None:  # let go, it rides with the tissue
                 _ride(needle, est, policy, t, s.dt_s)
             else:
@@ -384,15 +426,19 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
                 guard.held_step(s.dt_s)
             k += 1
             t = k * s.dt_s
-            record(None if policy is None else policy.trace.actual(t))
+            path.record(None if policy is None else policy.trace.actual(t))
             if observe is not None and t - seen >= hooks.observe_every_s - 1e-9:
                 seen = t
                 observe(t, needle.pose, est.pose, ref.points_mm,
                         _state(needle, est.pose, goal, replanner, phase))  # fmt: skip
             continue
-        if target is not None:  # steer to where the target is now
-            goal = np.asarray(target(), dtype=np.float64)
+        moved = False
+        if sensing is not None and sensing.target_mm is not goal:  # the belief changed
+            goal = sensing.target_mm  # steer to it, and stop when it is no longer ahead
             ref = PlanReference(ref.points_mm, ref.arc_mm, goal)
+            moved = sensing.moved(aim)
+            if moved and replanner is None:  # no re-planner: the reference's end bent onto it
+                ref, aim = retarget_reference(ref, index, goal, aim), goal
         pose = est.pose
         if policy is not None:  # the controller's frame: the sensed tip less its offset
             pose = pose.copy()
@@ -402,26 +448,31 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
             break
         if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
             if guard.replan_in_time(t, pending[2], float(needle.inserted_mm)):
-                (current, ref), index = pending[0], 0
+                (current, ref), index, aim = pending[0], 0, pending[3]
+                if aim is not goal:  # the belief moved on meanwhile
+                    ref = PlanReference(ref.points_mm, ref.arc_mm, goal)
                 events.append((pending[2], float(needle.inserted_mm), current))
                 limit = needle.inserted_mm + ref.arc_mm[-1] + s.overrun_mm
             pending = None
         index = ref.nearest(pose[:3, 3], index)
         off = float(np.linalg.norm(ref.points_mm[index] - pose[:3, 3]))
-        if (
-            pending is None
-            and replanner is not None
-            and replanner.due(off, needle.inserted_mm, float(np.linalg.norm(ahead)))
-        ):
-            c1 = clock()
-            res, took = replanner.replan(pose, needle.inserted_mm, (current, ref.arc_mm[index]))
-            fault = None if schedule is None else schedule.replan_fault(t)
-            res = guard.check_replan(t, res, fault)
-            if res is not None:
-                took += REPLAN_OVERRUN_S if fault == "overrun" else 0.0
-                pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
-                           float(needle.inserted_mm))  # fmt: skip
-            c0 += clock() - c1  # the search is not the feedback step
+        if pending is None and replanner is not None:
+            dist = float(np.linalg.norm(ahead))
+            moved = moved or (sensing is not None and sensing.moved(aim))
+            if replanner.due(off, needle.inserted_mm, dist) or (
+                moved and replanner.may(needle.inserted_mm, dist)
+            ):
+                c1 = clock()
+                res, took = replanner.replan(pose, needle.inserted_mm,
+                                             (current, ref.arc_mm[index]),
+                                             goal_mm=None if sensing is None else goal)  # fmt: skip
+                fault = None if schedule is None else schedule.replan_fault(t)
+                res = guard.check_replan(t, res, fault)
+                if res is not None:
+                    took += REPLAN_OVERRUN_S if fault == "overrun" else 0.0
+                    pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
+                               float(needle.inserted_mm), goal)  # fmt: skip
+                c0 += clock() - c1  # the search is not the feedback step
         spin, kappa = law(pose, ref, index)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         c1 = clock()
@@ -441,23 +492,27 @@ def _closed_loop(plan, goal, setup, needle, seeds, points, record, replanner, ho
             seen = t
             observe(t, needle.pose, est.pose, ref.points_mm,
                     _state(needle, est.pose, goal, replanner, "inserting"))  # fmt: skip
-        n = len(points)
-        record(None if policy is None else policy.trace.actual(t))
-        if len(points) > n:  # the true tip's deviation, where its path is recorded
-            true = points[-1]
+        if path.record(None if policy is None else policy.trace.actual(t)):
+            true = path.points[-1]  # the true tip's deviation, where its path is recorded
             cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
-    offset = 0.0 if policy is None else policy.trace.actual(t)
-    points.append(_tip(needle, to_rest) - offset)
+    path.end(0.0 if policy is None else policy.trace.actual(t))
     if observe is not None:
         observe(t, needle.pose, est.pose, ref.points_mm,
                 _state(needle, est.pose, goal, replanner, "aborted" if guard.aborted else "done"))  # fmt: skip
-    err = float(np.linalg.norm(points[-1] - _judged_goal(needle, setup.goal_mm, to_rest)))
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     injected = () if schedule is None else tuple(schedule.to_list())
-    return ExecutionRun(True, err, np.array(points), needle.inserted_mm, est_err,
-                        guard.accepted, adopted, tuple(lat), np.array(cross), tuple(events), t,
-                        guard.record(), injected, _loads(needle))  # fmt: skip
+    return ExecutionRun(True, path.final_error(setup.goal_mm), np.array(path.points),
+                        needle.inserted_mm, est_err, guard.accepted, adopted, tuple(lat),
+                        np.array(cross), tuple(events), t, guard.record(), injected,
+                        _loads(needle), path.rest_array(),
+                        None if sensing is None else sensing.record())  # fmt: skip
+
+
+def _target_seed(ss: np.random.SeedSequence) -> np.random.SeedSequence:
+    """The target sensors' noise: the trial seed's fifth child (the needle, the tip sensor,
+    the breathing and the faults draw from the first four), the same under every policy."""
+    return np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, 4), pool_size=ss.pool_size)
 
 
 def _ride(needle, est, policy, t: float, dt: float) -> None:

@@ -170,6 +170,7 @@ def study_summary(records: list[dict], margin_mm: float) -> dict:
         "open_loop": loop_summary([r["open_loop"] for r in ok]),
         "closed_loop": loop_summary([r["closed_loop"] for r in ok]),
         **_breathing_summary(ok),
+        **_sensing_summary(ok),
         "literature": [
             dict(zip(("source", "setting", "mean_mm", "sd_mm", "note"), row, strict=True))
             for row in LITERATURE
@@ -190,3 +191,32 @@ def _breathing_summary(records: list[dict]) -> dict:
             for name in POLICIES
         }
     }
+
+
+def _sensing_summary(records: list[dict]) -> dict:
+    """Several sensing policies side by side: per policy the loop's figures, the procedure's
+    time, the scans (the dose), how far the target moved and how far the belief ended from
+    it."""
+    with_s = [r["sensing"] for r in records if "sensing" in r]
+    if not with_s:
+        return {}
+    out = {}
+    for name in with_s[0]:
+        runs = [b[name] for b in with_s]
+        out[name] = {
+            **loop_summary(runs),
+            "procedure_s": _stats(r.get("procedure_s") for r in runs),
+            "scans": _stats(r.get("scans") for r in runs),
+            "target_displacement_max_mm": _stats(r.get("target_displacement_max_mm") for r in runs),
+            "target_error_mm": _stats(r.get("target_error_mm") for r in runs),
+            "target_samples_refused": _refused(runs),
+        }
+    return {"sensing": out}
+
+
+def _refused(runs: list[dict]) -> dict:
+    out: dict = {}
+    for r in runs:
+        for k, n in (r.get("target_samples_refused") or {}).items():
+            out[k] = out.get(k, 0) + n
+    return out

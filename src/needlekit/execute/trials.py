@@ -76,16 +76,30 @@ class ExecuteOptions:
     breathing : Breathing or None
         The anatomy breathing: each trial also runs closed loop under every policy of
         :data:`~needlekit.execute.breathing.POLICIES` (``breathing`` in the trial).
+    sensing : tuple of str
+        The sensing policies (:data:`~needlekit.execute.target_sensing.SENSING_POLICIES`):
+        the closed loop runs under the first (``settings.sensing`` is set to it, its sensors'
+        settings kept); with more than one, each trial also runs closed loop under each on
+        the same draws (``sensing`` in the trial).
     """
 
     settings: ExecutionSettings = field(default_factory=ExecutionSettings)
     policy: ReplanPolicy = field(default_factory=ReplanPolicy)
     replan: bool = True
     breathing: Breathing | None = None
+    sensing: tuple = ("em",)
 
     def __post_init__(self) -> None:
         if not isinstance(self.settings, ExecutionSettings):
             raise InvalidInputError("settings", "expected an ExecutionSettings")
+        names = tuple(self.sensing)
+        if not names or len(set(names)) != len(names):
+            raise InvalidInputError("sensing", f"expected distinct policy names, got {names!r}")
+        first = replace(self.settings.sensing, name=names[0])  # checks the name
+        for name in names[1:]:
+            replace(first, name=name)
+        object.__setattr__(self, "sensing", names)
+        object.__setattr__(self, "settings", replace(self.settings, sensing=first))
         if not isinstance(self.policy, ReplanPolicy):
             raise InvalidInputError("policy", "expected a ReplanPolicy")
         if self.breathing is not None and not isinstance(self.breathing, Breathing):
@@ -162,15 +176,18 @@ def run_execute_trial(
         extra = {} if rep is None else {"replans_refused": rep.refused,
                                         "warm_start_kept": rep.warm_kept}  # fmt: skip
         out[name] = replace(path_record(run, judge), **extra)
-    breathing = None
+    breathing = sensing = None
     if options.breathing is not None and "closed_loop" in loops:
         breathing = _breathing_runs(problem, judge, plan, seed, options)
+    if len(options.sensing) > 1 and "closed_loop" in loops:
+        sensing = _sensing_runs(problem, judge, plan, seed, options, out["closed_loop"])
     judged = out.get("closed_loop", out.get("open_loop"))
     return TrialRecord(
         trial=int(seed.spawn_key[-1]), seed=int(seed.entropy),
         seed_spawn_key=tuple(int(k) for k in seed.spawn_key),
         status=trial_status(judged, problem.goal_tolerance_mm),
         open_loop=out.get("open_loop"), closed_loop=out.get("closed_loop"), breathing=breathing,
+        sensing=sensing,
     )  # fmt: skip
 
 
@@ -189,6 +206,24 @@ def model_problem(problem, settings):
     """
     model = settings.model
     return problem if model is None else problem.with_r_min(model.r_min_mm)
+
+
+def _sensing_runs(problem, judge, plan, seed, options: ExecuteOptions, first) -> dict:
+    """The closed loop under each sensing policy, on the trial's needle, tip-sensor and
+    target-sensor draws; the first policy's run is the trial's closed loop itself."""
+    r_min = 1.0 / problem.kappa_max_per_mm
+    s = options.settings
+    out = {options.sensing[0]: first}
+    for name in options.sensing[1:]:
+        rep = (Replanner(model_problem(problem, s), options.policy)
+               if options.replan else None)  # fmt: skip
+        settings = replace(s, sensing=replace(s.sensing, name=name))
+        run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=True, seed=seed,
+                           settings=settings, replanner=rep)  # fmt: skip
+        extra = {} if rep is None else {"replans_refused": rep.refused,
+                                        "warm_start_kept": rep.warm_kept}  # fmt: skip
+        out[name] = replace(path_record(run, judge), **extra)
+    return out
 
 
 def _breathing_runs(problem, judge, plan, seed, options: ExecuteOptions) -> dict:
