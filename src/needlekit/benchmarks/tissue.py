@@ -17,7 +17,6 @@ folder from ``$NEEDLEKIT_MEDRAD``); it prints one JSON record.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -26,6 +25,7 @@ import numpy as np
 
 from needlekit.benchmarks.timing import step_statistics
 from needlekit.execute.breathing import PRESETS
+from needlekit.io.finite_json import json_text
 from needlekit.io.medrad_paths import patient_folder
 from needlekit.io.poses import read_point_txt, read_pose_txt
 from needlekit.io.volumes import read_mask
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
     out = run_tissue_benchmark(a.organ, a.patient, a.medrad, n_steps=a.steps,
                                target_tets=a.target_tets, solver=a.solver,
                                boundary_mode=a.boundary)  # fmt: skip
-    sys.stdout.write(json.dumps(out, indent=1) + "\n")
+    sys.stdout.write(json_text(out, "tissue benchmark", indent=1) + "\n")
     return 0
 
 
