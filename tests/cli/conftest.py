@@ -18,10 +18,10 @@ from __future__ import annotations
 import json
 import os
 import re
-import resource
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import zlib
 from pathlib import Path
@@ -103,12 +103,21 @@ def _default_sigint():
 
 
 def _complete_run(argv: list[str]) -> float:
-    """Run the command to its end (the earlier outputs); the CPU seconds it took."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    done = subprocess.run(argv, capture_output=True, text=True, timeout=900)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    assert done.returncode in (0, 1), done.stderr  # 1: a verdict (multi's plan may fail)
-    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    """Run the command to its end (the earlier outputs); the CPU seconds it (and its own
+    workers) took.
+
+    The command's own account, from ``wait4`` on its process: a difference of this
+    process's ``RUSAGE_CHILDREN`` would also count any other child reaped meanwhile (a
+    server or a cluster an earlier test of this worker left to end), and the moments, its
+    fractions, would then fall after the command's result is decided."""
+    with open(os.devnull, "wb") as sink, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(argv, stdout=sink, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        stderr = err.read().decode(errors="replace")
+    assert proc.returncode in (0, 1), stderr  # 1: a verdict (multi's plan may fail)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _interrupt_at(argv: list[str], cpu_s: float):
