@@ -28,19 +28,13 @@ from needlekit.execute.breathing import PRESETS
 from needlekit.io.finite_json import json_text
 from needlekit.io.medrad_paths import patient_folder
 from needlekit.io.poses import read_point_txt, read_pose_txt
-from needlekit.io.volumes import read_mask
-from needlekit.tissue.compliance import locate, precompute, resample_polyline, sample_near
+from needlekit.tissue.compliance import locate, precompute, resample_polyline
 from needlekit.tissue.fem import BOUNDARY_MODES, SOLVERS
-from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, dihedral_angles_deg, organ_body
+from needlekit.tissue.medrad_organ import ORGAN_FILES, organ_inputs
+from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, dihedral_angles_deg
 from needlekit.tissue.runtime import DeformingTissue
 
-__all__ = ["ORGAN_FILES", "run_tissue_benchmark", "step_times"]
-
-#: The organ body and the obstacle structures tracked near the corridor.
-ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
-    "lung": ("pleuralBoundary", ("vessels", "bronchialTree")),
-    "liver": ("liver", ("hepaticVein", "portalVein", "hepaticArtery")),
-}
+__all__ = ["run_tissue_benchmark", "step_times"]
 
 
 def step_times(
@@ -118,37 +112,24 @@ def run_tissue_benchmark(
     dict
     """
     folder = patient_folder(organ, patient, root)
-    body_name, structures = ORGAN_FILES[organ]
     t0 = time.perf_counter()
-    mask = read_mask(folder / f"{body_name}.nii.gz")
     target = read_point_txt(folder / "target.txt")
     start = read_pose_txt(folder / "start1.txt")[:3, 3]
     corridor = resample_polyline([start, target], spacing_mm)
-    tracked, labels, inside = [target[None]], ["target"], []
-    for name in ("nodule", *structures):
-        path = folder / f"{name}.nii.gz"
-        if not path.is_file():
-            continue
-        m = read_mask(path, allow_empty=True)
-        inside.append((m.data, m.affine))
-        if name != "nodule":
-            near = sample_near(m.data, m.affine, corridor, radius_mm, per_structure)
-            tracked.append(near)
-            labels += [name] * len(near)
-    tracked = np.concatenate(tracked)
-    body = organ_body(mask.data, mask.affine, inside)  # the liver's masks leave them out
+    body, mask_affine, tracked, labels = organ_inputs(folder, organ, corridor, target,
+                                                      radius_mm, per_structure)  # fmt: skip
     read_s = time.perf_counter() - t0
     settings = {"target_tets": target_tets, "seed_mm": target, "solver": solver,  # the target's lung
                 "boundary_mode": boundary_mode}  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="needlekit-tissue-bench-") as cache:
         t0 = time.perf_counter()
         cold = precompute(
-            body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
+            body, mask_affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
         )
         cold_s = time.perf_counter() - t0
         t0 = time.perf_counter()
         warm = precompute(
-            body, mask.affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
+            body, mask_affine, organ, corridor, tracked, labels, cache_dir=cache, **settings
         )
         warm_s = time.perf_counter() - t0
     mesh = cold.mesh

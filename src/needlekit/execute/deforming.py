@@ -43,23 +43,16 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.execute.physical import MechanicsTruth, mechanics_truth
-from needlekit.tissue.compliance import precompute, resample_polyline, sample_near
-from needlekit.tissue.meshing import organ_body
+from needlekit.tissue.compliance import precompute, resample_polyline
+from needlekit.tissue.medrad_organ import ORGAN_FILES, organ_inputs
 from needlekit.tissue.runtime import DeformingTissue
 
 __all__ = ["DeformingTruth", "TissueModel", "load_compliance", "physical_truth", "tissue_model_for"]
-
-#: The organ's body mask and the structures followed beside the corridor, by organ.
-ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
-    "lung": ("pleuralBoundary", ("vessels", "bronchialTree")),
-    "liver": ("liver", ("hepaticVein", "portalVein", "hepaticArtery")),
-}
 
 
 @dataclass(frozen=True)
@@ -151,27 +144,17 @@ def load_compliance(model: TissueModel, cache_dir=None):
     -------
     needlekit.tissue.compliance.Compliance
     """
-    from needlekit.io.volumes import read_mask
 
-    folder = Path(model.folder)
-    body_name, structures = ORGAN_FILES[model.organ]
-    mask = read_mask(folder / f"{body_name}.nii.gz")
-    target = np.asarray(model.target_mm, dtype=np.float64)
-    corridor = model.corridor()
-    tracked, labels, inside = [target[None]], ["target"], []
-    for name in ("nodule", *structures):
-        path = folder / f"{name}.nii.gz"
-        if not path.is_file():
-            continue
-        m = read_mask(path, allow_empty=True)
-        inside.append((m.data, m.affine))
-        if name != "nodule":
-            near = sample_near(m.data, m.affine, corridor, model.radius_mm, model.per_structure)
-            tracked.append(near)
-            labels += [name] * len(near)
-    body = organ_body(mask.data, mask.affine, inside)
-    return precompute(body, mask.affine, model.organ, corridor, np.concatenate(tracked), labels,
-                      seed_mm=target, boundary_mode=model.boundary_mode,
+    body, affine, tracked, labels = organ_inputs(
+        model.folder,
+        model.organ,
+        model.corridor(),
+        model.target_mm,
+        model.radius_mm,
+        model.per_structure,
+    )
+    return precompute(body, affine, model.organ, model.corridor(), tracked, labels,
+                      seed_mm=np.asarray(model.target_mm), boundary_mode=model.boundary_mode,
                       cache_dir=cache_dir)  # fmt: skip
 
 

@@ -136,8 +136,6 @@ class MechanicsTruth:
         self.needle = needle
         self.r_min_mm = float(r_min_mm)
         self.period_s = 1.0 / float(solve_rate_hz)
-        # a command kappa -> the rod's own curvature units (its kappa_max is the duty of 1)
-        self._to_rod = self.r_min_mm * needle.kappa_max_per_mm
         self._len = 0.0  # pooled since the last solve: length, duty x length, time
         self._duty_len = 0.0
         self._time = 0.0
