@@ -123,6 +123,13 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
             p.kill()
             p.join(STOP_GRACE_S)
     pool.shutdown(wait=False, cancel_futures=True)
+    # the pool's manager thread closes its wake-up pipe as it ends; at the interpreter's
+    # exit, concurrent.futures wakes every manager still registered, and on Python 3.11 a
+    # pipe closed between its check and its write prints "Exception ignored ... Bad file
+    # descriptor": let the manager end first (bounded)
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None:
+        manager.join(STOP_GRACE_S)
 
 
 def _check_workers(workers) -> int | None:
