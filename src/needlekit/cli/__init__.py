@@ -22,6 +22,8 @@ Ctrl-C is recognised here once for every command, wherever it landed
 (:func:`needlekit.errors.is_interrupt`: inside a numba kernel it surfaces as a
 ``SystemError``): one line, exit 130. Once the command's result is decided and its files
 are being put in place, a late Ctrl-C is ignored: the outcome reported is the one on disk.
+A Ctrl-C that Python itself swallowed (one landing in a callback called from C, as while
+numba compiles) is delivered again (:mod:`needlekit.cli._interrupts`), so it is never lost.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from contextlib import contextmanager
 
 from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from needlekit.cli._flags import check_dashboard
+from needlekit.cli._interrupts import interrupts_not_lost
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import Interrupted, NeedlekitError, is_interrupt
@@ -189,7 +192,8 @@ def _checked_run(command: str, args, *, program: bool) -> int:
 
         with staged_outputs() as outputs:
             try:
-                code = _run(command, args)
+                with interrupts_not_lost():
+                    code = _run(command, args)
             except BrokenPipeError:  # the work is done: keep its files
                 _quiet_stdout()
                 code = EXIT_OK

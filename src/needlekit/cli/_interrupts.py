@@ -1,0 +1,73 @@
+"""A Ctrl-C that Python swallowed is delivered again.
+
+Python raises ``KeyboardInterrupt`` in whatever Python code runs when the signal is
+handled. When that code is a callback called from C (a ``ctypes`` callback: llvmlite's
+object cache while numba compiles a kernel) or a finaliser (``__del__``), the exception
+cannot propagate: the interpreter reports it as "Exception ignored ..." through
+:func:`sys.unraisablehook` and goes on, and the command would run to its end as if
+nobody had pressed Ctrl-C.
+
+:func:`interrupts_not_lost` puts a hook in place for the command's run: a
+``KeyboardInterrupt`` reported as unraisable is not printed but delivered again, a few
+milliseconds later, by :func:`_thread.interrupt_main` (the main thread is then back in
+ordinary code, where the interrupt propagates as usual; a new landing in a callback
+repeats the cycle). The command's own handling of Ctrl-C (its one line, exit 130, its
+partial record) then applies, wherever the first signal landed.
+"""
+
+from __future__ import annotations
+
+import _thread
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+#: How long the re-delivery waits for the main thread to leave the callback, in seconds.
+REDELIVERY_DELAY_S = 0.005
+
+
+@contextmanager
+def interrupts_not_lost() -> Iterator[None]:
+    """While the block runs (in the main thread), a ``KeyboardInterrupt`` that Python
+    reports as unraisable is delivered to the main thread again instead of being printed.
+
+    Yields
+    ------
+    None
+        The block runs with the hook in place; the previous hook is put back after it.
+
+    Examples
+    --------
+    >>> import sys
+    >>> before = sys.unraisablehook
+    >>> with interrupts_not_lost():
+    ...     sys.unraisablehook is before
+    False
+    >>> sys.unraisablehook is before
+    True
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = sys.unraisablehook
+
+    def hook(unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            threading.Thread(target=_interrupt_main_soon, daemon=True).start()
+            return
+        previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
+
+
+def _interrupt_main_soon() -> None:
+    """Deliver SIGINT's handling to the main thread once it has had time to return from
+    the callback that swallowed the first one (a no-op where SIGINT is ignored)."""
+    time.sleep(REDELIVERY_DELAY_S)
+    _thread.interrupt_main()
