@@ -24,6 +24,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from needlekit.errors import is_interrupt
+
 #: How long the re-delivery waits for the main thread to leave the callback, in seconds.
 REDELIVERY_DELAY_S = 0.005
 
@@ -54,7 +56,7 @@ def interrupts_not_lost() -> Iterator[None]:
     previous = sys.unraisablehook
 
     def hook(unraisable) -> None:
-        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        if is_interrupt(unraisable.exc_value):
             threading.Thread(target=_interrupt_main_soon, daemon=True).start()
             return
         previous(unraisable)

@@ -239,6 +239,15 @@ def summary_table(s: dict) -> str:
     return text + f"\n{s['trials']} trials; plans and re-plans keep a {s['margin_mm']:g} mm margin"
 
 
+def _policy_row(label: str, r: dict, *between) -> list:
+    """A closed-loop row of a policy's summary: the error's mean, SD and max, the share
+    within 1 mm (%), the crossings, ``between``, then the mean procedure time."""
+    e = r["final_error_mm"]
+    within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
+    return [label, e.get("mean"), e.get("sd"), e.get("max"), within, r["violated"], *between,
+            r["procedure_s"].get("mean")]  # fmt: skip
+
+
 def breathing_table(per_policy: dict) -> str:
     """The closed loop under breathing, a row per policy.
 
@@ -251,12 +260,7 @@ def breathing_table(per_policy: dict) -> str:
     -------
     str
     """
-    rows = []
-    for name, r in per_policy.items():
-        e, t = r["final_error_mm"], r["procedure_s"]
-        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
-        rows.append([f"breathing, {name}", e.get("mean"), e.get("sd"), e.get("max"), within,
-                     r["violated"], t.get("mean")])  # fmt: skip
+    rows = [_policy_row(f"breathing, {name}", r) for name, r in per_policy.items()]
     return _fmt_table(
         ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed", "procedure s"],
         rows,
@@ -276,13 +280,11 @@ def sensing_table(per_policy: dict) -> str:
     -------
     str
     """
-    rows = []
-    for name, r in per_policy.items():
-        e, t = r["final_error_mm"], r["procedure_s"]
-        within = None if r["within_1mm"] is None else 100.0 * r["within_1mm"]
-        rows.append([f"sensing, {name}", e.get("mean"), e.get("sd"), e.get("max"), within,
-                     r["violated"], r["target_displacement_max_mm"].get("max"),
-                     r["target_error_mm"].get("mean"), r["scans"].get("mean"), t.get("mean")])  # fmt: skip
+    rows = [
+        _policy_row(f"sensing, {name}", r, r["target_displacement_max_mm"].get("max"),
+                    r["target_error_mm"].get("mean"), r["scans"].get("mean"))  # fmt: skip
+        for name, r in per_policy.items()
+    ]
     return _fmt_table(
         ["policy", "error mean mm", "sd mm", "max mm", "% <= 1 mm", "crossed",
          "target moved max mm", "target belief error mm", "scans", "procedure s"],

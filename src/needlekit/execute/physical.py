@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.mechanics.materials import NEEDLE_PRESETS, TISSUE_PRESETS, NeedleSpec, TissueSpec
+from needlekit.mechanics.materials import NeedleSpec, TissueSpec
 
 __all__ = ["MechanicsSettings", "MechanicsTruth", "mechanics_truth"]
 
@@ -66,14 +66,8 @@ class MechanicsSettings:
     solve_rate_hz: float = 40.0
 
     def __post_init__(self) -> None:
-        if self.needle not in NEEDLE_PRESETS:
-            raise InvalidInputError(
-                "needle", f"expected one of {sorted(NEEDLE_PRESETS)}, got {self.needle!r}"
-            )
-        if self.tissue not in TISSUE_PRESETS:
-            raise InvalidInputError(
-                "tissue", f"expected one of {sorted(TISSUE_PRESETS)}, got {self.tissue!r}"
-            )
+        NeedleSpec.preset(self.needle)  # a name not among the presets: its error
+        TissueSpec.preset(self.tissue)
         checks = (
             ("prebend_deg", 0.0, 90.0, False),
             ("prebend_length_mm", 0.0, 1e3, False),
