@@ -240,3 +240,43 @@ def test_the_status_says_how_the_judged_run_ended(three_trials):
     assert trial_status(replace(run, violated=True), 1.0) is Status.INFEASIBLE
     assert trial_status(replace(run, aborted=True), 1.0) is Status.TIMEOUT
     assert trial_status(run, 1.0, "FloatingPointError: x") is Status.INVALID_INPUT
+
+
+def test_a_sweeps_plan_is_carried_out_from_the_direction_the_sweep_chose(tmp_path, capsys):
+    """``sweep --plan`` chooses the start direction; ``execute`` refuses such a plan against
+    the scenario's own direction, saying which flag carries it out, and with
+    ``--any-start-direction`` inserts it from the plan's start pose (held to the scenario's
+    start point, as ``verify --any-start-direction`` holds it)."""
+    best = tmp_path / "best.json"
+    assert main(["sweep", str(TOY), "--directions", "24", "--max-iterations", "300",
+                 "--out", str(tmp_path / "sweep.json"), "--plan", str(best)]) == 0  # fmt: skip
+    record = json.loads(best.read_text())
+    start = np.array(record["start_pose"])
+    capsys.readouterr()
+    out = tmp_path / "ex"
+    assert main(["execute", str(TOY), str(best), "--trials", "2", "--out", str(out)]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "error: plan: best.json was made for another scenario: its start pose differs from "
+        "toy.yaml's (a sweep chose its direction: --any-start-direction carries it out)"
+    ]
+    assert not out.exists()
+    assert main(["execute", str(TOY), str(best), "--trials", "2", "--out", str(out),
+                 "--any-start-direction", *REPRODUCIBLE]) == 0  # fmt: skip
+    doc = json.loads((out / "execute.json").read_text())
+    for trial in doc["trials"]:
+        for run in ("open_loop", "closed_loop"):
+            first, second = np.array(trial[run]["points_mm"][:2])
+            assert np.allclose(first, start[:3, 3], atol=1e-9)
+            heading = (second - first) / np.linalg.norm(second - first)
+            assert heading @ start[:3, 2] > 0.999  # the sweep's direction, not the scenario's
+    moved = copy.deepcopy(record)
+    moved["start_pose"][0][3] += 1.0
+    other = tmp_path / "moved.json"
+    other.write_text(json.dumps(moved))
+    capsys.readouterr()
+    assert main(["execute", str(TOY), str(other), "--trials", "2", "--out", str(out),
+                 "--any-start-direction"]) == 2  # fmt: skip
+    assert capsys.readouterr().err.splitlines() == [
+        "error: plan: moved.json was made for another scenario: its start point differs from "
+        "toy.yaml's"
+    ]

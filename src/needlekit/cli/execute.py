@@ -259,23 +259,33 @@ def load_checked_plan(args: argparse.Namespace, record: dict | None = None):
         safety_margin_mm=getattr(args, "safety_margin_mm", None),
     )  # fmt: skip
     scenario, problem = source.cached(document)  # the document read above, not read again
+    swept = getattr(args, "any_start_direction", False)
     other = []
-    if not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
+    if swept:  # a sweep's plan: the scenario's start point, the direction the sweep chose
+        if not np.allclose(plan.start_pose[:3, 3], problem.start_pose[:3, 3], rtol=0.0, atol=1e-6):
+            other.append("its start point")
+    elif not np.allclose(plan.start_pose, problem.start_pose, rtol=0.0, atol=1e-6):
         other.append("its start pose")
     if not np.allclose(goal, problem.goal_mm, rtol=0.0, atol=1e-6):
         other.append("its goal")
     if other:
+        hint = ""
+        if other == ["its start pose"] and record.get("start_direction") == "swept":
+            hint = " (a sweep chose its direction: --any-start-direction carries it out)"
         raise InvalidInputError(
             "plan",
-            f"{args.plan.name} was made for another scenario: {' and '.join(other)} differ "
-            f"from {args.scenario.name}'s",
+            f"{args.plan.name} was made for another scenario: {' and '.join(other)} "
+            f"{'differ' if len(other) > 1 else 'differs'} from {args.scenario.name}'s{hint}",
         )
-    check = verify_plan(problem, plan)
+    # held to the start point and the entry-angle rule, as `verify --any-start-direction`
+    check = verify_plan(problem.with_free_start_direction() if swept else problem, plan)
     if not check.ok:
         raise InvalidInputError(
             "plan", f"{args.plan.name} fails its check against {args.scenario.name}: "
             + "; ".join(check.violations)
         )  # fmt: skip
+    if swept:
+        problem = problem.with_start_pose(plan.start_pose)
     return source, problem, plan, scenario.name or args.scenario.name
 
 
@@ -546,6 +556,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "; did you mean --trials N (how many trials) or --replay-trial K (run trial K alone)?"
     )
     _flags.SEED.add(ex, default=0, help="root seed (default 0)")
+    ex.add_argument("--any-start-direction", action="store_true",
+                    help="carry out a sweep's plan: held to the scenario's start point and "
+                    "the entry-angle rule, from the direction the sweep chose (as verify "
+                    "--any-start-direction checks it)")  # fmt: skip
     ex.add_argument("--safety-margin-mm", type=_non_negative_mm, metavar="MM",
                     help="the margin the plan is checked against and re-plans keep (mm), "
                     "instead of the scenario's needle.safety_margin_mm (give the one the "

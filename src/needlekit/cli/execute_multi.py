@@ -20,6 +20,7 @@ STEERABLE_ONLY = (
     "on_fault", "hold_timeout_s", "safety_margin_mm", "truth", "sensor", "estimator",
     "feedback", "replanner", "sensing", "checkpoint_every_mm", "scan_s", "image_sigma_mm",
     "tracking_rate_hz", "tracking_sigma_mm", "tracking_latency_ms", "retarget_mm",
+    "any_start_direction",
 )  # fmt: skip
 #: ``--registration-sd-mm`` at most this: beyond it the robot works on another patient.
 REGISTRATION_SD_MAX_MM = 10.0
