@@ -28,7 +28,9 @@ stopped, froze, or turned into lies), the guard *holds* the needle: the loop sto
 advancing it (:meth:`SensorGuard.may_advance`), and re-plans wait. The hold ends after
 :data:`RESUME_SAMPLES` accepted samples in a row, or turns into an abort: at once with
 ``on_fault="abort"``, after ``hold_timeout_s`` with ``on_fault="hold"`` (the default).
-Every hold, resume and abort is an event ``{"time_s", "kind", "action"}`` (a hold whose
+Every hold, resume and abort is an event ``{"time_s", "kind", "action"}`` (a hold also
+says when the last accepted sample came in and was taken, ``last_accepted_s`` and
+``last_accepted_taken_s``; a hold whose
 reason changes, input that stopped and then came back as lies, is a new ``hold`` event of
 the new kind; the timeout runs from the first); so is a
 re-plan the loop refused (:meth:`SensorGuard.check_replan`: it failed, or it came back
@@ -196,7 +198,8 @@ class SensorGuard:
     Attributes
     ----------
     events : list of dict
-        ``{"time_s", "kind", "action"}`` (a resume also ``held_s``), in order.
+        ``{"time_s", "kind", "action"}`` (a hold also ``last_accepted_s`` and
+        ``last_accepted_taken_s``, a resume ``held_s``), in order.
     rejected : collections.Counter
         Rejected samples by kind.
     accepted : int
@@ -276,7 +279,7 @@ class SensorGuard:
             self._why = kind
             if self.holding and kind != self._hold_kind:  # held for another reason now
                 self._hold_kind = kind
-                self._event(t, kind, "hold")
+                self._event(t, kind, "hold", **self._last_accepted())
         if self.holding or t - self._good_t > self.spec.stale_s + 1e-9:
             self._update_hold(t)
         return ok
@@ -347,7 +350,7 @@ class SensorGuard:
             else:
                 self.holding = True
                 self._holds += 1
-                self._event(t, self._hold_kind, "hold")
+                self._event(t, self._hold_kind, "hold", **self._last_accepted())
 
     def may_advance(self) -> bool:
         """Whether the loop may insert this step (not held, not aborted).
@@ -412,6 +415,12 @@ class SensorGuard:
             self._event(t, "replan_overrun", "kept_plan")
             return False
         return True
+
+    def _last_accepted(self) -> dict:
+        """When the last accepted sample came in and when it was taken (loop clock, s; 0
+        when none was): a hold's account of the last input it trusted."""
+        return {"last_accepted_s": round(float(self._good_t), 6),
+                "last_accepted_taken_s": round(float(self._good_taken), 6)}  # fmt: skip
 
     def _event(self, t: float, kind: str, action: str, **extra) -> None:
         event = {"time_s": round(float(t), 6), "kind": kind, "action": action, **extra}
