@@ -234,3 +234,56 @@ def test_bad_sensing_flags_are_one_line_naming_the_flag(toy_plan, tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err and "Traceback" not in err, err
     assert not out.exists()
+
+
+#: The tip's sudden turn (rad) where the kinked needle meets its layer.
+KINK_RAD = 0.12
+
+
+class _Kinked(SimulatedNeedle):
+    """The needle follows its model exactly, but where 40 % of the plan is in, its tip turns
+    by KINK_RAD about its own x axis at once (a tougher layer deflects it): an honest
+    sensor then reports a pose the filter's model cannot reach, and the filter's gate
+    refuses every sample after it."""
+
+    def __init__(self, setup, plan):
+        super().__init__(setup.start_pose, setup.r_min_mm, ExecutionNoise.none(), setup.rng)
+        self.at_mm = 0.4 * plan.length_mm
+        self.kinked = False
+
+    def step(self, spin_rad, kappa_per_mm, ds_mm, dt_s):
+        pose = super().step(spin_rad, kappa_per_mm, ds_mm, dt_s)
+        if not self.kinked and self.inserted_mm >= self.at_mm:
+            c, s = np.cos(KINK_RAD), np.sin(KINK_RAD)
+            turn = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+            self.pose = np.ascontiguousarray(pose.copy())
+            self.pose[:3, :3] = pose[:3, :3] @ turn
+            self.kinked = True
+        return self.pose
+
+
+def test_a_gated_hold_is_settled_by_a_confirmation_scan(toy_plan):
+    """An honest sensor the filter refuses (the needle kinked): under ``em`` alone the guard
+    holds and, nothing settling it, aborts at the timeout; under ``checkpoints`` a
+    confirmation scan is taken at once, its tip fails the estimate's gate too, so the
+    estimate restarts from the image, the sensor's samples are accepted again, the hold
+    ends and the needle reaches the target."""
+    plan, _, _ = read_plan_json(toy_plan)
+    TRUTHS.register("kinked", lambda setup: _Kinked(setup, plan))
+    try:
+        source = ScenarioSource.of(TOY)
+        _, problem = source.cached()
+        settings = ExecutionSettings(sensing=EXACT, models=Models(truth="kinked"))
+        options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
+                                 sensing=("em", "checkpoints"))  # fmt: skip
+        rec = run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0), options)
+    finally:
+        TRUTHS.unregister("kinked")
+    em, seen = rec.sensing["em"], rec.sensing["checkpoints"]
+    assert [e["action"] for e in em.faults] == ["hold", "abort"]
+    assert em.faults[0]["kind"] == "gated" and em.aborted
+    assert em.scan_tip_reseeded is None  # em takes no image
+    assert [e["action"] for e in seen.faults][:2] == ["hold", "resume"]
+    assert seen.faults[0]["kind"] == "gated" and not seen.aborted
+    assert seen.scan_tip_reseeded == 1
+    assert not seen.violated and seen.final_error_mm <= 1.0

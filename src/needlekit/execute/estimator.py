@@ -232,6 +232,23 @@ class TipEstimator:
         self.n_updates += 1
         return True
 
+    def reseed(self, pose, position_sigma_mm: float, orientation_sigma_rad: float) -> None:
+        """Start again from ``pose`` (an independent fix of the tip, such as an image),
+        its uncertainty that of the fix; the history of steps is dropped.
+
+        Parameters
+        ----------
+        pose : ndarray, shape (4, 4)
+        position_sigma_mm, orientation_sigma_rad : float
+
+        Returns
+        -------
+        None
+        """
+        self.pose = np.ascontiguousarray(np.asarray(pose, dtype=np.float64).copy())
+        self.P = np.diag([position_sigma_mm**2] * 3 + [orientation_sigma_rad**2] * 3)
+        self._steps.clear()
+
     @property
     def position_sigma_mm(self) -> float:
         """The estimate's position uncertainty: the root of the mean variance per axis.

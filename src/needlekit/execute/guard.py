@@ -27,7 +27,8 @@ When no sample has been accepted for :data:`STALE_S` of the loop's time (input t
 stopped, froze, or turned into lies), the guard *holds* the needle: the loop stops
 advancing it (:meth:`SensorGuard.may_advance`), and re-plans wait. The hold ends after
 :data:`RESUME_SAMPLES` accepted samples in a row, or turns into an abort: at once with
-``on_fault="abort"``, after ``hold_timeout_s`` with ``on_fault="hold"`` (the default).
+``on_fault="abort"``, after ``hold_timeout_s`` with ``on_fault="hold"`` (the default;
+from a confirmation scan's arrival when one is under way: :meth:`SensorGuard.await_settling`).
 Every hold, resume and abort is an event ``{"time_s", "kind", "action"}`` (a hold also
 says when the last accepted sample came in and was taken, ``last_accepted_s`` and
 ``last_accepted_taken_s``; a hold whose
@@ -237,6 +238,7 @@ class SensorGuard:
         self._hold_t = 0.0
         self._hold_kind = ""
         self._holds = 0
+        self._await_s = -math.inf  # a hold's timeout runs from here at the earliest
 
     def admit(self, t: float, sample, estimator, inserted_mm: float) -> bool:
         """Judge the sample that arrived at loop time ``t`` (None: none did), correct the
@@ -336,7 +338,7 @@ class SensorGuard:
             if self._in_a_row >= RESUME_SAMPLES:
                 self.holding = False
                 self._event(t, self._hold_kind, "resume", held_s=round(t - self._hold_t, 6))
-            elif t - self._hold_t >= spec.hold_timeout_s - 1e-9:
+            elif t - max(self._hold_t, self._await_s) >= spec.hold_timeout_s - 1e-9:
                 self.aborted = True
                 self._event(t, self._hold_kind, "abort")
             return
@@ -351,6 +353,29 @@ class SensorGuard:
                 self.holding = True
                 self._holds += 1
                 self._event(t, self._hold_kind, "hold", **self._last_accepted())
+
+    @property
+    def gated_hold(self) -> int | None:
+        """The number of the hold under way when its reason is the filter's gate (the
+        sensor and the estimate disagree, the samples otherwise sound), else None: what
+        an imaging checkpoint can settle (:meth:`TargetSensing.tick
+        <needlekit.execute.target_sensing.TargetSensing.tick>`)."""
+        return self._holds if self.holding and self._hold_kind == "gated" else None
+
+    def await_settling(self, until_s: float) -> None:
+        """Let a hold's timeout run from ``until_s`` (loop clock, s) at the earliest: a
+        confirmation scan that can settle it arrives then (the needle stays held), and the
+        sensor then has the whole timeout to agree with the settled estimate.
+
+        Parameters
+        ----------
+        until_s : float
+
+        Returns
+        -------
+        None
+        """
+        self._await_s = max(self._await_s, float(until_s))
 
     def may_advance(self) -> bool:
         """Whether the loop may insert this step (not held, not aborted).

@@ -177,6 +177,11 @@ class CheckpointImaging:
         return self._scanning is None and inserted_mm >= self._next_mm - 1e-9
 
     @property
+    def pending(self) -> ImageSample | None:
+        """The scan under way (its sample, not yet arrived), or None."""
+        return self._scanning
+
+    @property
     def scanning(self) -> bool:
         """Whether a scan is under way (the needle stands still)."""
         return self._scanning is not None

@@ -49,7 +49,7 @@ _AFTER = ("replans_refused", "warm_start_kept", "shaft_loads", "points_rest_mm")
 #: (:meth:`needlekit.execute.target_sensing.TargetSensing.record`).
 _TARGET = ("sensing", "target_displacement_mm", "target_displacement_max_mm",
            "target_error_mm", "scans", "target_samples_used", "target_samples_refused",
-           "scan_tip_used", "scan_tip_refused")  # fmt: skip
+           "scan_tip_used", "scan_tip_refused", "scan_tip_reseeded")  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +60,7 @@ class LoopRecord:
     run that re-planned, ``shaft_loads`` those of a truth that reports them,
     ``points_rest_mm`` those of a truth that maps its tissue back to rest (``to_rest``;
     ``points_mm`` is then the path in the world and the clearance is judged on this one),
-    and the target's fields (``sensing`` to ``scan_tip_refused``) those of a closed loop
+    and the target's fields (``sensing`` to ``scan_tip_reseeded``) those of a closed loop
     under a sensing policy other than ``em`` or with a truth that carries the target."""
 
     final_error_mm: float
@@ -98,6 +98,7 @@ class LoopRecord:
     target_samples_refused: dict | None = None
     scan_tip_used: int | None = None
     scan_tip_refused: int | None = None
+    scan_tip_reseeded: int | None = None
 
     def to_dict(self) -> dict:
         """The record as ``execute.json`` holds it (fields a run has not, left out).
@@ -178,6 +179,7 @@ class LoopRecord:
             target_samples_refused=_counts(data, "target_samples_refused", where),
             scan_tip_used=f(data, "scan_tip_used", where, "int", optional=True),
             scan_tip_refused=f(data, "scan_tip_refused", where, "int", optional=True),
+            scan_tip_reseeded=f(data, "scan_tip_reseeded", where, "int", optional=True),
         )  # fmt: skip
 
 

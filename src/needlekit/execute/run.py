@@ -415,7 +415,10 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
         if guard.aborted:
             break
         held = guard.holding
-        scanning = sensing is not None and sensing.tick(t, needle.inserted_mm, needle.pose, est)
+        scanning = sensing is not None and sensing.tick(t, needle.inserted_mm, needle.pose, est,
+                                                        guard.gated_hold)  # fmt: skip
+        if sensing is not None and sensing.confirmation_due_s is not None:
+            guard.await_settling(sensing.confirmation_due_s)
         if held or scanning or (policy is not None and not policy.may_advance(t)):
             phase = "held" if held else "scanning" if scanning else "gated"  # it does not go in
             if policy is not None:  # let go, it rides with the tissue

@@ -132,6 +132,9 @@ class TargetSensing:
         self.max_displacement_mm = 0.0
         self.tip_used = 0
         self.tip_refused = 0
+        self.tip_reseeded = 0
+        self._confirmed_hold: int | None = None  # the gated hold a scan was taken for
+        self._confirming = False  # the scan under way was taken for it
 
     @classmethod
     def of(cls, policy: SensingPolicy, goal_mm, truth, rng: np.random.Generator):
@@ -175,9 +178,21 @@ class TargetSensing:
         """
         return self.goal_mm if self._true is None else np.asarray(self._true(), dtype=np.float64)
 
-    def tick(self, t: float, inserted_mm: float, tip_pose, estimator) -> bool:
+    def tick(self, t: float, inserted_mm: float, tip_pose, estimator,
+             gated_hold: int | None = None) -> bool:  # fmt: skip
         """One control step: the sensors sample, the belief takes what they deliver, a scan
         that arrives corrects the tip estimate.
+
+        A hold of the sensor guard whose reason is the filter's gate (``gated_hold``, its
+        number: :attr:`SensorGuard.gated_hold
+        <needlekit.execute.guard.SensorGuard.gated_hold>`) is settled by an image, once per
+        hold: a confirmation scan is taken at once (it counts toward the dose), and if its
+        tip too fails the estimate's gate, the estimate, not the sensor, is what is wrong:
+        the filter starts again from the image (:meth:`TipEstimator.reseed
+        <needlekit.execute.estimator.TipEstimator.reseed>`), and sensor samples that agree
+        with it end the hold. If the image agrees with the estimate, the sensor is what lies
+        and the hold goes on to its timeout. The hold does not abort while the scan is under
+        way (:attr:`confirmation_due_s`).
 
         Parameters
         ----------
@@ -188,6 +203,8 @@ class TargetSensing:
             The true tip (what a scan images).
         estimator : Estimator
             The tip estimate a scan corrects.
+        gated_hold : int, optional
+            The guard's gated hold under way (None: none).
 
         Returns
         -------
@@ -207,18 +224,32 @@ class TargetSensing:
         img = self.imaging
         if img is None:
             return False
-        if img.due(inserted_mm):
+        confirm = gated_hold is not None and gated_hold != self._confirmed_hold
+        if img.due(inserted_mm) or (confirm and not img.scanning):
             img.scan(t, inserted_mm, tip_pose, self.true_target())
+            if confirm:
+                self._confirmed_hold, self._confirming = gated_hold, True
         got = img.update(t)
         if got is not None:
             self.belief.update(t, got.taken_s, got.target_mm, img.spec.position_sigma_mm)
-            self._correct_tip(t, got, estimator)
+            self._correct_tip(t, got, estimator, reseed=self._confirming)
+            self._confirming = False
         return img.scanning
 
-    def _correct_tip(self, t: float, scan: ImageSample, estimator) -> None:
+    @property
+    def confirmation_due_s(self) -> float | None:
+        """When the confirmation scan under way arrives (loop clock, s), None when there is
+        none: the guard's hold waits for it (:meth:`SensorGuard.await_settling
+        <needlekit.execute.guard.SensorGuard.await_settling>`)."""
+        pending = None if self.imaging is None else self.imaging.pending
+        return pending.arrives_s if (self._confirming and pending is not None) else None
+
+    def _correct_tip(self, t: float, scan: ImageSample, estimator, reseed: bool = False) -> None:
         """The scan's tip pose, through the innovation gate, into the tip estimate. The
         needle stood still through the scan, so the pose is the tip's now; the filter takes
-        it with the image's noise (an estimator without ``R_meas``: with its own)."""
+        it with the image's noise (an estimator without ``R_meas``: with its own). A
+        confirmation scan (``reseed``) that fails the gate restarts the estimate from it
+        (an estimator without ``reseed``: refused)."""
         pose = np.asarray(scan.tip_pose, dtype=np.float64)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             self.tip_refused += 1
@@ -235,6 +266,9 @@ class TargetSensing:
                 estimator.R_meas = kept
         if ok:
             self.tip_used += 1
+        elif reseed and hasattr(estimator, "reseed"):
+            estimator.reseed(pose, spec.position_sigma_mm, math.radians(spec.orientation_sigma_deg))
+            self.tip_reseeded += 1
         else:
             self.tip_refused += 1
 
@@ -262,7 +296,8 @@ class TargetSensing:
             from the plan's at the end) and its ``target_displacement_max_mm`` over the run,
             ``target_error_mm`` (the belief's distance from the true target at the end),
             ``scans``, ``target_samples_used``, ``target_samples_refused`` (by reason),
-            ``scan_tip_used`` and ``scan_tip_refused``.
+            ``scan_tip_used``, ``scan_tip_refused`` and ``scan_tip_reseeded`` (the
+            confirmation scans that restarted the estimate).
         """
         true = self.true_target()
         moved = float(np.linalg.norm(true - self.goal_mm))
@@ -276,6 +311,7 @@ class TargetSensing:
             "target_samples_refused": dict(self.belief.refused),
             "scan_tip_used": self.tip_used,
             "scan_tip_refused": self.tip_refused,
+            "scan_tip_reseeded": self.tip_reseeded,
         }
 
 
