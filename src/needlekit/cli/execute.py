@@ -314,7 +314,7 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     source, problem, plan, name = load_checked_plan(args, record)
     options = execute_options(args, 1.0 / problem.kappa_max_per_mm)
     if args.models.truth in ("mechanics", "physical"):
-        from needlekit.cli.execute_models import physics_options
+        from needlekit.cli.execute_models import physics_options, say_model
 
         options = physics_options(args, source.cached()[0], plan, problem, options)
         say_model(options.settings, problem)
@@ -356,30 +356,6 @@ def _cmd_execute(args: argparse.Namespace) -> int:
     for line in failures:
         print(f"exit 1: {line}")
     return EXIT_OK if not failures else 1
-
-
-def say_model(settings, problem) -> None:
-    """One line on the loop's calibrated model beside the plan's needle.
-
-    Parameters
-    ----------
-    settings : ExecutionSettings
-    problem : SteerableProblem
-
-    Returns
-    -------
-    None
-    """
-    cal = settings.model
-    if cal is None:
-        return
-    r_plan = 1.0 / problem.kappa_max_per_mm
-    line = (f"calibrated on {cal.curved + cal.straight} insertions of the {settings.models.truth} "
-            f"truth: r {cal.r_min_mm:.1f} mm (the plan's needle {r_plan:.1f} mm), model replay "
-            f"rms {cal.residual_rms_mm:.2f} mm")  # fmt: skip
-    if cal.r_min_mm > 1.05 * r_plan:
-        line += "; the plan asks for tighter turns than this needle makes"
-    print(line)
 
 
 def _link_line(link, hooks, document: dict) -> str:

@@ -8,7 +8,7 @@ import argparse
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_model_flags", "checked_models", "physics_options"]
+__all__ = ["add_model_flags", "checked_models", "physics_options", "say_model"]
 
 #: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
 #: named here so that the parser refuses a wrong one without importing the mechanics.
@@ -155,3 +155,27 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     cal = calibrate_truth(on, plan.start_pose, 1.0 / problem.kappa_max_per_mm,
                           CalibrationSettings(curved=n, straight=max(2, n // 2), seed=args.seed))  # fmt: skip
     return replace(options, settings=replace(s, model=cal))
+
+
+def say_model(settings, problem) -> None:
+    """One line on the loop's calibrated model beside the plan's needle.
+
+    Parameters
+    ----------
+    settings : ExecutionSettings
+    problem : SteerableProblem
+
+    Returns
+    -------
+    None
+    """
+    cal = settings.model
+    if cal is None:
+        return
+    r_plan = 1.0 / problem.kappa_max_per_mm
+    line = (f"calibrated on {cal.curved + cal.straight} insertions of the {settings.models.truth} "
+            f"truth: r {cal.r_min_mm:.1f} mm (the plan's needle {r_plan:.1f} mm), model replay "
+            f"rms {cal.residual_rms_mm:.2f} mm")  # fmt: skip
+    if cal.r_min_mm > 1.05 * r_plan:
+        line += "; the plan asks for tighter turns than this needle makes"
+    print(line)
