@@ -14,11 +14,11 @@ last bevel length ``L_b`` of depth, so one step of ``ds`` changes it by at most
 
     |tip move| <= 1.05 ds + 2 Q C min(1, ds / L_b).
 
-Measured (nitinol, seed 3, spins N(0, 0.3 rad), duties U(0, 1), 150 mm): the worst move
-is 0.79 of the bound in lung at 0.05 mm steps (0.61 mm against 0.77 mm), 0.47 at 0.25 mm,
-0.35 at 4 mm, 0.82 in chicken at 0.25 mm. Before the load was held over the bevel's
-length, a duty change moved the tip by the full ``C dQ``: 9.7 mm per 0.05 mm step in
-lung past 60 mm.
+Measured (nitinol, seed 3, spins N(0, 0.3 rad), duties U(0, 1), 150 mm): with the wedge's
+tip load the worst move is the step itself, 0.92-0.94 of the bound in lung at 0.05, 0.25
+and 4 mm steps and 0.89 in chicken at 0.25 mm. With the earlier load (the whole axial
+resistance through the face) a duty change moved the tip by ``C dQ`` at once: 9.7 mm per
+0.05 mm step in lung past 60 mm.
 """
 
 import math
@@ -68,11 +68,11 @@ def test_random_commands_move_the_tip_within_the_closed_form_bound(tissue, ds, d
 
 
 @pytest.mark.parametrize(
-    ("tissue", "tol"), [("chicken", 2e-4), pytest.param("lung", 0.03, marks=pytest.mark.slow)]
+    ("tissue", "tol"), [("chicken", 1e-4), pytest.param("lung", 1e-4, marks=pytest.mark.slow)]
 )
 def test_random_commands_path_matches_a_refined_run(tissue, tol):
     """Half the elements and a quarter of the sub-step, the same commands: same path
-    (measured 3.2e-5 mm in chicken, 0.013 mm in lung over 150 mm)."""
+    (measured 1.4e-5 mm in chicken, 1.6e-6 mm in lung over 150 mm)."""
     _, a = _random_run(tissue, 0.5, 150.0)
     _, b = _random_run(tissue, 0.5, 150.0, element_mm=0.5, max_substep_mm=0.25)
     assert np.abs(a - b).max() < tol

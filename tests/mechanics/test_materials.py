@@ -143,7 +143,12 @@ def test_tip_load_closed_form():
     assert load.rupture_n == pytest.approx(0.01 * 0.5)
     assert load.opening_n == pytest.approx(0.5 * k * 0.25)
     assert load.axial_n == pytest.approx(load.rupture_n + load.opening_n)
-    assert load.lateral_n == pytest.approx(load.axial_n / math.tan(math.radians(30)))
+    # the face carries the wedged tissue's reaction, summed over the bevel's length
+    assert load.lateral_n == pytest.approx(load.opening_n / math.tan(math.radians(30)))
+    assert load.lateral_n == pytest.approx(0.5 * k * 0.5 * needle.bevel_length_mm)
+    # a tougher tissue resists the insertion more, without pressing the face harder
+    tough = bevel_tip_load(needle, TissueSpec(0.02, 0.5))
+    assert tough.axial_n > 10 * load.axial_n and tough.lateral_n == load.lateral_n
     # friction on the face lowers the lateral part; enough friction removes it
     rough = TissueSpec(0.02, 0.01, bevel_friction=0.3)
     assert 0 < bevel_tip_load(needle, rough).lateral_n < load.lateral_n
