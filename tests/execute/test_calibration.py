@@ -40,6 +40,34 @@ def test_the_default_noise_is_recovered_within_three_standard_errors():
     assert cal.deflection_sigma == pytest.approx(noise.deflection_sigma, rel=3 / math.sqrt(400))
 
 
+class _SlippingNeedle(SimulatedNeedle):
+    """A noise-free needle whose tip, with the bevel held, also slips sideways along its
+    own x axis by ``slip`` mm per mm inserted (as a pre-bent tip does while its shaft
+    catches up)."""
+
+    slip = 0.2
+
+    def step(self, spin_rad, kappa_per_mm, ds_mm, dt_s):
+        g = super().step(spin_rad, kappa_per_mm, ds_mm, dt_s)
+        if kappa_per_mm > 0:
+            g[:3, 3] += self.slip * ds_mm * g[:3, 0]
+        return g
+
+
+def test_a_tip_that_slips_off_its_axis_has_its_drift_learnt_as_position_noise():
+    """The model's step cannot predict the slip, so the filter's position noise must cover
+    it: the drift per millimetre pooled over every step, curved and straight, is
+    ``slip sqrt(curved / (curved + straight) / 2)`` per lateral component."""
+    make = lambda p, rng: _SlippingNeedle(p, 50.0, ExecutionNoise.none(), rng)  # noqa: E731
+    cal = calibrate(make, 1 / 50.0, CalibrationSettings(curved=4, straight=2))
+    # the slip is in the bending plane's normal, so the arc is still learnt exactly
+    assert cal.r_min_mm == pytest.approx(50.0, rel=1e-9)
+    expected = 0.2 * math.sqrt(4 / 6 / 2)
+    assert cal.deflection_sigma == pytest.approx(expected, rel=1e-3)
+    # the replay cannot follow the slip: its residual grows with it
+    assert cal.residual_max_mm == pytest.approx(0.2 * 80.0, rel=0.05)
+
+
 def test_a_needle_that_curves_less_than_planned_is_commanded_in_its_own_units():
     # the truth reads 1/50 as the bevel held, but curves with r = 80 mm in this tissue
     cal = calibrate(lambda p, rng: SimulatedNeedle(p, 50.0, ExecutionNoise.none(), rng),

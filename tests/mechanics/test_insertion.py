@@ -270,6 +270,27 @@ def test_prebent_tip_bends_tighter_than_the_bevel_alone():
     assert np.max(np.abs(pts[:, :2])) < 1e-12
 
 
+def test_a_prebent_tip_leaves_its_introducer_along_its_aim():
+    """Straight in its introducer until it cuts, a 20 degree pre-bent tip turns as its
+    bend leaves it: by the rest curvature times the depth (0.4 degrees after 0.1 mm, 4
+    after 1 mm), the full 20 degrees once its 5 mm are in the tissue. Counted as bent
+    before the entry, it turned 20.8 degrees and moved 0.86 mm sideways in its first
+    0.1 mm."""
+    needle = NeedleSpec.preset("nitinol").with_prebend(20.0, 5.0)
+    sim = MechanicalNeedle(np.eye(4), needle, TissueSpec.preset("lung"))
+    kmax = sim.kappa_max_per_mm
+    turns = {}
+    for depth in (0.1, 1.0, 5.0):
+        while sim.inserted_mm < depth - 1e-9:
+            sim.step(0.0, kmax, 0.1, 0.025)
+        turns[depth] = math.degrees(math.acos(np.clip(sim.pose[2, 2], -1.0, 1.0)))
+        if depth == 0.1:
+            assert np.linalg.norm(sim.pose[:2, 3]) < 0.03
+    assert turns[0.1] == pytest.approx(0.4, abs=0.05)
+    assert turns[1.0] == pytest.approx(4.0, abs=0.1)
+    assert turns[5.0] == pytest.approx(20.0, abs=0.2)
+
+
 def test_the_path_does_not_depend_on_the_step_size():
     """40 mm inserted in 400 steps of 0.1 mm or 10 of 4 mm, sub-steps of at most 0.1 mm
     (a tenth of that while the tissue takes hold): the same tip, to 1e-4 mm. How finely

@@ -24,8 +24,11 @@ held bevel makes it.
 the load of the tissue it has wedged: tissue enters contact at the point and leaves at the
 heel as the needle advances ``L_b``. So the rod is solved with the mean of the commanded
 loads over the last ``L_b`` of depth (each recorded in the channel's transported frame),
-and a pre-bent tip's curvature with the mean over its own length; depths before the entry
-count as the first command, so a constant command acts in full from the start. A spin in
+and a pre-bent tip's curvature with the mean over its own length. Depths before the entry
+count as the first command for the bevel's load, so a constant command acts in full from
+the start; a pre-bent tip leaves a straight introducer at the surface, so before the entry
+its curvature counts as zero and its bend grows over its own length as it cuts (the tip
+enters along its aim instead of turning at once by the bend a first command asks for). A spin in
 place turns the tip frame but loads nothing until the tip cuts, and a step of ``ds``
 changes the load by at most ``2 Q min(1, ds / L_b)``. Applied at once, a change of the
 duty or the bevel's direction moved the tip by the shaft's whole static compliance times
@@ -92,7 +95,8 @@ class _ContactHistory:
     average of the commands over the last ``window`` of depth: the load the bevel face
     carries is that of the tissue it wedged, which entered at the point and leaves at the
     heel as the needle advances one bevel length. Depths before the entry count as the
-    first command (the start as before: a constant command acts in full from depth 0).
+    first command with its pre-bend taken out: a constant load acts in full from depth 0,
+    and a pre-bent tip is straight in its introducer until it cuts.
     """
 
     def __init__(self) -> None:
@@ -108,7 +112,9 @@ class _ContactHistory:
 
     def _integral(self, z: float) -> np.ndarray:
         if z <= 0.0:
-            return z * self.value[0]
+            before = self.value[0].copy()
+            before[2:] = 0.0  # the pre-bend: straight in the introducer
+            return z * before
         i = min(bisect.bisect_left(self.depth, z), len(self.depth) - 1)
         return self.cum[i] - (self.depth[i] - z) * self.value[i - 1]
 
