@@ -93,6 +93,9 @@ def test_the_target_gate_refuses_what_is_not_finite_or_moved_too_far():
         (lambda: CheckpointSpec(every_mm=0.0), "every_mm"),
         (lambda: CheckpointSpec(scan_s=float("inf")), "scan_s"),
         (lambda: CheckpointSpec(orientation_sigma_deg=200.0), "orientation_sigma_deg"),
+        (lambda: CheckpointSpec(confirm_scans=-1), "confirm_scans"),
+        (lambda: CheckpointSpec(confirm_scans=1.5), "confirm_scans"),
+        (lambda: CheckpointSpec(confirm_scans=True), "confirm_scans"),
     ],
 )
 def test_bad_sensor_settings_name_their_field(make, field):

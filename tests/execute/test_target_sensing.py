@@ -95,10 +95,11 @@ def test_em_misses_the_moved_target_and_the_imaged_loops_reach_it(moving_trial):
         assert run.final_error_mm < 1.0, run.final_error_mm
         assert run.target_error_mm == pytest.approx(0.0, abs=1e-9)  # noise-free imaging
         assert run.replans >= 1 and run.target_samples_refused == {}
-    # a scan every 10 mm of insertion: the dose counted, the needle held 20 s for each
-    assert scanned.scans == int(scanned.inserted_mm // 10.0) == 6
+    # a scan every 10 mm of insertion and one on arrival: the dose counted, the needle
+    # held 20 s for each
+    assert scanned.scans == int(scanned.inserted_mm // 10.0) + 1 == 7
     assert scanned.target_samples_used == scanned.scans == scanned.scan_tip_used
-    assert scanned.procedure_s == pytest.approx(tracked.procedure_s + 6 * 20.0, abs=2.0)
+    assert scanned.procedure_s == pytest.approx(tracked.procedure_s + 7 * 20.0, abs=2.0)
     assert tracked.scans == 0 and tracked.target_samples_used > 100
 
 
@@ -152,6 +153,56 @@ def test_a_wild_target_sample_is_refused_counted_and_does_not_steer(toy_plan, mo
     assert wild.target["target_error_mm"] == 0.0
 
 
+class _PushedTarget(SimulatedNeedle):
+    """The needle follows its model exactly; the needle's own push carries the target
+    PUSH_MM on along the plan's end direction while the last 10 % of the plan goes in,
+    after the last set checkpoint."""
+
+    def __init__(self, setup, plan):
+        super().__init__(setup.start_pose, setup.r_min_mm, ExecutionNoise.none(), setup.rng)
+        self.goal = np.array(setup.goal_mm, dtype=float)
+        self.ahead = PUSH_MM * plan.end_pose()[:3, 2]
+        self.ramp = (0.9 * plan.length_mm, plan.length_mm)
+
+    def target_mm(self):
+        a, b = self.ramp
+        return self.goal + float(np.clip((self.inserted_mm - a) / (b - a), 0.0, 1.0)) * self.ahead
+
+
+#: How far the needle's push carries the target on (mm).
+PUSH_MM = 2.0
+
+
+def test_a_target_pushed_on_after_the_last_checkpoint_is_reached_by_an_arrival_scan(toy_plan):
+    """Without confirmation scans the loop stops where the last image put the target, 2 mm
+    short; one scan on arrival shows it ahead, the needle goes on, and a second scan
+    finds it there."""
+    plan, _, _ = read_plan_json(toy_plan)
+    TRUTHS.register("pushed_target", lambda setup: _PushedTarget(setup, plan))
+    runs = {}
+    try:
+        source = ScenarioSource.of(TOY)
+        _, problem = source.cached()
+        for confirm in (0, 2):
+            spec = replace(EXACT.checkpoints, every_mm=1000.0, confirm_scans=confirm)
+            policy = replace(EXACT, name="checkpoints", checkpoints=spec)
+            settings = ExecutionSettings(sensing=policy, models=Models(truth="pushed_target"))
+            options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
+                                     sensing=("checkpoints",))  # fmt: skip
+            rec = run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0),
+                                    options, loops=("closed_loop",))  # fmt: skip
+            runs[confirm] = rec.closed_loop
+    finally:
+        TRUTHS.unregister("pushed_target")
+    short, confirmed = runs[0], runs[2]
+    assert short.scans == 0 and short.final_error_mm == pytest.approx(PUSH_MM, abs=0.05)
+    assert confirmed.scans == 2 and confirmed.final_error_mm < 0.05
+    assert confirmed.inserted_mm == pytest.approx(short.inserted_mm + PUSH_MM, abs=0.05)
+    # the needle held 20 s for each scan, and the 2 mm more at 4 mm/s (and a re-plan's
+    # steps toward the moved target)
+    assert 2 * 20.0 + PUSH_MM / 4.0 <= confirmed.procedure_s - short.procedure_s < 42.0
+
+
 def test_the_side_by_side_run_writes_a_block_and_a_row_per_policy(toy_plan, tmp_path, capsys):
     out = tmp_path / "side"
     assert main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
@@ -166,14 +217,14 @@ def test_the_side_by_side_run_writes_a_block_and_a_row_per_policy(toy_plan, tmp_
     for name in ("em", "checkpoints", "tracking"):
         assert sum(line.startswith(f"sensing, {name} ") for line in printed.splitlines()) == 1
     scanned = trial["sensing"]["checkpoints"]
-    # the toy plan is 62.9 mm: checkpoints at 20, 40 and 60 mm
-    assert scanned["scans"] == 3 and scanned["sensing"] == "checkpoints"
-    assert doc["summary"]["sensing"]["checkpoints"]["scans"]["mean"] == 3.0
+    # the toy plan is 62.9 mm: checkpoints at 20, 40 and 60 mm, and one on arrival
+    assert scanned["scans"] == 4 and scanned["sensing"] == "checkpoints"
+    assert doc["summary"]["sensing"]["checkpoints"]["scans"]["mean"] == 4.0
     assert trial["sensing"]["tracking"]["scans"] == 0
     assert trial["sensing"]["tracking"]["target_samples_used"] > 100
     # every record reads back as written, the target's fields included
     rec = TrialRecord.from_dict(trial, "execute.json: trials[0]")
-    assert rec.to_dict() == trial and rec.sensing["checkpoints"].scans == 3
+    assert rec.to_dict() == trial and rec.sensing["checkpoints"].scans == 4
 
 
 class _Shifted(SimulatedNeedle):

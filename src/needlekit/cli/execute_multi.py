@@ -18,7 +18,8 @@ STEERABLE_ONLY = (
     "no_replan", "no_warm_start", "cross_track_mm", "replan_time_limit_s", "replan_iterations",
     "replan_delay_ms", "igtl", "tip_from_igtl", "igtl_realtime", "igtl_wait_s", "faults",
     "on_fault", "hold_timeout_s", "safety_margin_mm", "truth", "sensor", "estimator",
-    "feedback", "replanner", "sensing", "checkpoint_every_mm", "scan_s", "image_sigma_mm",
+    "feedback", "replanner", "sensing", "checkpoint_every_mm", "scan_s", "confirm_scans",
+    "image_sigma_mm",
     "tracking_rate_hz", "tracking_sigma_mm", "tracking_latency_ms", "retarget_mm",
     "any_start_direction",
 )  # fmt: skip

@@ -20,6 +20,7 @@ POLICIES: tuple[str, ...] = ("em", "checkpoints", "tracking")
 SENSING_FLAGS = {
     "checkpoint_every_mm": ("checkpoints", "every_mm"),
     "scan_s": ("checkpoints", "scan_s"),
+    "confirm_scans": ("checkpoints", "confirm_scans"),
     "image_sigma_mm": ("checkpoints", "position_sigma_mm"),
     "tracking_rate_hz": ("tracking", "rate_hz"),
     "tracking_sigma_mm": ("tracking", "position_sigma_mm"),
@@ -63,6 +64,10 @@ def add_sensing_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--checkpoint-every-mm", type=number(1.0, 1000.0, unit="mm"), metavar="MM",
                    help="a CT checkpoint each time this much more is inserted (1-1000; "
                    "default 20)")  # fmt: skip
+    g.add_argument("--confirm-scans", type=number(0, 100, integer=True), metavar="N",
+                   help="confirmation scans at most when the tip believes it has arrived; "
+                   "the needle goes on if one shows the target still ahead (0-100; "
+                   "default 2)")  # fmt: skip
     g.add_argument("--scan-s", type=number(0.0, 3600.0, unit="s"), metavar="S",
                    help="how long the needle stands still for one scan (default 20)")  # fmt: skip
     g.add_argument("--image-sigma-mm", type=number(0.0, 10.0, unit="mm"), metavar="MM",

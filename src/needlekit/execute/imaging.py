@@ -11,7 +11,10 @@ does not see it. Two kinds of imaging do:
   Ben-David et al. (JVIR 2018), a patient-mounted CT-guided robot in eight swine, planned
   4.6 +- 1.3 checkpoints (range 2-9) over insertions of 92.9 +- 19.7 mm, about one every
   20 mm: the default spacing here. The scan's duration is not reported there; 20 s is
-  this module's assumption, named.
+  this module's assumption, named. When the tip believes it has arrived, a confirmation
+  scan checks (``confirm_scans`` of them at most, 2 by default): the needle's own push
+  keeps moving the target after the last set checkpoint, ahead of the tip most of all in
+  the last millimetres, and if the image shows it still ahead the needle goes on to it.
 - **Tracking** (:class:`TargetTracking`). An ultrasound-like sensor follows the target
   continuously: ``rate_hz`` samples of its position, each with noise and arriving
   ``latency_s`` after it was taken; the needle keeps going.
@@ -34,6 +37,7 @@ import numpy as np
 
 from needlekit._numbers import MAX_ABS_MM, MAX_ABS_NUMBER, Bounds
 from needlekit.control.em import noisy_pose
+from needlekit.errors import InvalidInputError
 
 __all__ = [
     "CheckpointImaging",
@@ -69,15 +73,22 @@ class CheckpointSpec:
         SD per axis of the target's and the tip's position in the image.
     orientation_sigma_deg : float
         SD of the tip's orientation in the image.
+    confirm_scans : int
+        Scans at most when the tip believes it has arrived (0: none).
     """
 
     every_mm: float = 20.0
     scan_s: float = 20.0
     position_sigma_mm: float = 0.5
     orientation_sigma_deg: float = 1.0
+    confirm_scans: int = 2
 
     def __post_init__(self) -> None:
         _POSITIVE_MM.check(self.every_mm, "every_mm")
+        if isinstance(self.confirm_scans, bool) or not isinstance(self.confirm_scans, int) \
+                or not 0 <= self.confirm_scans <= 100:  # fmt: skip
+            raise InvalidInputError("confirm_scans", "expected an integer in [0, 100], "
+                                    f"got {self.confirm_scans!r}")  # fmt: skip
         _NONNEG_S.check(self.scan_s, "scan_s")
         _NONNEG_MM.check(self.position_sigma_mm, "position_sigma_mm")
         _DEG.check(self.orientation_sigma_deg, "orientation_sigma_deg")
@@ -162,6 +173,7 @@ class CheckpointImaging:
         self.scans = 0
         self._next_mm = spec.every_mm
         self._scanning: ImageSample | None = None
+        self.confirmations = 0  # arrival scans taken
 
     def due(self, inserted_mm: float) -> bool:
         """Whether the insertion has reached the next checkpoint (and no scan is under way).
@@ -175,6 +187,16 @@ class CheckpointImaging:
         bool
         """
         return self._scanning is None and inserted_mm >= self._next_mm - 1e-9
+
+    def may_confirm(self) -> bool:
+        """Whether an arrival scan may be taken: none under way, and ``confirm_scans`` not
+        used up.
+
+        Returns
+        -------
+        bool
+        """
+        return self._scanning is None and self.confirmations < self.spec.confirm_scans
 
     @property
     def pending(self) -> ImageSample | None:

@@ -448,7 +448,17 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
             pose[:3, 3] -= policy.control_offset(t)
         ahead = pose[:3, :3].T @ (goal - pose[:3, 3])
         if ahead[2] <= 1e-3:  # the goal is no longer ahead of the estimated tip
-            break
+            if sensing is None or not sensing.confirm_arrival(t, needle.inserted_mm, needle.pose):
+                break
+            # an arrival scan holds the needle: the next steps wait for it as for any scan
+            if policy is not None:
+                _ride(needle, est, policy, t, s.dt_s)
+            else:
+                est.predict(0.0, 0.0, 0.0, s.dt_s)
+            k += 1
+            t = k * s.dt_s
+            path.record(None if policy is None else policy.trace.actual(t))
+            continue
         if pending is not None and t >= pending[1] - 1e-12:  # the search has returned
             if guard.replan_in_time(t, pending[2], float(needle.inserted_mm)):
                 (current, ref), index, aim = pending[0], 0, pending[3]

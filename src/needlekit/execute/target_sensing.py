@@ -134,6 +134,7 @@ class TargetSensing:
         self.tip_refused = 0
         self.tip_reseeded = 0
         self._confirmed_hold: int | None = None  # the gated hold a scan was taken for
+        self._confirmed_at_mm = -math.inf  # the depth of the last arrival scan
         self._confirming = False  # the scan under way was taken for it
 
     @classmethod
@@ -235,6 +236,35 @@ class TargetSensing:
             self._correct_tip(t, got, estimator, reseed=self._confirming)
             self._confirming = False
         return img.scanning
+
+    def confirm_arrival(self, t: float, inserted_mm: float, tip_pose) -> bool:
+        """The tip believes it has arrived: take a confirmation scan if the policy images
+        and has one left (:meth:`CheckpointImaging.may_confirm
+        <needlekit.execute.imaging.CheckpointImaging.may_confirm>`). The loop holds the
+        needle through it, and goes on if the image shows the target still ahead.
+
+        Parameters
+        ----------
+        t, inserted_mm : float
+        tip_pose : ndarray, shape (4, 4)
+            The true tip (what the scan images).
+
+        Returns
+        -------
+        bool
+            Whether a scan was started (False: the insertion ends here). A scan that finds
+            the tip arrived ends it: another is taken only after the needle went on by more
+            than the image's position noise.
+        """
+        img = self.imaging
+        if img is None or not img.may_confirm():
+            return False
+        if inserted_mm <= self._confirmed_at_mm + max(img.spec.position_sigma_mm, 1e-9):
+            return False  # the last one found the tip there, to within what an image resolves
+        self._confirmed_at_mm = float(inserted_mm)
+        img.confirmations += 1
+        img.scan(t, inserted_mm, tip_pose, self.true_target())
+        return True
 
     @property
     def confirmation_due_s(self) -> float | None:
