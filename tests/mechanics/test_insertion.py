@@ -19,6 +19,7 @@ import pytest
 
 from needlekit.mechanics.insertion import MechanicalNeedle, steady_curvature
 from needlekit.mechanics.materials import NeedleSpec, TissueSpec
+from needlekit.mechanics.shaft import solve_shaft
 from needlekit.mechanics.tip_load import bevel_tip_load
 
 WIRE = NeedleSpec(0.5, 0.0, 75e3, math.radians(30), "wire")
@@ -236,6 +237,28 @@ def test_shaft_loads_and_moving_anchors():
     assert forces[(s > 10.0) & (s < 14.0), 1].max() > 0
     with pytest.raises(ValueError, match="displacement_mm"):
         sim.displace_channel(lambda p: np.zeros((2, 3)))
+
+
+def test_the_foundation_takes_the_tissues_millimetre_by_millimetre_modulus():
+    """The inhomogeneity scales the foundation per millimetre of depth: factors of 2
+    everywhere are the tissue twice as stiff, to the last digit; factors of 1 are none;
+    a soft millimetre lets the shaft off its channel there and only there."""
+    sim = MechanicalNeedle(np.eye(4), WIRE, STIFF_BEVEL, **FINE)
+    _insert(sim, 30.0, sim.kappa_max_per_mm, ds=2.0)
+    args = (sim.channel, sim.guide, sim.gap_mm, sim.inserted_mm, sim.ei)
+    rest = (sim.unsupported_mm, (0.02, -0.05), H)
+    base = solve_shaft(*args, sim.k, *rest)
+    double = solve_shaft(*args, 2.0 * sim.k, *rest)
+    assert np.array_equal(solve_shaft(*args, sim.k, *rest, k_by_mm=np.full(40, 2.0)).offsets_mm,
+                          double.offsets_mm)  # fmt: skip
+    assert np.array_equal(solve_shaft(*args, sim.k, *rest, k_by_mm=np.ones(40)).offsets_mm,
+                          base.offsets_mm)  # fmt: skip
+    soft = np.ones(40)
+    soft[10] = 0.0  # the tissue between 10 and 11 mm deep holds nothing
+    held = solve_shaft(*args, sim.k, *rest, k_by_mm=soft)
+    depth = held.s_mm - sim.gap_mm
+    moved = np.linalg.norm(held.offsets_mm - base.offsets_mm, axis=1)
+    assert moved[(depth > 10.0) & (depth < 11.0)].max() > 10 * moved[depth < 2.0].max()
 
 
 def test_inhomogeneity_is_seeded_and_off_by_default():

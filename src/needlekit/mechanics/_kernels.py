@@ -13,7 +13,26 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["rod_solve_kernel", "sample_channel_kernel"]
+__all__ = ["foundation_kernel", "rod_solve_kernel", "sample_channel_kernel"]
+
+
+@numba.njit(cache=True)
+def foundation_kernel(s, gap, support_end, k, k_by_mm):  # pragma: no cover - compiled
+    """The foundation's modulus per element of nodes ``s``: ``k`` where the element's
+    middle lies in ``(gap, support_end)``, times ``k_by_mm[int(middle - gap)]`` (the last
+    entry beyond its end; an empty array: no factor); 0 elsewhere."""
+    n = s.size - 1
+    out = np.zeros(n)
+    m = k_by_mm.size
+    for e in range(n):
+        mid = 0.5 * (s[e] + s[e + 1])
+        if gap < mid < support_end:
+            f = 1.0
+            if m > 0:
+                i = int(mid - gap)
+                f = k_by_mm[min(max(i, 0), m - 1)]
+            out[e] = k * f
+    return out
 
 
 @numba.njit(cache=True)

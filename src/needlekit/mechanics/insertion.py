@@ -50,8 +50,10 @@ the accumulated spin about the tangent.
 :meth:`MechanicalNeedle.shaft_loads` feeds back this way) and re-solves the rod.
 
 **Noise** (tissue inhomogeneity), zero by default: with ``inhomogeneity > 0`` and an
-``rng``, each millimetre of depth scales the bevel's load by ``1 + sigma N(0, 1)``
-(clipped at 0) and adds a lateral load ``sigma Q N(0, I_2)`` in the tip's normal plane.
+``rng``, each millimetre of depth scales the tissue's modulus by ``1 + sigma N(0, 1)``
+(clipped at 0): the foundation that holds the shaft there, and the bevel's load (the
+wedged tissue's reaction) while the tip cuts it; and a lateral load ``sigma Q N(0, I_2)``
+is added in the tip's normal plane.
 
 Frames and units: RAS mm, N; the tip frame's z axis is the tangent, the bevel bends the
 needle toward the tip's -y axis (:mod:`needlekit.conventions`), as the planner's arcs
@@ -203,6 +205,7 @@ class MechanicalNeedle:
         self._tip_tan = z
         self._tip_ex = x
         self._noise = np.zeros((0, 3))
+        self._k_by_mm = np.zeros(0)  # the tissue's modulus per millimetre (the noise's first column)
         self._last_force_xy = (0.0, 0.0)
         self._rest_xy = (0.0, 0.0)
         self._history = _ContactHistory()
@@ -242,6 +245,7 @@ class MechanicalNeedle:
             draw = self.rng.normal(0.0, self.inhomogeneity, (16, 3))
             draw[:, 0] = np.maximum(0.0, 1.0 + draw[:, 0])
             self._noise = np.vstack([self._noise, draw])
+            self._k_by_mm = np.ascontiguousarray(self._noise[:, 0])
         return self._noise[i]
 
     def _solve(self) -> None:
@@ -258,6 +262,7 @@ class MechanicalNeedle:
             self.element_mm,
             self._rest_xy,
             self.needle.prebend_length_mm,
+            k_by_mm=self._k_by_mm if self.inhomogeneity > 0.0 else None,
         )
         self.solution = sol
         u, th = sol.offsets_mm[-1], sol.slopes[-1]

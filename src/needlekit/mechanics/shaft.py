@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.mechanics._kernels import rod_solve_kernel
+from needlekit.mechanics._kernels import foundation_kernel, rod_solve_kernel
 from needlekit.mechanics.channel import Channel
 from needlekit.mechanics.rod import (
     assemble_upper_band,
@@ -48,6 +48,9 @@ __all__ = [
     "solve_linear_reference",
     "solve_shaft",
 ]
+
+#: No foundation factors (a homogeneous tissue).
+_NO_FACTORS = np.zeros(0)
 
 #: Shortest element, as a fraction of the element length: nodes closer are merged (a
 #: break such as the support's end then moves by at most this much).
@@ -208,6 +211,7 @@ def solve_shaft(
     rest_curvature_xy: tuple[float, float] = (0.0, 0.0),
     rest_length_mm: float = 0.0,
     *,
+    k_by_mm=None,
     reference: bool = False,
 ) -> ShaftSolution:
     """Solve the shaft against its channel with a lateral tip force (module notes).
@@ -236,6 +240,10 @@ def solve_shaft(
         Stress-free curvature of a pre-bent tip, toward ``e_x`` and ``e_y`` (1/mm).
     rest_length_mm : float
         Length of the pre-bent tip segment (mm); 0 for none.
+    k_by_mm : ndarray, optional
+        The foundation's factor for each whole millimetre of depth (the tissue's
+        inhomogeneity): an element whose middle lies in millimetre ``i`` is held by
+        ``k * k_by_mm[i]`` (the last factor beyond the array's end).
     reference : bool
         Solve with the numpy reference instead of the compiled kernel.
 
@@ -250,7 +258,8 @@ def solve_shaft(
     pos, tan, ex, ey = _reference(channel, guide, s, gap_mm)
     lengths = np.diff(s)
     mid = 0.5 * (s[1:] + s[:-1])
-    k_e = np.where((mid > gap_mm) & (mid < support_end), k, 0.0)
+    factors = _NO_FACTORS if k_by_mm is None else np.ascontiguousarray(k_by_mm, dtype=np.float64)
+    k_e = foundation_kernel(s, float(gap_mm), float(support_end), float(k), factors)
 
     # the reference's end offsets in each element's first-node frame, both planes
     chord = pos[1:] - pos[:-1]
