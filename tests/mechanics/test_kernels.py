@@ -45,3 +45,18 @@ def test_rod_solve_kernel_matches_reference():
     assert np.allclose(fast.slopes, slow.slopes, rtol=0, atol=1e-10 * np.abs(slow.slopes).max())
     f = np.abs(slow.tissue_forces_n).max()
     assert f > 0 and np.allclose(fast.tissue_forces_n, slow.tissue_forces_n, atol=1e-10 * f)
+
+
+def test_foundation_kernel_matches_reference():
+    from needlekit.mechanics._kernels import foundation_kernel
+
+    rng = np.random.default_rng(4)
+    s = np.concatenate([np.linspace(0.0, 10.0, 11), 10.0 + np.cumsum(rng.uniform(0.05, 1.0, 60))])
+    gap, support_end, k = 10.0, float(s[-1]) - 1.4, 0.02
+    mid = 0.5 * (s[1:] + s[:-1])
+    held = (mid > gap) & (mid < support_end)
+    factors = rng.uniform(0.5, 1.5, 20)  # shorter than the depth: the last one beyond
+    want = np.where(held, k * factors[np.clip((mid - gap).astype(int), 0, 19)], 0.0)
+    assert np.array_equal(foundation_kernel(s, gap, support_end, k, factors), want)
+    assert np.array_equal(foundation_kernel(s, gap, support_end, k, np.zeros(0)),
+                          np.where(held, k, 0.0))  # fmt: skip
