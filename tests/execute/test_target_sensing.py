@@ -60,22 +60,31 @@ class _MovingTarget(SimulatedNeedle):
         return self.goal + float(np.clip((self.inserted_mm - a) / (b - a), 0.0, 1.0)) * self.side
 
 
+def _toy_trial(plan, truth, policy, sensing, loops=None):
+    """One seeded trial of ``plan`` on the toy scenario with the truth ``truth(setup,
+    plan)`` registered for it, under ``policy`` and the ``sensing`` policies side by
+    side (re-plans on an iteration budget, a fixed simulated delay)."""
+    TRUTHS.register("test_truth", lambda setup: truth(setup, plan))
+    try:
+        source = ScenarioSource.of(TOY)
+        _, problem = source.cached()
+        settings = ExecutionSettings(sensing=policy, models=Models(truth="test_truth"))
+        options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
+                                 sensing=sensing)  # fmt: skip
+        kw = {} if loops is None else {"loops": loops}
+        return run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0),
+                                 options, **kw)  # fmt: skip
+    finally:
+        TRUTHS.unregister("test_truth")
+
+
 @pytest.fixture(scope="module")
 def moving_trial(toy_plan):
     """One trial on the toy scenario, its target moving under the needle, under the three
     policies side by side."""
     plan, _, _ = read_plan_json(toy_plan)
-    TRUTHS.register("moving_target", lambda setup: _MovingTarget(setup, plan))
-    try:
-        source = ScenarioSource.of(TOY)
-        _, problem = source.cached()
-        # the truth follows its model exactly; the estimator assumes the default noise
-        settings = ExecutionSettings(sensing=EXACT, models=Models(truth="moving_target"))
-        options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
-                                 sensing=("em", "checkpoints", "tracking"))  # fmt: skip
-        rec = run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0), options)
-    finally:
-        TRUTHS.unregister("moving_target")
+    # the truth follows its model exactly; the estimator assumes the default noise
+    rec = _toy_trial(plan, _MovingTarget, EXACT, ("em", "checkpoints", "tracking"))
     return plan, rec
 
 
@@ -178,22 +187,12 @@ def test_a_target_pushed_on_after_the_last_checkpoint_is_reached_by_an_arrival_s
     short; one scan on arrival shows it ahead, the needle goes on, and a second scan
     finds it there."""
     plan, _, _ = read_plan_json(toy_plan)
-    TRUTHS.register("pushed_target", lambda setup: _PushedTarget(setup, plan))
     runs = {}
-    try:
-        source = ScenarioSource.of(TOY)
-        _, problem = source.cached()
-        for confirm in (0, 2):
-            spec = replace(EXACT.checkpoints, every_mm=1000.0, confirm_scans=confirm)
-            policy = replace(EXACT, name="checkpoints", checkpoints=spec)
-            settings = ExecutionSettings(sensing=policy, models=Models(truth="pushed_target"))
-            options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
-                                     sensing=("checkpoints",))  # fmt: skip
-            rec = run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0),
-                                    options, loops=("closed_loop",))  # fmt: skip
-            runs[confirm] = rec.closed_loop
-    finally:
-        TRUTHS.unregister("pushed_target")
+    for confirm in (0, 2):
+        spec = replace(EXACT.checkpoints, every_mm=1000.0, confirm_scans=confirm)
+        policy = replace(EXACT, name="checkpoints", checkpoints=spec)
+        rec = _toy_trial(plan, _PushedTarget, policy, ("checkpoints",), loops=("closed_loop",))
+        runs[confirm] = rec.closed_loop
     short, confirmed = runs[0], runs[2]
     assert short.scans == 0 and short.final_error_mm == pytest.approx(PUSH_MM, abs=0.05)
     assert confirmed.scans == 2 and confirmed.final_error_mm < 0.05
@@ -320,16 +319,7 @@ def test_a_gated_hold_is_settled_by_a_confirmation_scan(toy_plan):
     estimate restarts from the image, the sensor's samples are accepted again, the hold
     ends and the needle reaches the target."""
     plan, _, _ = read_plan_json(toy_plan)
-    TRUTHS.register("kinked", lambda setup: _Kinked(setup, plan))
-    try:
-        source = ScenarioSource.of(TOY)
-        _, problem = source.cached()
-        settings = ExecutionSettings(sensing=EXACT, models=Models(truth="kinked"))
-        options = ExecuteOptions(settings, ReplanPolicy(max_iterations=500, delay_s=0.005),
-                                 sensing=("em", "checkpoints"))  # fmt: skip
-        rec = run_execute_trial(problem, source.without_margin(), plan, trial_seed(3, 0), options)
-    finally:
-        TRUTHS.unregister("kinked")
+    rec = _toy_trial(plan, _Kinked, EXACT, ("em", "checkpoints"))
     em, seen = rec.sensing["em"], rec.sensing["checkpoints"]
     assert [e["action"] for e in em.faults] == ["hold", "abort"]
     assert em.faults[0]["kind"] == "gated" and em.aborted

@@ -174,6 +174,7 @@ class CheckpointImaging:
         self._next_mm = spec.every_mm
         self._scanning: ImageSample | None = None
         self.confirmations = 0  # arrival scans taken
+        self._confirmed_at_mm = -math.inf  # the depth of the last one
 
     def due(self, inserted_mm: float) -> bool:
         """Whether the insertion has reached the next checkpoint (and no scan is under way).
@@ -188,15 +189,22 @@ class CheckpointImaging:
         """
         return self._scanning is None and inserted_mm >= self._next_mm - 1e-9
 
-    def may_confirm(self) -> bool:
-        """Whether an arrival scan may be taken: none under way, and ``confirm_scans`` not
-        used up.
+    def may_confirm(self, inserted_mm: float) -> bool:
+        """Whether an arrival scan may be taken: none under way, ``confirm_scans`` not used
+        up, and the needle gone on since the last one by more than the image's position
+        noise (a scan that found the tip arrived ends the insertion).
+
+        Parameters
+        ----------
+        inserted_mm : float
 
         Returns
         -------
         bool
         """
-        return self._scanning is None and self.confirmations < self.spec.confirm_scans
+        went_on = inserted_mm > self._confirmed_at_mm + max(self.spec.position_sigma_mm, 1e-9)
+        return (self._scanning is None and self.confirmations < self.spec.confirm_scans
+                and went_on)  # fmt: skip
 
     @property
     def pending(self) -> ImageSample | None:
@@ -208,7 +216,8 @@ class CheckpointImaging:
         """Whether a scan is under way (the needle stands still)."""
         return self._scanning is not None
 
-    def scan(self, t: float, inserted_mm: float, tip_pose, target_mm) -> None:
+    def scan(self, t: float, inserted_mm: float, tip_pose, target_mm,
+             arrival: bool = False) -> None:  # fmt: skip
         """Acquire a volume now; its sample arrives ``scan_s`` later.
 
         Parameters
@@ -218,11 +227,16 @@ class CheckpointImaging:
             The true tip.
         target_mm : array_like, shape (3,)
             The true target.
+        arrival : bool
+            An arrival scan (:meth:`may_confirm`): counted among ``confirmations``.
 
         Returns
         -------
         None
         """
+        if arrival:
+            self.confirmations += 1
+            self._confirmed_at_mm = float(inserted_mm)
         s = self.spec
         seen_tip = noisy_pose(tip_pose, s.position_sigma_mm,
                               math.radians(s.orientation_sigma_deg), self.rng)  # fmt: skip

@@ -134,7 +134,6 @@ class TargetSensing:
         self.tip_refused = 0
         self.tip_reseeded = 0
         self._confirmed_hold: int | None = None  # the gated hold a scan was taken for
-        self._confirmed_at_mm = -math.inf  # the depth of the last arrival scan
         self._confirming = False  # the scan under way was taken for it
 
     @classmethod
@@ -257,13 +256,9 @@ class TargetSensing:
             than the image's position noise.
         """
         img = self.imaging
-        if img is None or not img.may_confirm():
+        if img is None or not img.may_confirm(inserted_mm):
             return False
-        if inserted_mm <= self._confirmed_at_mm + max(img.spec.position_sigma_mm, 1e-9):
-            return False  # the last one found the tip there, to within what an image resolves
-        self._confirmed_at_mm = float(inserted_mm)
-        img.confirmations += 1
-        img.scan(t, inserted_mm, tip_pose, self.true_target())
+        img.scan(t, inserted_mm, tip_pose, self.true_target(), arrival=True)
         return True
 
     @property
