@@ -104,3 +104,32 @@ def test_the_tip_pushes_the_lung_target_on(medrad_dir):
     assert np.linalg.norm(moved) > 0.1 and moved @ z > 0.5 * np.linalg.norm(moved)
     # one way: the needle's path is not carried by its own push (no to_rest)
     assert not hasattr(truth, "to_rest")
+
+
+def test_a_sliding_boundary_is_the_lungs_alone():
+    from needlekit.execute.deforming import TissueModel
+
+    with pytest.raises(InvalidInputError, match="boundary_mode"):
+        TissueModel("liver", "folder", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), boundary_mode="sliding")
+    with pytest.raises(InvalidInputError, match="boundary_mode"):
+        TissueModel("lung", "folder", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), boundary_mode="slip")
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_lung_3s_sub_pleural_target_is_pinned_by_a_held_pleura_and_moves_when_it_slides(medrad_dir):
+    # lung 3's nodule lies 4 mm beneath the pleura, in a tetrahedron of held surface nodes
+    from needlekit.execute.deforming import tissue_model_for
+    from needlekit.planning.steerable.plan import SteerablePlan
+    from needlekit.scenario.loading import load_scenario
+    from needlekit.studies.execute_lungs import lung_scenario_document
+
+    sc = load_scenario("lung3.yaml", document=lung_scenario_document(3, 0.0, medrad_dir))
+    goal = np.asarray(sc.goal.point_mm)
+    pose = np.eye(4)
+    pose[:3, 3] = goal - [0.0, 0.0, 20.0]
+    plan = SteerablePlan(pose, np.array([[0.0, 0.0, 20.0]]))
+    held = tissue_model_for(sc, plan, goal)
+    assert held.pinned()["target"] == 1
+    assert held.record()["pinned_points"]["target"] == 1
+    assert "target" not in tissue_model_for(sc, plan, goal, "sliding").pinned()

@@ -57,6 +57,22 @@ def test_compliance_equals_full_solve(lung_problem, lung_compliance):
     assert np.max(np.abs(tissue.mesh_displacement() - full)) <= 1e-9 * np.abs(full).max()
 
 
+def test_a_point_within_a_cell_of_the_held_surface_is_pinned(lung_problem):
+    mesh = lung_problem.mesh
+    held = np.zeros(mesh.n_nodes, bool)
+    held[lung_problem.boundary.held] = True
+    surface_tet = np.flatnonzero(held[mesh.tets].all(axis=1))[0]
+    inner = mesh.nodes_mm[mesh.tets[surface_tet]].mean(axis=0)
+    comp = compute_compliance(lung_problem, CORRIDOR, np.vstack([TRACKED, inner]), (*LABELS, "vessels"))
+    assert comp.pinned().tolist() == [False, False, False, True]
+    # the oracle: a full solve under loads along the corridor moves the others, never it
+    w_c, _ = interpolation(mesh, CORRIDOR)
+    w_t, _ = interpolation(mesh, np.vstack([TRACKED, inner]))
+    f = np.random.default_rng(5).normal(0, 0.05, (len(CORRIDOR), 3))
+    moved = (w_t @ lung_problem.solve(w_c.T @ f.ravel()).ravel()).reshape(-1, 3)
+    assert np.all(np.linalg.norm(moved[:3], axis=1) > 1e-3) and np.all(moved[3] == 0.0)
+
+
 def test_lung_breathing_weights_rise_from_apex_to_base(lung_problem):
     b = lung_problem.boundary
     s = lung_problem.mesh.nodes_mm[b.held, 2]

@@ -8,7 +8,7 @@ import argparse
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_model_flags", "checked_models", "physics_options", "say_model"]
+__all__ = ["add_model_flags", "checked_models", "physics_options", "say_model", "say_pinned"]
 
 #: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
 #: named here so that the parser refuses a wrong one without importing the mechanics.
@@ -63,6 +63,10 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
                    help="a pre-bent tip: its bend toward the bevel over 5 mm (default 0)")  # fmt: skip
     m.add_argument("--inhomogeneity", type=number(0.0, 2.0), default=0.1,
                    help="SD of the tissue's mm-to-mm variation of the tip load (default 0.1)")  # fmt: skip
+    m.add_argument("--tissue-boundary", choices=("organ", "sliding"), default="organ",
+                   help="--truth physical: the organ's boundary (docs/tissue.md): organ (its "
+                   "held surfaces, default) or sliding (lung: the pleura slides, held along "
+                   "its normal only)")  # fmt: skip
     m.add_argument("--calibration-insertions", type=number(2, 10_000, integer=True),
                    default=24, metavar="N",
                    help="curved insertions the loop's model is calibrated from (and N/2 "
@@ -143,11 +147,16 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     if truth == "physical":
         from needlekit.execute.deforming import tissue_model_for
 
-        model = tissue_model_for(scenario, plan, problem.goal_mm)
+        model = tissue_model_for(scenario, plan, problem.goal_mm, args.tissue_boundary)
         if model is None:
             raise InvalidInputError(
                 "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
             )
+        if model.boundary_mode == "sliding" and model.organ != "lung":
+            raise InvalidInputError(
+                "--tissue-boundary", f"sliding is the lung's pleura; the scenario's organ is the {model.organ}"
+            )
+        say_pinned(model)
         s = replace(s, tissue=model)
     n = args.calibration_insertions
     # calibrated on the needle alone: the organ's motion is the loop's to see, not its model's
@@ -155,6 +164,28 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     cal = calibrate_truth(on, plan.start_pose, 1.0 / problem.kappa_max_per_mm,
                           CalibrationSettings(curved=n, straight=max(2, n // 2), seed=args.seed))  # fmt: skip
     return replace(options, settings=replace(s, model=cal))
+
+
+def say_pinned(model) -> None:
+    """One warning line when the organ model cannot move the target (it lies within a cell
+    of a held surface, :meth:`~needlekit.execute.deforming.TissueModel.pinned`; recorded
+    under ``truth.tissue.pinned_points`` too). Meshes the organ (cached) if it was not.
+
+    Parameters
+    ----------
+    model : needlekit.execute.deforming.TissueModel
+
+    Returns
+    -------
+    None
+    """
+    from needlekit.plausibility import warn
+
+    if "target" not in model.pinned():
+        return
+    hint = "; --tissue-boundary sliding lets the pleura slide" if model.organ == "lung" else ""
+    warn([f"the target lies within a cell of the {model.organ}'s held surface: the needle cannot "
+          f"move it in this organ model (its displacement stays 0{hint})"])  # fmt: skip
 
 
 def say_model(settings, problem) -> None:

@@ -49,6 +49,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.execute.physical import MechanicsTruth, mechanics_truth
 from needlekit.tissue.compliance import precompute, resample_polyline
+from needlekit.tissue.fem import BOUNDARY_MODES
 from needlekit.tissue.medrad_organ import ORGAN_FILES, organ_inputs
 from needlekit.tissue.runtime import DeformingTissue
 
@@ -83,6 +84,16 @@ class TissueModel:
     boundary_mode: str = "organ"
     radius_mm: float = 15.0
     per_structure: int = 100
+
+    def __post_init__(self) -> None:
+        if self.organ not in ORGAN_FILES:
+            raise InvalidInputError("organ", f"expected one of {', '.join(ORGAN_FILES)}, got {self.organ!r}")
+        if self.boundary_mode not in BOUNDARY_MODES:
+            raise InvalidInputError(
+                "boundary_mode", f"expected one of {', '.join(BOUNDARY_MODES)}, got {self.boundary_mode!r}"
+            )
+        if self.boundary_mode == "sliding" and self.organ != "lung":
+            raise InvalidInputError("boundary_mode", f"sliding is the lung's pleura, not the {self.organ}'s")
 
     def corridor(self) -> np.ndarray:
         """The corridor's points, shape (m, 3).
@@ -119,9 +130,26 @@ class TissueModel:
             "mesh_nodes": int(c.mesh.n_nodes),
             "corridor_points": len(c.corridor_mm),
             "tracked_points": len(c.tracked_mm),
+            "pinned_points": self.pinned(),
             "material": c.info.get("material"),
             "timings_s": c.info.get("timings_s"),
         }
+
+    def pinned(self) -> dict:
+        """The tracked points the needle cannot move (within a cell of a held surface,
+        :meth:`~needlekit.tissue.compliance.Compliance.pinned`), counted by what they are
+        (``"target"``: 1 when the target is one of them). Empty when every one can move.
+
+        Returns
+        -------
+        dict of str to int
+        """
+        c = self.compliance()
+        out: dict[str, int] = {}
+        for label, pinned in zip(c.tracked_labels, c.pinned(), strict=True):
+            if pinned:
+                out[label] = out.get(label, 0) + 1
+        return out
 
 
 @functools.lru_cache(maxsize=4)

@@ -241,6 +241,19 @@ class Compliance:
     H: np.ndarray
     info: dict = field(default_factory=dict)
 
+    def pinned(self) -> np.ndarray:
+        """Which tracked points no load on the corridor can move: their rows of ``C`` are
+        zero, every node of the tetrahedron holding them held in every direction (a point
+        within a cell of a held surface).
+
+        Returns
+        -------
+        ndarray of bool, shape (p,)
+        """
+        m = len(self.corridor_mm)
+        rows = np.abs(self.C[3 * m :]).reshape(len(self.tracked_mm), -1)
+        return ~np.any(rows > 0.0, axis=1)
+
 
 def compute_compliance(problem: ElasticProblem, corridor_mm, tracked_mm, tracked_labels=None) -> Compliance:
     """The condensed compliance (module notes) from a factorised problem.
