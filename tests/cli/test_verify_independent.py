@@ -104,6 +104,18 @@ def test_a_turned_start_direction_is_named(toy_plan, tmp_path, capsys):
     )
 
 
+def test_a_start_direction_a_rounding_short_of_unit_length_is_the_same_direction(toy_plan, tmp_path, capsys):
+    # an estimated tip after thousands of filter updates: its axis 3e-13 short of unit
+    # length, the plan started from it; arccos of the dot product read 1.05e-6 rad there
+    doc = json.loads(json.dumps(toy_plan))
+    pose = np.asarray(doc["start_pose"])
+    pose[:3, :3] *= 1.0 - 3e-13
+    doc["start_pose"] = pose.tolist()
+    np.savetxt(tmp_path / "start.txt", pose, fmt="%.17g")
+    code, text, _ = _run(capsys, "verify", TOY, _write(tmp_path, doc), "--start-pose", tmp_path / "start.txt")
+    assert code == 0 and text.startswith("ok:"), text
+
+
 def test_start_pose_flag_is_what_the_plan_is_held_to(toy_plan, tmp_path, capsys):
     plan = _write(tmp_path, toy_plan)
     g = np.asarray(toy_plan["start_pose"]).copy()

@@ -52,6 +52,7 @@ from needlekit.control.schedule import (
 from needlekit.control.trial import TrialResult, TrialSetup
 from needlekit.errors import InvalidInputError
 from needlekit.geometry.se3 import pose_from_direction
+from needlekit.geometry.so3 import angle_between
 from needlekit.records import Status
 
 __all__ = ["Phase", "ProcedureSettings", "TrialResult", "TrialSetup", "quintic", "run_trial"]
@@ -181,7 +182,7 @@ def _distance_from_line(p, line) -> float:
 
 
 def _angle_deg(u, v) -> float:
-    return float(np.degrees(np.arccos(np.clip(u @ v, -1.0, 1.0))))
+    return float(np.degrees(angle_between(u, v)))
 
 
 def _rotation_deg(pose: np.ndarray, rotation: np.ndarray) -> float:

@@ -14,6 +14,7 @@ from needlekit._validation import as_batch, as_rotations, unbatch
 from needlekit.constants import SMALL_ANGLE_RAD
 
 __all__ = [
+    "angle_between",
     "hat",
     "hat_unchecked",
     "rot_x",
@@ -261,3 +262,32 @@ def rot_z(angle):
     ndarray, shape (3, 3) or (n, 3, 3)
     """
     return _axis_rotation(angle, 2)
+
+
+def angle_between(u, v) -> np.ndarray:
+    """The angle (rad) between directions ``u`` and ``v`` (any lengths), row by row:
+    ``atan2(|u x v|, u . v)``, exact at 0 and pi where ``arccos`` of the normalised dot
+    product loses half the digits (two unit vectors equal to 1e-13 in length give
+    ``arccos`` 1e-6 rad, not 0).
+
+    Parameters
+    ----------
+    u, v : array_like, shape (..., 3)
+        Broadcast against each other.
+
+    Returns
+    -------
+    ndarray
+        Shape of the broadcast without the last axis (a 0-d array for two vectors).
+
+    Examples
+    --------
+    >>> z = np.array([0.0, 0.0, 1.0])
+    >>> float(angle_between(z * (1 - 3e-13), z))
+    0.0
+    >>> round(float(np.degrees(angle_between([1.0, 0.0, 0.0], [1.0, 1.0, 0.0]))), 12)
+    45.0
+    """
+    a = np.asarray(u, dtype=np.float64)
+    b = np.asarray(v, dtype=np.float64)
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))

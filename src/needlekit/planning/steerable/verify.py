@@ -43,6 +43,7 @@ import numpy as np
 from needlekit.anatomy.collision import ClearanceCertificate
 from needlekit.constants import MOTION_SPACING_MM, VERIFY_SPACING_MM
 from needlekit.geometry.arcs import arc_points_unchecked, propagate_arcs, samples_for_spacing
+from needlekit.geometry.so3 import angle_between
 from needlekit.planning.result import Verification
 from needlekit.planning.steerable.cost import plan_cost
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -258,8 +259,7 @@ def _start_violations(problem: SteerableProblem, start: np.ndarray) -> list[str]
     if not moved <= START_TOLERANCE_MM:
         bad.append(f"start: the plan starts {moved:.4f} mm from the problem's start point")
     if problem.start_pose is not None:
-        cos = float(np.clip(start[:3, 2] @ problem.start_pose[:3, 2], -1.0, 1.0))
-        turned = float(np.arccos(cos))
+        turned = float(angle_between(start[:3, 2], problem.start_pose[:3, 2]))
         if not turned <= START_TOLERANCE_RAD:
             bad.append(
                 f"start: the plan's insertion direction is {np.degrees(turned):.4f} deg from "

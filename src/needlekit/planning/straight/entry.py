@@ -29,6 +29,7 @@ import numpy as np
 
 from needlekit.constants import RECORD_ROUNDING_ALLOWANCE_MM
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.so3 import angle_between
 from needlekit.planning.straight.certify import certified_entry, certify_needle, record_point
 from needlekit.planning.straight.cfrw import Blocked, CFRWMap, inside_polylines
 from needlekit.planning.straight.problem import angles_of
@@ -378,10 +379,10 @@ def grid_refinement_entry(
         if p1 - p0 < 2 * np.pi - 1e-9:
             ok &= (phi >= p0 - 1e-12) & (phi <= p1 + 1e-12)
         n = surface.normal(u, v)
-        cos_in = np.sum(dirs * n, axis=1)  # the needle goes along -dirs, inward is -n
-        ok &= np.degrees(np.arccos(np.clip(cos_in, -1, 1))) <= pr.max_normal_angle_deg + 1e-9
+        # the needle goes along -dirs, inward is -n: the same angle as dirs to n
+        ok &= np.degrees(angle_between(dirs, n)) <= pr.max_normal_angle_deg + 1e-9
         if pr.approach_direction is not None and pr.approach_cone_deg < 180.0:
-            off = np.degrees(np.arccos(np.clip(dirs @ pr.approach_direction, -1, 1)))
+            off = np.degrees(angle_between(dirs, pr.approach_direction))
             ok &= off <= pr.approach_cone_deg + 1e-9
         if polys is not None:
             local = d @ sigma[:3, :3]
@@ -448,7 +449,7 @@ def grid_refinement_entry(
     p, theta, phi, cert, it, u0, v0 = best
     nrm = surface.normal(np.array([u0]), np.array([v0]))[0]
     dirs = (p - target) / np.linalg.norm(p - target)
-    angle = float(np.degrees(np.arccos(np.clip(dirs @ nrm, -1.0, 1.0))))
+    angle = float(np.degrees(angle_between(dirs, nrm)))
     # as the record holds it: the certified points, length and clearance
     tip, entry = record_point(target), record_point(p)
     return Entry(entry, tip, theta, phi, cert.length_mm, cert.clearance_mm, angle, it)

@@ -120,8 +120,7 @@ def angles_of(directions, world_T_sigma: np.ndarray) -> tuple[np.ndarray, np.nda
     """
     d = np.asarray(directions, dtype=float).reshape(-1, 3)
     local = d @ world_T_sigma[:3, :3]
-    local = local / np.linalg.norm(local, axis=1, keepdims=True)
-    theta = np.arccos(np.clip(local[:, 2], -1.0, 1.0))
+    theta = np.arctan2(np.hypot(local[:, 0], local[:, 1]), local[:, 2])
     phi = np.arctan2(local[:, 1], local[:, 0])
     return theta, phi
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from needlekit.anatomy.needle_body import LIU_HEAD, NeedleBody
 from needlekit.constants import STRAIGHT_CHECK_STEP_MM
+from needlekit.geometry.so3 import angle_between
 from needlekit.planning.result import Verification
 from needlekit.planning.straight.certify import certify_needle
 from needlekit.planning.straight.problem import StraightProblem, angles_of
@@ -110,13 +111,13 @@ def verify_multi(problem: StraightProblem, record: dict, *, head=LIU_HEAD) -> Ve
         ):
             bad.append(f"{name}: phi {np.degrees(phi):.3f} deg outside {problem.phi_range_deg}")
         if problem.approach_direction is not None and problem.approach_cone_deg < 180.0:
-            off = float(np.degrees(np.arccos(np.clip(u @ problem.approach_direction, -1, 1))))
+            off = float(np.degrees(angle_between(u, problem.approach_direction)))
             if off > problem.approach_cone_deg + np.degrees(ANGLE_TOL_RAD):
                 bad.append(
                     f"{name}: {off:.2f} deg off the approach direction, limit {problem.approach_cone_deg:g}"
                 )
         g = body.gradient(entry[None])[0]
-        angle = float(np.degrees(np.arccos(np.clip(u @ g / np.linalg.norm(g), -1.0, 1.0))))
+        angle = float(np.degrees(angle_between(u, g)))
         row["normal_angle_deg"] = angle
         if angle > problem.max_normal_angle_deg + np.degrees(ANGLE_TOL_RAD):
             bad.append(

@@ -10,6 +10,7 @@ import numpy as np
 
 from needlekit.constants import RECORD_ROUNDING_ALLOWANCE_MM
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.so3 import angle_between
 from needlekit.planning.straight.angle_grid import grid_shape
 from needlekit.planning.straight.cfrw.bounds import (
     CLEARANCE_CAP_ABOVE_GAMMA_MM,
@@ -73,7 +74,7 @@ def cfrw_map(
     n = len(flat)
     blocked = np.zeros(n, dtype=np.int64)
     if problem.approach_direction is not None and problem.approach_cone_deg < 180.0:
-        off = np.degrees(np.arccos(np.clip(flat @ problem.approach_direction, -1.0, 1.0)))
+        off = np.degrees(angle_between(flat, problem.approach_direction))
         blocked[off > problem.approach_cone_deg + 1e-9] = Blocked.ANGLE_LIMIT
     free = blocked == 0
     length = np.full(n, np.inf)
@@ -89,7 +90,7 @@ def cfrw_map(
         g = body.gradient(entry[has])
         g = g / np.linalg.norm(g, axis=1, keepdims=True)
         # the needle goes in along -u; the inward normal is -g: the angle between them
-        normal_angle[has] = np.degrees(np.arccos(np.clip(np.sum(flat[has] * g, axis=1), -1, 1)))
+        normal_angle[has] = np.degrees(angle_between(flat[has], g))
     blocked[(blocked == 0) & (normal_angle > problem.max_normal_angle_deg + 1e-9)] = (
         Blocked.NORMAL_ANGLE
     )
