@@ -23,7 +23,8 @@ def test_a_needle_without_noise_is_learnt_exactly():
                     CalibrationSettings(curved=3, straight=2))  # fmt: skip
     assert cal.r_min_mm == pytest.approx(50.0, rel=1e-12)
     for name in ("radius_sigma_mm", "orientation_sigma_rad", "deflection_sigma",
-                 "residual_rms_mm", "residual_max_mm", "end_error_mean_mm"):  # fmt: skip
+                 "residual_rms_mm", "residual_max_mm", "end_error_mean_mm",
+                 "axis_slip_rad"):  # fmt: skip
         assert getattr(cal, name) < 1e-9, name
 
 
@@ -68,6 +69,25 @@ def test_a_tip_that_slips_off_its_axis_has_its_drift_learnt_as_position_noise():
     assert cal.residual_max_mm == pytest.approx(0.2 * 80.0, rel=0.05)
 
 
+def test_a_tip_whose_axis_is_not_its_travel_has_the_angle_and_its_correlation_learnt():
+    """The slipping needle's curved insertions travel off their axis by
+    ``atan(0.2)`` (the slip is across the bisector of the step's axes), its straight ones
+    along it: per lateral component ``sin(atan 0.2) sqrt(curved / (curved + straight) / 2)``.
+    A constant angle is correlated over the whole insertion: its pooled autocorrelation
+    at lag ``L`` of ``n`` steps is ``(n - L) / n``, whose integral is half the insertion."""
+    make = lambda p, rng: _SlippingNeedle(p, 50.0, ExecutionNoise.none(), rng)  # noqa: E731
+    cal = calibrate(make, 1 / 50.0, CalibrationSettings(curved=4, straight=2))
+    assert cal.axis_slip_rad == pytest.approx(0.2 / math.sqrt(1.04) * math.sqrt(4 / 6 / 2), rel=1e-4)
+    assert cal.axis_slip_mm == pytest.approx(80.0 / 2, rel=1e-9)
+    # sampled every 0.05 mm, one correlation holds 2 * 40 / 0.05 samples
+    assert cal.tilt_sigma_rad(0.05) == pytest.approx(cal.axis_slip_rad * math.sqrt(1600), rel=1e-12)
+    assert cal.tilt_sigma_rad(1e3) == cal.axis_slip_rad
+    # a needle that goes where it points: no slip
+    exact = calibrate(kinematic(50.0, ExecutionNoise.none()), 1 / 50.0,
+                      CalibrationSettings(curved=3, straight=2))  # fmt: skip
+    assert exact.axis_slip_rad < 1e-9
+
+
 def test_a_needle_that_curves_less_than_planned_is_commanded_in_its_own_units():
     # the truth reads 1/50 as the bevel held, but curves with r = 80 mm in this tissue
     cal = calibrate(lambda p, rng: SimulatedNeedle(p, 50.0, ExecutionNoise.none(), rng),
@@ -103,6 +123,9 @@ def test_the_record_round_trips_and_its_fields_are_checked():
                     CalibrationSettings(curved=3, straight=2))  # fmt: skip
     assert Calibration.from_dict(cal.to_dict()) == cal
     assert cal.noise().radius_sigma_mm == cal.radius_sigma_mm
+    # a record written before the slip was learnt reads as no slip
+    older = {k: v for k, v in cal.to_dict().items() if not k.startswith("axis_slip")}
+    assert Calibration.from_dict(older).axis_slip_rad == 0.0
     bad = cal.to_dict() | {"r_min_mm": "fifty"}
     with pytest.raises(InvalidInputError, match="r_min_mm"):
         Calibration.from_dict(bad, "execute.json: calibration")

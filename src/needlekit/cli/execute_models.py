@@ -5,6 +5,7 @@ each name checked before any work, a wrong one refused with the names known."""
 from __future__ import annotations
 
 import argparse
+import math
 
 from needlekit.errors import InvalidInputError
 
@@ -207,6 +208,9 @@ def say_model(settings, problem) -> None:
     line = (f"calibrated on {cal.curved + cal.straight} insertions of the {settings.models.truth} "
             f"truth: r {cal.r_min_mm:.1f} mm (the plan's needle {r_plan:.1f} mm), model replay "
             f"rms {cal.residual_rms_mm:.2f} mm")  # fmt: skip
+    if cal.axis_slip_rad > 0.0:
+        line += (f"; its tip's axis off its travel {math.degrees(cal.axis_slip_rad):.1f} deg RMS, "
+                 f"correlated over {cal.axis_slip_mm:.0f} mm")  # fmt: skip
     if cal.r_min_mm > 1.05 * r_plan:
         line += "; the plan asks for tighter turns than this needle makes"
     print(line)

@@ -27,6 +27,19 @@ does, from insertions in the same tissue, observed pose by pose:
   For the kinematic needle the drift is its constant push, and the pooled RMS is the
   push's SD as the straight insertions alone give it.
 
+- **The tip's axis against its travel.** A needle that bends by mechanics does not go
+  where its tip points: a pre-bent tip in soft tissue points up to 19 degrees further into
+  its bend than it travels while the shaft behind it catches up, and again after every
+  spin. Each step's travel ``p_{k+1} - p_k`` is compared with the model's direction over
+  it (the bisector of the axes ``z_k`` and ``z_{k+1}``, along which an arc's chord runs):
+  ``axis_slip_rad`` is the RMS of that angle per lateral component, over every step of
+  every insertion, and ``axis_slip_mm`` its correlation length (the integral of its
+  autocorrelation along the insertion, pooled, up to the first lag where it falls to
+  zero). The slip is a bias that lasts tens of millimetres, not noise: a filter that
+  takes the measured tilt as the heading steers the path by it. The estimator is told so
+  (:func:`~needlekit.execute.estimator.estimator_arguments`): the kinematic needle's is
+  its constant push.
+
 The residuals say how well the calibrated model predicts the needle: every curved insertion
 is replayed by the model (the same start, roll and command, the calibrated curvature, no
 noise) and the distance between the two tips is taken every recorded millimetre.
@@ -123,6 +136,10 @@ class Calibration:
         The calibrated model's replay against every curved insertion, every millimetre.
     end_error_mean_mm, end_error_sd_mm : float
         The same at the insertions' ends.
+    axis_slip_rad : float
+        RMS angle, per lateral component, between the tip's axis and its travel.
+    axis_slip_mm : float
+        That angle's correlation length along the insertion.
     curved, straight : int
         The insertions it was learnt from.
     length_mm, step_mm, speed_mm_s : float
@@ -139,6 +156,8 @@ class Calibration:
     residual_max_mm: float
     end_error_mean_mm: float
     end_error_sd_mm: float
+    axis_slip_rad: float
+    axis_slip_mm: float
     curved: int
     straight: int
     length_mm: float
@@ -182,6 +201,27 @@ class Calibration:
         """
         return {name: getattr(self, name) for name in self.__dataclass_fields__}
 
+    def tilt_sigma_rad(self, sample_spacing_mm: float) -> float:
+        """The SD a white measurement noise on the tip's tilt must have to stand for the
+        slip (:attr:`axis_slip_rad`, correlated over :attr:`axis_slip_mm`) when the tip
+        is measured every ``sample_spacing_mm`` of insertion: the slip's variance times
+        the samples one correlation holds, ``2 l / spacing`` (at least 1), so that the
+        filter's average of the tilts over a correlation length is as uncertain as one
+        slip.
+
+        Parameters
+        ----------
+        sample_spacing_mm : float
+            Insertion between two samples (mm, > 0).
+
+        Returns
+        -------
+        float
+        """
+        Bounds(0.0, MAX_ABS_MM, low_open=True, unit="mm").check(sample_spacing_mm, "sample_spacing_mm")
+        n = max(1.0, 2.0 * self.axis_slip_mm / sample_spacing_mm)
+        return self.axis_slip_rad * math.sqrt(n)
+
     @classmethod
     def from_dict(cls, data: dict, where: str = "calibration") -> Calibration:
         """Rebuild from :meth:`to_dict`, every field checked.
@@ -199,8 +239,41 @@ class Calibration:
         values = {}
         for name in cls.__dataclass_fields__:
             kind = "int" if name in ("curved", "straight") else "number"
-            values[name] = field_of(data, name, where, kind)
+            optional = name in _ADDED_FIELDS  # a record written before they were learnt
+            values[name] = field_of(data, name, where, kind, optional=optional)
+            if values[name] is None:
+                values[name] = 0.0
         return cls(**values)
+
+
+#: Calibration fields a record written by an earlier version lacks (read as 0: no slip).
+_ADDED_FIELDS = ("axis_slip_rad", "axis_slip_mm")
+
+
+def _slip(poses: np.ndarray) -> np.ndarray:
+    """Each step's travel off the model's direction over it (the bisector of the two axes),
+    its lateral part, shape (n, 3): about the angle in radians."""
+    travel = np.diff(poses[:, :3, 3], axis=0)
+    travel /= np.maximum(np.linalg.norm(travel, axis=1, keepdims=True), 1e-300)
+    mid = poses[:-1, :3, 2] + poses[1:, :3, 2]
+    mid /= np.maximum(np.linalg.norm(mid, axis=1, keepdims=True), 1e-300)
+    return travel - np.sum(travel * mid, axis=1, keepdims=True) * mid
+
+
+def _correlation_length(series: list[np.ndarray], step: float) -> float:
+    """The integral of the pooled autocorrelation of vector series along the insertion
+    (mm), summed up to the first lag where it is no longer positive."""
+    total = sum(float(np.sum(x * x)) for x in series)
+    if total <= 0.0:
+        return 0.0
+    longest = max(len(x) for x in series)
+    length = 0.5  # the lag-0 term of the trapezoid
+    for lag in range(1, longest):
+        rho = sum(float(np.sum(x[:-lag] * x[lag:])) for x in series if len(x) > lag) / total
+        if rho <= 0.0:
+            break
+        length += rho
+    return length * step
 
 
 def _insert(truth, spin: float, kappa: float, n: int, step: float, dt: float) -> np.ndarray:
@@ -276,6 +349,7 @@ def calibrate(
     radius_sigma = math.sqrt(max(float(radii_a.var(ddof=1)) - noise_var, 0.0))
 
     drift = []  # per step, per millimetre: what the model's own step does not explain
+    slips = [_slip(poses) for poses in curved_poses]
     for poses in curved_poses:
         for k in range(n):
             model = arc_end_unchecked(np.ascontiguousarray(poses[k]), 0.0, 1.0 / r_min, step)
@@ -285,6 +359,9 @@ def calibrate(
         poses = _insert(truth, 0.0, 0.0, n, step, dt)
         d = poses[1:, :3, 3] - poses[:-1, :3, 3] - poses[:-1, :3, 2] * step
         drift.extend(d / step)
+        slips.append(_slip(poses))
+    slip_all = np.concatenate(slips)
+    axis_slip = math.sqrt(float(np.mean(np.sum(slip_all**2, axis=1))) / 2.0)
     # two lateral components' worth: the push is drawn across the insertion's axis
     deflection = math.sqrt(float(np.mean(np.sum(np.array(drift) ** 2, axis=1))) / 2.0)
 
@@ -313,6 +390,8 @@ def calibrate(
         residual_max_mm=float(allerr.max()),
         end_error_mean_mm=float(ends_a.mean()),
         end_error_sd_mm=float(ends_a.std(ddof=1)),
+        axis_slip_rad=axis_slip,
+        axis_slip_mm=_correlation_length(slips, step),
         curved=s.curved,
         straight=s.straight,
         length_mm=float(s.length_mm),

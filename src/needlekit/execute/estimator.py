@@ -19,6 +19,17 @@ arrives: the filter goes back to the estimate of the moment it was taken (it kee
 steps of the last half second), corrects it, and replays the steps since. The update is
 the standard one with ``H = I`` on the innovation ``(z_p - p_hat, log(z_R R_hat^T))``,
 the covariance in Joseph form.
+
+**The tilt is not the heading.** The filter's pose is the frame its model moves along
+``z``. A needle that bends by mechanics does not travel where its tip points (a pre-bent
+tip in soft tissue points up to 19 degrees further into its bend than it goes, for tens of
+millimetres: :mod:`needlekit.execute.calibration`). With ``tilt_sigma_rad`` the measured
+tilt (the rotation about the tip's own x and y axes) is taken with that much more noise,
+``R_meas`` plus ``R diag(s^2, s^2, 0) R^T`` at the estimate's orientation ``R``; the roll
+about the axis keeps the sensor's. The heading is then learnt from where the tip goes (the
+positions, through the covariance), and a slip that lasts cannot steer the path by it.
+``axis_slip_rad`` is the slip itself: a restart from an image (:meth:`TipEstimator.reseed`)
+doubts the image's tilt by that much.
 """
 
 from __future__ import annotations
@@ -80,6 +91,13 @@ def _gain(S, P, y):  # pragma: no cover (compiled)
     return X[:, :6].T.copy(), d2, True
 
 
+def _tilt_block(rot: np.ndarray, var: float) -> np.ndarray:
+    """World-frame covariance of rotations about the tip's own x and y axes, each of
+    variance ``var``: ``R diag(var, var, 0) R^T``."""
+    xy = rot[:, :2]
+    return var * (xy @ xy.T)
+
+
 class TipEstimator:
     """A Kalman filter on the tip pose (see the module notes).
 
@@ -97,6 +115,10 @@ class TipEstimator:
         The sensor's noise.
     bias_scale : float
         Widens the curvature's and the tissue's share of the process noise.
+    tilt_sigma_rad : float
+        Added SD of a measured tilt (module notes; default 0: the sensor's alone).
+    axis_slip_rad : float
+        SD of the tip's axis off its travel (a restart's doubt of an image's tilt).
     """
 
     def __init__(
@@ -110,8 +132,13 @@ class TipEstimator:
         position_sigma_mm: float,
         orientation_sigma_rad: float,
         bias_scale: float = 3.0,
+        tilt_sigma_rad: float = 0.0,
+        axis_slip_rad: float = 0.0,
     ) -> None:
         g = np.asarray(start_pose, dtype=np.float64)
+        for name, value in (("tilt_sigma_rad", tilt_sigma_rad), ("axis_slip_rad", axis_slip_rad)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise InvalidInputError(name, f"expected a finite number >= 0, got {value!r}")
         if g.shape != (4, 4) or not np.all(np.isfinite(g)):
             raise InvalidInputError("start_pose", "expected a 4x4 matrix of finite numbers")
         self.pose = np.ascontiguousarray(g.copy())
@@ -120,6 +147,8 @@ class TipEstimator:
         self.noise = noise
         self.bias_scale = float(bias_scale)
         self.R_meas = np.diag([position_sigma_mm**2] * 3 + [orientation_sigma_rad**2] * 3)
+        self.tilt_var = float(tilt_sigma_rad) ** 2
+        self.slip_var = float(axis_slip_rad) ** 2
         self.t = 0.0
         self._steps: deque = deque()  # (t before, pose before, P before, command)
         self.n_updates = 0
@@ -207,7 +236,11 @@ class TipEstimator:
         else:
             pose, P = self.pose, self.P
         y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
-        S = P + self.R_meas
+        R_meas = self.R_meas
+        if self.tilt_var > 0.0:  # the tilt about the tip's own x and y: the slip's doubt
+            R_meas = R_meas.copy()
+            R_meas[3:, 3:] += _tilt_block(pose[:3, :3], self.tilt_var)
+        S = P + R_meas
         K, d2, ok = _gain(S, P, y)
         if not ok:  # S not positive definite in floating point: LU
             sol = np.linalg.solve(S, np.column_stack((P, y)))
@@ -221,7 +254,7 @@ class TipEstimator:
         pose[:3, :3] = so3_exp_unchecked(dx[3:]) @ pose[:3, :3]
         pose = np.ascontiguousarray(pose)
         A = np.eye(6) - K
-        P = A @ P @ A.T + K @ self.R_meas @ K.T
+        P = A @ P @ A.T + K @ R_meas @ K.T
         # replay the steps since, from the corrected estimate (and rewrite their history)
         kept = deque(s for s in self._steps if s[0] < taken_s - TIME_TOL_S)
         for t0, _, _, command in replay:
@@ -247,6 +280,8 @@ class TipEstimator:
         """
         self.pose = np.ascontiguousarray(np.asarray(pose, dtype=np.float64).copy())
         self.P = np.diag([position_sigma_mm**2] * 3 + [orientation_sigma_rad**2] * 3)
+        if self.slip_var > 0.0:  # the image shows the tip's axis, not its travel
+            self.P[3:, 3:] += _tilt_block(self.pose[:3, :3], self.slip_var)
         self._steps.clear()
 
     @property
@@ -273,15 +308,21 @@ def estimator_arguments(setup) -> dict:
     dict
         Keyword arguments of :class:`TipEstimator` (and of the other estimators).
     """
-    sensor = setup.settings.sensor
-    return {
+    s = setup.settings
+    sensor = s.sensor
+    out = {
         "start_sigma_mm": sensor.position_sigma_mm,
         "start_sigma_rad": math.radians(sensor.orientation_sigma_deg),
         "r_min_mm": setup.r_min_mm,
-        "noise": setup.settings.noise,
+        "noise": s.noise,
         "position_sigma_mm": sensor.position_sigma_mm,
         "orientation_sigma_rad": math.radians(sensor.orientation_sigma_deg),
     }
+    model = s.model  # a calibrated model knows how far the tip's axis leaves its travel
+    if model is not None and model.axis_slip_rad > 0.0:
+        out["tilt_sigma_rad"] = model.tilt_sigma_rad(s.insertion_speed_mm_s / sensor.rate_hz)
+        out["axis_slip_rad"] = model.axis_slip_rad
+    return out
 
 
 def kalman_estimator(setup) -> TipEstimator:
