@@ -281,8 +281,13 @@ def sensing_table(per_policy: dict) -> str:
     str
     """
     rows = [
-        _policy_row(f"sensing, {name}", r, r["target_displacement_max_mm"].get("max"),
-                    r["target_error_mm"].get("mean"), r["scans"].get("mean"))  # fmt: skip
+        _policy_row(
+            f"sensing, {name}",
+            r,
+            r["target_displacement_max_mm"].get("max"),
+            r["target_error_mm"].get("mean"),
+            r["scans"].get("mean"),
+        )
         for name, r in per_policy.items()
     ]
     return _fmt_table(

@@ -210,7 +210,7 @@ def say_model(settings, problem) -> None:
             f"rms {cal.residual_rms_mm:.2f} mm")  # fmt: skip
     if cal.axis_slip_rad > 0.0:
         line += (f"; its tip's axis off its travel {math.degrees(cal.axis_slip_rad):.1f} deg RMS, "
-                 f"correlated over {cal.axis_slip_mm:.0f} mm")  # fmt: skip
+                 f"correlated over {cal.axis_slip_mm:.1f} mm")  # fmt: skip
     if cal.r_min_mm > 1.05 * r_plan:
         line += "; the plan asks for tighter turns than this needle makes"
     print(line)

@@ -43,7 +43,6 @@ import numpy as np
 from needlekit._validation import as_points
 from needlekit.anatomy.fields import LazyField
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.so3 import angle_between
 from needlekit.records import field_of
 
 __all__ = [
@@ -395,6 +394,8 @@ def approach_analysis(
     # the line from the target reaches the skin first at its own triangle
     t_first, face_first = skin_hits.first_hit(ends, centres)
     leaves = (face_first != np.arange(n)) & (t_first < 1.0 - _OWN_FACE_SLACK)
+    from needlekit.geometry.so3 import angle_between  # numba: loaded when analysed
+
     normal_angle = np.degrees(angle_between(u, normals))
     clearance = None
     ok = ~hit & ~leaves & (length <= max_length_mm) & (normal_angle <= max_normal_angle_deg)
