@@ -148,14 +148,15 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     if truth == "physical":
         from needlekit.execute.deforming import tissue_model_for
 
+        organ = getattr(base, "organ", None)
+        if args.tissue_boundary == "sliding" and organ not in (None, "lung"):  # the flag named
+            raise InvalidInputError(
+                "--tissue-boundary", f"sliding is the lung's pleura; the scenario's organ is the {organ}"
+            )
         model = tissue_model_for(scenario, plan, problem.goal_mm, args.tissue_boundary)
         if model is None:
             raise InvalidInputError(
                 "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
-            )
-        if model.boundary_mode == "sliding" and model.organ != "lung":
-            raise InvalidInputError(
-                "--tissue-boundary", f"sliding is the lung's pleura; the scenario's organ is the {model.organ}"
             )
         say_pinned(model)
         s = replace(s, tissue=model)
