@@ -421,10 +421,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
             guard.await_settling(sensing.confirmation_due_s)
         if held or scanning or (policy is not None and not policy.may_advance(t)):
             phase = "held" if held else "scanning" if scanning else "gated"  # it does not go in
-            if policy is not None:  # let go, it rides with the tissue
-                _ride(needle, est, policy, t, s.dt_s)
-            else:
-                est.predict(0.0, 0.0, 0.0, s.dt_s)
+            _stand_still(needle, est, policy, t, s.dt_s)
             if phase == "held":
                 guard.held_step(s.dt_s)
             k += 1
@@ -451,10 +448,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
             if sensing is None or not sensing.confirm_arrival(t, needle.inserted_mm, needle.pose):
                 break
             # an arrival scan holds the needle: the next steps wait for it as for any scan
-            if policy is not None:
-                _ride(needle, est, policy, t, s.dt_s)
-            else:
-                est.predict(0.0, 0.0, 0.0, s.dt_s)
+            _stand_still(needle, est, policy, t, s.dt_s)
             k += 1
             t = k * s.dt_s
             path.record(None if policy is None else policy.trace.actual(t))
@@ -528,9 +522,13 @@ def _target_seed(ss: np.random.SeedSequence) -> np.random.SeedSequence:
     return np.random.SeedSequence(ss.entropy, spawn_key=(*ss.spawn_key, 4), pool_size=ss.pool_size)
 
 
-def _ride(needle, est, policy, t: float, dt: float) -> None:
-    """A gated step: the needle, let go, rides with the tissue; the estimate follows the
-    predicted motion."""
+def _stand_still(needle, est, policy, t: float, dt: float) -> None:
+    """A step that does not insert (held, scanning, gated): the estimate waits; under a
+    breathing policy the needle, let go, rides with the tissue and the estimate follows
+    the predicted motion."""
+    if policy is None:
+        est.predict(0.0, 0.0, 0.0, dt)
+        return
     shift, known = policy.carried(t, t + dt, False)
     needle.step(0.0, 0.0, 0.0, dt)
     needle.pose[:3, 3] += shift
