@@ -5,6 +5,7 @@ loop's commands as duty cycles and solved at 40 Hz, and the rod in the deforming
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -58,6 +59,23 @@ def test_between_solves_the_tip_goes_on_along_its_tangent():
     assert t.inserted_mm == pytest.approx(0.07)
 
 
+def test_a_carried_rod_keeps_its_offset_through_its_solves():
+    carried, still = MechanicsTruth(_rod(), 50.0), MechanicsTruth(_rod(), 50.0)
+    v = np.array([1.0, -2.0, 0.5])
+    for i in range(400):  # 20 mm: carried by v at 5 mm, between two solves
+        if i == 100:
+            carried.step(0.0, 1 / 50.0, 0.05, 0.01)
+            carried.carry(v)
+            still.step(0.0, 1 / 50.0, 0.05, 0.01)
+            continue
+        carried.step(0.0, 1 / 50.0, 0.05, 0.025)
+        still.step(0.0, 1 / 50.0, 0.05, 0.025)
+    assert carried.pose[:3, 3] == pytest.approx(still.pose[:3, 3] + v, abs=1e-12)
+    assert carried.pose[:3, :3] == pytest.approx(still.pose[:3, :3], abs=1e-12)
+    pts = np.asarray(carried.shaft_loads()["points_mm"]) - np.asarray(still.shaft_loads()["points_mm"])
+    assert pts == pytest.approx(np.tile(v, (len(pts), 1)), abs=1e-3)
+
+
 @pytest.mark.parametrize(
     ("kw", "field"),
     [({"needle": "copper"}, "needle"), ({"tissue": "brain"}, "tissue"),
@@ -70,9 +88,9 @@ def test_bad_mechanics_settings_name_their_field(kw, field):
         MechanicsSettings(**kw)
 
 
-@pytest.mark.realdata
-@pytest.mark.slow
-def test_the_tip_pushes_the_lung_target_on(medrad_dir):
+def _lung1_straight(medrad_dir):
+    """Med-RAD lung 1's physical truth with a straight plan from its start at its target:
+    (truth, plan, goal, insertion axis, depth)."""
     from needlekit.execute.deforming import tissue_model_for
     from needlekit.execute.plugins import TRUTHS, Setup
     from needlekit.execute.run import ExecutionSettings
@@ -96,14 +114,50 @@ def test_the_tip_pushes_the_lung_target_on(medrad_dir):
     settings = ExecutionSettings(tissue=model, mechanics=MechanicsSettings(inhomogeneity=0.0))
     truth = TRUTHS.get("physical")(Setup(pose, goal, 50.0, settings, np.random.default_rng(0)))
     assert model.record()["mesh_tetrahedra"] >= 50_000
+    return truth, plan, goal, z, depth, settings
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_tip_pushes_the_lung_target_on(medrad_dir):
+    truth, _, goal, z, depth, _ = _lung1_straight(medrad_dir)
     assert truth.target_mm() == pytest.approx(goal, abs=1e-9)
     while truth.inserted_mm < depth - 5.0:  # up to 5 mm short of the target
         truth.step(0.0, 0.0, 0.05, 0.025)
     moved = truth.target_mm() - goal
     # the tip's cutting load pushes the target on, along the insertion
     assert np.linalg.norm(moved) > 0.1 and moved @ z > 0.5 * np.linalg.norm(moved)
-    # one way: the needle's path is not carried by its own push (no to_rest)
-    assert not hasattr(truth, "to_rest")
+    # one way: the needle's path is not carried by its own push, only by breathing
+    tip = truth.pose[None, :3, 3]
+    assert truth.to_rest(tip) == pytest.approx(tip, abs=1e-12)
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_the_lung_breathes_through_its_mesh_and_a_needle_let_go_rides_with_it(medrad_dir):
+    truth, _, goal, _, _, _ = _lung1_straight(medrad_dir)
+    d = np.array([0.0, 0.0, -5.0])  # the lung preset's full breath, inferior
+    truth.breathe(d)
+    moved = truth.target_mm() - goal
+    # the pleura moves by w d, w from 0 at the apex to 1 at the base: the target by part of d
+    assert 0.5 < moved @ d / (d @ d) < 1.0
+    truth.breathe(np.zeros(3))
+    while truth.inserted_mm < 20.0:
+        truth.step(0.0, 0.0, 0.05, 0.025)
+    d0, d1 = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, -4.0])
+    truth.breathe(d0)
+    here = truth.to_rest(truth.pose[None, :3, 3])
+    # the world point is the rest point carried by the organ's breathing, exactly inverted
+    back = here + truth.tissue.breathing_field(here, d0)
+    assert back == pytest.approx(truth.pose[None, :3, 3], abs=1e-6)
+    shift = truth.riding(d0, d1)
+    truth.step(0.0, 0.0, 0.0, 0.025)
+    truth.carry(shift)
+    truth.breathe(d1)
+    # let go, the tip rides with the tissue at it: the same point of the lung at rest
+    assert truth.to_rest(truth.pose[None, :3, 3]) == pytest.approx(here, abs=1e-5)
+    # and that is not the rigid shift of the breathing trace
+    assert np.linalg.norm(shift - (d1 - d0)) > 0.1
 
 
 def test_a_sliding_boundary_is_the_lungs_alone():
@@ -133,3 +187,29 @@ def test_lung_3s_sub_pleural_target_is_pinned_by_a_held_pleura_and_moves_when_it
     assert held.pinned()["target"] == 1
     assert held.record()["pinned_points"]["target"] == 1
     assert "target" not in tissue_model_for(sc, plan, goal, "sliding").pinned()
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_gated_in_a_breathing_lung_the_needle_cuts_only_while_it_advances(medrad_dir):
+    from needlekit.execute.breathing import PRESETS, Policy
+    from needlekit.execute.plugins import Models
+    from needlekit.execute.run import LoopHooks, execute_plan
+
+    _, plan, goal, _, _, settings = _lung1_straight(medrad_dir)
+    settings = replace(settings, models=Models(truth="physical"))
+    trace = PRESETS["lung"].trace(np.random.default_rng(3), 400.0)
+    runs = {name: execute_plan(plan, goal, 50.0, closed_loop=True, seed=2, settings=settings,
+                               hooks=LoopHooks(breathing=Policy(name, trace)))
+            for name in ("gate", "ignore")}  # fmt: skip
+    gate, ignore = (np.asarray(runs[k].points_rest_mm) for k in ("gate", "ignore"))
+    assert len(gate) == len(runs["gate"].points_mm) and len(ignore) == len(runs["ignore"].points_mm)
+    # held still in the world while the lung moves (ignore), the tip is mapped back by up
+    # to the breathing at it (about 0.6 of the preset's 5 mm there) and sweeps through the
+    # tissue besides its insertion; let go between windows (gate), it rides with its
+    # tissue, and its rest path is its insertion alone, a point every 0.25 mm
+    length = lambda p: float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())  # noqa: E731
+    assert np.max(np.linalg.norm(ignore - np.asarray(runs["ignore"].points_mm), axis=1)) > 2.0
+    assert length(ignore) > 1.1 * runs["ignore"].inserted_mm  # measured 1.23
+    assert length(gate) == pytest.approx(runs["gate"].inserted_mm, rel=0.03)  # measured 1.017
+    assert len(gate) == pytest.approx(runs["gate"].inserted_mm / 0.25, abs=3)

@@ -10,11 +10,12 @@ from needlekit.tissue.fem import (
     ElasticProblem,
     Material,
     barycentric_gradients,
+    kelvin_displacement,
     stiffness,
 )
 from needlekit.tissue.meshing import TetMesh
 
-from ._util import cube_mesh, kelvin
+from ._util import cube_mesh
 
 MAT = Material(1.0, 0.3)
 
@@ -27,17 +28,15 @@ def _held_surface(mesh):
 def _kelvin_error(n: int) -> float:
     """RMS relative error of the FEM against Kelvin at the nodes 0.4 to 0.8 from a point
     load at the centre of the cube [-1, 1]^3, its surface held at Kelvin's values."""
-    mu = MAT.lame_n_per_mm2()[1]
     mesh = cube_mesh(n)
     problem = ElasticProblem(mesh, MAT, _held_surface(mesh))
     force = np.array([0.0, 0.0, 1e-3])
     f = np.zeros((mesh.n_nodes, 3))
     f[np.argmin(np.linalg.norm(mesh.nodes_mm, axis=1))] = force
-    nu = MAT.poisson_ratio
-    u = problem.solve(f, kelvin(mesh.nodes_mm[problem.held_nodes], force, mu, nu))
+    u = problem.solve(f, kelvin_displacement(mesh.nodes_mm[problem.held_nodes], force, MAT))
     r = np.linalg.norm(mesh.nodes_mm, axis=1)
     sel = (r >= 0.4) & (r <= 0.8)
-    exact = kelvin(mesh.nodes_mm[sel], force, mu, nu)
+    exact = kelvin_displacement(mesh.nodes_mm[sel], force, MAT)
     return float(np.sqrt(np.sum((u[sel] - exact) ** 2) / np.sum(exact**2)))
 
 

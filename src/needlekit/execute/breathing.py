@@ -12,6 +12,9 @@ breath-to-breath variability), from the trial's seed. Presets (:data:`PRESETS`):
 5 mm and liver 13 mm superior-inferior (the tissue moving inferior, ``-S`` in RAS, as the
 diaphragm descends), period 4 s, figures from published motion studies.
 The plan is made on the anatomy at end-exhale (``d = 0``), as a breath-hold CT shows it.
+A truth whose organ deforms (its ``breathe``, :mod:`needlekit.execute.plugins`) moves it by
+``d(t)`` through its own model instead (the ``physical`` truth: through the organ's mesh,
+:mod:`needlekit.execute.deforming`), and a needle let go rides with the tissue at its tip.
 
 **The needle in moving tissue.** The robot drives the needle in its own (world) frame; the
 tip's place in the tissue is the world place less ``d(t)``. Errors and crossings are judged
@@ -242,7 +245,7 @@ class Policy:
         """
         return self.name != "gate" or self.trace.in_window(t)
 
-    def carried(self, t0: float, t1: float, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
+    def carried(self, t0: float, t1: float, advanced: bool, tissue=None) -> tuple[np.ndarray, np.ndarray]:
         """The needle's world motion from ``t0`` to ``t1`` besides the insertion, as it
         happened and as the controller knows it.
 
@@ -251,6 +254,10 @@ class Policy:
         t0, t1 : float
         advanced : bool
             Whether the needle advanced (the robot held it) in that step.
+        tissue : callable, optional
+            ``tissue(d0, d1)``: how far the tissue at the tip moves as the displacement
+            goes from ``d0`` to ``d1`` (a truth whose organ deforms, ``riding``); without
+            it, the tissue moves rigidly, by ``d1 - d0``.
 
         Returns
         -------
@@ -262,7 +269,9 @@ class Policy:
             shift = tr.predicted(t1) - tr.predicted(t0)
             return shift, shift
         if self.name == "gate" and not advanced:  # let go: it rides with the tissue
-            return tr.actual(t1) - tr.actual(t0), tr.predicted(t1) - tr.predicted(t0)
+            d0, d1 = tr.actual(t0), tr.actual(t1)
+            shift = d1 - d0 if tissue is None else np.asarray(tissue(d0, d1), dtype=np.float64)
+            return shift, tr.predicted(t1) - tr.predicted(t0)
         zero = np.zeros(3)
         return zero, zero
 

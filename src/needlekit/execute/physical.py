@@ -16,6 +16,10 @@ truth protocol of :mod:`needlekit.execute.plugins`:
   40 Hz, 0.05 mm: an error of ``kappa (0.05 mm)^2 / 2``, below a nanometre at
   ``r = 100 mm``). A spin turns the bevel at once (no solve). A step that inserts nothing
   (the sensor guard holding, a breathing gate) solves what is pooled.
+- **Carried.** Moved besides its insertion (a breathing policy: the robot following the
+  motion, or the needle let go riding with the tissue), the whole rod moves with it
+  (:meth:`MechanicsTruth.carry`): its channel and tip are kept in the rod's own frame,
+  offset in the world by what has carried it.
 - **Torsion** is left out (the shaft is torsionally rigid: a spin of the base turns the
   bevel by as much).
 
@@ -135,6 +139,7 @@ class MechanicsTruth:
         self._time = 0.0
         self.solves = 0
         self.inserted_mm = needle.inserted_mm
+        self.offset_mm = np.zeros(3)  # what has carried the rod besides its insertion
         self.pose = needle.pose.copy()
 
     def _flush(self) -> None:
@@ -144,7 +149,20 @@ class MechanicsTruth:
             self.solves += 1
         self._len = self._duty_len = self._time = 0.0
         self.pose = self.needle.pose.copy()
+        self.pose[:3, 3] += self.offset_mm
         self.inserted_mm = self.needle.inserted_mm
+
+    def carry(self, shift_mm) -> None:
+        """Move the whole rod by ``shift_mm`` (world, mm) besides its insertion.
+
+        Parameters
+        ----------
+        shift_mm : array-like, shape (3,)
+        """
+        v = np.asarray(shift_mm, dtype=np.float64).reshape(3)
+        self.offset_mm = self.offset_mm + v
+        self.pose = self.pose.copy()
+        self.pose[:3, 3] += v
 
     def step(self, spin_rad: float, kappa_per_mm: float, ds_mm: float, dt_s: float) -> np.ndarray:
         """Spin the bevel, then insert ``ds_mm`` at the commanded duty cycle.
@@ -172,7 +190,7 @@ class MechanicsTruth:
             self._flush()
         else:
             g = self.needle.pose.copy()
-            g[:3, 3] += self._len * g[:3, 2]
+            g[:3, 3] += self._len * g[:3, 2] + self.offset_mm
             self.pose = g
             self.inserted_mm = self.needle.inserted_mm + self._len
         return self.pose
@@ -189,6 +207,7 @@ class MechanicsTruth:
         """
         self._flush()
         pts, forces = self.needle.shaft_loads()
+        pts = pts + self.offset_mm
         if len(pts) == 0:
             return {"points_mm": [], "forces_n": [], "tip_force_n": 0.0, "shaft_force_n": 0.0}
         return {

@@ -40,7 +40,13 @@ The truth's optional capabilities, used by the loop when the truth has them:
   recorded tip path is mapped so (``points_rest_mm``, beside the world path) and certified
   against the scenario's anatomy;
 - ``shaft_loads()``: the loads along the shaft (a dict of numbers or lists), written in the
-  run's record at the end of the insertion.
+  run's record at the end of the insertion;
+- under breathing (:mod:`needlekit.execute.breathing`): ``breathe(d)`` (the truth moves
+  its tissue by the breathing displacement ``d`` through its own model, each tick; its
+  ``to_rest`` then maps the world path, not the path less ``d``), ``riding(d0, d1)`` (how
+  far the tissue at the tip moves as ``d`` goes from ``d0`` to ``d1``: a needle let go
+  rides with it) and ``carry(shift)`` (move the needle besides its insertion, for a truth
+  that keeps its pose in a frame of its own).
 """
 
 from __future__ import annotations

@@ -304,23 +304,35 @@ def execute_plan(
 
 
 class _Path:
-    """The true tip's path as a run records it: world points every ``record_mm`` of
-    insertion and at the end, and beside them, when the truth maps its tissue back
-    (``to_rest``), each point in the anatomy at rest, mapped when it was recorded."""
+    """The true tip's path as a run records it: points every ``record_mm`` of insertion
+    and at the end, and beside them, when the truth maps its tissue back (``to_rest``),
+    each point in the anatomy at rest, mapped when it was recorded. Under breathing the
+    points are the tip in the tissue: the world point less the displacement, or, for a
+    truth that breathes its organ itself (``breathe``), the world point, its ``to_rest``
+    the tissue's."""
 
     def __init__(self, needle, record_mm: float) -> None:
         self.needle = needle
         self.to_rest = getattr(needle, "to_rest", None)  # the truth's optional capabilities
+        self.breathes = self.to_rest is not None and hasattr(needle, "breathe")
         self.record_mm = record_mm
         self.points: list[np.ndarray] = []
         self.rest: list[np.ndarray] = []
         self.last = 0.0
         self._add(needle.pose[:3, 3].copy())
 
-    def _add(self, p: np.ndarray) -> None:
+    def _add(self, p: np.ndarray, q=None) -> None:
         self.points.append(p)
         if self.to_rest is not None:
-            self.rest.append(np.asarray(self.to_rest(p[None]), dtype=np.float64)[0])
+            self.rest.append(np.asarray(self.to_rest(p[None]), dtype=np.float64)[0] if q is None else q)
+
+    def tissue_point(self) -> np.ndarray:
+        """The last recorded point in the tissue (at rest when the truth maps it)."""
+        return self.rest[-1] if self.to_rest is not None else self.points[-1]
+
+    def _at(self, offset) -> np.ndarray:
+        p = self.needle.pose[:3, 3].copy()
+        return p if offset is None or self.breathes else p - offset
 
     def record(self, offset=None) -> bool:
         """Record the tip if it has gone far enough (True when it was recorded). ``offset``:
@@ -328,11 +340,17 @@ class _Path:
         is not inserted, and is recorded by how far it went there."""
         if offset is None:
             if self.needle.inserted_mm - self.last >= self.record_mm - 1e-9:
-                self._add(self.needle.pose[:3, 3].copy())
+                self._add(self._at(None))
                 self.last = self.needle.inserted_mm
                 return True
             return False
-        p = self.needle.pose[:3, 3] - offset
+        p = self._at(offset)
+        if self.breathes:
+            q = np.asarray(self.to_rest(p[None]), dtype=np.float64)[0]
+            if np.linalg.norm(q - self.rest[-1]) >= self.record_mm - 1e-9:
+                self._add(p, q)
+                return True
+            return False
         if np.linalg.norm(p - self.points[-1]) >= self.record_mm - 1e-9:
             self._add(p)
             return True
@@ -340,20 +358,21 @@ class _Path:
 
     def end(self, offset=0.0) -> None:
         """Record the tip where the insertion stopped."""
-        self._add(self.needle.pose[:3, 3] - offset)
+        self._add(self._at(offset))
 
     def rest_array(self) -> np.ndarray | None:
         return None if self.to_rest is None else np.array(self.rest)
 
     def final_error(self, goal) -> float:
-        """The final error: at rest to the scenario's goal when the truth maps its tissue
-        back, else in the world to the target where it is now (``target_mm()``, or the
-        goal)."""
+        """The final error: in the world to the target where it is now when the truth
+        says (``target_mm()``), else at rest to the scenario's goal when the truth maps its
+        tissue back, else in the world to the goal."""
+        target = getattr(self.needle, "target_mm", None)
+        if target is not None:
+            return float(np.linalg.norm(self.points[-1] - np.asarray(target(), dtype=np.float64)))
         if self.to_rest is not None:
             return float(np.linalg.norm(self.rest[-1] - goal))
-        target = getattr(self.needle, "target_mm", None)
-        judged = goal if target is None else np.asarray(target(), dtype=np.float64)
-        return float(np.linalg.norm(self.points[-1] - judged))
+        return float(np.linalg.norm(self.points[-1] - goal))
 
 
 def _loads(needle) -> dict | None:
@@ -406,7 +425,10 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
     events: list[tuple] = []
     policy = hooks.breathing
     t_max = TIME_CAP_FACTOR * limit / s.insertion_speed_mm_s
+    breathe = None if policy is None else getattr(needle, "breathe", None)
     while needle.inserted_mm < limit and t < t_max:
+        if breathe is not None:  # a truth whose organ breathes through its own model
+            breathe(policy.trace.actual(t))
         # a sample due within SENSOR_SLACK_S is due now: the sensor's clock and this loop's
         # add their periods separately, and a sample read a step late sees a moved tip
         sample = sensor.update(t + SENSOR_SLACK_S, lambda: needle.pose)
@@ -489,7 +511,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
             est.predict(spin, kappa, step, s.dt_s)
         else:  # the needle moved with the robot besides (track)
             shift, known = policy.carried(t, t + s.dt_s, True)
-            needle.pose[:3, 3] += shift
+            _carry(needle, shift)
             est.predict(spin, kappa, step, s.dt_s, known, policy.unknown_sigma_mm(known))
         if tick_times is not None:
             tick_times.append(clock() - c2 + (c1 - c0))
@@ -500,7 +522,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
             observe(t, needle.pose, est.pose, ref.points_mm,
                     _state(needle, est.pose, goal, replanner, "inserting"))  # fmt: skip
         if path.record(None if policy is None else policy.trace.actual(t)):
-            true = path.points[-1]  # the true tip's deviation, where its path is recorded
+            true = path.tissue_point()  # the true tip's deviation, where its path is recorded
             cross.append(float(np.linalg.norm(ref.points_mm[ref.nearest(true, index)] - true)))
     path.end(0.0 if policy is None else policy.trace.actual(t))
     if observe is not None:
@@ -529,10 +551,20 @@ def _stand_still(needle, est, policy, t: float, dt: float) -> None:
     if policy is None:
         est.predict(0.0, 0.0, 0.0, dt)
         return
-    shift, known = policy.carried(t, t + dt, False)
+    shift, known = policy.carried(t, t + dt, False, getattr(needle, "riding", None))
     needle.step(0.0, 0.0, 0.0, dt)
-    needle.pose[:3, 3] += shift
+    _carry(needle, shift)
     est.predict(0.0, 0.0, 0.0, dt, known, policy.unknown_sigma_mm(known))
+
+
+def _carry(needle, shift) -> None:
+    """Move the needle by ``shift`` besides its insertion: by the truth's own ``carry``
+    when it has one (a rod keeps its channel in its own frame), else its pose."""
+    carry = getattr(needle, "carry", None)
+    if carry is not None:
+        carry(shift)
+    else:
+        needle.pose[:3, 3] += shift
 
 
 def _state(needle, est_pose, goal, replanner, phase: str) -> dict:

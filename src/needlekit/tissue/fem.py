@@ -64,6 +64,7 @@ __all__ = [
     "Material",
     "SOLVERS",
     "barycentric_gradients",
+    "kelvin_displacement",
     "organ_boundary",
     "stiffness",
 ]
@@ -135,6 +136,37 @@ LUNG = Material(1.0, 0.43)
 LIVER = Material(4.7, 0.45)
 #: The organ presets.
 MATERIALS: dict[str, Material] = {"lung": LUNG, "liver": LIVER}
+
+
+def kelvin_displacement(points_mm, force_N, material: Material) -> np.ndarray:
+    """Kelvin's solution: the displacement (mm) at ``points_mm`` (relative to the load) of a
+    point force ``force_N`` in an infinite body of ``material``,
+    ``u = [(3 - 4 nu) F + r_hat (r_hat . F)] / (16 pi mu (1 - nu) r)``.
+
+    Parameters
+    ----------
+    points_mm : array-like, shape (k, 3)
+        Offsets from the load, none zero.
+    force_N : array-like, shape (3,)
+    material : Material
+
+    Returns
+    -------
+    ndarray, shape (k, 3)
+
+    Examples
+    --------
+    >>> m = Material(3.0, 0.25)  # mu = 1.2 kPa
+    >>> float(kelvin_displacement([[10.0, 0.0, 0.0]], [0.0, 0.0, 0.01], m)[0, 2])  # (3 - 1) F / (16 pi mu 0.75 r)
+    0.0442097064...
+    """
+    x = np.asarray(points_mm, dtype=float).reshape(-1, 3)
+    f = np.asarray(force_N, dtype=float).reshape(3)
+    nu = material.poisson_ratio
+    mu = material.lame_n_per_mm2()[1]
+    r = np.linalg.norm(x, axis=1)[:, None]
+    rh = x / r
+    return (f[None, :] * (3.0 - 4.0 * nu) + rh * (rh @ f)[:, None]) / (16.0 * np.pi * mu * (1.0 - nu) * r)
 
 
 def barycentric_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

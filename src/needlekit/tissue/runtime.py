@@ -39,6 +39,13 @@ def _array(v, name: str, shape_tail: tuple) -> np.ndarray:
     return a
 
 
+def _vector(v, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise InvalidInputError(name, f"expected a finite 3-vector (mm), got {v!r}")
+    return a
+
+
 class DeformingTissue:
     """An organ deforming under the needle and breathing (module notes).
 
@@ -134,9 +141,7 @@ class DeformingTissue:
         ndarray, shape (m + p, 3)
             Displacements (mm) of the corridor points then the tracked points.
         """
-        d = np.zeros(3) if breathing is None else np.asarray(breathing, dtype=float)
-        if d.shape != (3,) or not np.all(np.isfinite(d)):
-            raise InvalidInputError("breathing", f"expected a finite 3-vector (mm), got {breathing!r}")
+        d = np.zeros(3) if breathing is None else _vector(breathing, "breathing")
         self._f = self.corridor_forces(points_mm, forces_N)
         self._d = d
         self._u = (self._C @ self._f.ravel() + self._B @ d).reshape(-1, 3)
@@ -216,29 +221,65 @@ class DeformingTissue:
         c = self.compliance
         return (c.G @ self._f.ravel() + c.H @ self._d).reshape(-1, 3)
 
-    def _field_at(self, points: np.ndarray, nodal_rows=None) -> np.ndarray:
+    def _field_at(self, points: np.ndarray, loads: bool = True, d=None) -> np.ndarray:
         c = self.compliance
         tet, w, _ = locate(c.mesh, points, self._tree)
         nodes = c.mesh.tets[tet]  # (k, 4)
         dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1)
-        u = (c.G[dofs] @ self._f.ravel() + c.H[dofs] @ self._d).reshape(len(points), 4, 3)
-        return np.einsum("ka,kac->kc", w, u)
+        u = c.H[dofs] @ (self._d if d is None else d)
+        if loads:
+            u = u + c.G[dofs] @ self._f.ravel()
+        return np.einsum("ka,kac->kc", w, u.reshape(len(points), 4, 3))
 
-    def displacement_field(self, points_mm) -> np.ndarray:
+    def displacement_field(self, points_mm, loads: bool = True) -> np.ndarray:
         """The displacement (mm) at material points given at rest (interpolated in their
         tetrahedra; outside the organ, at its nearest point), shape (k, 3).
 
         Parameters
         ----------
         points_mm : array-like, shape (k, 3)
+        loads : bool
+            False: the breathing's part alone (``H d``).
 
         Returns
         -------
         ndarray, shape (k, 3)
         """
-        return self._field_at(_array(points_mm, "points_mm", (3,)))
+        return self._field_at(_array(points_mm, "points_mm", (3,)), loads)
 
-    def to_rest(self, points_world, tol_mm: float = 1e-6, max_iter: int = 50) -> np.ndarray:
+    def breathing_field(self, points_mm, breathing) -> np.ndarray:
+        """The displacement (mm) at material points given at rest under a breathing
+        displacement ``breathing`` alone (``H d``, interpolated), shape (k, 3).
+
+        Parameters
+        ----------
+        points_mm : array-like, shape (k, 3)
+        breathing : array-like, shape (3,)
+
+        Returns
+        -------
+        ndarray, shape (k, 3)
+        """
+        d = _vector(breathing, "breathing")
+        return self._field_at(_array(points_mm, "points_mm", (3,)), False, d)
+
+    @property
+    def breathing_mm(self) -> np.ndarray:
+        """The breathing displacement ``d`` now (mm), shape (3,)."""
+        return self._d.copy()
+
+    def breathe(self, breathing) -> None:
+        """Set the breathing displacement ``d`` (mm), the needle's loads kept.
+
+        Parameters
+        ----------
+        breathing : array-like, shape (3,)
+        """
+        self._d = _vector(breathing, "breathing")
+        self._u = (self._C @ self._f.ravel() + self._B @ self._d).reshape(-1, 3)
+
+    def to_rest(self, points_world, tol_mm: float = 1e-6, max_iter: int = 50,
+                loads: bool = True) -> np.ndarray:  # fmt: skip
         """The material points (at rest) now at ``points_world``: the inverse of the
         deformation, by fixed-point iteration ``X <- x - u(X)``.
 
@@ -248,15 +289,17 @@ class DeformingTissue:
         tol_mm : float
             Stop when no point moves more than this.
         max_iter : int
+        loads : bool
+            False: the inverse of the breathing's part alone.
 
         Returns
         -------
         ndarray, shape (k, 3)
         """
         x = _array(points_world, "points_world", (3,))
-        rest = x - self._field_at(x)
+        rest = x - self._field_at(x, loads)
         for _ in range(max_iter):
-            new = x - self._field_at(rest)
+            new = x - self._field_at(rest, loads)
             step = float(np.max(np.abs(new - rest))) if len(x) else 0.0
             rest = new
             if step <= tol_mm:
