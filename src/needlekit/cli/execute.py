@@ -82,11 +82,12 @@ def check_noise_flags(args: argparse.Namespace) -> None:
 
 def _check_flags(args: argparse.Namespace) -> None:
     """Every flag's value, before the anatomy loads."""
-    from needlekit.cli.execute_models import checked_models
+    from needlekit.cli.execute_models import check_physics_flags, checked_models
     from needlekit.cli.execute_multi import check_trial_flags
     from needlekit.cli.execute_sensing import check_sensing_flags
 
     args.models = checked_models(args)  # first: light (the guard's check loads numba)
+    check_physics_flags(args)
     check_sensing_flags(args)
     check_noise_flags(args)
     check_trial_flags(args)

@@ -9,12 +9,18 @@ import math
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_model_flags", "checked_models", "physics_options", "say_model", "say_pinned"]
+__all__ = ["add_model_flags", "check_physics_flags", "checked_models", "physics_options", "say_model", "say_pinned"]
 
 #: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
 #: named here so that the parser refuses a wrong one without importing the mechanics.
 NEEDLES = ("nitinol", "steel")
 TISSUES = ("chicken", "gelatin", "liver", "lung", "plastisol")
+
+#: The mechanics' flags, by their argparse destination, and their defaults: they apply to
+#: ``--truth mechanics`` and ``physical`` (``--tissue-boundary`` to ``physical``) alone.
+MECHANICS_DEFAULTS = {"needle": "nitinol", "tissue": None, "prebend_deg": 0.0,
+                      "inhomogeneity": 0.1, "calibration_insertions": 24,
+                      "tissue_boundary": "organ"}  # fmt: skip
 
 #: The flags, by their argparse destination, and the default each has (today's loop).
 MODEL_DEFAULTS = {"truth": "kinematic", "sensor": "em", "estimator": "kalman",
@@ -56,22 +62,51 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
         "the needle and tissue of --truth mechanics and physical (docs/mechanics.md, "
         "docs/tissue.md); the loop's own model is then calibrated on the truth"
     )
-    m.add_argument("--needle", choices=NEEDLES, default="nitinol",
+    m.add_argument("--needle", choices=NEEDLES, default=MECHANICS_DEFAULTS["needle"],
                    help="the needle preset (default nitinol: a 0.83 mm wire, 30 deg bevel)")  # fmt: skip
-    m.add_argument("--tissue", choices=TISSUES, default=None,
+    m.add_argument("--tissue", choices=TISSUES, default=MECHANICS_DEFAULTS["tissue"],
                    help="the tissue preset (default: the scenario's organ, lung otherwise)")  # fmt: skip
-    m.add_argument("--prebend-deg", type=number(0.0, 89.0, unit="deg"), default=0.0,
+    m.add_argument("--prebend-deg", type=number(0.0, 89.0, unit="deg"),
+                   default=MECHANICS_DEFAULTS["prebend_deg"],
                    help="a pre-bent tip: its bend toward the bevel over 5 mm (default 0)")  # fmt: skip
-    m.add_argument("--inhomogeneity", type=number(0.0, 2.0), default=0.1,
+    m.add_argument("--inhomogeneity", type=number(0.0, 2.0),
+                   default=MECHANICS_DEFAULTS["inhomogeneity"],
                    help="SD of the tissue's mm-to-mm variation of the tip load (default 0.1)")  # fmt: skip
-    m.add_argument("--tissue-boundary", choices=("organ", "sliding"), default="organ",
+    m.add_argument("--tissue-boundary", choices=("organ", "sliding"),
+                   default=MECHANICS_DEFAULTS["tissue_boundary"],
                    help="--truth physical: the organ's boundary (docs/tissue.md): organ (its "
                    "held surfaces, default) or sliding (lung: the pleura slides, held along "
                    "its normal only)")  # fmt: skip
     m.add_argument("--calibration-insertions", type=number(2, 10_000, integer=True),
-                   default=24, metavar="N",
+                   default=MECHANICS_DEFAULTS["calibration_insertions"], metavar="N",
                    help="curved insertions the loop's model is calibrated from (and N/2 "
                    "straight ones; default 24)")  # fmt: skip
+
+
+def check_physics_flags(args: argparse.Namespace) -> None:
+    """The mechanics' flags given only with a truth they apply to (else they would be
+    ignored without a word).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        Named by the flag given with another truth.
+    """
+    for dest, default in MECHANICS_DEFAULTS.items():
+        wants = ("physical",) if dest == "tissue_boundary" else ("mechanics", "physical")
+        if getattr(args, dest, default) != default and args.truth not in wants:
+            raise InvalidInputError(
+                "--" + dest.replace("_", "-"),
+                f"applies to --truth {' or '.join(wants)}, not {args.truth}",
+            )
 
 
 def checked_models(args: argparse.Namespace):

@@ -17,11 +17,11 @@ STEERABLE_ONLY = (
     "breathing_amplitude_mm", "breathing_period_s", "breathing_shape", "breathing_direction",
     "no_replan", "no_warm_start", "cross_track_mm", "replan_time_limit_s", "replan_iterations",
     "replan_delay_ms", "igtl", "tip_from_igtl", "igtl_realtime", "igtl_wait_s", "faults",
-    "on_fault", "hold_timeout_s", "safety_margin_mm", "truth", "sensor", "estimator",
+    "on_fault", "hold_timeout_s", "safety_margin_mm", "sensor", "estimator",
     "feedback", "replanner", "sensing", "checkpoint_every_mm", "scan_s", "confirm_scans",
     "image_sigma_mm",
     "tracking_rate_hz", "tracking_sigma_mm", "tracking_latency_ms", "retarget_mm",
-    "any_start_direction",
+    "any_start_direction", "tissue_boundary", "calibration_insertions",
 )  # fmt: skip
 #: ``--registration-sd-mm`` at most this: beyond it the robot works on another patient.
 REGISTRATION_SD_MAX_MM = 10.0
@@ -73,6 +73,14 @@ def check_multi_flags(args: argparse.Namespace) -> None:
         if getattr(args, dest) != defaults[dest]:
             flag = "--" + dest.replace("_", "-")
             raise InvalidInputError(flag, "applies to a steerable plan; the plan is a multi plan")
+    from needlekit.cli.execute_models import check_physics_flags
+    from needlekit.execute.straight_physics import STRAIGHT_TRUTHS
+
+    if args.truth not in STRAIGHT_TRUTHS:
+        raise InvalidInputError(
+            "--truth", f"a multi plan's needle is one of {', '.join(STRAIGHT_TRUTHS)}, got {args.truth!r}"
+        )
+    check_physics_flags(args)
     check_trial_flags(args)
     sd = args.registration_sd_mm
     if sd is not None and sd > REGISTRATION_SD_MAX_MM:
@@ -157,6 +165,39 @@ def load_checked_multi(args: argparse.Namespace, record: dict):
     return sc, multi, coverage
 
 
+def straight_physics(args: argparse.Namespace, scenario):
+    """The needle and organ ``--truth mechanics|physical`` asks for (None: the rigid needle).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    scenario : needlekit.scenario.loading.Scenario
+
+    Returns
+    -------
+    needlekit.execute.straight_physics.StraightPhysics or None
+
+    Raises
+    ------
+    InvalidInputError
+        ``--truth physical`` on a scenario without a Med-RAD organ.
+    """
+    if args.truth == "kinematic":
+        return None
+    from needlekit.execute.physical import MechanicsSettings
+    from needlekit.execute.straight_physics import StraightPhysics
+    from needlekit.io.medrad import MedradCase
+    from needlekit.tissue.medrad_organ import ORGAN_FILES
+
+    base = getattr(scenario, "base", None)
+    organ = base.organ if isinstance(base, MedradCase) and base.organ in ORGAN_FILES else None
+    mech = MechanicsSettings(needle=args.needle, tissue=args.tissue or ("liver" if organ == "liver" else "lung"),
+                             prebend_deg=args.prebend_deg, inhomogeneity=args.inhomogeneity)  # fmt: skip
+    if args.truth == "physical" and organ is None:
+        raise InvalidInputError("--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario")
+    return StraightPhysics(args.truth, mech, organ, None if organ is None else str(base.folder))
+
+
 def run_multi(args: argparse.Namespace, record: dict) -> int:
     """``execute`` on a multi plan (the handler's branch).
 
@@ -179,6 +220,7 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
     from needlekit.studies.execute_multi import run_multi_execution
 
     sc, multi, coverage = load_checked_multi(args, record)
+    physics = straight_physics(args, sc)
     trials = [args.replay_trial] if args.replay_trial is not None else list(range(args.trials))
     with (
         open_executor(
@@ -193,6 +235,7 @@ def run_multi(args: argparse.Namespace, record: dict) -> int:
             progress=lambda _: bar.update(1), scenario_name=sc.name or args.scenario.name,
             resume=args.resume,
             scenario_file=scenario_reference(args.scenario, Path(args.out) / "execute.json"),
+            physics=physics,
         )  # fmt: skip
     if args.report is not None:
         from needlekit.report.execute_multi_report import write_multi_execute_report

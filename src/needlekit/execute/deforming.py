@@ -287,6 +287,10 @@ class DeformingTruth(MechanicsTruth):
         Parameters
         ----------
         breathing_mm : array-like, shape (3,)
+
+        Returns
+        -------
+        None
         """
         self.tissue.breathe(breathing_mm)
         self.breathing_mm = np.array(breathing_mm, dtype=np.float64).reshape(3)

@@ -158,6 +158,10 @@ class MechanicsTruth:
         Parameters
         ----------
         shift_mm : array-like, shape (3,)
+
+        Returns
+        -------
+        None
         """
         v = np.asarray(shift_mm, dtype=np.float64).reshape(3)
         self.offset_mm = self.offset_mm + v

@@ -107,19 +107,20 @@ def multi_trial(job: tuple) -> dict:
     ----------
     job : tuple
         ``(lines, deformation, radius_mm, registration, registration_sd_mm, starts,
-        scenario, options, seed, trial)``: :func:`plan_lines`, the plan's deformation model
-        (or None), the needle radius, the :class:`Registration` and its error's SD per axis
-        (mm), the start distances, the
+        scenario, options, physics, seed, trial)``: :func:`plan_lines`, the plan's
+        deformation model (or None), the needle radius, the :class:`Registration` and its
+        error's SD per axis (mm), the start distances, the
         :class:`~needlekit.studies.puncture_study.PunctureScenario` and
-        :class:`~needlekit.studies.puncture_study.TrialOptions`, the root seed and the
-        trial's number.
+        :class:`~needlekit.studies.puncture_study.TrialOptions`, the needle's
+        :class:`~needlekit.execute.straight_physics.StraightPhysics` (None: the rigid
+        needle goes where the robot holds it), the root seed and the trial's number.
 
     Returns
     -------
     dict
         ``trial``, ``seed``, ``needles`` (one row each) or ``error`` when it crashed.
     """
-    lines, model, radius, reg, reg_sd, starts, scenario, options, seed, trial = job
+    lines, model, radius, reg, reg_sd, starts, scenario, options, physics, seed, trial = job
     head = {"trial": trial, "seed": seed, "seed_spawn_key": [trial]}
     try:
         # the first child draws the registration error, one more per needle
@@ -130,7 +131,8 @@ def multi_trial(job: tuple) -> dict:
         pose = reg.world_T_ras.copy()
         pose[:3, 3] += offset
         truth = replace(reg, world_T_ras=pose)
-        needles = _insert_all(lines, model, radius, reg, truth, starts, scenario, options, seeds)
+        needles = _insert_all(lines, model, radius, reg, truth, starts, scenario, options, seeds,
+                              physics)  # fmt: skip
         return {**head, "registration_error_mm": np.round(offset, 6).tolist(), "needles": needles}
     except Exception as exc:  # recorded with its seed; the other trials go on
         raise_if_interrupt(exc)  # Ctrl-C is no trial's failure
@@ -139,9 +141,11 @@ def multi_trial(job: tuple) -> dict:
                 f"{last.lineno})"}  # fmt: skip
 
 
-def _insert_all(lines, model, radius, reg, truth, starts, scenario, options, seeds) -> list:
+def _insert_all(lines, model, radius, reg, truth, starts, scenario, options, seeds,
+                physics=None) -> list:  # fmt: skip
     """The needles one after another: the robot works from ``reg``, the anatomy lies where
-    ``truth`` puts it."""
+    ``truth`` puts it; with ``physics`` the needle bends and the organ is pushed
+    (:mod:`needlekit.execute.straight_physics`)."""
     from needlekit.control.controller import ControllerSettings
     from needlekit.control.panda import PandaModel
     from needlekit.control.procedure import run_trial
@@ -160,7 +164,7 @@ def _insert_all(lines, model, radius, reg, truth, starts, scenario, options, see
         rest, aimed, entry = lines["rest_mm"][k], lines["aimed_mm"][k], lines["entry_mm"][k]
         target = _deformed(model, rest, placed_ras)  # where the tissue really took it
         out = (entry - aimed) / np.linalg.norm(entry - aimed)
-        draw, sensors = seeds[k].spawn(2)
+        draw, sensors, tissue = seeds[k].spawn(3)  # the first two as ever: a third for physics
         initial = nominal + np.random.default_rng(draw).uniform(-1.0, 1.0, 12) * spread
         setup = TrialSetup(
             PandaModel(), nominal, initial, np.asarray(scenario.q0, float), reg.point(aimed),
@@ -180,9 +184,34 @@ def _insert_all(lines, model, radius, reg, truth, starts, scenario, options, see
         known.append([est[:3, 3], est[:3, 3] - length * est[:3, 2]])
         tip, axis = truth.to_ras(tip_w), axis_w @ truth.world_T_ras[:3, :3]  # the anatomy's
         depth = float(np.linalg.norm(entry - aimed))
+        extra = {}
+        if physics is not None:
+            tip, axis, target, extra = _bent(physics, r.final_tip_pose, truth, tip, axis,
+                                             (entry, aimed), target, tissue)  # fmt: skip
         placed_ras.append(PlacedNeedle(tip, tip - depth * axis, radius))
-        rows.append(_needle_row(k, lines, r, tip, axis, target, rest, aimed, starts[k]))
+        rows.append({**_needle_row(k, lines, r, tip, axis, target, rest, aimed, starts[k]), **extra})
     return rows
+
+
+def _bent(physics, final_pose, truth, tip, axis, planned, target, seed) -> tuple:
+    """The rod's tip and axis where the robot held its base, and the target the organ
+    pushed (:meth:`~needlekit.execute.straight_physics.StraightPhysics.insert`), with
+    the figures beside the rigid needle's."""
+    depth = float((tip - planned[0]) @ axis)
+    start = np.eye(4)
+    x = final_pose[:3, 0] @ truth.world_T_ras[:3, :3]
+    x = x - (x @ axis) * axis
+    start[:3, :3] = np.column_stack([x / np.linalg.norm(x), np.cross(axis, x / np.linalg.norm(x)), axis])
+    start[:3, 3] = tip - depth * axis
+    out = physics.insert(start, depth, planned, np.random.default_rng(seed))
+    bent, pushed = tip + out["tip_offset_mm"], target + out["target_push_mm"]
+    extra = {
+        "robot_error_mm": float(np.linalg.norm(tip - target)),
+        "needle_deflection_mm": float(np.linalg.norm(out["tip_offset_mm"])),
+        "target_push_mm": float(np.linalg.norm(out["target_push_mm"])),
+        "tip_force_n": out["tip_force_n"],
+    }
+    return bent, out["axis"], pushed, extra
 
 
 def _finite(v):
@@ -242,6 +271,7 @@ def run_multi_execution(
     scenario_name: str = "",
     resume: bool = False,
     scenario_file: str | None = None,
+    physics=None,
 ) -> MultiExecution:
     """Insert a checked multi-needle plan ``len(trials)`` times and write
     ``out_dir/execute.json`` (atomically; Ctrl-C writes the trials done, marked partial,
@@ -275,6 +305,9 @@ def run_multi_execution(
         settings wrote (checked before any trial).
     scenario_file : str, optional
         The scenario's path relative to ``out_dir``, kept for ``needlekit report``.
+    physics : StraightPhysics, optional
+        The needle by mechanics and the organ that deforms
+        (:mod:`needlekit.execute.straight_physics`; ``--truth mechanics|physical``).
 
     Returns
     -------
@@ -321,8 +354,10 @@ def run_multi_execution(
         want = {k: v for k, v in head.items() if k != "needlekit_version"}
         for r in read_partial(path, "execute", want).get("trials_done") or []:
             done[r["trial"]] = r
+    if physics is not None:
+        head["truth"] = physics.record()
     job = (lines, multi.deformation, radius, reg, float(registration_sd_mm), starts, scenario,
-           options, seed)  # fmt: skip
+           options, physics, seed)  # fmt: skip
 
     def with_coverage(result: dict) -> dict:
         if coverage is not None and "needles" in result:
@@ -369,6 +404,10 @@ def executed_coverage(rows: list[dict], region, zone) -> dict:
         "tumour_coverage": rep.tumour_coverage,
         "uncovered_ml": rep.uncovered_ml,
     }
+
+
+#: A physical needle's figures beside the error (:func:`_bent`), summarised when present.
+_PHYSICS = ("robot_error_mm", "needle_deflection_mm", "target_push_mm")
 
 
 def _stats(values) -> dict:
@@ -422,9 +461,12 @@ def multi_summary(records: list[dict], cs, options: TrialOptions, planned=None) 
             str(o): {
                 "error_mm": _stats(n["error_mm"] for n in rows if n["order"] == o),
                 "target_shift_mm": _stats(n["target_shift_mm"] for n in rows if n["order"] == o),
+                **{key: _stats(n[key] for n in rows if n["order"] == o)
+                   for key in _PHYSICS if rows and key in rows[0]},
             }
             for o in orders
         },
+        **{key: _stats(n[key] for n in rows) for key in _PHYSICS if rows and key in rows[0]},
         "statuses": {
             s: sum(n["status"] == s for n in rows) for s in sorted({n["status"] for n in rows})
         },

@@ -274,6 +274,10 @@ class DeformingTissue:
         Parameters
         ----------
         breathing : array-like, shape (3,)
+
+        Returns
+        -------
+        None
         """
         self._d = _vector(breathing, "breathing")
         self._u = (self._C @ self._f.ravel() + self._B @ self._d).reshape(-1, 3)
