@@ -222,15 +222,19 @@ class Policy:
     name : str
         One of :data:`POLICIES`.
     trace : BreathingTrace
+    deforming : bool
+        The organ deforms: the tissue at a needle let go moves by a share of the belt's
+        motion the controller does not know (:meth:`unknown_sigma_mm`), not by all of it.
     """
 
-    def __init__(self, name: str, trace: BreathingTrace) -> None:
+    def __init__(self, name: str, trace: BreathingTrace, deforming: bool = False) -> None:
         if name not in POLICIES:
             raise InvalidInputError(
                 "policy", f"expected one of {', '.join(POLICIES)}, got {name!r}"
             )
         self.name = name
         self.trace = trace
+        self.deforming = bool(deforming)
 
     def may_advance(self, t: float) -> bool:
         """Whether the needle may advance at ``t``.
@@ -277,7 +281,9 @@ class Policy:
 
     def unknown_sigma_mm(self, known_shift) -> float:
         """SD per axis of what the controller does not know of a step's shift: a needle
-        riding with the tissue moves with the cycle's own amplitude, not the predicted one.
+        riding with the tissue moves with the cycle's own amplitude, not the predicted one;
+        in an organ that deforms, by the tissue's own share of it at the tip besides
+        (taken as unknown up to the whole shift: the filter then follows the tip sensor).
 
         Parameters
         ----------
@@ -289,7 +295,10 @@ class Policy:
         """
         if self.name != "gate":
             return 0.0
-        return self.trace.breathing.amplitude_jitter * float(np.linalg.norm(known_shift))
+        share = math.hypot(self.trace.breathing.amplitude_jitter, 1.0) if self.deforming else (
+            self.trace.breathing.amplitude_jitter
+        )
+        return share * float(np.linalg.norm(known_shift))
 
     def control_offset(self, t: float) -> np.ndarray:
         """What the controller subtracts from the sensed tip to get its frame's tip.

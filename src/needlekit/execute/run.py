@@ -33,6 +33,7 @@ import numpy as np
 
 from needlekit.control.em import EMSensorSpec
 from needlekit.errors import InvalidInputError
+from needlekit.execute.breathing import Policy
 from needlekit.execute.calibration import Calibration
 from needlekit.execute.faults import (
     REPLAN_OVERRUN_S,
@@ -426,6 +427,8 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
     policy = hooks.breathing
     t_max = TIME_CAP_FACTOR * limit / s.insertion_speed_mm_s
     breathe = None if policy is None else getattr(needle, "breathe", None)
+    if breathe is not None and not policy.deforming:  # the organ's motion is not the belt's
+        policy = Policy(policy.name, policy.trace, deforming=True)
     while needle.inserted_mm < limit and t < t_max:
         if breathe is not None:  # a truth whose organ breathes through its own model
             breathe(policy.trace.actual(t))
