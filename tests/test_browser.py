@@ -206,7 +206,7 @@ def lung_pages(tmp_path_factory):
         main(["plan", str(LUNG), "--out", str(d / "plan.json"), "--report", str(d / "plan.html")])
         == 0
     )
-    code = main(["execute", str(LUNG), str(d / "plan.json"), "--trials", "5", "--out", str(d / "ex"),
+    code = main(["execute", "--truth", "kinematic", str(LUNG), str(d / "plan.json"), "--trials", "5", "--out", str(d / "ex"),
                  "--report", str(d / "execute.html")])  # fmt: skip
     assert code in (0, 1)
     mp = pytest.MonkeyPatch()

@@ -663,7 +663,7 @@ PAGE_BYTES = 6_000_000
 def executed(made):
     """Two trials of the toy plan (``needlekit execute``) and the page the command drew."""
     out = made / "ex"
-    _run(["execute", TOY, made / "plan.json", "--trials", "2", "--out", out, "--report",
+    _run(["execute", "--truth", "kinematic", TOY, made / "plan.json", "--trials", "2", "--out", out, "--report",
           made / "execute-command.html"], ok=(0, 1))  # fmt: skip
     return out / "execute.json"
 

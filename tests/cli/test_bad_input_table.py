@@ -1050,59 +1050,59 @@ ROWS = [
     ),
     # -- execute (issue 21)
     (
-        ["execute", "{TOY}", "{d}/malformed.json"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json"],
         "error: {d}/malformed.json: not a JSON plan file (Expecting ',' delimiter: line 1 column 8 (char 7))",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "0"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--trials", "0"],
         "error: argument --trials: expected a whole number in [1, 1000000000], got '0'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--trials", "2", "--replay-trial", "3"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--trials", "2", "--replay-trial", "3"],
         "error: --replay-trial: expected a trial number below --trials (2), got 3",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--igtl", "70000"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--igtl", "70000"],
         "error: --igtl: expected [HOST:]PORT with a port in 1-65535, got '70000'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--tip-from-igtl", "X"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--tip-from-igtl", "X"],
         "error: --tip-from-igtl: takes the tip from the --igtl link: give that too",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--breathing", "lung", "--breathing-shape", "9"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--breathing", "lung", "--breathing-shape", "9"],
         "error: argument --breathing-shape: expected a whole number in [1, 6], got '9'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--orientation-noise-rad", "0.1"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--orientation-noise-rad", "0.1"],
         "error: --orientation-noise-rad: expected at most 0.05, got 0.1",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "em,sonar"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--sensing", "em,sonar"],
         "error: argument --sensing: expected policies among em, checkpoints, tracking "
         "(comma-separated), got 'sonar'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
          "--tracking-rate-hz", "0"],
         "error: argument --tracking-rate-hz: expected a number in (0, 1000] Hz, got '0'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--sensing", "tracking",
          "--tracking-latency-ms", "-5"],
         "error: argument --tracking-latency-ms: expected a number in [0, 10000] ms, got '-5'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--sensing", "checkpoints",
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--sensing", "checkpoints",
          "--checkpoint-every-mm", "0.5"],
         "error: argument --checkpoint-every-mm: expected a number in [1, 1000] mm, got '0.5'",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--scan-s", "5"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--scan-s", "5"],
         "error: --scan-s: sets the checkpoints sensor: add checkpoints to --sensing",
     ),
     (
-        ["execute", "{TOY}", "{d}/malformed.json", "--registration-sd-mm", "1"],
+        ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json", "--registration-sd-mm", "1"],
         "error: --registration-sd-mm: applies to a multi plan (multi.json)",
     ),
     (

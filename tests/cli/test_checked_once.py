@@ -138,7 +138,7 @@ def test_execute_reads_its_scenario_and_its_plan_once(tmp_path, monkeypatch):
     monkeypatch.setattr(safe_yaml, "load_bounded", counting_load)
     reads = _count_json_reads(monkeypatch)
     out = tmp_path / "run"
-    argv = ["execute", TOY, str(plan), "--trials", "2", "--replan-iterations", "100",
+    argv = ["execute", "--truth", "kinematic", TOY, str(plan), "--trials", "2", "--replan-iterations", "100",
             "--replan-delay-ms", "5", "--no-cache", "--out", str(out)]  # fmt: skip
     assert main(argv) in (0, 1)
     assert len(json.loads((out / "execute.json").read_text())["trials"]) == 2

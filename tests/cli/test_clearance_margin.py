@@ -121,14 +121,14 @@ def test_sweep_plans_under_the_flags_margin(planned):
 def test_execute_checks_the_plan_against_the_flags_margin(planned, capsys):
     d, _ = planned
     # the plan made without a margin keeps 2.557 mm: at 3 mm it fails before any trial
-    assert main(["execute", str(TOY), str(d / "plan.json"), "--safety-margin-mm", "3",
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(d / "plan.json"), "--safety-margin-mm", "3",
                  "--trials", "1", "--out", str(d / "e3")]) == 2  # fmt: skip
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("error: plan: plan.json fails its check against toy.yaml: "
                            "collision: certified clearance 2.5574 mm")
     assert line.endswith("below the safety margin 3 mm, outside the start exclusion")
     assert not (d / "e3").exists()
-    code, _ = _run(["execute", TOY, d / "plan.json", "--safety-margin-mm", "1", "--trials", "1",
+    code, _ = _run(["execute", "--truth", "kinematic", TOY, d / "plan.json", "--safety-margin-mm", "1", "--trials", "1",
                     "--replan-iterations", "500", "--replan-delay-ms", "5", "--out", d / "e1"])  # fmt: skip
     doc = json.loads((d / "e1" / "execute.json").read_text())
     assert doc["summary"]["margin_mm"] == 1.0

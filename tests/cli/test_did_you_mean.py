@@ -23,12 +23,12 @@ CASES = [
      "plan?"),
     (["study", "feng-lung"], "error: argument STUDY: invalid choice: 'feng-lung' (choose from "
      "'livers', 'feng-lungs', 'execute-lungs'); did you mean feng-lungs?"),
-    (["execute", "{TOY}", "{TOY}", "--trails", "3"],
+    (["execute", "--truth", "kinematic", "{TOY}", "{TOY}", "--trails", "3"],
      "error: --trails: not a flag of needlekit execute; did you mean --trials?"),
-    (["execute", "{TOY}", "{TOY}", "--trial", "3"],
+    (["execute", "--truth", "kinematic", "{TOY}", "{TOY}", "--trial", "3"],
      "error: --trial: not a flag of needlekit execute; did you mean --trials N (how many "
      "trials) or --replay-trial K (run trial K alone)?"),
-    (["execute", "{TOY}", "{TOY}", "--trial=3"],
+    (["execute", "--truth", "kinematic", "{TOY}", "{TOY}", "--trial=3"],
      "error: --trial: not a flag of needlekit execute; did you mean --trials N (how many "
      "trials) or --replay-trial K (run trial K alone)?"),
     (["plan", "{TOY}", "--plnner", "rcs"],
@@ -38,7 +38,7 @@ CASES = [
      "error: --time-limit: not a flag of needlekit plan; did you mean --time-limit-s?"),
     (["plan", "{TOY}", "--safety-margin", "1"],
      "error: --safety-margin: not a flag of needlekit plan; did you mean --safety-margin-mm?"),
-    (["execute", "{TOY}", "{TOY}", "--breathing", "lnug"],
+    (["execute", "--truth", "kinematic", "{TOY}", "{TOY}", "--breathing", "lnug"],
      "error: argument --breathing: invalid choice: 'lnug' (choose from 'lung', 'liver'); did "
      "you mean lung?"),
     (["plan", "{TOY}", "--planner", "rcs_str"],

@@ -151,7 +151,7 @@ SLOTS = [
     ["multi", "X"],
     ["approach", "X"],
     ["markups", "X", "--out", "OUT/m.mrk.json"],
-    ["execute", TOY, "X", "--trials", "1"],
+    ["execute", "--truth", "kinematic", TOY, "X", "--trials", "1"],
     ["report", "X", "--out", "OUT/r.html"],
     ["scene", "info", "X"],
     ["scene", "render", "X", "--out", "OUT/s.html"],

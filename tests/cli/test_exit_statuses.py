@@ -133,7 +133,7 @@ def test_execute_exits_as_its_help_says(mode, flags, crossed, aborted, crashed, 
     outcome.update(crossed=crossed, aborted=aborted, crashed=crashed)
     out = io.StringIO()
     with redirect_stdout(out):
-        code = main(["execute", str(TOY), str(plan), "--trials", "3", "--out",
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--trials", "3", "--out",
                      str(tmp_path / "o"), *flags])  # fmt: skip
     assert code == status
     said = [x for x in out.getvalue().splitlines() if x.startswith("exit 1: ")]
@@ -208,7 +208,7 @@ def test_execute_of_a_multi_plan_exits_as_its_help_says(touched, constraints, cr
     plan.write_text(json.dumps({"needles": []}))
     out = io.StringIO()
     with redirect_stdout(out):
-        code = main(["execute", str(TOY), str(plan), "--trials", "2", "--out",
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--trials", "2", "--out",
                      str(tmp_path / "o")])  # fmt: skip
     assert code == (1 if touched or constraints or crashed else 0)
     assert "nan" not in out.getvalue()

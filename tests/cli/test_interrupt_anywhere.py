@@ -28,7 +28,7 @@ COMMANDS = {
                        "--workers", "2", "--out", "{d}/sweep.json"], 2),
     "puncture": (["puncture", "--trials", "1", "--out", "{d}"], 3),
     "puncture-workers": (["puncture", "--trials", "2", "--workers", "2", "--out", "{d}"], 1),
-    "execute": (["execute", TOY, "{plan}", "--trials", "3", "--out", "{d}"], 2),
+    "execute": (["execute", "--truth", "kinematic", TOY, "{plan}", "--trials", "3", "--out", "{d}"], 2),
     "multi": (["multi", MULTI, "--out", "{d}/multi.json"], 2),
     "cfrw": (["cfrw", MULTI, "--out", "{d}/cfrw.json"], 2),
     "bench": (["bench", "kinematics", "--arcs", "20000", "--samples", "8", "--repeat", "1",

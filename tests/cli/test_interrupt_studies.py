@@ -26,7 +26,7 @@ STUDIES = {
     ),
     "livers": ("study livers --livers 1 --gamma 1.5 --resolution-deg 3 --out {d}/livers.json", 3),
     "execute-lungs": (
-        "study execute-lungs --patients 4 --trials 2 --pilot-trials 2 --out {d}",
+        "study execute-lungs --truth kinematic --patients 4 --trials 2 --pilot-trials 2 --out {d}",
         2,
     ),
 }

@@ -258,31 +258,31 @@ CASES["formerly heavy"] = [
 #: cannot warm-start; each refused before the plan is read.
 CASES["execute plug points"] = [
     ["execute", TOY, "{d}/malformed.json", "--truth", "kinematik"],
-    ["execute", TOY, "{d}/malformed.json", "--estimator", "kalmann"],
-    ["execute", TOY, "{d}/malformed.json", "--feedback", "nope"],
-    ["execute", TOY, "{d}/malformed.json", "--sensor", "igtl"],
-    ["execute", TOY, "{d}/malformed.json", "--replanner", "rrt"],
-    ["execute", TOY, "{d}/malformed.json", "--replanner", "rcs_sta"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--estimator", "kalmann"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--feedback", "nope"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensor", "igtl"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--replanner", "rrt"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--replanner", "rcs_sta"],
 ]
 
 
 #: ``execute``'s target sensing: a policy unknown or twice, a sensor's setting out of its
 #: range, or given without its policy; each refused before the plan is read.
 CASES["execute sensing"] = [
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "em,sonar"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "em,em"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-rate-hz", "0"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-latency-ms",
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "em,sonar"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "em,em"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-rate-hz", "0"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-latency-ms",
      "-1"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-sigma-mm",
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "tracking", "--tracking-sigma-mm",
      "nan"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--scan-s", "inf"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--image-sigma-mm",
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--scan-s", "inf"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "checkpoints", "--image-sigma-mm",
      "-0.1"],
-    ["execute", TOY, "{d}/malformed.json", "--sensing", "checkpoints",
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--sensing", "checkpoints",
      "--checkpoint-every-mm", "0"],
-    ["execute", TOY, "{d}/malformed.json", "--tracking-rate-hz", "5"],
-    ["execute", TOY, "{d}/malformed.json", "--retarget-mm", "1"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--tracking-rate-hz", "5"],
+    ["execute", "--truth", "kinematic", TOY, "{d}/malformed.json", "--retarget-mm", "1"],
 ]  # fmt: skip
 
 

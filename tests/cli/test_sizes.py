@@ -53,7 +53,7 @@ CASES = [
         'error: --guide-samples: 1000000000 samples would need at least 7.45 GiB; this machine has 2 GiB available',
     ),
     (
-        ["execute","{E}/toy.yaml","{T}/plan.json","--trials","1000000000","--out","{T}/e"],
+        ["execute","{E}/toy.yaml","{T}/plan.json","--trials","1000000000","--out","{T}/e","--truth","kinematic"],
         'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
@@ -61,7 +61,7 @@ CASES = [
         'error: --trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
-        ["study","execute-lungs","--pilot-trials","1000000000","--out","{T}/el"],
+        ["study","execute-lungs","--pilot-trials","1000000000","--out","{T}/el","--truth","kinematic"],
         'error: --pilot-trials: 1000000000 trials would need at least 59.6 GiB; this machine has 2 GiB available',
     ),
     (
@@ -187,7 +187,7 @@ def test_a_replayed_trial_is_one_trial_whatever_trials_says():
     parser, so a renamed flag cannot leave the size rule reading a name that is gone."""
     from needlekit.cli._parser import _build_parser
 
-    argv = ["execute", "s.yaml", "p.json", "--trials", "1000000000", "--out", "o"]
+    argv = ["execute", "--truth", "kinematic", "s.yaml", "p.json", "--trials", "1000000000", "--out", "o"]
     parser = _build_parser()
     args = parser.parse_args(argv)
     assert [s.flag for s in args.sizes(args)] == ["--trials"]

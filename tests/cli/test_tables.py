@@ -130,7 +130,7 @@ def toy_plan(tmp_path_factory):
 
 
 def test_execute_with_breathing(toy_plan, tmp_path):
-    code, text = _run(["execute", TOY, toy_plan, "--trials", "1", "--breathing", "lung",
+    code, text = _run(["execute", "--truth", "kinematic", TOY, toy_plan, "--trials", "1", "--breathing", "lung",
                        "--replan-delay-ms", "5", "--replan-iterations", "500", "--seed", "3",
                        "--out", tmp_path / "e"])  # fmt: skip
     run, breathing = check_tables(text, 2)
@@ -174,11 +174,38 @@ def test_the_execute_lungs_table(monkeypatch, tmp_path):
         "holds": False, "wall_s": 1.0,
     }  # fmt: skip
     monkeypatch.setattr(study, "run_execute_lungs", lambda *a, **k: record)
-    code, text = _run(["study", "execute-lungs", "--trials", "1", "--out", tmp_path / "x"])
+    code, text = _run(["study", "execute-lungs", "--truth", "kinematic", "--trials", "1", "--out", tmp_path / "x"])
     assert code == 1
     cases, per_policy = check_tables(text, 2)
     assert cases[1][1][:3] == ["lung 2", "no plan", "-"]
     assert per_policy[0][2:4] == ["mean mm", "sd mm"]
+
+
+def test_the_physical_execute_lungs_table(monkeypatch, tmp_path):
+    import needlekit.studies.execute_lungs as study
+
+    loop = {"mean_error_mm": 0.9, "sd_error_mm": 0.3, "p95_error_mm": 1.5, "max_error_mm": 1.8,
+            "violated": 0}  # fmt: skip
+    record = {
+        "cases": [
+            {"patient": 4, "status": "done", "start": 1, "margin_mm": 1.5, "holds": True,
+             "open_loop": {**loop, "mean_error_mm": 2.6}, "closed_loop": loop,
+             "sensing": {"em": {**loop, "scans": None, "target_moved_mm": 1.5},
+                         "checkpoints": {**loop, "scans": 4.5, "target_moved_mm": 1.6}}},
+            {"patient": 2, "status": "infeasible"},
+        ],
+        "holds": False, "wall_s": 1.0,
+    }  # fmt: skip
+    monkeypatch.setattr(study, "run_execute_lungs", lambda *a, **k: record)
+    code, text = _run(["study", "execute-lungs", "--sensing", "em,checkpoints", "--trials", "1",
+                       "--out", tmp_path / "x"])  # fmt: skip
+    assert code == 1
+    ((headers, rows, _),) = check_tables(text, 1)
+    assert headers[3:5] == ["sensing", "closed loop mm"]
+    assert rows[0][:5] == ["lung 4", "start 1, 1.5 mm", "2.60 +- 0.30, 1.50, 1.80", "em",
+                           "0.90 +- 0.30, 1.50, 1.80"]  # fmt: skip
+    assert rows[1][3:7] == ["checkpoints", "0.90 +- 0.30, 1.50, 1.80", "0", "4.5"]
+    assert rows[2][:2] == ["lung 2", "infeasible"]
 
 
 def test_the_sensing_table():

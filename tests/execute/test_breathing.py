@@ -108,7 +108,7 @@ def test_gating_inserts_only_in_the_window_and_takes_its_share_longer(toy):
 def test_the_command_runs_the_three_policies_beside_each_other(tmp_path, capsys):
     plan = tmp_path / "plan.json"
     assert main(["plan", str(TOY), "--out", str(plan)]) == 0
-    assert main(["execute", str(TOY), str(plan), "--trials", "1", "--out", str(tmp_path),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--trials", "1", "--out", str(tmp_path),
                  "--breathing", "lung", "--replan-iterations", "500", "--replan-delay-ms", "5"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert all(f"breathing, {name}" in out for name in POLICIES)
@@ -121,7 +121,7 @@ def test_the_command_runs_the_three_policies_beside_each_other(tmp_path, capsys)
                          (["--breathing", "liver", "--breathing-period-s", "0.5"], "--breathing-period-s"),
                          (["--breathing", "lung", "--breathing-direction", "0,0,0"], "--breathing-direction")):  # fmt: skip
         try:
-            code = main(["execute", str(TOY), str(plan), "--out", str(tmp_path / "x"), *flags])
+            code = main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--out", str(tmp_path / "x"), *flags])
         except SystemExit as exc:  # a value out of the flag's range: refused by the parser
             code = exc.code
         assert code == 2

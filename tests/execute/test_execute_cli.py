@@ -47,7 +47,7 @@ def toy_plan(tmp_path_factory):
 @pytest.fixture(scope="module")
 def three_trials(toy_plan):
     out = toy_plan.parent / "three"
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--out", str(out),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "3", "--out", str(out),
                  *REPRODUCIBLE]) == 0  # fmt: skip
     return json.loads((out / "execute.json").read_text())
 
@@ -73,7 +73,7 @@ def test_every_trial_runs_open_and_closed_loop_on_the_same_needle(toy_plan, thre
 
 
 def test_one_trial_replays_alone_to_the_bit(toy_plan, three_trials, tmp_path):
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--replay-trial", "1",
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "3", "--replay-trial", "1",
                  "--out", str(tmp_path), *REPRODUCIBLE]) == 0  # fmt: skip
     alone = json.loads((tmp_path / "execute.json").read_text())["trials"]
     assert len(alone) == 1 and alone[0] == three_trials["trials"][1]
@@ -109,7 +109,7 @@ def test_bad_input_is_one_line_and_exit_2_before_any_work(
     plan = _plan_with(toy_plan, tmp_path, **change) if change else toy_plan
     out = tmp_path / "out"
     try:
-        code = main(["execute", str(TOY), str(plan), "--out", str(out), *flags])
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--out", str(out), *flags])
     except SystemExit as exc:  # the parser's own refusals
         code = exc.code
     assert code == 2
@@ -171,7 +171,7 @@ def test_ctrl_c_keeps_the_trials_done_and_resume_carries_on_to_the_same_record(
 
 def test_the_closed_loop_replans_under_a_strong_push_and_says_so(toy_plan, tmp_path):
     out = tmp_path / "push"
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
                  "--deflection-sd", "0.03", "--cross-track-mm", "0.2", *REPRODUCIBLE]) == 0  # fmt: skip
     closed = json.loads((out / "execute.json").read_text())["trials"][0]["closed_loop"]
     assert closed["replans"] >= 1
@@ -186,7 +186,7 @@ def test_the_page_renders_the_trial_and_the_histograms(
     toy_plan, tmp_path, browser, rendered, capsys
 ):
     page = tmp_path / "page.html"
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "3", "--out", str(tmp_path),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "3", "--out", str(tmp_path),
                  "--report", str(page), "--deflection-sd", "0.03", "--cross-track-mm", "0.2",
                  *REPRODUCIBLE]) == 0  # fmt: skip
     plots, pngs = rendered(page)
@@ -254,13 +254,13 @@ def test_a_sweeps_plan_is_carried_out_from_the_direction_the_sweep_chose(tmp_pat
     start = np.array(record["start_pose"])
     capsys.readouterr()
     out = tmp_path / "ex"
-    assert main(["execute", str(TOY), str(best), "--trials", "2", "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(best), "--trials", "2", "--out", str(out)]) == 2
     assert capsys.readouterr().err.splitlines() == [
         "error: plan: best.json was made for another scenario: its start pose differs from "
         "toy.yaml's (a sweep chose its direction: --any-start-direction carries it out)"
     ]
     assert not out.exists()
-    assert main(["execute", str(TOY), str(best), "--trials", "2", "--out", str(out),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(best), "--trials", "2", "--out", str(out),
                  "--any-start-direction", *REPRODUCIBLE]) == 0  # fmt: skip
     doc = json.loads((out / "execute.json").read_text())
     for trial in doc["trials"]:
@@ -274,7 +274,7 @@ def test_a_sweeps_plan_is_carried_out_from_the_direction_the_sweep_chose(tmp_pat
     other = tmp_path / "moved.json"
     other.write_text(json.dumps(moved))
     capsys.readouterr()
-    assert main(["execute", str(TOY), str(other), "--trials", "2", "--out", str(out),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(other), "--trials", "2", "--out", str(out),
                  "--any-start-direction"]) == 2  # fmt: skip
     assert capsys.readouterr().err.splitlines() == [
         "error: plan: moved.json was made for another scenario: its start point differs from "

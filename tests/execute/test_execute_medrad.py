@@ -91,7 +91,7 @@ def test_liver4_multi_plan_inserted_by_the_robot_touches_nothing_and_keeps_its_c
     scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_liver4.yaml"
     plan = tmp_path / "multi.json"
     assert main(["multi", str(scenario), "--out", str(plan)]) == 0
-    assert main(["execute", str(scenario), str(plan), "--trials", "1",
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "1",
                  "--out", str(tmp_path / "x")]) == 0  # fmt: skip
     doc = json.loads((tmp_path / "x" / "execute.json").read_text())
     s = doc["summary"]

@@ -75,9 +75,9 @@ def drag(tmp_path_factory):
     scenario.write_text(text)
     plan = d / "multi.json"
     assert main(["multi", str(scenario), "--out", str(plan)]) == 0
-    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--workers", "2",
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--workers", "2",
                  "--out", str(d / "two")]) == 0  # fmt: skip
-    assert main(["execute", str(scenario), str(plan), "--trials", "2", "--replay-trial", "1",
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--replay-trial", "1",
                  "--out", str(d / "one"), "--report", str(d / "one" / "page.html")]) == 0  # fmt: skip
     return {
         "scenario": scenario,
@@ -155,10 +155,10 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
          "--calibration-insertions: applies to a steerable plan; the plan is a multi plan"),
     ]  # fmt: skip
     for extra, line in cases:
-        assert main(["execute", str(scenario), str(plan), "--out", str(out), *extra]) == 2
+        assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--out", str(out), *extra]) == 2
         assert _err(capsys) == line
     # the plan aimed for the drag, against the same anatomy without it
-    assert main(["execute", str(PHANTOM), str(plan), "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(PHANTOM), str(plan), "--out", str(out)]) == 2
     assert re.fullmatch(
         r"error: plan: multi\.json: needle 2 is aimed \d+\.\d{3} mm from where "
         r"liver_phantom_multi\.yaml's deformation model moves its target",
@@ -169,12 +169,12 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
     rec["needles"][1]["entry_mm"][2] += 5.0
     bad = tmp_path / "moved.json"
     bad.write_text(json.dumps(rec))
-    assert main(["execute", str(scenario), str(bad), "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(bad), "--out", str(out)]) == 2
     assert _err(capsys).startswith("error: plan: moved.json fails its check against drag.yaml")
     # made for other targets (Liu et al.'s three-needle case: its first target is the
     # phantom's first, the others are not)
     liu = Path(__file__).resolve().parents[2] / "src/needlekit/data/liu2016_three_needles.yaml"
-    assert main(["execute", str(liu), str(plan), "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(liu), str(plan), "--out", str(out)]) == 2
     assert _err(capsys) == (
         "error: plan: multi.json was made for another scenario: needle 2's target is not one "
         "of liu2016_three_needles.yaml's"
@@ -185,14 +185,14 @@ def test_bad_input_is_one_line_and_exit_2_before_any_trial(drag, tmp_path, capsy
     rec["status"], rec["reason"] = "approximate", "the budget ran out before needle 3"
     unsolved = tmp_path / "unsolved.json"
     unsolved.write_text(json.dumps(rec))
-    assert main(["execute", str(scenario), str(unsolved), "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(unsolved), "--out", str(out)]) == 2
     assert _err(capsys) == (
         "error: plan: unsolved.json is not a solved plan (the budget ran out before needle 3)"
     )
     # a status that does not go with the needles (an edited plan)
     rec["status"] = "solved"
     unsolved.write_text(json.dumps(rec))
-    assert main(["execute", str(scenario), str(unsolved), "--out", str(out)]) == 2
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(unsolved), "--out", str(out)]) == 2
     assert _err(capsys) == (
         "error: unsolved.json: status: solved does not go with the needles' trajectories"
     )
@@ -203,7 +203,7 @@ def test_registration_flag_is_refused_for_a_steerable_plan(tmp_path, capsys):
     plan = tmp_path / "plan.json"
     plan.write_text('{"goal_mm": [0, 0, 0]}')
     toy = EXAMPLES / "toy.yaml"
-    code = main(["execute", str(toy), str(plan), "--registration-sd-mm", "1", "--out",
+    code = main(["execute", "--truth", "kinematic", str(toy), str(plan), "--registration-sd-mm", "1", "--out",
                  str(tmp_path / "o")])  # fmt: skip
     assert code == 2
     assert _err(capsys) == "error: --registration-sd-mm: applies to a multi plan (multi.json)"

@@ -97,7 +97,7 @@ def toy_plan(tmp_path_factory):
 
 def _execute(plugin_path, toy_plan, out, *flags):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), str(plugin_path)])}
-    argv = [sys.executable, "-m", "needlekit.cli", "execute", str(TOY), str(toy_plan),
+    argv = [sys.executable, "-m", "needlekit.cli", "execute", "--truth", "kinematic", str(TOY), str(toy_plan),
             "--trials", "1", "--replan-delay-ms", "5", "--replan-iterations", "200",
             "--out", str(out), *flags]  # fmt: skip
     return subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)

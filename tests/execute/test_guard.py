@@ -188,9 +188,9 @@ def test_faults_replay_with_trial_k_and_no_obstacle_is_crossed(tmp_path):
     assert main(["plan", str(TOY), "--out", str(plan)]) == 0
     common = ["--seed", "3", "--faults", "mixed", "--replan-delay-ms", "5",
               "--replan-iterations", "200", "--speed-mm-s", "10"]  # fmt: skip
-    assert main(["execute", str(TOY), str(plan), "--trials", "3", "--out", str(tmp_path / "a"),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--trials", "3", "--out", str(tmp_path / "a"),
                  *common]) == 0  # fmt: skip
-    assert main(["execute", str(TOY), str(plan), "--replay-trial", "2", "--out", str(tmp_path / "b"),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(plan), "--replay-trial", "2", "--out", str(tmp_path / "b"),
                  *common]) == 0  # fmt: skip
     import json
 
@@ -214,7 +214,7 @@ def test_faults_replay_with_trial_k_and_no_obstacle_is_crossed(tmp_path):
 )
 def test_bad_fault_flags_are_one_line_naming_the_flag(flags, flag, tmp_path, capsys):
     try:
-        code = main(["execute", str(TOY), str(tmp_path / "missing.json"), "--out",
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(tmp_path / "missing.json"), "--out",
                      str(tmp_path / "x"), *flags])  # fmt: skip
     except SystemExit as exc:  # the parser's own refusal
         code = exc.code

@@ -75,7 +75,7 @@ def test_the_libraries_receive_client_decodes_every_transform_and_string(toy_pla
     stop = threading.Event()
     threading.Thread(target=_receive_client, args=(port, out, holder, stop), daemon=True).start()
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
                      "--igtl", str(port), "--igtl-wait-s", "20", "--igtl-realtime", "4",
                      "--speed-mm-s", "10", "--replan-delay-ms", "5"])  # fmt: skip
     finally:
@@ -108,7 +108,7 @@ def test_the_libraries_tracker_server_as_the_tracker_is_refused_and_holds(toy_pl
                               stderr=subprocess.DEVNULL)  # fmt: skip
     try:
         time.sleep(0.3)  # its socket listening
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
                      "--igtl", f"127.0.0.1:{port}", "--igtl-wait-s", "20", "--igtl-realtime", "2",
                      "--speed-mm-s", "10", "--tip-from-igtl", "Tracker", "--hold-timeout-s", "1",
                      "--replan-delay-ms", "5"])  # fmt: skip

@@ -119,7 +119,7 @@ def _run(toy_plan, out, kind, extra=()):
 
     threading.Thread(target=tracker, daemon=True).start()
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
                      "--igtl", str(port), "--igtl-wait-s", "20", *PACE,
                      "--tip-from-igtl", "NeedleToTracker", "--hold-timeout-s", "1", *extra])  # fmt: skip
     finally:
@@ -200,7 +200,7 @@ def test_a_peer_that_never_reads_does_not_stall_the_insertion(toy_plan, tmp_path
 
     threading.Thread(target=connect, daemon=True).start()
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
                      "--igtl", str(port), "--igtl-wait-s", "20", "--igtl-realtime", "0",
                      "--replan-delay-ms", "5"])  # fmt: skip
     finally:

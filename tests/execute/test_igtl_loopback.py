@@ -85,7 +85,7 @@ def _run(toy_plan, out, extra, echo=False, pace=("--igtl-realtime", "10", "--spe
     if echo:
         threading.Thread(target=tracker, daemon=True).start()
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
                      "--igtl", str(port), "--igtl-wait-s", "20", *pace, "--replan-delay-ms", "5",
                      *extra])  # fmt: skip
         time.sleep(0.2)  # the last messages in flight
@@ -147,7 +147,7 @@ def test_the_link_flags_are_checked_before_any_work(toy_plan, tmp_path, capsys):
         (["--tip-from-igtl", "NeedleToTracker"], "--tip-from-igtl"),
         (["--igtl", "18944", "--trials", "1", "--workers", "2"], "--igtl"),
     ):
-        assert main(["execute", str(TOY), str(toy_plan), "--out", str(tmp_path / "x"), *flags]) == 2
+        assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--out", str(tmp_path / "x"), *flags]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and words in err
     assert not (tmp_path / "x").exists()
@@ -159,7 +159,7 @@ def test_a_client_that_leaves_ends_the_stream_in_one_line_and_the_run_goes_on(
     port = _free_port()
     client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=port, start_now=True)
     threading.Timer(0.3, client.stop).start()  # Slicer closed a moment after connecting
-    code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+    code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
                  "--igtl", str(port), "--igtl-realtime", "10", "--speed-mm-s", "10",
                  "--replan-delay-ms", "5"])  # fmt: skip
     err = capsys.readouterr().err
@@ -179,7 +179,7 @@ def test_the_link_connects_to_a_server_when_given_a_host(toy_plan, tmp_path, cap
     log: list = []
     server.incoming_messages = _Every(log)
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(tmp_path),
                      "--igtl", f"127.0.0.1:{port}", "--igtl-realtime", "10", "--speed-mm-s",
                      "10", "--replan-delay-ms", "5"])  # fmt: skip
         time.sleep(0.2)

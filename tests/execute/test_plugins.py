@@ -244,7 +244,7 @@ def test_every_estimator_and_law_brings_a_noisy_needle_to_the_goal(truth, estima
 def test_the_command_line_refuses_a_wrong_name_before_any_work(tmp_path, capsys):
     bad = tmp_path / "plan.json"
     bad.write_text("{")
-    code = main(["execute", "examples/toy.yaml", str(bad), "--feedback", "pure_persuit",
+    code = main(["execute", "--truth", "kinematic", "examples/toy.yaml", str(bad), "--feedback", "pure_persuit",
                  "--out", str(tmp_path / "out")])  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err.strip()

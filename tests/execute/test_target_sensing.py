@@ -114,8 +114,8 @@ def test_em_misses_the_moved_target_and_the_imaged_loops_reach_it(moving_trial):
 
 def test_em_alone_gives_the_loop_it_always_was(toy_plan, tmp_path):
     flags = ["--trials", "1", *REPRODUCIBLE]
-    assert main(["execute", str(TOY), str(toy_plan), "--out", str(tmp_path / "a"), *flags]) == 0
-    assert main(["execute", str(TOY), str(toy_plan), "--out", str(tmp_path / "b"), *flags,
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--out", str(tmp_path / "a"), *flags]) == 0
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--out", str(tmp_path / "b"), *flags,
                  "--sensing", "em"]) == 0  # fmt: skip
     a, b = (json.loads((tmp_path / d / "execute.json").read_text()) for d in ("a", "b"))
     assert a["trials"] == b["trials"] and a["summary"] == b["summary"]
@@ -204,7 +204,7 @@ def test_a_target_pushed_on_after_the_last_checkpoint_is_reached_by_an_arrival_s
 
 def test_the_side_by_side_run_writes_a_block_and_a_row_per_policy(toy_plan, tmp_path, capsys):
     out = tmp_path / "side"
-    assert main(["execute", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
                  "--sensing", "em,checkpoints,tracking", *REPRODUCIBLE]) == 0  # fmt: skip
     printed = capsys.readouterr().out
     doc = json.loads((out / "execute.json").read_text())
@@ -277,7 +277,7 @@ def test_bad_sensing_flags_are_one_line_naming_the_flag(toy_plan, tmp_path, caps
                                                         words):  # fmt: skip
     out = tmp_path / "out"
     try:
-        code = main(["execute", str(TOY), str(toy_plan), "--out", str(out), *flags])
+        code = main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--out", str(out), *flags])
     except SystemExit as exc:  # the parser's own refusals
         code = exc.code
     assert code == 2

@@ -290,7 +290,7 @@ def test_a_real_plan_and_execution_of_the_toy_lung(tmp_path):
     """`needlekit plan` then `needlekit execute` (2 trials), the scene against both files."""
     plan_path, ex = tmp_path / "plan.json", tmp_path / "ex"
     assert main(["plan", str(TOY), "--out", str(plan_path)]) == 0
-    assert main(["execute", str(TOY), str(plan_path), "--trials", "2", "--seed", "0",
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(plan_path), "--trials", "2", "--seed", "0",
                  "--out", str(ex)]) == 0  # fmt: skip
     out = tmp_path / "case.mrb"
     assert main(["slicer", str(TOY), str(plan_path), "--execution", str(ex / "execute.json"),
@@ -313,7 +313,7 @@ def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path):
     scenario = EXAMPLES / "liver_phantom_multi.yaml"
     plan_path, ex = tmp_path / "multi.json", tmp_path / "ex"
     assert main(["multi", str(scenario), "--out", str(plan_path)]) == 0
-    assert main(["execute", str(scenario), str(plan_path), "--trials", "2", "--seed", "0",
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan_path), "--trials", "2", "--seed", "0",
                  "--out", str(ex)]) == 0  # fmt: skip
     out = tmp_path / "liver.mrb"
     assert main(["slicer", str(scenario), str(plan_path), "--execution", str(ex / "execute.json"),

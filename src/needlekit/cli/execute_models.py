@@ -9,7 +9,8 @@ import math
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_model_flags", "check_physics_flags", "checked_models", "physics_options", "say_model", "say_pinned"]
+__all__ = ["add_mechanics_flags", "add_model_flags", "check_physics_flags", "checked_models", "physics_options", "resolve_truth",
+           "say_model", "say_pinned"]
 
 #: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
 #: named here so that the parser refuses a wrong one without importing the mechanics.
@@ -18,13 +19,25 @@ TISSUES = ("chicken", "gelatin", "liver", "lung", "plastisol")
 
 #: The mechanics' flags, by their argparse destination, and their defaults: they apply to
 #: ``--truth mechanics`` and ``physical`` (``--tissue-boundary`` to ``physical``) alone.
-MECHANICS_DEFAULTS = {"needle": "nitinol", "tissue": None, "prebend_deg": 0.0,
+#: ``prebend_deg`` None: :data:`STEERABLE_PREBEND_DEG` for a steerable plan, a straight tip
+#: for a multi plan's needles.
+MECHANICS_DEFAULTS = {"needle": "nitinol", "tissue": None, "prebend_deg": None,
                       "inhomogeneity": 0.1, "calibration_insertions": 24,
                       "tissue_boundary": "organ"}  # fmt: skip
 
-#: The flags, by their argparse destination, and the default each has (today's loop).
-MODEL_DEFAULTS = {"truth": "kinematic", "sensor": "em", "estimator": "kalman",
+#: The flags, by their argparse destination, and the default each has.
+MODEL_DEFAULTS = {"truth": "physical", "sensor": "em", "estimator": "kalman",
                   "feedback": "pure_pursuit", "replanner": "rcs_star"}  # fmt: skip
+
+#: A steerable plan's needle under the mechanics, unless ``--prebend-deg`` says otherwise:
+#: a tip pre-bent by 20 degrees. A bevel alone barely steers in soft tissue (the rod turns
+#: at 117 m in the ``lung`` preset, 53 m in ``liver``; Majewicz et al. found the same in
+#: vivo), so a steerable needle is a pre-bent one (docs/mechanics.md).
+STEERABLE_PREBEND_DEG: float = 20.0
+
+#: The calibrated radius may exceed the plan's r_min by this factor before ``execute``
+#: warns that the plan turns tighter than the needle can (the calibration's own spread).
+R_MIN_SLACK: float = 1.05
 
 
 def add_model_flags(p: argparse.ArgumentParser) -> None:
@@ -42,9 +55,12 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
         "plug points: what the simulation believes and what runs the loop (docs/execute.md; "
         "others register under the needlekit.execute.* entry-point groups)"
     )
-    g.add_argument("--truth", default="kinematic", metavar="NAME",
-                   help="the needle and tissue simulated: kinematic (default), layered, or a "
-                   "registered one")  # fmt: skip
+    g.add_argument("--truth", default=None, metavar="NAME",
+                   help="the needle and tissue simulated: physical (default: the needle bent by "
+                   "mechanics in the scenario's organ, which deforms; mechanics where the "
+                   "scenario has no organ to mesh), mechanics (the rod in still tissue), "
+                   "kinematic (the planner's own needle with noise), layered, or a registered "
+                   "one")  # fmt: skip
     g.add_argument("--sensor", default="em", metavar="NAME",
                    help="the tip sensor: em (the simulated EM sensor, default), or a "
                    "registered one (--tip-from-igtl: the tracker)")  # fmt: skip
@@ -56,6 +72,20 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
     g.add_argument("--replanner", default="rcs_star", metavar="PLANNER",
                    help="the planner that re-plans: a steerable planner declaring "
                    "'warm_start' (rcs_star, the default, or rcs)")  # fmt: skip
+    add_mechanics_flags(p)
+
+
+def add_mechanics_flags(p: argparse.ArgumentParser) -> None:
+    """Add the needle's and tissue's flags of ``--truth mechanics`` and ``physical``.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+
+    Returns
+    -------
+    None
+    """
     from needlekit.cli._common import number
 
     m = p.add_argument_group(
@@ -68,7 +98,9 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
                    help="the tissue preset (default: the scenario's organ, lung otherwise)")  # fmt: skip
     m.add_argument("--prebend-deg", type=number(0.0, 89.0, unit="deg"),
                    default=MECHANICS_DEFAULTS["prebend_deg"],
-                   help="a pre-bent tip: its bend toward the bevel over 5 mm (default 0)")  # fmt: skip
+                   help="a pre-bent tip: its bend toward the bevel over 5 mm (default "
+                   f"{STEERABLE_PREBEND_DEG:g} for a steerable plan, 0 for a multi plan's "
+                   "straight needles)")  # fmt: skip
     m.add_argument("--inhomogeneity", type=number(0.0, 2.0),
                    default=MECHANICS_DEFAULTS["inhomogeneity"],
                    help="SD of the tissue's mm-to-mm variation of the tip load (default 0.1)")  # fmt: skip
@@ -81,6 +113,56 @@ def add_model_flags(p: argparse.ArgumentParser) -> None:
                    default=MECHANICS_DEFAULTS["calibration_insertions"], metavar="N",
                    help="curved insertions the loop's model is calibrated from (and N/2 "
                    "straight ones; default 24)")  # fmt: skip
+
+
+def resolve_truth(args: argparse.Namespace) -> None:
+    """Set ``args.truth`` to its default when ``--truth`` was not given (``physical``),
+    remembering in ``args.truth_given`` whether it was: a default ``physical`` becomes
+    ``mechanics`` on a scenario with no organ to mesh (:func:`physics_options`), a given one
+    is refused there.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+
+    Returns
+    -------
+    None
+    """
+    if getattr(args, "truth_given", None) is None:
+        args.truth_given = args.truth is not None
+    if args.truth is None:
+        args.truth = MODEL_DEFAULTS["truth"]
+
+
+def no_organ(args: argparse.Namespace, what: str) -> str:
+    """``--truth physical`` on a scenario with no organ to mesh: refused when given, the rod
+    in still tissue (``mechanics``, said in one line) when it was the default.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    what : str
+        The scenario, for the line.
+
+    Returns
+    -------
+    str
+        ``"mechanics"``.
+
+    Raises
+    ------
+    InvalidInputError
+        ``--truth physical`` given.
+    """
+    if args.truth_given:
+        raise InvalidInputError(
+            "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
+        )
+    print(f"{what} has no organ to mesh: its needle bends by mechanics in still tissue "
+          "(--truth mechanics; --truth kinematic for the planner's own needle)")  # fmt: skip
+    args.truth = "mechanics"
+    return "mechanics"
 
 
 def check_physics_flags(args: argparse.Namespace) -> None:
@@ -100,6 +182,7 @@ def check_physics_flags(args: argparse.Namespace) -> None:
     InvalidInputError
         Named by the flag given with another truth.
     """
+    resolve_truth(args)
     for dest, default in MECHANICS_DEFAULTS.items():
         wants = ("physical",) if dest == "tissue_boundary" else ("mechanics", "physical")
         if getattr(args, dest, default) != default and args.truth not in wants:
@@ -129,6 +212,7 @@ def checked_models(args: argparse.Namespace):
     from needlekit.execute.plugins import Models, check_models
     from needlekit.planning.registry import check_replanner
 
+    resolve_truth(args)
     sensor = args.sensor
     if getattr(args, "tip_from_igtl", None) is not None:
         if sensor not in ("em", "igtl"):
@@ -168,39 +252,38 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     """
     from dataclasses import replace
 
-    from needlekit.execute.calibration import CalibrationSettings, calibrate_truth
     from needlekit.execute.physical import MechanicsSettings
+    from needlekit.execute.physical_setup import PHYSICAL_TRUTHS, physical_settings
 
     s = options.settings
     truth = s.models.truth
-    if truth not in ("mechanics", "physical"):  # the simulator's own model (legacy)
+    if truth not in PHYSICAL_TRUTHS:  # the simulator's own model
         return options
     base = getattr(scenario, "base", None)
-    tissue = args.tissue or {"liver": "liver"}.get(getattr(base, "organ", None), "lung")
-    mech = MechanicsSettings(needle=args.needle, tissue=tissue, prebend_deg=args.prebend_deg,
+    organ = getattr(base, "organ", None)
+    tissue = args.tissue or {"liver": "liver"}.get(organ, "lung")
+    prebend = STEERABLE_PREBEND_DEG if args.prebend_deg is None else args.prebend_deg
+    mech = MechanicsSettings(needle=args.needle, tissue=tissue, prebend_deg=prebend,
                              inhomogeneity=args.inhomogeneity)  # fmt: skip
-    s = replace(s, mechanics=mech)
     if truth == "physical":
         from needlekit.execute.deforming import tissue_model_for
 
-        organ = getattr(base, "organ", None)
         if args.tissue_boundary == "sliding" and organ not in (None, "lung"):  # the flag named
             raise InvalidInputError(
                 "--tissue-boundary", f"sliding is the lung's pleura; the scenario's organ is the {organ}"
             )
         model = tissue_model_for(scenario, plan, problem.goal_mm, args.tissue_boundary)
         if model is None:
-            raise InvalidInputError(
-                "--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario"
-            )
-        say_pinned(model)
-        s = replace(s, tissue=model)
-    n = args.calibration_insertions
-    # calibrated on the needle alone: the organ's motion is the loop's to see, not its model's
-    on = replace(s, models=replace(s.models, truth="mechanics")) if truth == "physical" else s
-    cal = calibrate_truth(on, plan.start_pose, 1.0 / problem.kappa_max_per_mm,
-                          CalibrationSettings(curved=n, straight=max(2, n // 2), seed=args.seed))  # fmt: skip
-    return replace(options, settings=replace(s, model=cal))
+            if args.tissue_boundary != MECHANICS_DEFAULTS["tissue_boundary"]:
+                raise InvalidInputError("--tissue-boundary", "applies to a scenario's organ; "
+                                        "this one has none to mesh")  # fmt: skip
+            s = replace(s, models=replace(s.models, truth=no_organ(args, args.scenario.name)))
+        else:
+            say_pinned(model)
+    s = physical_settings(s, scenario, plan, problem.goal_mm, 1.0 / problem.kappa_max_per_mm,
+                          mechanics=mech, boundary=args.tissue_boundary,
+                          insertions=args.calibration_insertions, seed=args.seed)  # fmt: skip
+    return replace(options, settings=s)
 
 
 def say_pinned(model) -> None:
@@ -247,6 +330,12 @@ def say_model(settings, problem) -> None:
     if cal.axis_slip_rad > 0.0:
         line += (f"; its tip's axis off its travel {math.degrees(cal.axis_slip_rad):.1f} deg RMS, "
                  f"correlated over {cal.axis_slip_mm:.1f} mm")  # fmt: skip
-    if cal.r_min_mm > 1.05 * r_plan:
-        line += "; the plan asks for tighter turns than this needle makes"
     print(line)
+    if cal.r_min_mm > R_MIN_SLACK * r_plan:
+        from needlekit.plausibility import warn
+
+        warn([f"the plan turns at r_min {r_plan:.1f} mm, tighter than this needle's "
+              f"{cal.r_min_mm:.1f} mm: its tip will fall short of the plan's turns; plan for the "
+              f"needle (needle.r_min_mm at least {math.ceil(cal.r_min_mm):d}; `needlekit sweep` "
+              "finds start directions that reach) or carry the plan out with the planner's "
+              "own needle (--truth kinematic)"])  # fmt: skip

@@ -73,9 +73,10 @@ def check_multi_flags(args: argparse.Namespace) -> None:
         if getattr(args, dest) != defaults[dest]:
             flag = "--" + dest.replace("_", "-")
             raise InvalidInputError(flag, "applies to a steerable plan; the plan is a multi plan")
-    from needlekit.cli.execute_models import check_physics_flags
+    from needlekit.cli.execute_models import check_physics_flags, resolve_truth
     from needlekit.execute.straight_physics import STRAIGHT_TRUTHS
 
+    resolve_truth(args)
     if args.truth not in STRAIGHT_TRUTHS:
         raise InvalidInputError(
             "--truth", f"a multi plan's needle is one of {', '.join(STRAIGHT_TRUTHS)}, got {args.truth!r}"
@@ -180,10 +181,12 @@ def straight_physics(args: argparse.Namespace, scenario):
     Raises
     ------
     InvalidInputError
-        ``--truth physical`` on a scenario without a Med-RAD organ.
+        ``--truth physical`` given on a scenario without a Med-RAD organ (the default
+        ``physical`` becomes ``mechanics`` there).
     """
     if args.truth == "kinematic":
         return None
+    from needlekit.cli.execute_models import no_organ
     from needlekit.execute.physical import MechanicsSettings
     from needlekit.execute.straight_physics import StraightPhysics
     from needlekit.io.medrad import MedradCase
@@ -192,9 +195,9 @@ def straight_physics(args: argparse.Namespace, scenario):
     base = getattr(scenario, "base", None)
     organ = base.organ if isinstance(base, MedradCase) and base.organ in ORGAN_FILES else None
     mech = MechanicsSettings(needle=args.needle, tissue=args.tissue or ("liver" if organ == "liver" else "lung"),
-                             prebend_deg=args.prebend_deg, inhomogeneity=args.inhomogeneity)  # fmt: skip
+                             prebend_deg=args.prebend_deg or 0.0, inhomogeneity=args.inhomogeneity)  # fmt: skip
     if args.truth == "physical" and organ is None:
-        raise InvalidInputError("--truth", "physical deforms the scenario's organ: it needs a Med-RAD scenario")
+        no_organ(args, args.scenario.name)
     return StraightPhysics(args.truth, mech, organ, None if organ is None else str(base.folder))
 
 

@@ -12,8 +12,10 @@ from needlekit.cli._common import (
     _Parser,
     _positive,
     _positive_int,
+    _positive_mm,
     number,
 )
+from needlekit.errors import InvalidInputError
 
 #: What ``needlekit study feng-lungs`` writes in its --out folder (as
 #: ``needlekit.studies.feng_lungs.FENG_LUNGS_FILES``; a test keeps them equal).
@@ -185,17 +187,51 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
     return EXIT_OK if reached else 1
 
 
+def _lungs_physics(args: argparse.Namespace):
+    """The physical study's needle and plan choice from the flags (None: kinematic), every
+    flag checked before any work."""
+    from needlekit.cli.execute_models import STEERABLE_PREBEND_DEG, check_physics_flags
+    from needlekit.cli.execute_sensing import check_sensing_flags
+
+    check_physics_flags(args)  # resolves the default truth, physical
+    check_sensing_flags(args)
+    if args.truth == "kinematic":
+        for flag, default in (("r_min_mm", None), ("sensing", ("em",))):
+            if getattr(args, flag) != default:
+                raise InvalidInputError("--" + flag.replace("_", "-"),
+                                        "applies to --truth physical, not kinematic")  # fmt: skip
+        return None
+    for flag, default in (("pilot_trials", PILOT_TRIALS), ("crossing_probability", CROSSING_PROBABILITY)):
+        if getattr(args, flag) != default:
+            raise InvalidInputError("--" + flag.replace("_", "-"),
+                                    "sets the kinematic study's margin: applies to --truth kinematic")  # fmt: skip
+    from needlekit.execute.physical import MechanicsSettings
+    from needlekit.studies.execute_lungs_physical import PHYSICAL_R_MIN_MM, PhysicalLungs
+
+    prebend = STEERABLE_PREBEND_DEG if args.prebend_deg is None else args.prebend_deg
+    mech = MechanicsSettings(needle=args.needle, tissue=args.tissue or "lung", prebend_deg=prebend,
+                             inhomogeneity=args.inhomogeneity)  # fmt: skip
+    names = tuple(args.sensing or ("em",))
+    return PhysicalLungs(mechanics=mech, boundary=args.tissue_boundary,
+                         r_min_mm=args.r_min_mm or PHYSICAL_R_MIN_MM,
+                         calibration_insertions=args.calibration_insertions,
+                         judged="checkpoints" if "checkpoints" in names else names[0])  # fmt: skip
+
+
 def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
     from needlekit.cli.execute import check_noise_flags
 
     check_noise_flags(args)
+    physics = _lungs_physics(args)
     from tqdm import tqdm
 
     from needlekit.batch import open_executor
     from needlekit.cli.execute import execute_options
+    from needlekit.execute.plugins import Models
     from needlekit.studies.execute_lungs import LUNG_R_MIN_MM, run_execute_lungs
 
-    options = execute_options(args, LUNG_R_MIN_MM)
+    args.models = Models(truth=args.truth)
+    options = execute_options(args, LUNG_R_MIN_MM if physics is None else physics.r_min_mm)
     patients = tuple(args.patients)
     with (
         open_executor(
@@ -209,8 +245,11 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
             args.out, patients=patients, trials=args.trials, seed=args.seed, options=options,
             executor=None if args.executor == "serial" else ex, progress=lambda _: bar.update(1),
             medrad_dir=args.medrad, pilot_trials=args.pilot_trials,
-            crossing_probability=args.crossing_probability, resume=args.resume,
+            crossing_probability=args.crossing_probability, resume=args.resume, physics=physics,
+            say=tqdm.write,
         )  # fmt: skip
+    if physics is not None:
+        return _say_physical_lungs(record, args.out)
     rows = []
     for c in record["cases"]:
         if c["status"] != "done":
@@ -243,8 +282,42 @@ def _cmd_study_execute_lungs(args: argparse.Namespace) -> int:
     return EXIT_OK if record["holds"] else 1
 
 
+def _say_physical_lungs(record: dict, out) -> int:
+    """The physical study's table: per lung and sensing policy, the closed loop's error
+    (mean +- SD, p95, max), crossings, scans and how far the target moved."""
+
+    def err(b):
+        return f"{b['mean_error_mm']:.2f} +- {b['sd_error_mm']:.2f}, {b['p95_error_mm']:.2f}, {b['max_error_mm']:.2f}"
+
+    rows = []
+    for c in record["cases"]:
+        if c["status"] != "done":
+            rows.append([f"lung {c['patient']}", c["status"], *[None] * 7])
+            continue
+        for i, (name, b) in enumerate(c.get("sensing", {"em": c["closed_loop"]}).items()):
+            rows.append([
+                f"lung {c['patient']}" if i == 0 else "",
+                f"start {c['start']}, {c['margin_mm']:.1f} mm" if i == 0 else "",
+                err(c["open_loop"]) if i == 0 else "", name, err(b), b["violated"],
+                "-" if b.get("scans") is None else f"{b['scans']:.1f}",
+                "-" if b.get("target_moved_mm") is None else f"{b['target_moved_mm']:.2f}",
+                ("yes" if c["holds"] else "NO") if i == 0 else "",
+            ])  # fmt: skip
+    heads = ["case", "plan", "open loop mm", "sensing", "closed loop mm", "crossed", "scans",
+             "target moved mm", "goal holds"]  # fmt: skip
+    print(_fmt_table(heads, rows, why=dict.fromkeys(heads[2:], "the case did not run (status)")))
+    print("(errors: mean +- SD, p95, max)")
+    print(
+        f"goal: closed-loop mean <= 1.0 mm, p95 <= 2.0 mm, no crossing: "
+        f"{'holds' if record['holds'] else 'DOES NOT hold'} ({record['wall_s']:.0f} s) -> {out}"
+    )
+    return EXIT_OK if record["holds"] else 1
+
+
 def _register_execute_lungs(study_sub) -> None:
     from needlekit.cli.execute import add_noise_flags
+    from needlekit.cli.execute_models import add_mechanics_flags
+    from needlekit.cli.execute_sensing import add_sensing_flags
 
     se = study_sub.add_parser(
         "execute-lungs",
@@ -265,10 +338,20 @@ def _register_execute_lungs(study_sub) -> None:
         "--trials", type=_positive_int, default=100, help="trials per lung (default 100)"
     )
     _flags.SEED.add(se, default=0, help="root seed (default 0)")
-    se.add_argument("--pilot-trials", type=_positive_int, default=10,
-                    help="closed-loop trials that measure the deviation (default 10)")  # fmt: skip
-    se.add_argument("--crossing-probability", type=_probability, default=0.001,
-                    help="per recorded point, that the margin is set for (default 0.001)")  # fmt: skip
+    se.add_argument("--pilot-trials", type=_positive_int, default=PILOT_TRIALS,
+                    help="--truth kinematic: closed-loop trials that measure the deviation "
+                    f"(default {PILOT_TRIALS})")  # fmt: skip
+    se.add_argument("--crossing-probability", type=_probability, default=CROSSING_PROBABILITY,
+                    help="--truth kinematic: per recorded point, that the margin is set for "
+                    f"(default {CROSSING_PROBABILITY:g})")  # fmt: skip
+    se.add_argument("--truth", choices=("physical", "kinematic"), default=None,
+                    help="the needle: physical (default: bent by mechanics in a lung that "
+                    "deforms; each lung planned from a start and direction it reaches) or "
+                    "kinematic (the planner's own, from start 1 with the pilot's margin)")  # fmt: skip
+    se.add_argument("--r-min-mm", type=_positive_mm, metavar="MM",
+                    help="--truth physical: the radius the plans are made for (default 150)")  # fmt: skip
+    add_mechanics_flags(se)
+    add_sensing_flags(se)
     add_noise_flags(se)
     _flags.add_medrad(se)
     _flags.add_executor_options(se)
@@ -279,6 +362,12 @@ def _register_execute_lungs(study_sub) -> None:
     )
     se.set_defaults(command_handler=_cmd_study_execute_lungs, sizes=_sizes.execute_lungs_sizes)
 
+
+#: The kinematic study's pilot (``--pilot-trials``) and the crossing probability its margin
+#: is set for (``--crossing-probability``; as ``needlekit.studies.execute_lungs``, which
+#: the parser does not import).
+PILOT_TRIALS: int = 10
+CROSSING_PROBABILITY: float = 0.001
 
 #: ``--crossing-probability``: a probability in (0, 0.5].
 _probability = number(0.0, 0.5, low_open=True)

@@ -22,6 +22,11 @@ For each lung (start 1 to its target; the needle and the exact voxel-centre test
 ``DIR/execute_lungs.json`` gathers the cases and judges each against the closed loop's targets:
 closed-loop mean error at most 0.5 mm, at least 95 % of trials within 1 mm, no obstacle
 crossed (open or closed loop figures beside them, judged on nothing).
+
+With a needle that bends by mechanics (``physics``), steps 1 and 2 are those of
+:mod:`needlekit.studies.execute_lungs_physical` (a start and start direction the needle can
+reach from, the largest margin kept), the loop's model is calibrated on the needle in each
+lung, and the goal is that module's.
 """
 
 from __future__ import annotations
@@ -37,7 +42,8 @@ import numpy as np
 import yaml
 
 from needlekit import __version__
-from needlekit.errors import Interrupted, is_interrupt
+from needlekit.errors import Interrupted, InvalidInputError, is_interrupt
+from needlekit.execute.physical_setup import physical_settings
 from needlekit.execute.replan import noise_margin_mm
 from needlekit.execute.trials import (
     EXECUTE_FILE,
@@ -52,6 +58,12 @@ from needlekit.io.plans import write_plan_json
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
 from needlekit.scenario.problems import ScenarioSource
+from needlekit.studies.execute_lungs_physical import (
+    choose_physical_plan,
+    physical_scenario_document,
+    physical_verdict,
+    write_physical_case,
+)
 
 __all__ = [
     "CROSSING_PROBABILITY",
@@ -101,26 +113,7 @@ def lung_scenario_document(patient: int, margin_mm: float, medrad_dir=None) -> d
     dict
         A scenario document (:class:`~needlekit.scenario.problems.ScenarioSource.of_document`).
     """
-    medrad = {"organ": "lung", "patient": int(patient)}
-    if medrad_dir is not None:
-        medrad["root"] = str(Path(medrad_dir).expanduser().resolve())
-    return {
-        "version": 1,
-        "name": f"Med-RAD lung {patient}, start 1",
-        "base": {"medrad": medrad},
-        "needle": {
-            "diameter_mm": 1.0,
-            "r_min_mm": LUNG_R_MIN_MM,
-            "max_length_mm": 150,
-            "max_heading_change_deg": 90,
-            "start_exclusion_mm": 3,
-            "safety_margin_mm": float(margin_mm),
-        },
-        "start": {"case_start": "start1"},
-        "goal": {"case_target": "target", "tolerance_mm": 1.0},
-        "collision_model": "voxel_centres",
-        "planner": {"name": "rcs_star", "time_limit_s": 1.0},
-    }
+    return physical_scenario_document(patient, 1, margin_mm, LUNG_R_MIN_MM, medrad_dir)
 
 
 def pilot_deviation(problem, truth, plan, options: ExecuteOptions, seed: int, trials: int) -> float:
@@ -194,10 +187,18 @@ class _Study:
     medrad_dir: object
     pilot_trials: int
     crossing_probability: float
+    physics: object = None  # PhysicalLungs, or None: the kinematic study
+    say: Callable | None = None
 
 
 def _decide(st: _Study, patient: int) -> dict:
     """The margin and the plan of one lung (steps 1 and 2), its files written."""
+    if st.physics is not None:
+        decided, doc, res = choose_physical_plan(patient, st.physics, executor=st.executor,
+                                                 medrad_dir=st.medrad_dir, say=st.say)  # fmt: skip
+        if res is None:
+            return decided
+        return write_physical_case(st.out / f"lung{patient}", decided, doc, res)
     doc0 = lung_scenario_document(patient, 0.0, st.medrad_dir)
     _, problem0 = ScenarioSource.of_document(doc0, ".", name=f"lung{patient}.yaml").cached()
     res0 = solve_rcs(problem0, time_limit_s=PLAN_TIME_LIMIT_S)
@@ -230,28 +231,49 @@ def _run_case(st: _Study, decided: dict, resume: bool) -> dict:
     """The trials of one planned lung (step 3), carried on from its partial execute.json
     when ``resume``."""
     patient = decided["patient"]
-    doc = lung_scenario_document(patient, decided["margin_mm"], st.medrad_dir)
+    options = st.options
+    if st.physics is None:
+        doc = lung_scenario_document(patient, decided["margin_mm"], st.medrad_dir)
+    else:
+        doc = physical_scenario_document(patient, decided["start"], decided["margin_mm"],
+                                         decided["r_min_mm"], st.medrad_dir)  # fmt: skip
     source = ScenarioSource.of_document(doc, ".", name=f"lung{patient}.yaml")
-    _, problem = source.cached()
-    plan = SteerablePlan(problem.start_pose, decided["plan_primitives"])
+    scenario, problem = source.cached()
+    start = decided.get("plan_start_pose", problem.start_pose)
+    plan = SteerablePlan(np.asarray(start, dtype=np.float64), decided["plan_primitives"])
+    if st.physics is not None:
+        options = _physical_options(st, scenario, plan, problem)
+        cal = options.settings.model
+        if st.say is not None:
+            st.say(f"lung {patient}: the loop's model calibrated on {cal.curved + cal.straight} "
+                   f"insertions, r {cal.r_min_mm:.1f} mm, replay rms {cal.residual_rms_mm:.2f} mm")  # fmt: skip
     case_dir = st.out / f"lung{patient}"
     trials = list(range(st.trials))
     kept = None
     if resume and partial_path(case_dir / EXECUTE_FILE).exists():
-        kept = read_partial_execute(case_dir, doc["name"], plan, st.seed, trials, st.options)
+        kept = read_partial_execute(case_dir, doc["name"], plan, st.seed, trials, options)
     study = run_execute_study(case_dir, source, plan, trials=trials, seed=st.seed,
-                              options=st.options, executor=st.executor, progress=st.progress,
+                              options=options, executor=st.executor, progress=st.progress,
                               resume=kept, scenario_name=doc["name"])  # fmt: skip
     s = study.document["summary"]
     c, o = s["closed_loop"], s["open_loop"]
-    verdict = {
-        "closed_mean_error_mm": c["final_error_mm"].get("mean", math.inf)
-        <= TARGETS["closed_mean_error_mm"],
-        "closed_within_1mm": (c["within_1mm"] or 0.0) >= TARGETS["closed_within_1mm"],
-        "crossed": c["violated"] == 0 and not s["crashed"],
-    }
+    if st.physics is None:
+        verdict = {
+            "closed_mean_error_mm": c["final_error_mm"].get("mean", math.inf)
+            <= TARGETS["closed_mean_error_mm"],
+            "closed_within_1mm": (c["within_1mm"] or 0.0) >= TARGETS["closed_within_1mm"],
+            "crossed": c["violated"] == 0 and not s["crashed"],
+        }
+    else:
+        verdict = physical_verdict(s, st.physics.judged)
+    model = options.settings.model
+    calibrated = {} if model is None else {"calibrated_r_mm": model.r_min_mm,
+                                           "calibration_rms_mm": model.residual_rms_mm}  # fmt: skip
+    sensing = {} if "sensing" not in s else {"sensing": {k: _sensed(v) for k, v in s["sensing"].items()}}
     return {
-        **{k: v for k, v in decided.items() if k != "plan_primitives"},
+        **{k: v for k, v in decided.items() if k not in ("plan_primitives", "plan_start_pose")},
+        **calibrated,
+        **sensing,
         "status": "done",
         "closed_loop": _brief(c),
         "open_loop": _brief(o),
@@ -272,7 +294,19 @@ def _run_case(st: _Study, decided: dict, resume: bool) -> dict:
     }
 
 
-def _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options) -> dict:
+def _physical_options(st: _Study, scenario, plan, problem) -> ExecuteOptions:
+    """The study's options with the needle, the lung and the loop's model calibrated on
+    them (:func:`~needlekit.execute.physical_setup.physical_settings`)."""
+    ph = st.physics
+    settings = physical_settings(st.options.settings, scenario, plan, problem.goal_mm,
+                                 1.0 / problem.kappa_max_per_mm, mechanics=ph.mechanics,
+                                 boundary=ph.boundary, insertions=ph.calibration_insertions,
+                                 seed=st.seed)  # fmt: skip
+    return replace(st.options, settings=settings)
+
+
+def _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options,
+                     physics=None) -> dict:  # fmt: skip
     """What a partial record holds besides its cases, and a resumed run must share."""
     return {
         "needlekit_version": __version__,
@@ -281,8 +315,19 @@ def _settings_record(patients, trials, seed, pilot_trials, crossing_probability,
         "seed": seed,
         "pilot_trials": pilot_trials,
         "crossing_probability": crossing_probability,
-        "targets": TARGETS,
+        "targets": TARGETS if physics is None else physics.record()["targets"],
         "options": asdict(options),
+        **({} if physics is None else {"physics": physics.record()}),
+    }
+
+
+def _sensed(run: dict) -> dict:
+    """One sensing policy's closed loop in brief, with its scans, procedure time and how far
+    the target moved (means over the trials)."""
+    return _brief(run) | {
+        "scans": run["scans"].get("mean"),
+        "procedure_s": run["procedure_s"].get("mean"),
+        "target_moved_mm": run["target_displacement_max_mm"].get("mean"),
     }
 
 
@@ -291,6 +336,7 @@ def _brief(loop: dict) -> dict:
     return {
         "mean_error_mm": e.get("mean"),
         "sd_error_mm": e.get("sd"),
+        "p95_error_mm": e.get("p95"),
         "max_error_mm": e.get("max"),
         "within_1mm": loop["within_1mm"],
         "violated": loop["violated"],
@@ -314,6 +360,8 @@ def run_execute_lungs(
     pilot_trials: int = 10,
     crossing_probability: float = CROSSING_PROBABILITY,
     resume: bool = False,
+    physics=None,
+    say: Callable[[str], None] | None = None,
 ) -> dict:
     """Run the study (module notes) and write ``out_dir/execute_lungs.json``.
 
@@ -337,6 +385,12 @@ def run_execute_lungs(
         Carry on from the partial ``execute_lungs.json`` an interrupted run wrote (signed:
         the lungs done kept as they are, the one under way from its margin, plan and
         partial ``execute.json``).
+    physics : PhysicalLungs, optional
+        A needle that bends by mechanics in a lung that deforms
+        (:mod:`needlekit.studies.execute_lungs_physical`; ``options.settings.models.truth``
+        ``"physical"``). Without it, the kinematic study (the pilot's margin).
+    say : callable, optional
+        Called with a line on each step of the physical study's plan choice.
 
     Returns
     -------
@@ -352,10 +406,13 @@ def run_execute_lungs(
     """
     options = options or ExecuteOptions()
     out = Path(out_dir)
+    if physics is not None and options.settings.models.truth != "physical":
+        raise InvalidInputError("truth", "a physical study's options run the physical truth")
     st = _Study(out, trials, seed, options, executor, progress, medrad_dir, pilot_trials,
-                crossing_probability)  # fmt: skip
+                crossing_probability, physics, say)  # fmt: skip
     path = out / LUNGS_FILE
-    head = _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options)
+    head = _settings_record(patients, trials, seed, pilot_trials, crossing_probability, options,
+                            physics)  # fmt: skip
     cases: list[dict] = []
     current = None
     if resume:
