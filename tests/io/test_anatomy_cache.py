@@ -24,6 +24,7 @@ from needlekit.io.anatomy_cache import (
     clear_cache,
     default_cache_dir,
     entry_key,
+    file_digest,
     open_entry,
     write_entry,
 )
@@ -528,6 +529,43 @@ def test_processes_writing_the_same_entry_do_not_corrupt_it(tmp_path):
     assert all(ok)
     assert _entries(tmp_path) == [tmp_path / f"test-{key}"] and not _debris(tmp_path)
     assert open_entry(tmp_path, "test", key) is not None
+
+
+def test_a_forked_child_hashes_after_its_parent_started_the_hash_thread_pool(tmp_path):
+    """BLAKE3's thread pool does not survive a fork: a child forked after its parent hashed
+    on many threads waited forever for the pool's threads (measured: the test above hung
+    for 12 minutes under load, its workers blocked in ``file_mac``). A forked child hashes
+    on one thread, to the same digests."""
+    import multiprocessing
+
+    from needlekit.io.cache_key import file_mac
+
+    data = tmp_path / "big.bin"
+    data.write_bytes(np.random.default_rng(0).bytes(8 << 20))  # hashed on many threads
+    key = bytes(range(32))
+    want = [file_mac(key, data), file_digest(data)]  # the parent starts the pool
+
+    def child():
+        (tmp_path / "child.json").write_text(json.dumps([file_mac(key, data), file_digest(data)]))
+
+    proc = multiprocessing.get_context("fork").Process(target=child)
+    proc.start()
+    proc.join(120)
+    hung = proc.is_alive()
+    if hung:
+        proc.kill()
+        proc.join()
+    assert not hung and proc.exitcode == 0
+    assert json.loads((tmp_path / "child.json").read_text()) == want
+
+
+def test_every_multi_threaded_hash_takes_the_fork_safe_thread_count():
+    """The kind, not the case: a hash on many threads anywhere in needlekit asks
+    ``hash_threads()`` how many it may use."""
+    src = Path(needlekit.__file__).parent
+    calls = [(f.relative_to(src), line) for f in src.rglob("*.py")
+             for line in f.read_text().splitlines() if "max_threads=" in line]  # fmt: skip
+    assert calls and all("max_threads=hash_threads()" in line for _, line in calls), calls
 
 
 def test_stale_temporary_folders_are_removed_and_clear_cache_empties(tmp_path):

@@ -62,7 +62,7 @@ import blake3
 import numpy as np
 
 import needlekit
-from needlekit.io.cache_key import cache_key, file_mac, mac, same_mac
+from needlekit.io.cache_key import cache_key, file_mac, hash_threads, mac, same_mac
 from needlekit.io.files import json_text
 
 __all__ = [
@@ -157,7 +157,7 @@ def file_digest(path: str | os.PathLike) -> str:
     -------
     str
     """
-    h = blake3.blake3(max_threads=blake3.blake3.AUTO)
+    h = blake3.blake3(max_threads=hash_threads())
     h.update_mmap(os.fspath(path))
     return h.hexdigest()
 

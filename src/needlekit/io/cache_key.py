@@ -40,6 +40,7 @@ __all__ = [
     "cache_key",
     "cache_key_path",
     "file_mac",
+    "hash_threads",
     "mac",
     "same_mac",
 ]
@@ -170,6 +171,25 @@ def mac(key: bytes, data: bytes) -> str:
     return blake3.blake3(data, key=key).hexdigest()
 
 
+#: Set in a process forked from another: BLAKE3's thread pool (Rayon's, started by the first
+#: hash on many threads) does not survive a fork, and a child hashing on it would wait for
+#: its threads forever. A forked child hashes on one thread instead.
+_FORKED: list[bool] = [False]
+os.register_at_fork(after_in_child=lambda: _FORKED.__setitem__(0, True))
+
+
+def hash_threads() -> int:
+    """The threads a BLAKE3 hash may use here: as many as there are cores, or one in a
+    process forked from another (its thread pool does not survive the fork).
+
+    Returns
+    -------
+    int
+        ``blake3.blake3.AUTO`` or 1; every multi-threaded hash of needlekit takes it.
+    """
+    return 1 if _FORKED[0] else blake3.blake3.AUTO
+
+
 def file_mac(key: bytes, path: str | os.PathLike) -> str:
     """Keyed BLAKE3 (256-bit, hex) of a whole file's bytes, read through a memory map on
     as many threads as there are cores (about 3 GB/s per core).
@@ -183,7 +203,7 @@ def file_mac(key: bytes, path: str | os.PathLike) -> str:
     -------
     str
     """
-    h = blake3.blake3(key=key, max_threads=blake3.blake3.AUTO)
+    h = blake3.blake3(key=key, max_threads=hash_threads())
     h.update_mmap(os.fspath(path))
     return h.hexdigest()
 

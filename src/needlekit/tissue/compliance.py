@@ -38,7 +38,7 @@ import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.io import anatomy_cache, cache_entries
-from needlekit.io.cache_key import CacheKeyError
+from needlekit.io.cache_key import CacheKeyError, hash_threads
 from needlekit.tissue.fem import MATERIALS, ElasticProblem, Material, organ_boundary
 from needlekit.tissue.meshing import DEFAULT_TARGET_TETS, TetMesh, _check_mask, mesh_mask
 
@@ -292,7 +292,7 @@ def compute_compliance(problem: ElasticProblem, corridor_mm, tracked_mm, tracked
 
 
 def _mask_digest(mask: np.ndarray, affine: np.ndarray) -> str:
-    h = blake3.blake3(max_threads=blake3.blake3.AUTO)
+    h = blake3.blake3(max_threads=hash_threads())
     h.update(np.packbits(np.ascontiguousarray(mask, dtype=bool)).tobytes())
     h.update(np.asarray(mask.shape, dtype=np.int64).tobytes())
     h.update(np.ascontiguousarray(affine, dtype=np.float64).tobytes())
