@@ -77,8 +77,10 @@ igtl-examples:
 		echo "built $(IGTL_EXAMPLES)/Tracker/TrackerServer and $(IGTL_EXAMPLES)/Receiver/ReceiveClient"; \
 	fi
 
+# --durations=10: every run names its ten slowest tests, the first place to look when the
+# suite's time grows
 test: $(STAMP) browser igtl-examples
-	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q
+	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q --durations=10
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -n $(JOBS) --dist loadscope -q -m "not slow"
