@@ -9,7 +9,7 @@ import math
 
 from needlekit.errors import InvalidInputError
 
-__all__ = ["add_mechanics_flags", "add_model_flags", "check_physics_flags", "checked_models", "physics_options", "resolve_truth",
+__all__ = ["add_mechanics_flags", "add_model_flags", "check_physics_flags", "mechanics_from_flags", "checked_models", "physics_options", "resolve_truth",
            "say_model", "say_pinned"]
 
 #: The needle presets and the tissue presets of the mechanics (needlekit.mechanics.materials),
@@ -165,6 +165,32 @@ def no_organ(args: argparse.Namespace, what: str) -> str:
     return "mechanics"
 
 
+def mechanics_from_flags(args: argparse.Namespace, organ: str | None, straight: bool = False):
+    """The needle and tissue the mechanics' flags ask for.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+    organ : str or None
+        The scenario's organ: its tissue preset unless ``--tissue`` names one (``lung``
+        for any organ but the liver).
+    straight : bool
+        A multi plan's straight needles (no pre-bend unless ``--prebend-deg`` asks).
+
+    Returns
+    -------
+    needlekit.execute.physical.MechanicsSettings
+    """
+    from needlekit.execute.physical import MechanicsSettings
+
+    prebend = args.prebend_deg
+    if prebend is None:
+        prebend = 0.0 if straight else STEERABLE_PREBEND_DEG
+    tissue = args.tissue or ("liver" if organ == "liver" else "lung")
+    return MechanicsSettings(needle=args.needle, tissue=tissue, prebend_deg=prebend,
+                             inhomogeneity=args.inhomogeneity)  # fmt: skip
+
+
 def check_physics_flags(args: argparse.Namespace) -> None:
     """The mechanics' flags given only with a truth they apply to (else they would be
     ignored without a word).
@@ -252,7 +278,6 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
     """
     from dataclasses import replace
 
-    from needlekit.execute.physical import MechanicsSettings
     from needlekit.execute.physical_setup import PHYSICAL_TRUTHS, physical_settings
 
     s = options.settings
@@ -261,10 +286,7 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
         return options
     base = getattr(scenario, "base", None)
     organ = getattr(base, "organ", None)
-    tissue = args.tissue or {"liver": "liver"}.get(organ, "lung")
-    prebend = STEERABLE_PREBEND_DEG if args.prebend_deg is None else args.prebend_deg
-    mech = MechanicsSettings(needle=args.needle, tissue=tissue, prebend_deg=prebend,
-                             inhomogeneity=args.inhomogeneity)  # fmt: skip
+    mech = mechanics_from_flags(args, organ)
     if truth == "physical":
         from needlekit.execute.deforming import tissue_model_for
 

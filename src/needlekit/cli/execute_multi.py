@@ -186,16 +186,14 @@ def straight_physics(args: argparse.Namespace, scenario):
     """
     if args.truth == "kinematic":
         return None
-    from needlekit.cli.execute_models import no_organ
-    from needlekit.execute.physical import MechanicsSettings
+    from needlekit.cli.execute_models import mechanics_from_flags, no_organ
     from needlekit.execute.straight_physics import StraightPhysics
     from needlekit.io.medrad import MedradCase
     from needlekit.tissue.medrad_organ import ORGAN_FILES
 
     base = getattr(scenario, "base", None)
     organ = base.organ if isinstance(base, MedradCase) and base.organ in ORGAN_FILES else None
-    mech = MechanicsSettings(needle=args.needle, tissue=args.tissue or ("liver" if organ == "liver" else "lung"),
-                             prebend_deg=args.prebend_deg or 0.0, inhomogeneity=args.inhomogeneity)  # fmt: skip
+    mech = mechanics_from_flags(args, organ, straight=True)
     if args.truth == "physical" and organ is None:
         no_organ(args, args.scenario.name)
     return StraightPhysics(args.truth, mech, organ, None if organ is None else str(base.folder))

@@ -190,7 +190,7 @@ def _cmd_study_feng_lungs(args: argparse.Namespace) -> int:
 def _lungs_physics(args: argparse.Namespace):
     """The physical study's needle and plan choice from the flags (None: kinematic), every
     flag checked before any work."""
-    from needlekit.cli.execute_models import STEERABLE_PREBEND_DEG, check_physics_flags
+    from needlekit.cli.execute_models import check_physics_flags, mechanics_from_flags
     from needlekit.cli.execute_sensing import check_sensing_flags
 
     check_physics_flags(args)  # resolves the default truth, physical
@@ -205,12 +205,9 @@ def _lungs_physics(args: argparse.Namespace):
         if getattr(args, flag) != default:
             raise InvalidInputError("--" + flag.replace("_", "-"),
                                     "sets the kinematic study's margin: applies to --truth kinematic")  # fmt: skip
-    from needlekit.execute.physical import MechanicsSettings
     from needlekit.studies.execute_lungs_physical import PHYSICAL_R_MIN_MM, PhysicalLungs
 
-    prebend = STEERABLE_PREBEND_DEG if args.prebend_deg is None else args.prebend_deg
-    mech = MechanicsSettings(needle=args.needle, tissue=args.tissue or "lung", prebend_deg=prebend,
-                             inhomogeneity=args.inhomogeneity)  # fmt: skip
+    mech = mechanics_from_flags(args, "lung")
     names = tuple(args.sensing or ("em",))
     return PhysicalLungs(mechanics=mech, boundary=args.tissue_boundary,
                          r_min_mm=args.r_min_mm or PHYSICAL_R_MIN_MM,
