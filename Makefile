@@ -36,11 +36,15 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-# --no-compile: pip would byte-compile every installed package (plotly alone has thousands
-# of modules): 27 s of the install, against 10 s without; Python compiles the modules a run
-# imports on first import instead, a fraction of a second.
+# --no-compile, then compileall on two processes: pip would byte-compile every installed
+# package on one (27 s). Compiled they must be: where PYTHONDONTWRITEBYTECODE is set (CI
+# sandboxes, many containers) Python never writes what it compiles, so every process would
+# compile numpy, scipy, numba and plotly again: measured 7-9 s of a 16-25 s `needlekit
+# puncture --trials 1`, for every command a test starts. Both steps: about 32 s, once.
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --no-compile -e '.[test]'
+	$(BIN)/python -m compileall -q -j $(JOBS) src \
+		"$$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')" >/dev/null
 	$(BIN)/python -m needlekit._warmup
 	@touch $@
 

@@ -122,3 +122,21 @@ def test_bad_input_names_the_argument():
         se3_log(bad)
     with pytest.raises(InvalidInputError, match="omega"):
         hat("abc")
+
+
+def test_angle_between_one_pair_gives_the_batch_bits():
+    """One pair of 3-vectors takes a scalar path (a control tick's angle): the same bits
+    as the batch formula, for lengths from 1e-8 to 1e3, near 0 and near pi."""
+    from needlekit.geometry.so3 import angle_between
+
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=(3000, 3)) * 10.0 ** rng.uniform(-8, 3, (3000, 1))
+    v = rng.normal(size=(3000, 3)) * 10.0 ** rng.uniform(-8, 3, (3000, 1))
+    v[:500] = u[:500] * (1.0 + 1e-13)  # parallel
+    v[500:800] = -u[500:800]  # opposite
+    batch = angle_between(u, v)  # the (n, 3) path
+    for i in range(len(u)):
+        one = angle_between(u[i], v[i])
+        assert type(one) is np.float64 and one == batch[i], i
+    w = np.array([1.0, 2.0, 3.0])
+    assert angle_between(w, 2.0 * w) == 0.0 and angle_between(w, -w) == np.pi

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.geometry.so3 import so3_exp
+from needlekit.geometry.so3 import so3_exp_unchecked
 
 __all__ = ["EMSample", "EMSensor", "EMSensorSpec", "noisy_pose"]
 
@@ -106,7 +106,7 @@ def noisy_pose(pose, position_sigma_mm: float, orientation_sigma_rad: float, rng
     out = np.array(pose, dtype=float)
     out[:3, 3] += rng.normal(0.0, position_sigma_mm, 3)
     if orientation_sigma_rad > 0:
-        out[:3, :3] = so3_exp(rng.normal(0.0, orientation_sigma_rad, 3)) @ out[:3, :3]
+        out[:3, :3] = so3_exp_unchecked(rng.normal(0.0, orientation_sigma_rad, 3)) @ out[:3, :3]
     return out
 
 

