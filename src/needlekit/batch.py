@@ -122,14 +122,33 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
         if p.is_alive():
             p.kill()
             p.join(STOP_GRACE_S)
-    pool.shutdown(wait=False, cancel_futures=True)
     # the pool's manager thread closes its wake-up pipe as it ends; at the interpreter's
     # exit, concurrent.futures wakes every manager still registered, and on Python 3.11 a
-    # pipe closed between its check and its write prints "Exception ignored ... Bad file
-    # descriptor": let the manager end first (bounded)
-    manager = getattr(pool, "_executor_manager_thread", None)
-    if manager is not None:
+    # pipe the manager closes between the waker's check and its write prints "Exception
+    # ignored ... Bad file descriptor" and a traceback after the command's one line (seen
+    # when the manager took longer than a join's grace to end on a loaded machine): a
+    # closed pipe means the manager is ending, so there is nothing left to wake
+    _wakeup_tolerates_a_closed_pipe(getattr(pool, "_executor_manager_thread_wakeup", None))
+    manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
+    pool.shutdown(wait=False, cancel_futures=True)
+    if manager is not None:  # let it end first, bounded
         manager.join(STOP_GRACE_S)
+
+
+def _wakeup_tolerates_a_closed_pipe(waker) -> None:
+    """Make ``waker.wakeup()`` (a process pool's ``_ThreadWakeup``) a no-op once its pipe
+    is closed, instead of an ``OSError`` in the interpreter's exit hook."""
+    if waker is None or not callable(getattr(waker, "wakeup", None)):
+        return
+    wakeup = waker.wakeup
+
+    def safe_wakeup() -> None:
+        try:
+            wakeup()
+        except (OSError, ValueError):  # closed meanwhile: the manager has ended
+            pass
+
+    waker.wakeup = safe_wakeup
 
 
 def _check_workers(workers) -> int | None:
