@@ -128,6 +128,34 @@ def test_the_target_belief_is_the_kalman_update_of_a_random_walk():
     assert still.target_mm == pytest.approx([1.0, 1.0, 1.0])
 
 
+def test_the_target_beliefs_insertion_clock_averages_scans_of_a_still_needle():
+    from needlekit.execute.imaging import TargetEstimator
+
+    # time alone: the 20 s between two scans (SD 0.5) at the same depth add 20 * 0.25
+    # mm^2, so the second scan's gain is above 0.95 and the first is all but forgotten
+    timed = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=0.5)
+    assert timed.update(40.0, 20.0, [1.0, 0.0, 0.0], 0.5, 40.0)
+    first = 5.0 * 0.25 / 5.25
+    assert timed.update(60.0, 40.0, [0.0, 0.0, 0.0], 0.5, 40.0)
+    gain = (first + 5.0) / (first + 5.0 + 0.25)
+    assert gain > 0.95 and timed.target_mm[0] == pytest.approx((1.0 - gain) * 5.0 / 5.25)
+    assert timed.variance_mm2 == pytest.approx((1.0 - gain) * (first + 5.0) + 5.0)
+    # on the insertion's clock (no time drift) the needle stood still: the two scans are
+    # two looks at one point, averaged (variance 0.25 / 2 over the prior's)
+    pushed = TargetEstimator([0.0, 0.0, 0.0], drift_sigma_mm=0.0, push_sigma_mm=0.2)
+    pushed.predict(0.0, 40.0)  # 40 mm in before the first scan: prior 40 * 0.04 = 1.6
+    assert pushed.variance_mm2 == pytest.approx(1.6)
+    assert pushed.update(20.0, 0.0, [1.0, 0.0, 0.0], 0.5, 40.0)
+    assert pushed.update(40.0, 20.0, [0.0, 0.0, 0.0], 0.5, 40.0)
+    # brute force: precisions add (1 / 1.6 + 2 / 0.25), the mean is the weighted one
+    var = 1.0 / (1.0 / 1.6 + 2.0 / 0.25)
+    assert pushed.variance_mm2 == pytest.approx(var)
+    assert pushed.target_mm[0] == pytest.approx(var * 1.0 / 0.25)
+    # going on 10 mm adds 10 * 0.04 to the variance, however long it takes
+    pushed.predict(1000.0, 50.0)
+    assert pushed.variance_mm2 == pytest.approx(var + 0.4)
+
+
 def test_the_target_belief_follows_a_moved_target_and_refuses_a_wild_sample():
     from needlekit.execute.imaging import TargetEstimator
 

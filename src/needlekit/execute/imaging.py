@@ -348,7 +348,9 @@ def admit_target(sample_mm, last_mm, elapsed_s: float, max_speed_mm_s: float,
 
 class TargetEstimator:
     """Where the loop believes the target is: a Kalman filter on its position under a
-    random walk (each axis gains ``drift_sigma_mm**2`` of variance per second).
+    random walk on two clocks: each axis gains ``drift_sigma_mm**2`` of variance per second
+    and ``push_sigma_mm**2`` per millimetre inserted (the needle's push moves the target
+    as the needle goes in, not while it stands still for a scan).
 
     The filter's state is the target at the time its latest sample was taken. A sample
     taken at ``tau`` (at or after that time) moves the state to ``tau`` (its variance grows
@@ -368,6 +370,8 @@ class TargetEstimator:
         How fast the target may wander (mm per sqrt(s)).
     max_speed_mm_s : float
         The gate's bound on the target's speed.
+    push_sigma_mm : float
+        How far the insertion may carry it (mm per sqrt(mm) inserted; 0: time alone).
 
     Attributes
     ----------
@@ -377,9 +381,14 @@ class TargetEstimator:
         Refused samples by reason.
     """
 
-    def __init__(self, target_mm, drift_sigma_mm: float = 0.5, max_speed_mm_s: float = 30.0):
+    def __init__(self, target_mm, drift_sigma_mm: float = 0.5, max_speed_mm_s: float = 30.0,
+                 push_sigma_mm: float = 0.0):  # fmt: skip
         self.target_mm = np.array(target_mm, dtype=np.float64)
         Bounds(0.0, MAX_ABS_MM, unit="mm").check(drift_sigma_mm, "drift_sigma_mm")
+        Bounds(0.0, MAX_ABS_MM, unit="mm").check(push_sigma_mm, "push_sigma_mm")
+        self.push_var = float(push_sigma_mm) ** 2
+        self.inserted_mm = 0.0
+        self._at_mm = 0.0  # the insertion the state refers to
         Bounds(0.0, MAX_ABS_MM, low_open=True, unit="mm/s").check(max_speed_mm_s,
                                                                      "max_speed_mm_s")  # fmt: skip
         self.drift_var = float(drift_sigma_mm) ** 2
@@ -398,14 +407,18 @@ class TargetEstimator:
         -------
         float
         """
-        return self._var + self.drift_var * max(self.t - self._at, 0.0)
+        return (self._var + self.drift_var * max(self.t - self._at, 0.0)
+                + self.push_var * max(self.inserted_mm - self._at_mm, 0.0))  # fmt: skip
 
-    def predict(self, t: float) -> None:
-        """Advance the belief to time ``t`` (its variance grows).
+    def predict(self, t: float, inserted_mm: float | None = None) -> None:
+        """Advance the belief to time ``t`` and insertion ``inserted_mm`` (its variance
+        grows).
 
         Parameters
         ----------
         t : float
+        inserted_mm : float, optional
+            How far the needle is in (None: unchanged).
 
         Returns
         -------
@@ -413,8 +426,11 @@ class TargetEstimator:
         """
         if t > self.t:
             self.t = t
+        if inserted_mm is not None and inserted_mm > self.inserted_mm:
+            self.inserted_mm = float(inserted_mm)
 
-    def update(self, t: float, taken_s: float, sample_mm, sigma_mm: float) -> bool:
+    def update(self, t: float, taken_s: float, sample_mm, sigma_mm: float,
+               taken_inserted_mm: float | None = None) -> bool:  # fmt: skip
         """Use one sample, if the gate admits it.
 
         Parameters
@@ -426,6 +442,8 @@ class TargetEstimator:
         sample_mm : array_like, shape (3,)
         sigma_mm : float
             The sample's noise SD per axis.
+        taken_inserted_mm : float, optional
+            How far the needle was in when it was taken (None: as far as now).
 
         Returns
         -------
@@ -434,17 +452,20 @@ class TargetEstimator:
         """
         self.predict(t)
         lag = taken_s - self._at  # > 0: the state moves on to the sample's time
-        prior = self._var + self.drift_var * max(lag, 0.0)
+        depth = self.inserted_mm if taken_inserted_mm is None else float(taken_inserted_mm)
+        lag_mm = depth - self._at_mm
+        prior = self._var + self.drift_var * max(lag, 0.0) + self.push_var * max(lag_mm, 0.0)
         why = admit_target(sample_mm, self.target_mm, lag, self.max_speed_mm_s,
                            max(sigma_mm, math.sqrt(prior)))  # fmt: skip
         if why is not None:
             self.refused[why] = self.refused.get(why, 0) + 1
             return False
-        r = sigma_mm**2 + self.drift_var * max(-lag, 0.0)
+        r = sigma_mm**2 + self.drift_var * max(-lag, 0.0) + self.push_var * max(-lag_mm, 0.0)
         gain = prior / (prior + r) if prior + r > 0 else 1.0
         self.target_mm = self.target_mm + gain * (np.asarray(sample_mm, dtype=np.float64)
                                                   - self.target_mm)  # fmt: skip
         self._var = (1.0 - gain) * prior
         self._at = max(self._at, taken_s)
+        self._at_mm = max(self._at_mm, depth)
         self.used += 1
         return True

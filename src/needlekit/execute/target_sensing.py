@@ -68,7 +68,10 @@ class SensingPolicy:
         Re-plan to the believed target once it is this far from the goal the followed plan
         aims at.
     drift_sigma_mm : float
-        The belief's random walk (mm per sqrt(s)): how fast the target may wander.
+        The belief's random walk in time (mm per sqrt(s)): how fast the target may wander.
+    push_sigma_mm : float
+        Its random walk with the insertion (mm per sqrt(mm) inserted): how far the needle's
+        push may carry the target (0: time alone).
     max_target_speed_mm_s : float
         The target gate's bound on its speed.
     tip_gate_chi2 : float
@@ -81,6 +84,7 @@ class SensingPolicy:
     tracking: TrackingSpec = field(default_factory=TrackingSpec)
     retarget_mm: float = 0.5
     drift_sigma_mm: float = 0.5
+    push_sigma_mm: float = 0.0
     max_target_speed_mm_s: float = 30.0
     tip_gate_chi2: float = GATE_CHI2
 
@@ -124,7 +128,7 @@ class TargetSensing:
         self.goal_mm = np.array(goal_mm, dtype=np.float64)
         self._true = true_target
         self.belief = TargetEstimator(self.goal_mm, policy.drift_sigma_mm,
-                                      policy.max_target_speed_mm_s)  # fmt: skip
+                                      policy.max_target_speed_mm_s, policy.push_sigma_mm)  # fmt: skip
         self.imaging = (
             CheckpointImaging(policy.checkpoints, rng) if policy.name == "checkpoints" else None
         )
@@ -211,7 +215,7 @@ class TargetSensing:
         bool
             Whether a scan holds the needle (it must not go in this step).
         """
-        self.belief.predict(t)
+        self.belief.predict(t, inserted_mm)
         if self._true is not None:
             d = float(np.linalg.norm(self.true_target() - self.goal_mm))
             self.max_displacement_mm = max(self.max_displacement_mm, d)
@@ -231,7 +235,8 @@ class TargetSensing:
                 self._confirmed_hold, self._confirming = gated_hold, True
         got = img.update(t)
         if got is not None:
-            self.belief.update(t, got.taken_s, got.target_mm, img.spec.position_sigma_mm)
+            self.belief.update(t, got.taken_s, got.target_mm, img.spec.position_sigma_mm,
+                               got.depth_mm)  # fmt: skip
             self._correct_tip(t, got, estimator, reseed=self._confirming)
             self._confirming = False
         return img.scanning
