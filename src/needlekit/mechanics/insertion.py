@@ -227,7 +227,9 @@ class MechanicalNeedle:
 
     def _compose_pose(self) -> np.ndarray:
         t, ex = self._tip_tan, self._tip_ex
-        ey = np.cross(t, ex)
+        t0, t1, t2 = t.tolist()  # t x ex written out: np.cross is slow on one pair
+        e0, e1, e2 = ex.tolist()
+        ey = np.array([t1 * e2 - t2 * e1, t2 * e0 - t0 * e2, t0 * e1 - t1 * e0])
         c, s = math.cos(self._spin), math.sin(self._spin)
         g = np.eye(4)
         g[:3, 0] = c * ex + s * ey
