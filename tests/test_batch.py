@@ -214,7 +214,7 @@ def test_remote_sweep_refuses_to_ship_a_heavy_scene(lung):
 
 
 # ---------------------------------------------------------------------------------------
-# a local Dask cluster no one else can use (issue 22, point 6)
+# a local Dask cluster no one else can use
 
 _INTRUDER = """
 import os, signal, sys

@@ -1,4 +1,4 @@
-"""``needlekit bench scale`` (issue 13, point 5): the fits, the obstacle density, the
+"""``needlekit bench scale``: the fits, the obstacle density, the
 settings and their flags, the record's structure, serial = process results, the page.
 
 No clock is asserted: only that times are recorded, finite and non-negative.

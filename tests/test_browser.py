@@ -1,5 +1,5 @@
 """Every report kind opened in a real browser (headless Chromium): it renders its 3D views
-and logs no warning or error (issue 12, point 6).
+and logs no warning or error.
 
 Chromium and its driver come from Debian's packages (``make browser``, run by ``make
 test``); the test skips, saying why, where they are missing. WebGL runs on Chromium's

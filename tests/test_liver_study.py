@@ -1,4 +1,4 @@
-"""``needlekit study livers``: the Med-RAD liver study (issue 11, point 6).
+"""``needlekit study livers``: the Med-RAD liver study.
 
 Fixed outcomes on livers 2 and 3 at gamma 1.5 mm (docs/straight.md's study table): each
 planned plan passes the independent check, and a case that is not covered says why.
@@ -108,7 +108,7 @@ def test_a_missing_patient_is_one_line_naming_the_flag(medrad_dir, tmp_path, cap
 def test_an_interrupted_study_keeps_its_rows_and_resume_plans_only_the_rest(
     medrad_dir, tmp_path, monkeypatch, capsys
 ):
-    """Issue 22, point 5, the bookkeeping without the planning: each case is a row made
+    """The bookkeeping without the planning: each case is a row made
     from its key, and Ctrl-C arrives in the third case."""
     import needlekit.studies.liver_study as ls
 

@@ -1,5 +1,5 @@
 """``needlekit report RESULT... --out page.html``: every result kind drawn again from its
-file, several in one page, and the errors before any work (issue 12, point 5).
+file, several in one page, and the errors before any work.
 
 The results are made here by the commands themselves, with small budgets. The values the
 pages must show come from the result files, and the independent checks from ``needlekit
@@ -277,7 +277,7 @@ def test_a_moved_scenario_is_found_beside_the_result_or_given(made, tmp_path, ca
 
 
 def test_a_result_names_its_scenario_relative_to_itself_only(tmp_path, capsys, monkeypatch):
-    """Issue 22, point 7: the commands write the scenario's path relative to the result, and
+    """The commands write the scenario's path relative to the result, and
     report reads it there, whatever the working folder; a path that only the working
     folder would resolve is not read."""
     out = tmp_path / "runs" / "a" / "plan.json"

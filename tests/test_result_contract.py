@@ -87,7 +87,7 @@ def test_one_status_vocabulary_for_every_planner():
     assert [s.value for s in Status] == [
         "solved", "approximate", "infeasible", "timeout", "invalid_input",
     ]  # fmt: skip
-    # records written before issue 20 say invalid_problem: they still read
+    # records written before the one result contract say invalid_problem: they still read
     assert Status("invalid_problem") is Status.INVALID_INPUT is Status.INVALID_PROBLEM
     old = {**_result(PlanStatus.INVALID_INPUT).to_dict(), "status": "invalid_problem"}
     assert PlanResult.from_dict(old, "plan.json").status is Status.INVALID_INPUT

@@ -1,4 +1,4 @@
-"""A campaign of the project's own (issue 22, point 9): bad inputs per command, each with
+"""A campaign of the project's own: bad inputs per command, each with
 its expected exit status (2) and its one error line, exactly.
 
 Each row runs :func:`needlekit.cli.main` in this process and compares what it printed on
@@ -1048,7 +1048,7 @@ ROWS = [
         ["puncture", "--seed", "x"],
         "error: argument --seed: expected a whole number in [0, 9.22e+18], got 'x'",
     ),
-    # -- execute (issue 21)
+    # -- execute
     (
         ["execute", "--truth", "kinematic", "{TOY}", "{d}/malformed.json"],
         "error: {d}/malformed.json: not a JSON plan file (Expecting ',' delimiter: line 1 column 8 (char 7))",

@@ -1,4 +1,4 @@
-"""Every request is checked once (issue 20, point 3): one ``needlekit plan`` or ``sweep``
+"""Every request is checked once: one ``needlekit plan`` or ``sweep``
 reads its scenario file once, checks it against the schema once, checks each planner's
 name and options once and builds each planner once, however many directions or goals it
 then plans; one ``needlekit execute`` reads its scenario and its plan once."""

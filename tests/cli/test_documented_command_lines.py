@@ -1,5 +1,5 @@
 """Every ``needlekit ...`` command line in the code blocks of README.md and docs/*.md still
-parses (issue 20, point 7), as do the examples of ``needlekit plan --help``. Parsed only,
+parses, as do the examples of ``needlekit plan --help``. Parsed only,
 never run. A line CHANGELOG.md lists as changed (``- `OLD` -> `NEW` `` under "### Command
 line") is exempt, and its new form is parsed instead."""
 

@@ -1,4 +1,4 @@
-"""The command line declared per command (issue 20, point 7): every flag several commands
+"""The command line declared per command: every flag several commands
 share is made by its one definition in :mod:`needlekit.cli._flags`, and planner options
 pass as ``--option NAME=VALUE``, typed as the planner declares them."""
 

@@ -1,4 +1,4 @@
-"""Hostile and careless inputs (issue 22, point 3): deep nesting, alias bombs, numbers at
+"""Hostile and careless inputs: deep nesting, alias bombs, numbers at
 the edge of the float range, sizes that would exhaust memory, more workers than cores. Each
 is one clear error line (exit 2) or a clear answer, never a traceback."""
 

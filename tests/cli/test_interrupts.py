@@ -1,4 +1,4 @@
-"""Interrupts keep work (issue 22, point 5): SIGINT to the main process of a sweep, as
+"""Interrupts keep work: SIGINT to the main process of a sweep, as
 `timeout -s INT` or Ctrl-C sends it, stops every worker, exits with status 130 and one
 line, writes the directions finished as a sweep marked partial, and `--resume` carries on
 from it to the same result as an uninterrupted run (iteration budgets: reproducible).

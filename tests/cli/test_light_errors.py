@@ -1,4 +1,4 @@
-"""Input errors are answered before any heavy module is imported (issue 13, point 4).
+"""Input errors are answered before any heavy module is imported.
 
 Each command's typical input errors run in a fresh interpreter (a small wrapper around
 :func:`needlekit.cli.main`), which then reports which of the heavy modules (numba, scipy,

@@ -1,4 +1,4 @@
-"""Units and plausibility the same on every path (issue 22, point 4): a length outside the
+"""Units and plausibility the same on every path: a length outside the
 range insertions use is named in one warning line whether a flag or a scenario field gave
 it; range errors come before the anatomy is loaded; a mask that lies outside the anatomy it
 belongs to is an error naming its file."""

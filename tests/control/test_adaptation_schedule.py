@@ -88,7 +88,7 @@ def test_without_a_delay_a_trial_is_the_loop_before_the_schedule_field_by_field(
     assert math.isnan(new.min_needle_gap_mm)  # no placed needles
 
 
-#: TrialResult fields added after the legacy loop was copied (issue 21 point 5).
+#: TrialResult fields added after the legacy loop was copied.
 _AFTER_THE_LEGACY_COPY = {"final_tip_pose", "final_estimated_tip_pose", "min_needle_gap_mm"}
 
 

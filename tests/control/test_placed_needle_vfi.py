@@ -1,4 +1,4 @@
-"""The placed-needle VFIs (issue 21 point 5): the held needle's shaft against the needles
+"""The placed-needle VFIs: the held needle's shaft against the needles
 already in place. The distance against brute force and closed forms, its Jacobian against
 finite differences, and the closed loop: a motion that would sweep the shaft through a
 placed needle stops at the safe gap, and crosses it without the rows."""

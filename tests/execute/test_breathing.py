@@ -1,4 +1,4 @@
-"""Breathing (issue 21, point 4): the respiratory model (Lujan et al.'s sin^(2n) cycle, its
+"""Breathing: the respiratory model (Lujan et al.'s sin^(2n) cycle, its
 end-exhale window), and the three policies checked against exact twins: no motion under
 any policy is the still run, tracking a perfectly predicted motion is the still run in the
 tissue, gating inserts only in the window and takes as long as the window's share says;

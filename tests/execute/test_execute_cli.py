@@ -1,4 +1,4 @@
-"""``needlekit execute`` (issue 21, point 3, and point 8's input checks): trials open loop
+"""``needlekit execute`` and its input checks: trials open loop
 beside closed loop on the same draws, written to execute.json; one trial replayed alone
 by --replay-trial; bad input refused in one line with exit 2 before any work; a crashing trial
 recorded with its seed while the others go on; Ctrl-C keeps the trials done.

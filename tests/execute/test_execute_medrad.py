@@ -1,4 +1,4 @@
-"""The closed loop on Med-RAD lungs (issue 21, points 2 and 3), small: `bench execute`'s
+"""The closed loop on Med-RAD lungs, small: `bench execute`'s
 record on one lung, the margin ladder on lung 1 (its transbronchial start leaves room for
 0.3 mm, not 0.4, in RCS*'s 1 s), and `study execute-lungs` on lung 4 with two trials, its
 plan re-checked by `needlekit verify`. The 100-trial figures come from the commands
@@ -82,7 +82,7 @@ def test_study_execute_lungs_writes_each_case_as_execute_would(medrad_dir, tmp_p
 def test_liver4_multi_plan_inserted_by_the_robot_touches_nothing_and_keeps_its_constraints(
     medrad_dir, tmp_path, capsys, monkeypatch
 ):
-    """Issue 21 point 5 on Med-RAD liver 4: its six-needle coverage plan inserted once;
+    """Med-RAD liver 4: its six-needle coverage plan inserted once;
     no needle touches a placed one or leaves its constraints, and the zones at the
     executed tips still cover the tumour (the 20-trial figures: docs/execute.md)."""
     from pathlib import Path

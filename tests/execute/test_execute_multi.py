@@ -1,4 +1,4 @@
-"""``needlekit execute`` on a straight multi-needle plan (issue 21 point 5): the simulated
+"""``needlekit execute`` on a straight multi-needle plan: the simulated
 Panda inserts the needles in the planned order under Tang et al.'s controller, the placed
 needles kept off by VFIs, the plan's deformation model moving the remaining targets.
 

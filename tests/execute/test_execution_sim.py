@@ -1,4 +1,4 @@
-"""The execution simulator (issue 21, point 1): a needle that departs from its model as
+"""The execution simulator: a needle that departs from its model as
 its noise says, a Kalman filter that averages and places late samples exactly, pure
 pursuit that gives a plan's arc back, and a closed loop that corrects what the open loop
 misses on the same needle."""

@@ -1,4 +1,4 @@
-"""The live link of `needlekit execute --igtl` (issue 21, point 6), in a loopback: a pyigtl
+"""The live link of `needlekit execute --igtl`, in a loopback: a pyigtl
 client connects to the command, counts and decodes every message (TRANSFORM, POLYDATA,
 STRING), and checks names, timestamps and coordinates (RAS mm) against the run's own
 record; with --tip-from-igtl the client plays the tracker, sending the tip back as

@@ -1,4 +1,4 @@
-"""Re-planning from the sensed tip (issue 21, point 2, first part): RCS* from the estimated
+"""Re-planning from the sensed tip: RCS* from the estimated
 tip as a continuation of the original problem, adopted only when its plan passes the
 independent check, applied after the search's time while the needle goes on."""
 

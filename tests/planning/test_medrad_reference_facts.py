@@ -16,7 +16,7 @@ from needlekit.planning.steerable.verify import verify_plan
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 
-# issue 4: reference RCS* costs (mm) on Patient 1, None = unreachable; start 2 collides
+# reference RCS* costs (mm) on Patient 1, None = unreachable; start 2 collides
 REFERENCE = {
     (1, 50): 58.26, (3, 50): 53.24, (4, 50): 58.12, (5, 50): 58.09,
     (1, 100): None, (3, 100): 54.83, (4, 100): None, (5, 100): 58.41,

@@ -1,5 +1,5 @@
 """``needlekit plan --goals``: a plan to each of several targets, by the lecture's procedure
-(a new search from the start for each) or from one RRT tree (issue 12, point 2)."""
+(a new search from the start for each) or from one RRT tree."""
 
 import json
 from pathlib import Path

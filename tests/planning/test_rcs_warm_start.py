@@ -1,4 +1,4 @@
-"""RCS* warm-started from plans it is given (issue 21, point 2): the cheapest of them that
+"""RCS* warm-started from plans it is given: the cheapest of them that
 passes the independent check is its first best plan; it prunes against it, returns it when
 the budget runs out, and never takes one that fails the check or starts elsewhere."""
 

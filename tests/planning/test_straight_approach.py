@@ -1,5 +1,5 @@
 """The approach analysis on a skin mesh: Slicer's PercutaneousApproachAnalysis (PAA), exactly,
-and needlekit's criteria beside it (issue 11: everything PAA does, and what it cannot)."""
+and needlekit's criteria beside it: everything PAA does, and what it cannot."""
 
 import json
 from pathlib import Path
@@ -232,7 +232,7 @@ def test_bench_approach_without_the_data_says_so(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------
-# the shipped examples (issue 22, point 8): the figures docs/straight.md shows, pinned
+# the shipped examples: the figures docs/straight.md shows, pinned
 
 
 @pytest.mark.realdata

@@ -1,5 +1,5 @@
 """Segment clearance bounds in closed form, convex obstacles, placed needles added to a map,
-and the march to the entry surface (the straight planner's fast paths, issue 11)."""
+and the march to the entry surface (the straight planner's fast paths)."""
 
 import numpy as np
 import pytest

@@ -1,5 +1,5 @@
-"""The entry surface of a straight needle from a mesh or from the boundary of a mask
-(issue 11, point 1), beside the analytic surface they approximate."""
+"""The entry surface of a straight needle from a mesh or from the boundary of a mask,
+beside the analytic surface they approximate."""
 
 import json
 

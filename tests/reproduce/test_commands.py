@@ -1,4 +1,4 @@
-"""``needlekit reproduce``: each paper's page beside the paper's numbers (issue 12, point 4)."""
+"""``needlekit reproduce``: each paper's page beside the paper's numbers."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``needlekit study feng-lungs``: Feng et al.'s protocol on a Med-RAD lung (issue 12, point 1).
+"""``needlekit study feng-lungs``: Feng et al.'s protocol on a Med-RAD lung.
 
 Feng's own figures are checked against the rows of their Tables 2-3; the quick run (136
 directions, 300 iterations per direction: the same on every machine) against its own sweep
@@ -250,7 +250,7 @@ def test_the_study_page_renders_in_a_browser(quick, rendered):
 def test_an_interrupted_study_keeps_its_sweeps_and_resume_gives_the_whole_tables(
     medrad_dir, tmp_path, monkeypatch, capsys
 ):
-    """Ctrl-C while the sixth direction is planned (issue 22, point 5): both targets'
+    """Ctrl-C while the sixth direction is planned: both targets'
     sweeps so far are written marked partial, and --resume plans the rest to the tables of
     a run never interrupted (iteration budgets: reproducible)."""
     import needlekit.planning.steerable.sweep_batch as sb

@@ -1,4 +1,4 @@
-"""Feng's protocol at scale (issue 13, point 3): the six sweeps as one batch, on any
+"""Feng's protocol at scale: the six sweeps as one batch, on any
 executor, with the same results; the executor flags of every command that has them.
 
 The timings themselves are measured by the study (``feng_lungs.json``'s ``timing``), never
