@@ -126,8 +126,8 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     # exit, concurrent.futures wakes every manager still registered, and on Python 3.11 a
     # pipe the manager closes between the waker's check and its write prints "Exception
     # ignored ... Bad file descriptor" and a traceback after the command's one line (seen
-    # when the manager took longer than a join's grace to end on a loaded machine): a
-    # closed pipe means the manager is ending, so there is nothing left to wake
+    # on a Ctrl-C early in a study with workers; a join's grace narrows the window, it
+    # cannot close it): a closed pipe means the manager is ending, nothing is left to wake
     _wakeup_tolerates_a_closed_pipe(getattr(pool, "_executor_manager_thread_wakeup", None))
     manager = getattr(pool, "_executor_manager_thread", None)  # shutdown() forgets it
     pool.shutdown(wait=False, cancel_futures=True)
