@@ -294,7 +294,8 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
             raise InvalidInputError(
                 "--tissue-boundary", f"sliding is the lung's pleura; the scenario's organ is the {organ}"
             )
-        model = tissue_model_for(scenario, plan, problem.goal_mm, args.tissue_boundary)
+        model = tissue_model_for(scenario, plan, problem.goal_mm, args.tissue_boundary,
+                                 cache_dir=args.cache_dir, use_cache=not args.no_cache)  # fmt: skip
         if model is None:
             if args.tissue_boundary != MECHANICS_DEFAULTS["tissue_boundary"]:
                 raise InvalidInputError("--tissue-boundary", "applies to a scenario's organ; "
@@ -304,7 +305,8 @@ def physics_options(args: argparse.Namespace, scenario, plan, problem, options):
             say_pinned(model)
     s = physical_settings(s, scenario, plan, problem.goal_mm, 1.0 / problem.kappa_max_per_mm,
                           mechanics=mech, boundary=args.tissue_boundary,
-                          insertions=args.calibration_insertions, seed=args.seed)  # fmt: skip
+                          insertions=args.calibration_insertions, seed=args.seed,
+                          cache_dir=args.cache_dir, use_cache=not args.no_cache)  # fmt: skip
     return replace(options, settings=s)
 
 

@@ -57,13 +57,16 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import blake3
 import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.execute.physical import MechanicsTruth, mechanics_truth
-from needlekit.tissue.compliance import precompute, resample_polyline
+from needlekit.io.anatomy_cache import file_digest
+from needlekit.io.record_cache import load_record, store_record
+from needlekit.tissue.compliance import load_cached, precompute, resample_polyline
 from needlekit.tissue.fem import BOUNDARY_MODES
-from needlekit.tissue.medrad_organ import ORGAN_FILES, organ_inputs
+from needlekit.tissue.medrad_organ import ORGAN_FILES, organ_files, organ_inputs
 from needlekit.tissue.runtime import DeformingTissue
 
 __all__ = ["DeformingTruth", "TissueModel", "load_compliance", "physical_truth", "tissue_model_for"]
@@ -88,6 +91,11 @@ class TissueModel:
         Vessels and airways within this of the corridor are tracked.
     per_structure : int
         At most this many tracked points per structure.
+    cache_dir : str or None
+        The prepared-anatomy cache the precomputation goes through (None: the default,
+        ``$NEEDLEKIT_CACHE_DIR`` or the user's).
+    use_cache : bool
+        False: precompute in memory, nothing read from or written to a cache.
     """
 
     organ: str
@@ -97,6 +105,8 @@ class TissueModel:
     boundary_mode: str = "organ"
     radius_mm: float = 15.0
     per_structure: int = 100
+    cache_dir: str | None = None
+    use_cache: bool = True
 
     def __post_init__(self) -> None:
         if self.organ not in ORGAN_FILES:
@@ -175,17 +185,28 @@ def load_compliance(model: TissueModel, cache_dir=None):
     (:func:`needlekit.tissue.compliance.precompute`; :meth:`TissueModel.compliance` keeps
     the answer for the process).
 
+    The precomputation's key is made from the organ body and the tracked points, which
+    take reading and binarising the masks (3-4 s for a lung). A run that has stored it
+    leaves a record under a fast key (the mask files' digests and ``model``'s fields,
+    :mod:`needlekit.io.record_cache`) naming that entry, so a later run with the same
+    model opens it without reading a mask.
+
     Parameters
     ----------
     model : TissueModel
     cache_dir : path-like, optional
-        Another cache folder (a benchmark's cold run).
+        Another cache folder (a benchmark's cold run; default: ``model.cache_dir``).
 
     Returns
     -------
     needlekit.tissue.compliance.Compliance
     """
-
+    cache_dir = model.cache_dir if cache_dir is None else cache_dir
+    fast = _fast_inputs(model) if model.use_cache else None
+    if fast is not None and (known := load_record(cache_dir, "tissue-key", fast)) is not None:
+        comp = load_cached(cache_dir, str(known.get("label")), str(known.get("key")))
+        if comp is not None:
+            return comp
     body, affine, tracked, labels = organ_inputs(
         model.folder,
         model.organ,
@@ -194,12 +215,34 @@ def load_compliance(model: TissueModel, cache_dir=None):
         model.radius_mm,
         model.per_structure,
     )
-    return precompute(body, affine, model.organ, model.corridor(), tracked, labels,
+    comp = precompute(body, affine, model.organ, model.corridor(), tracked, labels,
                       seed_mm=np.asarray(model.target_mm), boundary_mode=model.boundary_mode,
-                      cache_dir=cache_dir)  # fmt: skip
+                      use_cache=model.use_cache, cache_dir=cache_dir)  # fmt: skip
+    if fast is not None and "cache_key" in comp.info:
+        store_record(cache_dir, "tissue-key", fast,
+                     {"label": comp.info["cache_label"], "key": comp.info["cache_key"]},
+                     f"{model.organ} tissue (its fast key)")  # fmt: skip
+    return comp
 
 
-def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ") -> TissueModel | None:
+def _fast_inputs(model: TissueModel) -> dict:
+    """What the precomputation of ``model`` is made from, known before a mask is read: the
+    digest of every mask file :func:`~needlekit.tissue.medrad_organ.organ_inputs` reads,
+    and the model's fields."""
+    files = organ_files(model.folder, model.organ)
+    return {
+        "masks": {p.name: file_digest(p) for p in files},
+        "organ": model.organ,
+        "corridor": blake3.blake3(model.corridor().tobytes()).hexdigest(),
+        "target_mm": [float(v) for v in model.target_mm],
+        "boundary_mode": model.boundary_mode,
+        "radius_mm": float(model.radius_mm),
+        "per_structure": int(model.per_structure),
+    }
+
+
+def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ", *, cache_dir=None,
+                     use_cache: bool = True) -> TissueModel | None:  # fmt: skip
     """The deforming organ of a scenario with a Med-RAD base (None for any other).
 
     Parameters
@@ -209,6 +252,9 @@ def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ") -> T
         Its path is the corridor.
     goal_mm : array_like, shape (3,)
     boundary_mode : str
+    cache_dir : path-like, optional
+    use_cache : bool
+        As :class:`TissueModel`'s.
 
     Returns
     -------
@@ -223,7 +269,9 @@ def tissue_model_for(scenario, plan, goal_mm, boundary_mode: str = "organ") -> T
     corridor = resample_polyline(path, 1.5)
     goal = np.asarray(goal_mm, dtype=np.float64)
     return TissueModel(base.organ, str(base.folder), tuple(np.round(corridor, 6).ravel().tolist()),
-                       tuple(float(v) for v in goal), boundary_mode)  # fmt: skip
+                       tuple(float(v) for v in goal), boundary_mode,
+                       cache_dir=None if cache_dir is None else str(cache_dir),
+                       use_cache=bool(use_cache))  # fmt: skip
 
 
 class DeformingTruth(MechanicsTruth):

@@ -47,6 +47,7 @@ __all__ = [
     "Compliance",
     "compute_compliance",
     "interpolation",
+    "load_cached",
     "locate",
     "precompute",
     "resample_polyline",
@@ -303,11 +304,16 @@ def _array_digest(a: np.ndarray) -> str:
     return blake3.blake3(np.ascontiguousarray(a, dtype=np.float64).tobytes()).hexdigest(length=16)
 
 
+#: What ``Compliance.info`` says of one run (where it came from, how long it took), not
+#: stored with the entry.
+_RUN_INFO = ("timings_s", "cache_entry", "cache_label", "cache_key")
+
+
 def _arrays(comp: Compliance) -> dict:
     mesh = comp.mesh
     meta = {"tracked_labels": list(comp.tracked_labels), "cell_mm": mesh.cell_mm.tolist(),
             "method": mesh.method,
-            "info": {k: v for k, v in comp.info.items() if k not in ("timings_s", "cache_entry")}}  # fmt: skip
+            "info": {k: v for k, v in comp.info.items() if k not in _RUN_INFO}}  # fmt: skip
     return {
         "nodes_mm": (mesh.nodes_mm, meta), "tets": (mesh.tets, {}),
         "corridor_mm": (comp.corridor_mm, {}), "tracked_mm": (comp.tracked_mm, {}),
@@ -412,11 +418,7 @@ def precompute(
             log.warning("tissue cache unavailable (%s); going on without it", exc)
             entry, key = None, None
         if entry is not None:
-            cache_entries.mark_used(entry.path)
-            comp = _from_entry(entry)
-            timings["cache_load_s"] = time.perf_counter() - t0
-            comp.info.update(timings_s=timings, cache_entry=str(entry.path))
-            return comp
+            return _loaded(entry, label, key, timings, t0)
     t0 = time.perf_counter()
     mesh = mesh_mask(data, a, target_tets=target_tets, cell_mm=cell_mm, seed_mm=seed_mm)
     timings["mesh_s"] = time.perf_counter() - t0
@@ -436,7 +438,7 @@ def precompute(
                 usage = cache_entries.usage_record(what, "tissue.precompute")
                 entry = anatomy_cache.write_entry(cache_dir, label, key, inputs, arrays, usage)
                 cache_entries.mark_used(entry.path)
-                comp.info["cache_entry"] = str(entry.path)
+                comp.info.update(cache_entry=str(entry.path), cache_label=label, cache_key=key)
             else:
                 log.warning("the tissue precomputation (%d bytes) is over the cache's limit: not stored", need)
         except OSError as exc:
@@ -444,3 +446,34 @@ def precompute(
         timings["cache_write_s"] = time.perf_counter() - t0
     comp.info["timings_s"] = timings
     return comp
+
+
+def _loaded(entry, label: str, key: str, timings: dict, t0: float) -> Compliance:
+    cache_entries.mark_used(entry.path)
+    comp = _from_entry(entry)
+    timings["cache_load_s"] = time.perf_counter() - t0
+    comp.info.update(timings_s=timings, cache_entry=str(entry.path), cache_label=label, cache_key=key)
+    return comp
+
+
+def load_cached(cache_dir, label: str, key: str) -> Compliance | None:
+    """The precomputation stored under ``label`` and ``key`` (``info["cache_label"]`` and
+    ``info["cache_key"]`` of a :func:`precompute` that went through the cache), or None
+    (not there, or no readable cache).
+
+    Parameters
+    ----------
+    cache_dir : path-like or None
+    label, key : str
+
+    Returns
+    -------
+    Compliance or None
+    """
+    t0 = time.perf_counter()
+    try:
+        entry = anatomy_cache.open_entry(cache_dir, label, key)
+    except CacheKeyError as exc:
+        log.warning("tissue cache unavailable (%s); going on without it", exc)
+        return None
+    return None if entry is None else _loaded(entry, label, key, {}, t0)

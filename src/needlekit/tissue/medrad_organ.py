@@ -14,13 +14,33 @@ from needlekit.io.volumes import read_mask
 from needlekit.tissue.compliance import sample_near
 from needlekit.tissue.meshing import organ_body
 
-__all__ = ["ORGAN_FILES", "organ_inputs"]
+__all__ = ["ORGAN_FILES", "organ_files", "organ_inputs"]
 
 #: The organ's body mask and the structures followed beside the corridor, by organ.
 ORGAN_FILES: dict[str, tuple[str, tuple[str, ...]]] = {
     "lung": ("pleuralBoundary", ("vessels", "bronchialTree")),
     "liver": ("liver", ("hepaticVein", "portalVein", "hepaticArtery")),
 }
+
+
+def organ_files(folder, organ: str) -> list[Path]:
+    """The mask files :func:`organ_inputs` reads for ``organ`` in a patient folder: the
+    body's, then the nodule's and each structure's that is there.
+
+    Parameters
+    ----------
+    folder : path-like
+    organ : str
+
+    Returns
+    -------
+    list of Path
+    """
+    folder = Path(folder)
+    body_name, structures = ORGAN_FILES[organ]
+    return [folder / f"{body_name}.nii.gz"] + [
+        p for name in ("nodule", *structures) if (p := folder / f"{name}.nii.gz").is_file()
+    ]
 
 
 def organ_inputs(folder, organ: str, corridor_mm, target_mm, radius_mm: float = 15.0,
@@ -48,16 +68,13 @@ def organ_inputs(folder, organ: str, corridor_mm, target_mm, radius_mm: float = 
     labels : list of str
         ``"target"``, then each structure's name per point.
     """
-    folder = Path(folder)
-    body_name, structures = ORGAN_FILES[organ]
-    mask = read_mask(folder / f"{body_name}.nii.gz")
+    body_path, *others = organ_files(folder, organ)
+    mask = read_mask(body_path)
     target = np.asarray(target_mm, dtype=np.float64)
     corridor = np.asarray(corridor_mm, dtype=np.float64)
     tracked, labels, inside = [target[None]], ["target"], []
-    for name in ("nodule", *structures):
-        path = folder / f"{name}.nii.gz"
-        if not path.is_file():
-            continue
+    for path in others:
+        name = path.name.removesuffix(".nii.gz")
         m = read_mask(path, allow_empty=True)
         inside.append((m.data, m.affine))
         if name != "nodule":
