@@ -1,15 +1,19 @@
 """Test-session set-up shared by every test folder.
 
 - The prepared-anatomy cache: a temporary one for the whole session.
+- Runs several test modules read (a plan and its execution, say): made once per session,
+  whichever xdist worker needs one first, and read by the others (:func:`shared_run`).
 - The Med-RAD data (real patients, CC BY-NC-SA 4.0): tests that need it are marked
   ``realdata``; they skip, saying why, when it is absent (it is read from
   ``$NEEDLEKIT_MEDRAD`` or ``../shared/data/med-rad``, never copied here). The fixtures
   load each case once per test process.
 """
 
+import fcntl
 import os
 import shutil
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +23,8 @@ from needlekit.io.medrad import MEDRAD_ENV, load_medrad, medrad_root
 
 _CACHE_ENV = "NEEDLEKIT_CACHE_DIR"
 _KEY_ENV = "NEEDLEKIT_CACHE_KEY_FILE"
+#: The folder of the session's shared runs (set by the controller, read by its workers).
+_SHARED_ENV = "NEEDLEKIT_TEST_SHARED_RUNS"
 _saved: dict = {}
 
 
@@ -36,6 +42,9 @@ def pytest_configure(config):
     # and the key that signs it: the session's own, never the user's
     _saved["key_dir"] = tempfile.mkdtemp(prefix="needlekit-test-key-")
     os.environ[_KEY_ENV] = os.path.join(_saved["key_dir"], "cache.key")
+    _saved["shared_env"] = os.environ.get(_SHARED_ENV)
+    _saved["shared_dir"] = tempfile.mkdtemp(prefix="needlekit-test-runs-")
+    os.environ[_SHARED_ENV] = _saved["shared_dir"]
 
 
 def pytest_unconfigure(config):
@@ -43,11 +52,96 @@ def pytest_unconfigure(config):
         return
     shutil.rmtree(_saved.pop("dir"), ignore_errors=True)
     shutil.rmtree(_saved.pop("key_dir"), ignore_errors=True)
-    for name, saved in ((_CACHE_ENV, _saved.pop("env")), (_KEY_ENV, _saved.pop("key_env"))):
+    shutil.rmtree(_saved.pop("shared_dir"), ignore_errors=True)
+    for name, saved in ((_CACHE_ENV, _saved.pop("env")), (_KEY_ENV, _saved.pop("key_env")),
+                        (_SHARED_ENV, _saved.pop("shared_env"))):  # fmt: skip
         if saved is None:
             os.environ.pop(name, None)
         else:
             os.environ[name] = saved
+
+
+def shared_run(name: str, make) -> Path:
+    """The folder of the session's run ``name``, made by ``make(folder)`` the first time any
+    worker asks (the others wait for it, then read it). Tests read what is in it and write
+    elsewhere. A ``make`` that fails leaves nothing: the next to ask runs it again (and
+    fails the same way, in its own test).
+
+    Parameters
+    ----------
+    name : str
+        A folder name.
+    make : callable
+        ``make(folder)``: writes the run's files into ``folder`` (which exists, empty).
+
+    Returns
+    -------
+    Path
+    """
+    root = Path(os.environ[_SHARED_ENV])
+    folder = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (root / f"{name}.done").exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            try:
+                make(folder)
+            except BaseException:
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
+            (root / f"{name}.done").touch()
+    return folder
+
+
+def _make_liver_phantom_drag_run(d: Path) -> None:
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    from needlekit.cli import main
+
+    text = (examples / "liver_phantom_multi.yaml").read_text().replace(
+        "  objective: min_length", "  objective: min_length\n  deformation: needle_drag"
+    )
+    scenario = d / "drag.yaml"
+    scenario.write_text(text)
+    plan = d / "multi.json"
+    assert main(["multi", str(scenario), "--out", str(plan)]) == 0
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--workers", "2",
+                 "--out", str(d / "two")]) == 0  # fmt: skip
+    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--replay-trial", "1",
+                 "--out", str(d / "one"), "--report", str(d / "one" / "page.html")]) == 0  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def liver_phantom_drag_run() -> Path:
+    """The liver phantom's three needles (examples/liver_phantom_multi.yaml) planned with
+    the needle-drag deformation, inserted in two trials (two workers), and trial 1
+    replayed alone: ``drag.yaml``, ``multi.json``, ``two/execute.json``,
+    ``one/execute.json`` and ``one/page.html``, made once per session (tests/execute/
+    test_execute_multi.py checks the run, tests/report/test_slicer_oracle.py its scene)."""
+    return shared_run("liver-phantom-drag", _make_liver_phantom_drag_run)
+
+
+@pytest.fixture(scope="session")
+def medrad_liver4_multi_plan(medrad_dir) -> Path:
+    """``needlekit multi examples/medrad_liver4.yaml``'s plan (``multi.json``), made once
+    per session (tests/planning/test_straight_coverage_cli.py checks its coverage,
+    tests/execute/test_execute_medrad.py inserts it)."""
+
+    def make(d: Path) -> None:
+        from needlekit.cli import main
+
+        saved = os.environ.get(MEDRAD_ENV)
+        os.environ[MEDRAD_ENV] = str(medrad_dir)
+        try:
+            example = Path(__file__).resolve().parents[1] / "examples" / "medrad_liver4.yaml"
+            assert main(["multi", str(example), "--out", str(d / "multi.json")]) == 0
+        finally:
+            if saved is None:
+                os.environ.pop(MEDRAD_ENV, None)
+            else:
+                os.environ[MEDRAD_ENV] = saved
+
+    return shared_run("medrad-liver4-multi", make) / "multi.json"
 
 
 def _medrad_root():

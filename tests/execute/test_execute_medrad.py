@@ -80,7 +80,7 @@ def test_study_execute_lungs_writes_each_case_as_execute_would(medrad_dir, tmp_p
 
 
 def test_liver4_multi_plan_inserted_by_the_robot_touches_nothing_and_keeps_its_constraints(
-    medrad_dir, tmp_path, capsys, monkeypatch
+    medrad_dir, medrad_liver4_multi_plan, tmp_path, capsys, monkeypatch
 ):
     """Med-RAD liver 4: its six-needle coverage plan inserted once;
     no needle touches a placed one or leaves its constraints, and the zones at the
@@ -89,8 +89,7 @@ def test_liver4_multi_plan_inserted_by_the_robot_touches_nothing_and_keeps_its_c
 
     monkeypatch.setenv("NEEDLEKIT_MEDRAD", str(medrad_dir))
     scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_liver4.yaml"
-    plan = tmp_path / "multi.json"
-    assert main(["multi", str(scenario), "--out", str(plan)]) == 0
+    plan = medrad_liver4_multi_plan  # `multi` on the example, exit 0 (tests/conftest.py)
     assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "1",
                  "--out", str(tmp_path / "x")]) == 0  # fmt: skip
     doc = json.loads((tmp_path / "x" / "execute.json").read_text())

@@ -64,25 +64,13 @@ def test_a_start_inside_the_patient_cylinder_moves_out_to_the_first_step_clear_o
 
 
 @pytest.fixture(scope="module")
-def drag(tmp_path_factory):
-    """The phantom's three needles planned with the needle-drag deformation, inserted in
-    two trials (two workers), and trial 1 replayed alone."""
-    d = tmp_path_factory.mktemp("multi")
-    text = PHANTOM.read_text().replace(
-        "  objective: min_length", "  objective: min_length\n  deformation: needle_drag"
-    )
-    scenario = d / "drag.yaml"
-    scenario.write_text(text)
-    plan = d / "multi.json"
-    assert main(["multi", str(scenario), "--out", str(plan)]) == 0
-    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--workers", "2",
-                 "--out", str(d / "two")]) == 0  # fmt: skip
-    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan), "--trials", "2", "--replay-trial", "1",
-                 "--out", str(d / "one"), "--report", str(d / "one" / "page.html")]) == 0  # fmt: skip
+def drag(liver_phantom_drag_run):
+    """The session's run (tests/conftest.py ``liver_phantom_drag_run``), read."""
+    d = liver_phantom_drag_run
     return {
-        "scenario": scenario,
-        "plan": plan,
-        "record": json.loads(plan.read_text()),
+        "scenario": d / "drag.yaml",
+        "plan": d / "multi.json",
+        "record": json.loads((d / "multi.json").read_text()),
         "two": json.loads((d / "two" / "execute.json").read_text()),
         "one": json.loads((d / "one" / "execute.json").read_text()),
         "dir": d,

@@ -203,13 +203,13 @@ def test_a_sphere_zone_takes_its_radius(tmp_path):
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_medrad_liver4_example_is_covered_and_verified(medrad_dir, tmp_path, monkeypatch):
+def test_medrad_liver4_example_is_covered_and_verified(medrad_dir, medrad_liver4_multi_plan,
+                                                       monkeypatch):  # fmt: skip
     from pathlib import Path
 
     monkeypatch.setenv("NEEDLEKIT_MEDRAD", str(medrad_dir))
     example = Path(__file__).parents[2] / "examples" / "medrad_liver4.yaml"
-    out = tmp_path / "l4.json"
-    assert main(["multi", str(example), "--out", str(out)]) == 0
+    out = medrad_liver4_multi_plan  # `multi` on the example, exit 0 (tests/conftest.py)
     rec = json.loads(out.read_text())
     c = rec["coverage"]
     assert c["status"] == "covered" and c["coverage"] == 1.0 and 1 <= c["needles"] <= 6

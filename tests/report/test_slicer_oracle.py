@@ -308,13 +308,12 @@ def test_a_real_plan_and_execution_of_the_toy_lung(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path):
-    """`needlekit multi` on examples/liver_phantom_multi.yaml, `execute` (2 trials)."""
-    scenario = EXAMPLES / "liver_phantom_multi.yaml"
-    plan_path, ex = tmp_path / "multi.json", tmp_path / "ex"
-    assert main(["multi", str(scenario), "--out", str(plan_path)]) == 0
-    assert main(["execute", "--truth", "kinematic", str(scenario), str(plan_path), "--trials", "2", "--seed", "0",
-                 "--out", str(ex)]) == 0  # fmt: skip
+def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path, liver_phantom_drag_run):
+    """`needlekit multi` on examples/liver_phantom_multi.yaml with the needle-drag
+    deformation, `execute` (2 trials): the session's run (tests/conftest.py) that
+    tests/execute/test_execute_multi.py checks."""
+    d = liver_phantom_drag_run
+    scenario, plan_path, ex = d / "drag.yaml", d / "multi.json", d / "two"
     out = tmp_path / "liver.mrb"
     assert main(["slicer", str(scenario), str(plan_path), "--execution", str(ex / "execute.json"),
                  "--max-cells", "48", "--out", str(out)]) == 0  # fmt: skip
@@ -324,12 +323,14 @@ def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path):
         want = [n["entry_mm"], n["target_mm"]]
         assert np.max(np.abs(sc.control_points(f"needle {n['order']}") - want)) < TOL_MM
     runs = json.loads((ex / "execute.json").read_text())["trials"]
+    assert len(runs) == 2
     for k, run in enumerate(runs):
         for n in run["needles"]:
             got = sc.control_points(f"trial {k + 1} needle {n['order']}")
             assert np.max(np.abs(got[1] - n["tip_mm"])) < TOL_MM
     scene = load_scenario(scenario).scene
     assert {s.name for s in scene.structures} <= set(sc.nodes)
+
 
 
 @pytest.mark.realdata

@@ -435,7 +435,7 @@ def control_step(
         gap = 2.0 * cfg.needle_radius_mm + cfg.needle_gap_mm
         distances["needle_sq_mm2"] = _tick.shaft_rows(
             s.tip_mm, s.needle_axis, s.tip_jacobian, s.axis_jacobian,
-            float(np.linalg.norm(model.flange_T_tip[:3, 3])), placed, gap * gap,
+            model.needle_length_mm, placed, gap * gap,
             cfg.eta_needle, A, bu, m, True,
         )  # fmt: skip
     sol = CROSSED_BOUNDS if infeasible else get_qp_solver(solver).solve(H, f, A, bu, bl)

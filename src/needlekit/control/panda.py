@@ -15,12 +15,13 @@ needle-axis Jacobians follow. ``dqrobotics`` is its test oracle.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
 
-from needlekit.control.dq import _dq_to_matrix, _qmul, dq_from_matrix, dq_mul, dq_to_matrix
+from needlekit.control.dq import _dq_to_matrix, _qmul, dq_from_matrix, dq_mul
 from needlekit.errors import InvalidInputError
 
 __all__ = [
@@ -49,6 +50,44 @@ FLANGE_MM = 107.0
 Q_MIN = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
 Q_MAX = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
 Q_DOT_MAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
+
+
+@nb.njit(cache=True)
+def _joint_frame(x, step, mdh, q, i):
+    """``x rot_x(alpha_i) trans_x(a_i) rot_z(theta_i + q_i)``: the frame joint ``i``
+    turns (``step``: scratch, shape (8,))."""
+    th, a, al = mdh[0, i] + q[i], mdh[2, i], mdh[3, i]
+    ca, sa = np.cos(0.5 * al), np.sin(0.5 * al)
+    step[:] = 0.0
+    step[0], step[1] = ca, sa
+    step[4], step[5] = -0.5 * a * sa, 0.5 * a * ca
+    x = dq_mul(x, step)
+    ct, st = np.cos(0.5 * th), np.sin(0.5 * th)
+    step[:] = 0.0
+    step[0], step[3] = ct, st
+    return dq_mul(x, step)
+
+
+@nb.njit(cache=True)
+def _along_joint(x, step, mdh, i):
+    """``x trans_z(d_i)``: on to the next link."""
+    step[:] = 0.0
+    step[0], step[7] = 1.0, 0.5 * mdh[1, i]
+    return dq_mul(x, step)
+
+
+@nb.njit(cache=True)
+def _tip_matrix(q, mdh, base, tool):
+    """The tip pose of :func:`chain_kinematics` (the same products, in the same order) as a
+    4x4 matrix, without the Jacobian and axes; and whether ``q`` is finite."""
+    finite = True
+    for i in range(q.shape[0]):
+        finite = finite and np.isfinite(q[i])
+    x = base.copy()
+    step = np.zeros(8)
+    for i in range(q.shape[0]):
+        x = _along_joint(_joint_frame(x, step, mdh, q, i), step, mdh, i)
+    return _dq_to_matrix(dq_mul(x, tool)), finite
 
 
 @nb.njit(cache=True)
@@ -83,18 +122,7 @@ def chain_kinematics(q, mdh, base, tool):
     x = base.copy()
     step = np.zeros(8)
     for i in range(n):
-        th, d, a, al = mdh[0, i] + q[i], mdh[1, i], mdh[2, i], mdh[3, i]
-        # rot_x(alpha) trans_x(a)
-        ca, sa = np.cos(0.5 * al), np.sin(0.5 * al)
-        step[:] = 0.0
-        step[0], step[1] = ca, sa
-        step[4], step[5] = -0.5 * a * sa, 0.5 * a * ca
-        x = dq_mul(x, step)
-        # rot_z(theta + q): x is now the frame the joint turns
-        ct, st = np.cos(0.5 * th), np.sin(0.5 * th)
-        step[:] = 0.0
-        step[0], step[3] = ct, st
-        x = dq_mul(x, step)
+        x = _joint_frame(x, step, mdh, q, i)  # the frame joint i turns
         r0, r1, r2, r3 = x[0], x[1], x[2], x[3]
         # axis direction r k r*, origin 2 d r*
         p = _qmul(r0, r1, r2, r3, 0.0, 0.0, 0.0, 1.0)
@@ -110,10 +138,7 @@ def chain_kinematics(q, mdh, base, tool):
         lines[i, 5] = oy * z[3] - oz * z[2]
         lines[i, 6] = oz * z[1] - ox * z[3]
         lines[i, 7] = ox * z[2] - oy * z[1]
-        # trans_z(d)
-        step[:] = 0.0
-        step[0], step[7] = 1.0, 0.5 * d
-        x = dq_mul(x, step)
+        x = _along_joint(x, step, mdh, i)
     o = _qmul(x[4], x[5], x[6], x[7], x[0], -x[1], -x[2], -x[3])
     origins[n, 0], origins[n, 1], origins[n, 2] = 2.0 * o[1], 2.0 * o[2], 2.0 * o[3]
     x = dq_mul(x, tool)
@@ -336,6 +361,17 @@ class PandaModel:
         )  # fmt: skip
         return st
 
+    @functools.cached_property
+    def needle_length_mm(self) -> float:
+        """The tip's distance from the flange (``|flange_T_tip|`` translation, mm), kept
+        once computed (a control step with placed needles reads it every tick).
+
+        Returns
+        -------
+        float
+        """
+        return float(np.linalg.norm(self.flange_T_tip[:3, 3]))
+
     def tip_pose(self, q) -> np.ndarray:
         """``world_T_tip`` at ``q``.
 
@@ -347,9 +383,13 @@ class PandaModel:
         -------
         ndarray, shape (4, 4)
         """
-        q = self._q(q)
-        x = chain_kinematics(q, PANDA_MDH_MM, self._base_dq, self._tool_dq)[0]
-        return dq_to_matrix(x)
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (7,):
+            self._q(q)  # raises
+        pose, finite = _tip_matrix(q, PANDA_MDH_MM, self._base_dq, self._tool_dq)
+        if not finite:
+            self._q(q)  # raises
+        return pose
 
     def with_parameters(self, world_T_base=None, flange_T_tip=None) -> PandaModel:
         """The same arm with another base or needle transform (e.g. the estimated ones).
