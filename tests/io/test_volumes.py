@@ -379,3 +379,28 @@ def test_binarise_stream_across_slab_boundaries(chunk_planes):
     assert binarise_stream(stream.readinto, np.dtype(np.int16), data.shape, 13 * 11 * 2) is None
     short = io.BytesIO(data.tobytes(order="F")[:-1])  # one byte missing
     assert binarise_stream(short.readinto, np.dtype(np.int16), data.shape) is None
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_masks_read_together_are_the_masks_read_one_by_one(tmp_path, monkeypatch, threads):
+    import needlekit.io.volumes as prepare
+
+    monkeypatch.setattr(prepare, "READ_THREADS", threads)
+    paths = {}
+    for k, shape in enumerate([(6, 7, 8), (30, 20, 10), (9, 5, 4), (12, 12, 12)]):
+        data = _mask(shape, seed=k)
+        paths[f"m{k}"] = write_mask_nifti(tmp_path / f"m{k}.nii.gz", data, _affine("oblique"))
+    paths["empty"] = write_mask_nifti(tmp_path / "e.nii.gz", np.zeros((3, 3, 3), bool), np.eye(4))
+    said = []
+    got = prepare.read_masks(paths, said.append, allow_empty=("empty",))
+    assert list(got) == list(paths) and said == [f"masks {k}/5" for k in range(1, 6)]
+    for name, path in paths.items():
+        one = read_mask(path, allow_empty=name == "empty")
+        assert np.array_equal(got[name].data, one.data) and np.array_equal(got[name].affine, one.affine)
+    # the first bad file in the given order is the one named, whichever finished first
+    (tmp_path / "bad.nii.gz").write_bytes(b"not a mask")
+    bad = {"m1": paths["m1"], "bad": tmp_path / "bad.nii.gz", "empty": paths["empty"]}
+    with pytest.raises(InvalidInputError, match=r"bad\.nii\.gz"):
+        prepare.read_masks(bad)
+    with pytest.raises(InvalidInputError, match=r"e\.nii\.gz.*empty mask"):
+        prepare.read_masks({"m1": paths["m1"], "empty": paths["empty"]})

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit.io.volumes import read_mask
+from needlekit.io.volumes import read_masks
 from needlekit.tissue.compliance import sample_near
 from needlekit.tissue.meshing import organ_body
 
@@ -69,13 +69,14 @@ def organ_inputs(folder, organ: str, corridor_mm, target_mm, radius_mm: float = 
         ``"target"``, then each structure's name per point.
     """
     body_path, *others = organ_files(folder, organ)
-    mask = read_mask(body_path)
+    names = ["body"] + [p.name.removesuffix(".nii.gz") for p in others]
+    masks = read_masks(dict(zip(names, [body_path, *others], strict=True)), allow_empty=names[1:])
+    mask = masks["body"]
     target = np.asarray(target_mm, dtype=np.float64)
     corridor = np.asarray(corridor_mm, dtype=np.float64)
     tracked, labels, inside = [target[None]], ["target"], []
-    for path in others:
-        name = path.name.removesuffix(".nii.gz")
-        m = read_mask(path, allow_empty=True)
+    for name in names[1:]:
+        m = masks[name]
         inside.append((m.data, m.affine))
         if name != "nodule":
             near = sample_near(m.data, m.affine, corridor, radius_mm, per_structure)
