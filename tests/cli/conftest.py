@@ -136,14 +136,20 @@ def _interrupt_at(argv: list[str], cpu_s: float):
 def _caches() -> dict[str, int]:
     """Every file a run may add to what later runs find, with its mtime: the package's
     ``__pycache__`` folders (byte code, numba's compiled kernels) and the prepared-anatomy
-    cache."""
+    cache's entries and arrays (files: a folder's mtime moves with any file written in
+    it). Not the entries' usage records: every run that opens an entry rewrites its record
+    (``cache_entries.mark_used``), and so does any other test worker reading the session's
+    cache meanwhile; a rewritten record makes no later run faster, and counting it would
+    run the complete command a second time for nothing."""
     import needlekit
-    from needlekit.io.anatomy_cache import default_cache_dir
+    from needlekit.io.anatomy_cache import USAGE_FILE, default_cache_dir
 
     found = {}
     for root in (Path(needlekit.__file__).parent, default_cache_dir()):
         pattern = "__pycache__/*" if root.name == "needlekit" else "*"
         for f in root.rglob(pattern):
+            if f.name == USAGE_FILE or f.is_dir():
+                continue
             try:
                 found[str(f)] = f.stat().st_mtime_ns
             except OSError:
