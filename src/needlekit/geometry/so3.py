@@ -15,6 +15,7 @@ from needlekit.constants import SMALL_ANGLE_RAD
 
 __all__ = [
     "angle_between",
+    "cross3",
     "hat",
     "hat_unchecked",
     "rot_x",
@@ -264,6 +265,31 @@ def rot_z(angle):
     return _axis_rotation(angle, 2)
 
 
+def _cross_parts(a0, a1, a2, b0, b1, b2) -> tuple[float, float, float]:
+    # np.cross's products and differences, in its order
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+def cross3(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` of one pair of 3-vectors by scalar arithmetic, the same bits as
+    ``np.cross`` (whose axis handling costs about 20 us on one pair).
+
+    Parameters
+    ----------
+    u, v : ndarray, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3,)
+
+    Examples
+    --------
+    >>> cross3(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])).tolist()
+    [0.0, 0.0, 1.0]
+    """
+    return np.array(_cross_parts(*u.tolist(), *v.tolist()))
+
+
 def angle_between(u, v) -> np.ndarray:
     """The angle (rad) between directions ``u`` and ``v`` (any lengths), row by row:
     ``atan2(|u x v|, u . v)``, exact at 0 and pi where ``arccos`` of the normalised dot
@@ -296,6 +322,6 @@ def angle_between(u, v) -> np.ndarray:
         # (measured: 30x faster per call, a sixth of a multi trial's time before)
         a0, a1, a2 = a.tolist()
         b0, b1, b2 = b.tolist()
-        x, y, z = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        x, y, z = _cross_parts(a0, a1, a2, b0, b1, b2)
         return np.float64(math.atan2(math.sqrt(x * x + y * y + z * z), a0 * b0 + a1 * b1 + a2 * b2))
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))

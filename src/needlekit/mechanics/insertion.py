@@ -68,6 +68,7 @@ import math
 import numpy as np
 
 from needlekit.errors import InvalidInputError
+from needlekit.geometry.so3 import cross3
 from needlekit.mechanics.channel import Channel, transport
 from needlekit.mechanics.materials import NeedleSpec, TissueSpec
 from needlekit.mechanics.shaft import ShaftSolution, solve_shaft
@@ -227,9 +228,7 @@ class MechanicalNeedle:
 
     def _compose_pose(self) -> np.ndarray:
         t, ex = self._tip_tan, self._tip_ex
-        t0, t1, t2 = t.tolist()  # t x ex written out: np.cross is slow on one pair
-        e0, e1, e2 = ex.tolist()
-        ey = np.array([t1 * e2 - t2 * e1, t2 * e0 - t0 * e2, t0 * e1 - t1 * e0])
+        ey = cross3(t, ex)
         c, s = math.cos(self._spin), math.sin(self._spin)
         g = np.eye(4)
         g[:3, 0] = c * ex + s * ey

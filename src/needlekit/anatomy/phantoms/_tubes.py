@@ -20,6 +20,7 @@ import numpy as np
 from needlekit.anatomy.fields import DistanceField
 from needlekit.anatomy.phantoms._shapes import round_cone
 from needlekit.geometry.segments import closest_segment_params, segment_distances
+from needlekit.geometry.so3 import cross3
 
 __all__ = ["CollisionWorld", "Tree", "chain_atoms", "rotate", "sample_in_region", "segment_ok"]
 
@@ -31,13 +32,6 @@ CHECK_SPACING_MM: float = 1.5
 
 # ----------------------------------------------------------------------------------------
 # small geometry
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    # np.cross costs ~20 us on single vectors; this is the same product
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
 
 
 def rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -53,7 +47,7 @@ def rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
     ndarray, shape (3,)
     """
     c, s = np.cos(angle), np.sin(angle)
-    return v * c + _cross(axis, v) * s + axis * (axis @ v) * (1.0 - c)
+    return v * c + cross3(axis, v) * s + axis * (axis @ v) * (1.0 - c)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -63,7 +57,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def _any_perpendicular(u: np.ndarray) -> np.ndarray:
     e = np.zeros(3)
     e[int(np.argmin(np.abs(u)))] = 1.0
-    return _unit(_cross(u, e))
+    return _unit(cross3(u, e))
 
 
 @numba.njit(cache=True)
