@@ -53,6 +53,14 @@ Q_DOT_MAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 
 
 @nb.njit(cache=True)
+def _all_finite(q):
+    finite = True
+    for i in range(q.shape[0]):
+        finite = finite and np.isfinite(q[i])
+    return finite
+
+
+@nb.njit(cache=True)
 def _joint_frame(x, step, mdh, q, i):
     """``x rot_x(alpha_i) trans_x(a_i) rot_z(theta_i + q_i)``: the frame joint ``i``
     turns (``step``: scratch, shape (8,))."""
@@ -80,9 +88,7 @@ def _along_joint(x, step, mdh, i):
 def _tip_matrix(q, mdh, base, tool):
     """The tip pose of :func:`chain_kinematics` (the same products, in the same order) as a
     4x4 matrix, without the Jacobian and axes; and whether ``q`` is finite."""
-    finite = True
-    for i in range(q.shape[0]):
-        finite = finite and np.isfinite(q[i])
+    finite = _all_finite(q)
     x = base.copy()
     step = np.zeros(8)
     for i in range(q.shape[0]):
@@ -191,9 +197,7 @@ def _points_line_sq_distances(axes, origins, ks, c, ell):
 def _arm_state(q, mdh, base, tool):
     """Everything :meth:`PandaModel.state` returns, in one compiled call (and whether ``q``
     is finite)."""
-    finite = True
-    for i in range(q.shape[0]):
-        finite = finite and np.isfinite(q[i])
+    finite = _all_finite(q)
     x, jac, axes, origins = chain_kinematics(q, mdh, base, tool)
     tip = _dq_to_matrix(x)
     p = tip[:3, 3].copy()

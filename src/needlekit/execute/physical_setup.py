@@ -85,16 +85,16 @@ def physical_settings(settings, scenario, plan, goal_mm, r_min_mm: float, *,
         s = replace(s, tissue=model)
     on = replace(s, models=replace(s.models, truth="mechanics")) if truth == "physical" else s
     how = CalibrationSettings(curved=insertions, straight=max(2, insertions // 2), seed=seed)
-    cal = _calibration(on, plan.start_pose, float(r_min_mm), how, cache_dir if use_cache else False)
+    cal = _calibration(on, plan.start_pose, float(r_min_mm), how, cache_dir, use_cache)
     return replace(s, model=cal)
 
 
 def _calibration(settings, start_pose, r_min_mm: float, how: CalibrationSettings,
-                 cache_dir) -> Calibration:  # fmt: skip
+                 cache_dir, use_cache: bool) -> Calibration:  # fmt: skip
     """:func:`calibrate_truth`, through the cache when the truth is the built-in
     ``mechanics`` (whose inputs are known: a registered replacement is calibrated every
-    time); ``cache_dir`` False: no cache."""
-    if cache_dir is False or TRUTHS.get(settings.models.truth) is not mechanics_truth:
+    time); ``use_cache`` False: no cache."""
+    if not use_cache or TRUTHS.get(settings.models.truth) is not mechanics_truth:
         return calibrate_truth(settings, start_pose, r_min_mm, how)
     m = settings.mechanics
     inputs = {
