@@ -158,3 +158,17 @@ def test_a_second_run_opens_the_organs_precomputation_without_reading_a_mask(
     # no cache: nothing read, so the masks are
     with pytest.raises(AssertionError, match="read the masks"):
         load_compliance(replace(model, use_cache=False))
+
+
+def test_a_straight_needles_organ_goes_through_the_cache_it_was_given():
+    # `execute --cache-dir D` / `--no-cache` on a multi plan: each needle's organ model
+    # carries them to its precomputation (they had gone to the default cache)
+    from needlekit.execute.straight_physics import StraightPhysics
+
+    given = StraightPhysics("physical", MechanicsSettings(), "liver", "folder",
+                            cache_dir="/elsewhere", use_cache=False)  # fmt: skip
+    model = given.tissue_model([0.0, 0.0, 0.0], [0.0, 0.0, 30.0])
+    assert (model.cache_dir, model.use_cache) == ("/elsewhere", False)
+    default = StraightPhysics("physical", MechanicsSettings(), "liver", "folder")
+    model = default.tissue_model([0.0, 0.0, 0.0], [0.0, 0.0, 30.0])
+    assert (model.cache_dir, model.use_cache) == (None, True)

@@ -196,7 +196,9 @@ def straight_physics(args: argparse.Namespace, scenario):
     mech = mechanics_from_flags(args, organ, straight=True)
     if args.truth == "physical" and organ is None:
         no_organ(args, args.scenario.name)
-    return StraightPhysics(args.truth, mech, organ, None if organ is None else str(base.folder))
+    return StraightPhysics(args.truth, mech, organ, None if organ is None else str(base.folder),
+                           cache_dir=None if args.cache_dir is None else str(args.cache_dir),
+                           use_cache=not args.no_cache)  # fmt: skip
 
 
 def run_multi(args: argparse.Namespace, record: dict) -> int:

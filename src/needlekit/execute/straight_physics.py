@@ -55,12 +55,18 @@ class StraightPhysics:
         ``"liver"`` or ``"lung"``: the Med-RAD organ (``physical``).
     folder : str or None
         Its Med-RAD patient folder.
+    cache_dir : str or None
+    use_cache : bool
+        The cache the organ's precomputation goes through, as
+        :class:`~needlekit.execute.deforming.TissueModel`'s.
     """
 
     truth: str
     mechanics: MechanicsSettings
     organ: str | None = None
     folder: str | None = None
+    cache_dir: str | None = None
+    use_cache: bool = True
 
     def __post_init__(self) -> None:
         if self.truth not in ("mechanics", "physical"):
@@ -87,7 +93,8 @@ class StraightPhysics:
         a, b = np.asarray(entry_mm, dtype=np.float64), np.asarray(target_mm, dtype=np.float64)
         corridor = resample_polyline(np.array([a, b]), 1.5)
         return TissueModel(self.organ, self.folder, tuple(np.round(corridor, 6).ravel().tolist()),
-                           tuple(float(v) for v in b))  # fmt: skip
+                           tuple(float(v) for v in b), cache_dir=self.cache_dir,
+                           use_cache=self.use_cache)  # fmt: skip
 
     def insert(self, start_pose, depth_mm: float, planned: tuple, rng) -> dict:
         """Insert the rod from ``start_pose`` (its tip at the entry, z along the robot's
