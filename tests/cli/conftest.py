@@ -102,22 +102,29 @@ def _default_sigint():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _complete_run(argv: list[str]) -> float:
-    """Run the command to its end (the earlier outputs); the CPU seconds it (and its own
-    workers) took.
+def _complete_run(argv: list[str]) -> tuple[float, bool]:
+    """Run the command to its end (the earlier outputs): the CPU seconds it (and its own
+    workers) took, and whether it compiled a numba kernel into the cache.
 
-    The command's own account, from ``wait4`` on its process: a difference of this
-    process's ``RUSAGE_CHILDREN`` would also count any other child reaped meanwhile (a
+    The CPU is the command's own account, from ``wait4`` on its process: a difference of
+    this process's ``RUSAGE_CHILDREN`` would also count any other child reaped meanwhile (a
     server or a cluster an earlier test of this worker left to end), and the moments, its
-    fractions, would then fall after the command's result is decided."""
-    with open(os.devnull, "wb") as sink, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen(argv, stdout=sink, stderr=err)
+    fractions, would then fall after the command's result is decided. The compiling is the
+    command's own account too (numba's ``NUMBA_DEBUG_CACHE`` lines, "data saved to",
+    printed by the process that saved): the cache folders' mtimes would also move with
+    what another test worker compiles meanwhile, and that makes no later run of this
+    command faster."""
+    env = os.environ | {"NUMBA_DEBUG_CACHE": "1"}
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(argv, stdout=out, stderr=err, env=env)
         _, status, usage = os.wait4(proc.pid, 0)
         proc.returncode = os.waitstatus_to_exitcode(status)
         err.seek(0)
         stderr = err.read().decode(errors="replace")
+        out.seek(0)
+        compiled = b"[cache] data saved to" in out.read()
     assert proc.returncode in (0, 1), stderr  # 1: a verdict (multi's plan may fail)
-    return usage.ru_utime + usage.ru_stime
+    return usage.ru_utime + usage.ru_stime, compiled
 
 
 def _interrupt_at(argv: list[str], cpu_s: float):
@@ -134,19 +141,20 @@ def _interrupt_at(argv: list[str], cpu_s: float):
 
 
 def _caches() -> dict[str, int]:
-    """Every file a run may add to what later runs find, with its mtime: the package's
-    ``__pycache__`` folders (byte code, numba's compiled kernels) and the prepared-anatomy
-    cache's entries and arrays (files: a folder's mtime moves with any file written in
-    it). Not the entries' usage records: every run that opens an entry rewrites its record
+    """Every file other than numba's a run may add to what later runs find, with its
+    mtime: the package's byte code and the prepared-anatomy cache's entries and arrays
+    (files: a folder's mtime moves with any file written in it). Not the entries' usage
+    records: every run that opens an entry rewrites its record
     (``cache_entries.mark_used``), and so does any other test worker reading the session's
     cache meanwhile; a rewritten record makes no later run faster, and counting it would
-    run the complete command a second time for nothing."""
+    run the complete command a second time for nothing. Numba's kernels: the run's own
+    account (``_complete_run``)."""
     import needlekit
     from needlekit.io.anatomy_cache import USAGE_FILE, default_cache_dir
 
     found = {}
     for root in (Path(needlekit.__file__).parent, default_cache_dir()):
-        pattern = "__pycache__/*" if root.name == "needlekit" else "*"
+        pattern = "__pycache__/*.pyc" if root.name == "needlekit" else "*"
         for f in root.rglob(pattern):
             if f.name == USAGE_FILE or f.is_dir():
                 continue
@@ -166,9 +174,9 @@ def check_interrupts(name: str, args: list[str], out: Path, moments: int) -> Non
     # filled a cache (compiled kernels, byte code, the prepared anatomy) the later runs find
     # is run again, and the warmer of the two counts
     before = _caches()
-    total_cpu_s = _complete_run(argv)
-    if _caches() != before:
-        total_cpu_s = min(total_cpu_s, _complete_run(argv))
+    total_cpu_s, compiled = _complete_run(argv)
+    if compiled or _caches() != before:
+        total_cpu_s = min(total_cpu_s, _complete_run(argv)[0])
     earlier = _files(out)
     assert earlier, "the complete run wrote nothing"
     rng = np.random.default_rng(zlib.crc32(name.encode()))
