@@ -7,8 +7,6 @@ Layers (imports point down): ``geometry`` (rotations, SE(3), Euler-rate maps) un
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
 from needlekit.errors import (
     InvalidInputError,
     NeedlekitError,
@@ -16,10 +14,23 @@ from needlekit.errors import (
     UnreachableTargetError,
 )
 
-try:
-    __version__ = version("needlekit")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0+unknown"
+
+
+def __getattr__(name: str):
+    """``needlekit.__version__``, looked up the first time it is read: the package
+    metadata's reader (``importlib.metadata``, with the email parser it loads) took 70-80 ms
+    of every process's start, a third of a command's start-up, most of which never print
+    a version."""
+    if name != "__version__":
+        raise AttributeError(f"module 'needlekit' has no attribute {name!r}")
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        found = version("needlekit")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        found = "0+unknown"
+    globals()["__version__"] = found
+    return found
 
 __all__ = [
     "InvalidInputError",

@@ -336,3 +336,24 @@ def test_ctrl_c_in_a_real_numba_kernel_at_seeded_moments(tmp_path, monkeypatch, 
             ]
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.parametrize("where", ["building the parser", "reading the flags"])
+def test_ctrl_c_while_the_flags_are_read_ends_in_the_same_one_line(monkeypatch, capsys, where):
+    # the seeded moments of tests/cli/test_interrupt_anywhere.py fall there only on a slow
+    # start: here the interrupt comes there for certain
+    import argparse
+
+    import needlekit.cli as cli
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    if where == "building the parser":
+        monkeypatch.setattr(cli, "_build_parser", interrupted)
+    else:
+        monkeypatch.setattr(argparse.ArgumentParser, "parse_args", interrupted)
+    assert cli.main(["plan", str(TOY)]) == 130
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.splitlines() == ["interrupted: stopped before any result; no output was changed"]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from importlib import metadata
 from typing import Any
 
 from needlekit.errors import InvalidInputError
@@ -43,6 +42,8 @@ _entry_points: dict[str, Any] | None = None
 def _from_entry_points() -> dict[str, Any]:
     global _entry_points
     if _entry_points is None:
+        from importlib import metadata  # deferred: 25-70 ms, only when a name is not registered
+
         _entry_points = {
             ep.name: ep for ep in metadata.entry_points(group="needlekit.collision_checkers")
         }

@@ -146,6 +146,13 @@ def _interrupt_handled() -> None:
     exec("None")
 
 
+def _interrupted_before_any_result() -> int:
+    """A Ctrl-C before any result was decided: one line, exit 130."""
+    _interrupt_handled()
+    print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -161,8 +168,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         that exists: :meth:`needlekit.io.files.Outputs.keep_earlier`), 2 on bad input, 130
         when interrupted.
     """
-    parser = _build_parser()
-    args = parser.parse_args(argv)
+    try:  # a Ctrl-C while the flags are read: the same one line as during the work
+        parser = _build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        return _interrupted_before_any_result()
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE if argv else EXIT_OK
@@ -212,9 +222,7 @@ def _checked_run(command: str, args, *, program: bool) -> int:
     except (KeyboardInterrupt, SystemError) as exc:  # SystemError: inside a numba kernel
         if not is_interrupt(exc):
             raise
-        _interrupt_handled()
-        print("interrupted: stopped before any result; no output was changed", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _interrupted_before_any_result()
     except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
         why = str(exc).split(".")[0] or type(exc).__name__
         print(f"error: a worker stopped unexpectedly ({why}); no output was changed",

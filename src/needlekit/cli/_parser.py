@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 
-from needlekit import __version__
+import needlekit
 from needlekit.cli import (
     bench,
     cache,
@@ -64,6 +64,15 @@ COMMAND_MODULES = (
 )
 
 
+class _Version(argparse.Action):
+    """``--version``: the package's version, looked up only when asked for (reading the
+    package metadata takes 25-80 ms, which every other command would pay at start-up)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"needlekit {needlekit.__version__}")  # to stdout, as argparse's own action
+        parser.exit()
+
+
 def _build_parser() -> argparse.ArgumentParser:
     """The parser of every ``needlekit`` command.
 
@@ -76,7 +85,7 @@ def _build_parser() -> argparse.ArgumentParser:
         description="Planning and executing robot-assisted needle insertions.",
         epilog="Units: mm, rad (degrees where an option says _deg), s. World frame: RAS.",
     )
-    parser.add_argument("--version", action="version", version=f"needlekit {__version__}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="show the version and exit")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for module in COMMAND_MODULES:

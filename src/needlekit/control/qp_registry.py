@@ -24,7 +24,6 @@ import importlib
 import logging
 import threading
 from collections.abc import Callable
-from importlib import metadata
 
 from needlekit.control.qp import DEFAULT_SOLVER, QPSolver
 from needlekit.errors import InvalidInputError
@@ -116,6 +115,7 @@ def _load_entry_points() -> None:
         return
     _ENTRY_POINTS_LOADED = True
 
+    from importlib import metadata  # deferred: 25-70 ms, only when a name is not registered
     for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
         if ep.name in _REGISTRY:
             continue
