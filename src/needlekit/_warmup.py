@@ -88,18 +88,16 @@ def _warm_up_steerable() -> None:
     start = np.eye(4)
     start[:3, 3] = [0.0, 0.0, -15.0]
     field = SteerableProblem(scene, goal_mm=[0.0, 0.0, 15.0], start_pose=start)
-    # a prepared patient's occupancy comes read-only from the cache: a kernel type of its own
-    frozen, frozen_affine = tube.copy(), affine.copy()
-    frozen.flags.writeable = frozen_affine.flags.writeable = False
-    problems = [field] + [
+    # VoxelObstacles holds read-only views of any occupancy: one kernel type for all
+    problems = [
+        field,
         SteerableProblem(
             scene,
             goal_mm=[0.0, 0.0, 15.0],
             start_pose=start,
             collision_model="voxel_centres",
-            voxel_obstacles=VoxelObstacles(occupancy, aff, needle_diameter_mm=1.0),
-        )
-        for occupancy, aff in ((tube, affine), (frozen, frozen_affine))
+            voxel_obstacles=VoxelObstacles(tube, affine, needle_diameter_mm=1.0),
+        ),
     ]
     for problem in problems:
         for planner in ("rcs_star", "rcs", "rrt"):

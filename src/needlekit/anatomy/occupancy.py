@@ -217,6 +217,13 @@ def colliding_samples(
     return out
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (the caller's array keeps its own flag)."""
+    view = a.view()
+    view.flags.writeable = False
+    return view
+
+
 class VoxelObstacles:
     """Obstacle voxels of a segmentation, for exact point collision tests.
 
@@ -254,11 +261,14 @@ class VoxelObstacles:
         occ = np.asarray(occupancy)
         if occ.ndim != 3:
             raise InvalidInputError("occupancy", f"expected a 3-D mask, got shape {occ.shape}")
-        self.occupancy = np.ascontiguousarray(occ, dtype=np.bool_)
+        # read-only views, whether the caller's arrays are (a prepared patient's, from the
+        # cache) or not: numba compiles a kernel once per array type, and a writable and a
+        # read-only array are two (about 2 s each for the connectivity proof's fills)
+        self.occupancy = _read_only(np.ascontiguousarray(occ, dtype=np.bool_))
         self._blocks = None
         a, spacing, _ = _orthogonal_affine(affine, "affine")
-        self.affine = np.ascontiguousarray(a)
-        self.inv_affine = np.ascontiguousarray(np.linalg.inv(a))
+        self.affine = _read_only(np.ascontiguousarray(a))
+        self.inv_affine = _read_only(np.ascontiguousarray(np.linalg.inv(a)))
         self.spacing_mm = spacing
         d = as_positive(needle_diameter_mm, "needle_diameter_mm")
         m = float(safety_margin_mm)
