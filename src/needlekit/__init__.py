@@ -15,7 +15,6 @@ from needlekit.errors import (
 )
 
 
-
 def __getattr__(name: str):
     """``needlekit.__version__``, looked up the first time it is read: the package
     metadata's reader (``importlib.metadata``, with the email parser it loads) took 70-80 ms
