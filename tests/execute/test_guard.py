@@ -238,3 +238,24 @@ def test_a_timestamp_a_rounding_early_is_read_at_its_step():
     assert guard.admit(0.160, _sample(0.155 - 2e-7, at), est, 0.31)
     assert guard.admit(0.185, _sample(0.180 - 2e-7, at), est, 0.31)  # held: the same value
     assert not guard.rejected
+
+
+def test_a_rotation_a_tracker_rounds_is_taken_and_one_the_guard_refuses_is_not_a_pose():
+    # a tracker that sends its rotation to four decimals (orthonormal to about 1e-4): the
+    # guard passes it (within ORTHONORMAL_TOL), and the filter takes it. Before, the
+    # filter's checked log refused anything past 1e-6 and the insertion ended in an error.
+    from needlekit.execute.guard import ORTHONORMAL_TOL, is_pose
+    from needlekit.geometry.so3 import so3_exp
+
+    guard, est = SensorGuard(GuardSpec(), np.eye(4), 0.4), _estimator()
+    rounded = _sample(0.025)
+    rounded.pose[:3, :3] = np.round(so3_exp([0.01, -0.02, 0.005]), 4)
+    gram = rounded.pose[:3, :3].T @ rounded.pose[:3, :3] - np.eye(3)
+    assert 1e-6 < np.abs(gram).max() and np.linalg.norm(gram) < ORTHONORMAL_TOL
+    assert guard.admit(0.025, rounded, est, 0.0)
+    assert est.n_updates == 1 and np.all(np.isfinite(est.pose))
+    # the same screen, for an image's tip pose (execute.target_sensing)
+    assert is_pose(rounded.pose) and is_pose(np.eye(4))
+    for bad in (np.diag([1.01, 1.0, 1.0, 1.0]), np.diag([-1.0, 1.0, 1.0, 1.0]),
+                np.full((4, 4), np.nan)):  # fmt: skip
+        assert not is_pose(bad)

@@ -25,6 +25,7 @@ from needlekit.geometry.so3 import (
     so3_exp,
     so3_exp_unchecked,
     so3_log,
+    so3_log_unchecked,
     vee,
 )
 
@@ -140,3 +141,22 @@ def test_angle_between_one_pair_gives_the_batch_bits():
         assert type(one) is np.float64 and one == batch[i], i
     w = np.array([1.0, 2.0, 3.0])
     assert angle_between(w, 2.0 * w) == 0.0 and angle_between(w, -w) == np.pi
+
+
+def test_one_matrix_log_has_the_batch_logs_bits():
+    # random rotations, small angles (the series), angles near pi (the symmetric part's
+    # branch), and products of two rotations (a filter's innovation: rotations to
+    # rounding, not exactly)
+    rng = np.random.default_rng(7)
+    axes = rng.normal(size=(3000, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([
+        rng.uniform(0.0, np.pi, 1000), 10.0 ** rng.uniform(-12, -3, 1000),
+        np.pi - 10.0 ** rng.uniform(-12, -0.5, 1000),
+    ])  # fmt: skip
+    rs = [so3_exp(a * w) for a, w in zip(angles, axes)]
+    rs += [rs[i] @ rs[i + 1].T for i in range(0, 600, 2)] + [np.eye(3)]
+    batch = so3_log(np.stack(rs))
+    one = np.stack([so3_log_unchecked(r) for r in rs])
+    assert np.array_equal(one, batch)
+    assert np.array_equal(so3_log_unchecked(np.eye(3)), np.zeros(3))

@@ -43,7 +43,7 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.geometry.arcs import arc_end_unchecked
-from needlekit.geometry.so3 import hat_unchecked, so3_exp_unchecked, so3_log
+from needlekit.geometry.so3 import hat_unchecked, so3_exp_unchecked, so3_log_unchecked
 
 __all__ = ["TipEstimator", "estimator_arguments", "kalman_estimator"]
 
@@ -235,7 +235,11 @@ class TipEstimator:
             _, pose, P, _ = replay[0]
         else:
             pose, P = self.pose, self.P
-        y = np.concatenate([z[:3, 3] - pose[:3, 3], so3_log(z[:3, :3] @ pose[:3, :3].T)])
+        # the sample passed the sensor guard (a proper rotation) and the estimate stays one
+        # (composed with exponentials): the log of their difference needs no check
+        y = np.concatenate(
+            [z[:3, 3] - pose[:3, 3], so3_log_unchecked(z[:3, :3] @ pose[:3, :3].T)]
+        )
         R_meas = self.R_meas
         if self.tilt_var > 0.0:  # the tilt about the tip's own x and y: the slip's doubt
             R_meas = R_meas.copy()

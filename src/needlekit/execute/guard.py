@@ -148,6 +148,26 @@ def _pose_checks(g, prev, frozen, good_p):  # pragma: no cover (compiled)
 #: Stands in for "no such matrix" in :func:`_pose_checks` (never equal to a sample).
 _NONE = np.full((4, 4), np.nan)
 
+_ORIGIN = np.zeros(3)
+
+
+def is_pose(value: np.ndarray) -> bool:
+    """Whether a (4, 4) float64 matrix is a pose a filter may take: every entry finite,
+    its rotation block within :data:`ORTHONORMAL_TOL` of orthonormal and proper. The
+    guard's own screen (:meth:`SensorGuard.admit`) applies it to every tracker sample;
+    an image's tip pose goes through it too (:mod:`needlekit.execute.target_sensing`).
+
+    Parameters
+    ----------
+    value : ndarray, shape (4, 4), float64, C-contiguous
+
+    Returns
+    -------
+    bool
+    """
+    finite, ortho, det, _, _, _ = _pose_checks(value, _NONE, _NONE, _ORIGIN)
+    return bool(finite) and ortho <= ORTHONORMAL_TOL and det >= 0.0
+
 
 @dataclass(frozen=True)
 class GuardSpec:

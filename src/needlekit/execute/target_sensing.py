@@ -36,7 +36,7 @@ import numpy as np
 from needlekit._numbers import MAX_ABS_MM, Bounds
 from needlekit.errors import InvalidInputError
 from needlekit.execute.feedback import PlanReference
-from needlekit.execute.guard import GATE_CHI2
+from needlekit.execute.guard import GATE_CHI2, is_pose
 from needlekit.execute.imaging import (
     CheckpointImaging,
     CheckpointSpec,
@@ -280,8 +280,8 @@ class TargetSensing:
         it with the image's noise (an estimator without ``R_meas``: with its own). A
         confirmation scan (``reseed``) that fails the gate restarts the estimate from it
         (an estimator without ``reseed``: refused)."""
-        pose = np.asarray(scan.tip_pose, dtype=np.float64)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+        pose = np.ascontiguousarray(scan.tip_pose, dtype=np.float64)
+        if pose.shape != (4, 4) or not is_pose(pose):  # the guard's screen of a pose
             self.tip_refused += 1
             return
         spec = self.imaging.spec

@@ -24,6 +24,7 @@ __all__ = [
     "so3_exp",
     "so3_exp_unchecked",
     "so3_log",
+    "so3_log_unchecked",
     "vee",
 ]
 
@@ -187,6 +188,33 @@ def _so3_log_batch(r: np.ndarray) -> np.ndarray:
         sign = np.where(np.einsum("ni,ni->n", axis, s[near_pi]) < 0.0, -1.0, 1.0)
         out[near_pi] = axis * (sign * theta[near_pi])[:, None]
     return out
+
+
+def so3_log_unchecked(r: np.ndarray) -> np.ndarray:
+    """:func:`so3_log` of one float64 rotation matrix, without its checks: the same
+    operations one number at a time (the same bits; near pi, the batch's branch itself).
+    A tenth of its time, for a filter that takes the log of every sample (the sample
+    screened where it came in).
+
+    Parameters
+    ----------
+    r : ndarray, shape (3, 3)
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    cos_t = min(max((r[0, 0] + r[1, 1] + r[2, 2] - 1.0) * 0.5, -1.0), 1.0)
+    s0, s1, s2 = 0.5 * (r[2, 1] - r[1, 2]), 0.5 * (r[0, 2] - r[2, 0]), 0.5 * (r[1, 0] - r[0, 1])
+    sin_t = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    theta = math.atan2(sin_t, cos_t)
+    if theta < SMALL_ANGLE_RAD:
+        f = 1.0 + theta * theta / 6.0
+    elif cos_t < -0.5:  # near pi: the symmetric part's branch of the batch
+        return _so3_log_batch(r.reshape(1, 3, 3))[0]
+    else:
+        f = theta / sin_t
+    return np.array([s0 * f, s1 * f, s2 * f])
 
 
 def so3_log(rotation):
