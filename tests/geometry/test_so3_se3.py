@@ -154,7 +154,7 @@ def test_one_matrix_log_has_the_batch_logs_bits():
         rng.uniform(0.0, np.pi, 1000), 10.0 ** rng.uniform(-12, -3, 1000),
         np.pi - 10.0 ** rng.uniform(-12, -0.5, 1000),
     ])  # fmt: skip
-    rs = [so3_exp(a * w) for a, w in zip(angles, axes)]
+    rs = [so3_exp(a * w) for a, w in zip(angles, axes, strict=True)]
     rs += [rs[i] @ rs[i + 1].T for i in range(0, 600, 2)] + [np.eye(3)]
     batch = so3_log(np.stack(rs))
     one = np.stack([so3_log_unchecked(r) for r in rs])
