@@ -262,6 +262,11 @@ SOFTWARE_GL_NOTE = "GL Driver Message (OpenGL, Performance"
 #: After the page's plots report a layout and every 3D view has drawn: the time given to
 #: messages the last drawing may still log (the pages load nothing from the network).
 SETTLE_S = 0.5
+#: The window pages open in (px). SwiftShader draws each 3D view on the CPU, in proportion
+#: to its pixels; what the page checks prove (each view drawn, the console clean) does not
+#: depend on the size. A test that needs a given size sets it and puts this one back
+#: (tests/test_browser.py's path-in-plain-sight check).
+WINDOW = (700, 500)
 
 
 def _chromium():
@@ -276,17 +281,19 @@ def _chromium():
     for a in (
         "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--enable-unsafe-swiftshader", "--use-angle=swiftshader", "--window-size=1400,1000",
+        "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
+        f"--window-size={WINDOW[0]},{WINDOW[1]}",
     ):  # fmt: skip
         o.add_argument(a)
     o.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     return webdriver.Chrome(service=Service(CHROMEDRIVER), options=o)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def browser():
-    """Headless Chromium with software WebGL (SwiftShader), one per test module; skips,
-    saying why, where Chromium or its driver is missing (tests marked ``browser``)."""
+    """Headless Chromium with software WebGL (SwiftShader), one per test process (each
+    xdist worker starts its own); skips, saying why, where Chromium or its driver is
+    missing (tests marked ``browser``)."""
     d = _chromium()
     yield d
     d.quit()
@@ -329,6 +336,11 @@ def rendered(browser):
             time.sleep(0.1)
         browser.execute_script("window.scrollTo(0, document.body.scrollHeight)")
         deadline = time.monotonic() + 20.0
+        # the page notes when plotly has drawn all its figures (``window.needlekitDrawn``,
+        # report.html_page): screenshots are taken from then on, not of views half drawn
+        drawn = "var d=window.needlekitDrawn;return !d||d.ms!==null"
+        while not browser.execute_script(drawn) and time.monotonic() < deadline:
+            time.sleep(0.1)
         while True:  # every 3D view's screenshot, until all are drawn (or 20 s)
             canvases = browser.find_elements("css selector", ".gl-container canvas")
             pngs = [_shot(browser, c) for c in canvases]
@@ -344,4 +356,7 @@ def rendered(browser):
         assert bad == [], json.dumps(bad, indent=1)
         return plots, pngs
 
-    return render
+    yield render
+    # the browser outlives the test: leave no page drawing (an animated trial, say) while
+    # the tests after it run
+    browser.get("about:blank")
