@@ -127,11 +127,24 @@ def _complete_run(argv: list[str]) -> tuple[float, bool]:
     return usage.ru_utime + usage.ru_stime, compiled
 
 
+def _wait_for_cpu(proc: subprocess.Popen, cpu_s: float) -> None:
+    """Return once ``proc`` and its live descendants have used ``cpu_s`` CPU seconds, or it
+    has ended. Together they cannot use more than one CPU second per core and second of
+    wall time: far from the moment it sleeps the time the rest needs at the least, and
+    looks through /proc (milliseconds of this process's CPU each time, more on a busy
+    machine) far less often than every 20 ms; near the moment, every 20 ms."""
+    cores = os.cpu_count() or 1
+    while proc.poll() is None:
+        left = cpu_s - _cpu_s(proc.pid)
+        if left <= 0:
+            return
+        time.sleep(max(0.02, left / cores))
+
+
 def _interrupt_at(argv: list[str], cpu_s: float):
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_default_sigint)  # fmt: skip
-    while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
-        time.sleep(0.02)
+    _wait_for_cpu(proc, cpu_s)
     assert proc.poll() is None, "the command ended before the moment chosen"
     family = _descendants(proc.pid)
     workers = [p for p in family if b"spawn_main" in _cmdline(p)]

@@ -33,7 +33,7 @@ COMMANDS = {
     "cfrw": (["cfrw", MULTI, "--out", "{d}/cfrw.json"], 2),
     "bench": (["bench", "kinematics", "--arcs", "20000", "--samples", "8", "--repeat", "1",
                "--out", "{d}/bench.json"], 2),
-}
+}  # fmt: skip
 
 
 def _args(name: str, out: Path, plan: Path) -> list[str]:

@@ -72,9 +72,13 @@ def _interrupted_sweep(tmp_path: Path, cpu_s: float, *extra: str):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     # signal once it has planned a while: the start-up (imports, the toy scene; each pool
-    # worker's too) takes about 2 s of CPU per process, the whole sweep about 9 s
-    while _cpu_s(proc.pid) < cpu_s and proc.poll() is None:
-        time.sleep(0.1)
+    # worker's too) takes about 2 s of CPU per process, the whole sweep about 14 s. The
+    # processes cannot use more than one CPU second per core and second of wall time: far
+    # from the moment the wait sleeps what the rest needs at the least (each look through
+    # /proc costs milliseconds of CPU), near it every 0.1 s
+    cores = os.cpu_count() or 1
+    while proc.poll() is None and (left := cpu_s - _cpu_s(proc.pid)) > 0:
+        time.sleep(max(0.1, left / cores))
     assert proc.poll() is None, "the sweep ended before it could be interrupted"
     workers = [c for c in _children(proc.pid) if b"spawn_main" in _cmdline(c)]  # pool workers
     assert len(workers) == (2 if "--workers" in extra else 0)
@@ -120,7 +124,9 @@ def test_sigint_keeps_the_directions_done_and_resume_finishes_them(tmp_path, exe
     assert done.returncode == 130, done.stderr
     assert len(lines) == 1 and lines[0].startswith("interrupted: "), done.stderr
     beside = tmp_path / "sweep.partial.json"
-    assert f"written to {beside} marked partial; the same command with --resume carries on" in lines[0]
+    assert (
+        f"written to {beside} marked partial; the same command with --resume carries on" in lines[0]
+    )
     assert not out.exists()  # a partial record is never written over sweep.json
     partial = json.loads(beside.read_text())
     assert partial["partial"] is True
@@ -252,8 +258,7 @@ def _compiled_interrupt() -> SystemError:
                                   "exception set") from ki  # fmt: skip
         except SystemError as inner:
             raise SystemError(
-                "CPUDispatcher(<function chain_kinematics>) returned a result with an "
-                "exception set"
+                "CPUDispatcher(<function chain_kinematics>) returned a result with an exception set"
             ) from inner
     except SystemError as exc:
         return exc
