@@ -121,6 +121,48 @@ def liver_phantom_drag_run() -> Path:
     return shared_run("liver-phantom-drag", _make_liver_phantom_drag_run)
 
 
+#: One puncture trial (seed 3, the default 2 ms adaptation delay given on the command
+#: line), kept with its command line: ``puncture_trial_seed3``.
+PUNCTURE_TRIAL_ARGV = ["puncture", "--trials", "1", "--seed", "3", "--adaptation-delay-ms", "2",
+                       "--no-report"]  # fmt: skip
+#: The toy plan and two trials of it with the page the command draws: ``toy_execution``.
+TOY_EXECUTION_ARGV = [
+    ["plan", "{toy}", "--out", "{d}/plan.json"],
+    ["execute", "--truth", "kinematic", "{toy}", "{d}/plan.json", "--trials", "2", "--seed", "0",
+     "--out", "{d}/ex", "--report", "{d}/execute-command.html"],
+]  # fmt: skip
+
+
+def _make_puncture_trial(d: Path) -> None:
+    from needlekit.cli import main
+
+    assert main([*PUNCTURE_TRIAL_ARGV, "--out", str(d / "pu")]) in (0, 1)
+
+
+def _make_toy_execution(d: Path) -> None:
+    from needlekit.cli import main
+
+    toy = str(Path(__file__).resolve().parents[1] / "examples" / "toy.yaml")
+    for argv in TOY_EXECUTION_ARGV:
+        assert main([a.replace("{d}", str(d)).replace("{toy}", toy) for a in argv]) == 0
+
+
+@pytest.fixture(scope="session")
+def puncture_trial_seed3() -> Path:
+    """``puncture.json`` of :data:`PUNCTURE_TRIAL_ARGV`, made once per session
+    (tests/test_report_cli.py draws it, tests/cli/test_adaptation_delay_flag.py reads the
+    delay it records)."""
+    return shared_run("puncture-trial-seed3", _make_puncture_trial) / "pu" / "puncture.json"
+
+
+@pytest.fixture(scope="session")
+def toy_execution() -> Path:
+    """The folder of :data:`TOY_EXECUTION_ARGV`: ``plan.json``, ``ex/execute.json`` and
+    ``execute-command.html``, made once per session, both commands exiting 0
+    (tests/test_report_cli.py draws it, tests/report/test_slicer_oracle.py exports it)."""
+    return shared_run("toy-execution", _make_toy_execution)
+
+
 @pytest.fixture(scope="session")
 def medrad_liver4_multi_plan(medrad_dir) -> Path:
     """``needlekit multi examples/medrad_liver4.yaml``'s plan (``multi.json``), made once

@@ -178,13 +178,24 @@ def _costs(result):
     return [None if r is None else (r.status.value, round(r.cost_mm, 9)) for r in result.results]
 
 
+#: The sweep both executors run: 96 directions, the iteration budget ending each search.
+SWEEP_KW = {"directions": sphere_directions(96), "time_limit_s": 30.0, "max_iterations": 150}
+
+
+@pytest.fixture(scope="module")
+def serial_sweep(lung):
+    """The sweep run here, one direction after another: the reference of both executors
+    (made once; the budget is iterations, so the serial run is the same each time)."""
+    _, problem = lung
+    return sweep(problem, "rcs_star", **SWEEP_KW)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["process", "dask"])
-def test_parallel_sweep_equals_the_serial_sweep(lung, kind, exact_clearance):
+def test_parallel_sweep_equals_the_serial_sweep(lung, serial_sweep, kind, exact_clearance):
     src, problem = lung
-    dirs = sphere_directions(96)
-    kw = {"directions": dirs, "time_limit_s": 30.0, "max_iterations": 150}
-    serial = sweep(problem, "rcs_star", **kw)
+    kw = SWEEP_KW
+    serial = serial_sweep
     # the iteration budget ends each search: a fixed outcome, every plan of which clears
     # the phantom's exact anatomy
     assert (serial.stats["n_effective"], serial.stats["n_solved"]) == (30, 3)

@@ -594,12 +594,12 @@ def test_a_dynamic_run_from_another_scenario_is_refused(dynamic, tmp_path, capsy
 
 
 @pytest.mark.slow
-def test_a_puncture_study_gets_its_figures_and_tables(tmp_path, capsys):
-    _run(["puncture", "--trials", "1", "--seed", "3", "--out", tmp_path / "pu", "--no-report"],
-         ok=(0, 1))  # fmt: skip
-    doc = json.loads((tmp_path / "pu" / "puncture.json").read_text())
+def test_a_puncture_study_gets_its_figures_and_tables(puncture_trial_seed3, tmp_path, capsys):
+    puncture_trial = puncture_trial_seed3
+    doc = json.loads(puncture_trial.read_text())
     out = tmp_path / "pu.html"
-    assert main(["report", str(tmp_path / "pu" / "puncture.json"), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["report", str(puncture_trial), "--out", str(out)]) == 0
     said = capsys.readouterr().out
     assert f"{doc['completed']} of 1 trials completed" in said
     page = _page(out)
@@ -660,12 +660,11 @@ PAGE_BYTES = 6_000_000
 
 
 @pytest.fixture(scope="module")
-def executed(made):
-    """Two trials of the toy plan (``needlekit execute``) and the page the command drew."""
-    out = made / "ex"
-    _run(["execute", "--truth", "kinematic", TOY, made / "plan.json", "--trials", "2", "--out", out, "--report",
-          made / "execute-command.html"], ok=(0, 1))  # fmt: skip
-    return out / "execute.json"
+def executed(toy_execution):
+    """Two trials of the toy plan (``needlekit execute``): ``ex/execute.json``, with the
+    plan (``plan.json``) and the page the command drew (``execute-command.html``) beside
+    ``ex`` (tests/conftest.py, ``toy_execution``)."""
+    return toy_execution / "ex" / "execute.json"
 
 
 def _framed(page: str) -> dict:
@@ -708,11 +707,12 @@ def test_one_plan_is_drawn_from_every_place_a_newcomer_looks(made, tmp_path, cap
     assert 'src="plotly.min.js"' in (tmp_path / "shared" / "page.html").read_text()
 
 
-def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path, capsys):
+def test_an_execution_is_drawn_alone_and_with_its_plan(executed, tmp_path, capsys):
     doc = json.loads(executed.read_text())
+    plan = executed.parents[1] / "plan.json"  # the plan it inserted
     assert doc["scenario_file"] == os.path.relpath(TOY, executed.parent)
     out = tmp_path / "case.html"
-    assert main(["report", str(made / "plan.json"), str(executed), "--out", str(out)]) == 0
+    assert main(["report", str(plan), str(executed), "--out", str(out)]) == 0
     said = capsys.readouterr().out.splitlines()
     assert said[-1] == f"drew plan.json (plan), execute.json (execution) -> {out}"
     mean = doc["summary"]["closed_loop"]["final_error_mm"]["mean"]
@@ -727,7 +727,7 @@ def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path,
     assert main(["report", str(executed), "--out", str(alone)]) == 0
     assert alone.stat().st_size <= PAGE_BYTES
     assert _rows(_page(alone), "Open loop beside closed loop") == rows
-    command = _page(made / "execute-command.html")
+    command = _page(executed.parents[1] / "execute-command.html")
     assert _rows(command, "Open loop beside closed loop") == rows
     # written before execute kept its scenario file: found through its plan only
     old = tmp_path / "old" / "execute.json"
@@ -735,9 +735,7 @@ def test_an_execution_is_drawn_alone_and_with_its_plan(made, executed, tmp_path,
     old.write_text(json.dumps({k: v for k, v in doc.items() if k != "scenario_file"}))
     err = _one_error_line(capsys, ["report", old, "--out", tmp_path / "x.html"])
     assert err.startswith("error: --scenario: ") and "draw it with its plan.json" in err
-    assert (
-        main(["report", str(made / "plan.json"), str(old), "--out", str(tmp_path / "y.html")]) == 0
-    )
+    assert main(["report", str(plan), str(old), "--out", str(tmp_path / "y.html")]) == 0
     assert (
         main(["report", str(old), "--scenario", str(TOY), "--out", str(tmp_path / "z.html")]) == 0
     )
@@ -805,7 +803,7 @@ def _paa_score_by_slabs(skin) -> float:
     return float(skin.area_faces[~hit].sum() / skin.area_faces.sum())
 
 
-def test_an_approach_analysis_is_drawn_as_its_command_draws_it(approached, tmp_path, capsys):
+def test_an_approach_analysis_is_drawn_as_its_command_draws_it(made, approached, tmp_path, capsys):
     d, skin = approached
     record = d / "out" / "approach.json"
     doc = json.loads(record.read_text())
@@ -825,10 +823,9 @@ def test_an_approach_analysis_is_drawn_as_its_command_draws_it(approached, tmp_p
         f"{doc['needlekit']['score']:.4f}",
     ]
     assert rows[1][1] == f"{_paa_score_by_slabs(skin):.4f}" == "0.9112"
-    # with another kind: a part each
+    # with another kind: a part each (the toy plan of the module's results)
     two = tmp_path / "two.html"
-    plan = d / "plan.json"
-    _run(["plan", TOY, "--max-iterations", "200", "--out", plan])
+    plan = made / "plan.json"
     capsys.readouterr()
     assert main(["report", str(plan), str(record), "--out", str(two)]) == 0
     said = capsys.readouterr().out.splitlines()

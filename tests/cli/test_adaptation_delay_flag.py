@@ -45,11 +45,9 @@ def test_whole_periods_are_accepted_and_the_default_is_off_the_tick(command):
 
 
 @pytest.mark.slow
-def test_the_study_records_its_delay(tmp_path):
-    out = tmp_path / "p"
-    argv = ["puncture", "--trials", "1", "--adaptation-delay-ms", "2", "--no-report"]
-    assert main([*argv, "--out", str(out)]) in (0, 1)
-    doc = json.loads((out / "puncture.json").read_text())
+def test_the_study_records_its_delay(puncture_trial_seed3):
+    # the session's trial (tests/conftest.py): `puncture ... --adaptation-delay-ms 2`
+    doc = json.loads(puncture_trial_seed3.read_text())
     assert doc["adaptation_delay_ms"] == 2.0 and doc["options"]["adaptation_delay_steps"] == 2
     (trial,) = doc["per_trial"]
     counts = trial["counts"]

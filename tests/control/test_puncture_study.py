@@ -116,7 +116,7 @@ def study(tmp_path_factory):
     study's checks and the browser."""
     out = tmp_path_factory.mktemp("puncture") / "study"
     # inline (D = 0): the trial whose figures below were measured before the 2 ms default
-    # (the default schedule's trials: tests/control/test_adaptation_schedule.py)
+    # (the default schedule's trials: tests/reproduce/test_tang.py)
     argv = ["puncture", "--trials", "1", "--seed", "3", "--adaptation-delay-ms", "0"]
     text = io.StringIO()
     with contextlib.redirect_stdout(text):

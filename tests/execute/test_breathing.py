@@ -41,6 +41,12 @@ def _run(toy, seed=5, policy=None):
                         seed=np.random.SeedSequence(seed), replanner=rep, hooks=hooks)  # fmt: skip
 
 
+@pytest.fixture(scope="module")
+def still(toy):
+    """The toy's closed-loop run with no breathing, the twin the policies are held to."""
+    return _run(toy)
+
+
 def test_the_cycle_starts_at_end_exhale_peaks_half_way_and_its_window_has_its_share():
     b = replace(PRESETS["lung"], amplitude_jitter=0.0, period_jitter=0.0)
     tr = b.trace(np.random.default_rng(0), 40.0)
@@ -65,8 +71,7 @@ def test_values_out_of_range_are_refused_by_name():
         Policy("hold", Breathing().trace(np.random.default_rng(0), 10.0))
 
 
-def test_with_no_motion_every_policy_is_the_still_run(toy):
-    still = _run(toy)
+def test_with_no_motion_every_policy_is_the_still_run(toy, still):
     trace = Breathing(amplitude_mm=0.0).trace(np.random.default_rng(1), 200.0)
     for name in POLICIES:
         run = _run(toy, policy=Policy(name, trace))
@@ -74,8 +79,7 @@ def test_with_no_motion_every_policy_is_the_still_run(toy):
         assert run.procedure_s == pytest.approx(still.procedure_s, abs=1e-9), name
 
 
-def test_tracking_a_perfectly_predicted_motion_is_the_still_run_in_the_tissue(toy):
-    still = _run(toy)
+def test_tracking_a_perfectly_predicted_motion_is_the_still_run_in_the_tissue(toy, still):
     b = replace(PRESETS["liver"], amplitude_jitter=0.0, period_jitter=0.0)
     run = _run(toy, policy=Policy("track", b.trace(np.random.default_rng(1), 200.0)))
     assert run.final_error_mm == pytest.approx(still.final_error_mm, abs=1e-6)
@@ -86,8 +90,7 @@ def test_tracking_a_perfectly_predicted_motion_is_the_still_run_in_the_tissue(to
     assert still.cross_track_mm.max() < 1.0 and ignored.cross_track_mm.max() > 3.0
 
 
-def test_gating_inserts_only_in_the_window_and_takes_its_share_longer(toy):
-    still = _run(toy)
+def test_gating_inserts_only_in_the_window_and_takes_its_share_longer(toy, still):
     b = replace(PRESETS["lung"], amplitude_jitter=0.0, period_jitter=0.0)
     trace = b.trace(np.random.default_rng(1), 400.0)
     seen = []

@@ -169,11 +169,20 @@ def test_ctrl_c_keeps_the_trials_done_and_resume_carries_on_to_the_same_record(
     assert doc["trials"] == three_trials["trials"]
 
 
-def test_the_closed_loop_replans_under_a_strong_push_and_says_so(toy_plan, tmp_path):
-    out = tmp_path / "push"
-    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "1", "--out", str(out),
-                 "--deflection-sd", "0.03", "--cross-track-mm", "0.2", *REPRODUCIBLE]) == 0  # fmt: skip
-    closed = json.loads((out / "execute.json").read_text())["trials"][0]["closed_loop"]
+@pytest.fixture(scope="module")
+def pushed(toy_plan):
+    """Three trials under a strong push (a trial's draws are its own: trial 0 here is the
+    run of ``--trials 1``), with the report page: the folder holding execute.json and
+    page.html."""
+    out = toy_plan.parent / "push"
+    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "3", "--out", str(out),
+                 "--report", str(out / "page.html"), "--deflection-sd", "0.03", "--cross-track-mm", "0.2",
+                 *REPRODUCIBLE]) == 0  # fmt: skip
+    return out
+
+
+def test_the_closed_loop_replans_under_a_strong_push_and_says_so(pushed):
+    closed = json.loads((pushed / "execute.json").read_text())["trials"][0]["closed_loop"]
     assert closed["replans"] >= 1
     assert len(closed["replan_latency_s"]) == closed["replan_attempts"] >= closed["replans"]
     assert closed["final_error_mm"] < 1.0
@@ -182,13 +191,8 @@ def test_the_closed_loop_replans_under_a_strong_push_and_says_so(toy_plan, tmp_p
 
 @pytest.mark.slow
 @pytest.mark.browser
-def test_the_page_renders_the_trial_and_the_histograms(
-    toy_plan, tmp_path, browser, rendered, capsys
-):
-    page = tmp_path / "page.html"
-    assert main(["execute", "--truth", "kinematic", str(TOY), str(toy_plan), "--trials", "3", "--out", str(tmp_path),
-                 "--report", str(page), "--deflection-sd", "0.03", "--cross-track-mm", "0.2",
-                 *REPRODUCIBLE]) == 0  # fmt: skip
+def test_the_page_renders_the_trial_and_the_histograms(pushed, tmp_path, browser, rendered):
+    page = pushed / "page.html"
     plots, pngs = rendered(page)
     assert plots == 2 and len(pngs) == 1  # the animated trial (3D), the histograms
     (tmp_path / "trial.png").write_bytes(pngs[0])
@@ -196,7 +200,7 @@ def test_the_page_renders_the_trial_and_the_histograms(
     for words in ("Open loop beside closed loop", "Published closed-loop errors",
                   "Vrooijink et al.", "re-plan latency"):  # fmt: skip
         assert words in text
-    doc = json.loads((tmp_path / "execute.json").read_text())
+    doc = json.loads((pushed / "execute.json").read_text())
     shown = max(doc["trials"], key=lambda t: (t["closed_loop"]["replans"], -t["trial"]))
     assert f"Trial {shown['trial']} going in" in text and shown["closed_loop"]["replans"] >= 1
     assert len(shown["closed_loop"]["replan_events"]) == shown["closed_loop"]["replans"]

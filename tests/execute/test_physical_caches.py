@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import needlekit.execute.physical_setup as physical_setup
-from needlekit.execute.calibration import Calibration
+from needlekit.execute.calibration import Calibration, calibrate_truth
 from needlekit.execute.physical import MechanicsSettings
 from needlekit.execute.run import ExecutionSettings
 from needlekit.io import record_cache
@@ -36,13 +36,15 @@ def _physical(cache, mechanics=None, insertions=2, seed=0, r_min=50.0, use_cache
     ).model  # fmt: skip
 
 
-def _counting(monkeypatch) -> list:
-    calls = []
-    real = physical_setup.calibrate_truth
+def _counting(monkeypatch, calls=None, answer=None) -> list:
+    """Count the calibrations into ``calls`` (a new list when None). ``answer``: given
+    back in place of calibrating, where a test counts the misses and never looks at
+    what they compute."""
+    calls = [] if calls is None else calls
 
     def counted(*args, **kw):
         calls.append(args[2])
-        return real(*args, **kw)
+        return calibrate_truth(*args, **kw) if answer is None else answer
 
     monkeypatch.setattr(physical_setup, "calibrate_truth", counted)
     return calls
@@ -56,7 +58,9 @@ def test_a_second_calibration_of_the_same_needle_is_read_back_bit_for_bit(tmp_pa
     assert again.to_dict() == first.to_dict()  # every field, to the bit (JSON floats round-trip)
     assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["calibration"]
     # each input the answer depends on misses: the seed, the insertions, the needle, the
-    # tissue, the radius, the start pose
+    # tissue, the radius, the start pose (what is checked is that each calls the
+    # calibration and is stored apart, so a stand-in gives the first answer back)
+    _counting(monkeypatch, calls, answer=first)
     _physical(tmp_path, seed=1)
     _physical(tmp_path, insertions=3)
     _physical(tmp_path, mechanics=MechanicsSettings(needle="steel"))
@@ -71,6 +75,7 @@ def test_a_second_calibration_of_the_same_needle_is_read_back_bit_for_bit(tmp_pa
     finally:
         PLAN = saved
     assert len(calls) == 7
+    _counting(monkeypatch, calls)  # the calibration itself again
     assert _physical(tmp_path, use_cache=False).to_dict() == first.to_dict()
     assert len(calls) == 8 and len(list(tmp_path.iterdir())) == 7  # nothing read or written
 
@@ -87,6 +92,8 @@ def test_a_damaged_or_foreign_record_is_recomputed_not_read(tmp_path, monkeypatc
     assert len(calls) == 2 and again.to_dict() == first.to_dict()
     assert "corrupt entry" in caplog.text
     # another build of needlekit (its source changed) does not read this one's answers
+    # (counted: a stand-in gives the first answer back)
+    _counting(monkeypatch, calls, answer=first)
     monkeypatch.setattr(record_cache, "source_digest", lambda: "0" * 32)
     _physical(tmp_path)
     assert len(calls) == 3

@@ -83,8 +83,10 @@ def moving_trial(toy_plan):
     """One trial on the toy scenario, its target moving under the needle, under the three
     policies side by side."""
     plan, _, _ = read_plan_json(toy_plan)
-    # the truth follows its model exactly; the estimator assumes the default noise
-    rec = _toy_trial(plan, _MovingTarget, EXACT, ("em", "checkpoints", "tracking"))
+    # the truth follows its model exactly; the estimator assumes the default noise (closed
+    # loop only: nothing here reads the open loop)
+    rec = _toy_trial(plan, _MovingTarget, EXACT, ("em", "checkpoints", "tracking"),
+                     loops=("closed_loop",))  # fmt: skip
     return plan, rec
 
 
@@ -319,7 +321,7 @@ def test_a_gated_hold_is_settled_by_a_confirmation_scan(toy_plan):
     estimate restarts from the image, the sensor's samples are accepted again, the hold
     ends and the needle reaches the target."""
     plan, _, _ = read_plan_json(toy_plan)
-    rec = _toy_trial(plan, _Kinked, EXACT, ("em", "checkpoints"))
+    rec = _toy_trial(plan, _Kinked, EXACT, ("em", "checkpoints"), loops=("closed_loop",))
     em, seen = rec.sensing["em"], rec.sensing["checkpoints"]
     assert [e["action"] for e in em.faults] == ["hold", "abort"]
     assert em.faults[0]["kind"] == "gated" and em.aborted

@@ -2,9 +2,13 @@
 cached patients that behave bit for bit as freshly built ones.
 
 A small synthetic Med-RAD lung (48^3 voxels of 1 mm, written with nibabel into tmp_path)
-stands in for the real data; every test uses a cache folder under tmp_path.
+stands in for the real data; every test uses a cache folder under tmp_path. The last two
+use Med-RAD lung 1 itself (marked ``realdata``: they skip without it), planned and verified
+without, into and from a cache once for both.
 """
 
+import contextlib
+import io
 import json
 import logging
 import os
@@ -28,6 +32,7 @@ from needlekit.io.anatomy_cache import (
     open_entry,
     write_entry,
 )
+from needlekit.io.cache_entries import CACHE_LIMIT_ENV
 from needlekit.io.medrad import load_medrad
 from needlekit.io.volumes import write_mask_nifti
 
@@ -226,23 +231,34 @@ def _plan_json(path: Path) -> dict:
     return strip(json.loads(path.read_text()))
 
 
-def _plan_and_verify(capsys, scenario: Path, out: Path, *cache_flags: str):
+def _plan_and_verify(scenario: Path, out: Path, *cache_flags: str):
+    return (*_plan(scenario, out, *cache_flags), *_verify_quiet(scenario, out, *cache_flags))
+
+
+def _plan(scenario: Path, out: Path, *cache_flags: str):
     from needlekit.cli import main
 
-    plan_code = main(["plan", str(scenario), "--out", str(out), *cache_flags])
-    capsys.readouterr()
-    verify_code = main(["verify", str(scenario), str(out), "--json", *cache_flags])
-    report = json.loads(capsys.readouterr().out)
-    return plan_code, _plan_json(out), verify_code, report
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = main(["plan", str(scenario), "--out", str(out), *cache_flags])
+    return code, _plan_json(out)
 
 
-def test_plan_and_verify_give_the_same_result_with_and_without_the_cache(patient, tmp_path, capsys):
+def _verify_quiet(scenario: Path, plan: Path, *cache_flags: str):
+    from needlekit.cli import main
+
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["verify", str(scenario), str(plan), "--json", *cache_flags])
+    return code, json.loads(printed.getvalue())
+
+
+def test_plan_and_verify_give_the_same_result_with_and_without_the_cache(patient, tmp_path):
     scenario = tmp_path / "scenario.yaml"
     cache = str(tmp_path / "cache")
     runs = [
-        _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache"),
-        _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache),
-        _plan_and_verify(capsys, scenario, tmp_path / "warm.json", "--cache-dir", cache),
+        _plan_and_verify(scenario, tmp_path / "none.json", "--no-cache"),
+        _plan_and_verify(scenario, tmp_path / "cold.json", "--cache-dir", cache),
+        _plan_and_verify(scenario, tmp_path / "warm.json", "--cache-dir", cache),
     ]
     assert runs[0][0] == 0 and runs[0][1]["status"] == "solved" and runs[0][2] == 0
     for run in runs[1:]:
@@ -261,8 +277,8 @@ def test_verify_on_a_damaged_cache_says_what_the_masks_say(
     # warning, and plan and verify answer as without any cache
     scenario = tmp_path / "scenario.yaml"
     cache = str(tmp_path / "cache")
-    clean = _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache")
-    _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache)
+    clean = _plan_and_verify(scenario, tmp_path / "none.json", "--no-cache")
+    _plan_and_verify(scenario, tmp_path / "cold.json", "--cache-dir", cache)
     (entry,) = _entries(Path(cache))
     path = entry / damaged
     middle = path.stat().st_size // 2
@@ -590,19 +606,51 @@ def test_values_that_cannot_be_stored_raise_and_leave_nothing(tmp_path):
 
 
 # ----------------------------------------------------------------------------------------
-# the real data
+# the real data: Med-RAD lung 1 (skips, saying why, without the data: tests/conftest.py)
+
+#: Lung 1's grid (497 x 331 x 512 voxels), five masks on it: the estimate's arithmetic.
+LUNG1_VOXELS = 497 * 331 * 512
 
 
-@pytest.mark.realdata  # skips, saying why, without the data (tests/conftest.py)
-@pytest.mark.slow
-def test_lung1_plans_and_verifies_the_same_through_the_cache(tmp_path, capsys):
+class _Records(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+@pytest.fixture(scope="module")
+def lung1_through_the_cache(medrad_dir, tmp_path_factory):
+    """examples/medrad_lung1.yaml planned and verified three times, once per module:
+    without the cache, into an empty cache (``cold``: the plan prepares lung 1 and stores
+    it; what ``needlekit.io.medrad`` logs meanwhile at INFO is kept) and from that cache
+    (``warm``). Returns the cache folder, those log records and the three runs."""
+    d = tmp_path_factory.mktemp("lung1-cache")
     scenario = Path(__file__).resolve().parents[2] / "examples" / "medrad_lung1.yaml"
-    cache = str(tmp_path / "cache")
-    runs = [
-        _plan_and_verify(capsys, scenario, tmp_path / "none.json", "--no-cache"),
-        _plan_and_verify(capsys, scenario, tmp_path / "cold.json", "--cache-dir", cache),
-        _plan_and_verify(capsys, scenario, tmp_path / "warm.json", "--cache-dir", cache),
-    ]
+    cache = d / "cache"
+    logger = logging.getLogger("needlekit.io.medrad")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.delenv(CACHE_LIMIT_ENV, raising=False)
+        none = _plan_and_verify(scenario, d / "none.json", "--no-cache")
+        handler, level = _Records(), logger.level
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        try:
+            cold_plan = _plan(scenario, d / "cold.json", "--cache-dir", str(cache))
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+        cold = (*cold_plan, *_verify_quiet(scenario, d / "cold.json", "--cache-dir", str(cache)))
+        warm = _plan_and_verify(scenario, d / "warm.json", "--cache-dir", str(cache))
+    return cache, handler.records, [none, cold, warm]
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_lung1_plans_and_verifies_the_same_through_the_cache(lung1_through_the_cache):
+    _, _, runs = lung1_through_the_cache
     # RCS* certifies its plan (5 iterations, ~40 ms): the search ends each run, not the clock
     assert runs[0][1]["status"] == "solved" and runs[0][1]["stats"]["certified"]
     assert runs[0][1]["stats"]["reason"] == "search space exhausted"
@@ -611,3 +659,39 @@ def test_lung1_plans_and_verifies_the_same_through_the_cache(tmp_path, capsys):
         assert run[0] == runs[0][0] and run[2] == runs[0][2]
         assert run[1] == runs[0][1]
         assert _plan_json_like(run[3]) == _plan_json_like(runs[0][3])
+
+
+@pytest.mark.realdata
+@pytest.mark.slow
+def test_lung1_first_preparation_says_so_and_a_hit_does_not(lung1_through_the_cache, medrad_dir,
+                                                            caplog, capsys, monkeypatch):  # fmt: skip
+    """The first preparation of Med-RAD lung 1 into an empty cache (the cold plan above)
+    says what it does, with the estimate from the masks' voxels; a later load from the
+    cache says nothing; ``cache list`` then shows the entry."""
+    from needlekit.cli import main
+    from needlekit.io.prepare_progress import estimate_s
+
+    cache, records, _ = lung1_through_the_cache
+    monkeypatch.delenv(CACHE_LIMIT_ENV, raising=False)
+    lines = [r.getMessage() for r in records if r.name == "needlekit.io.medrad"]
+    with caplog.at_level(logging.INFO, logger="needlekit.io.medrad"):
+        again = load_medrad("lung", 1, medrad_dir, cache_dir=cache)
+    assert "cache_load_s" in again.timings_s and caplog.records == []
+    # one entry: the one the first preparation stored, and the load found
+    assert _entries(cache) == [again.cache_entry]
+    seconds = round(estimate_s([LUNG1_VOXELS] * 5, LUNG1_VOXELS))
+    assert seconds == 17
+    assert lines[0] == (
+        f"preparing Med-RAD lung 1 (first use; about {seconds} s, kept in "
+        f"{cache}/medrad-lung1-{again.cache_entry.name[-32:][:8]}...)"
+    )
+    stages = [line.split(": ", 1)[1].split(" (")[0] for line in lines[1:-1]]
+    assert stages[:6] == ["masks 1/5", "masks 2/5", "masks 3/5", "masks 4/5", "masks 5/5",
+                          "free-space field"]  # fmt: skip
+    assert stages[6].startswith("storing ") and lines[-1].endswith(" kept")
+    capsys.readouterr()
+    assert main(["cache", "list", "--cache-dir", str(cache), "--json"]) == 0
+    (entry,) = json.loads(capsys.readouterr().out)["entries"]
+    on_disk = sum(p.stat().st_size for p in again.cache_entry.iterdir())
+    assert entry["patient"] == "Med-RAD lung 1" and entry["bytes"] == on_disk
+    assert entry["source"].endswith("Patient1")

@@ -9,6 +9,7 @@ the check tested samples 0.25 mm apart); and the rule itself on one voxel, where
 distances are known.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -44,14 +45,28 @@ def _spheres(seed: int) -> list[Sphere]:
     return out
 
 
-def _voxels(spheres, needle_diameter_mm, margin_mm) -> VoxelObstacles:
+@functools.cache
+def _voxel_centres() -> np.ndarray:
+    """The grid's voxel centres (mm), one row per voxel in C order."""
     idx = np.stack(np.meshgrid(*[np.arange(n) for n in GRID_SHAPE], indexing="ij"), -1)
-    centres = idx * VOXEL_MM + GRID_ORIGIN_MM
+    return (idx * VOXEL_MM + GRID_ORIGIN_MM).reshape(-1, 3)
+
+
+@functools.cache
+def _occupancy(seed: int) -> np.ndarray:
+    """The voxels whose centre lies in one of seed ``seed``'s balls (the same for every
+    margin, planner and collision model: made once per seed, read only)."""
     occ = np.zeros(GRID_SHAPE, bool)
-    for s in spheres:
-        occ |= s.signed_distance(centres.reshape(-1, 3)).reshape(GRID_SHAPE) <= 0.0
+    for s in _spheres(seed):
+        occ |= s.signed_distance(_voxel_centres()).reshape(GRID_SHAPE) <= 0.0
+    occ.flags.writeable = False
+    return occ
+
+
+def _voxels(seed, needle_diameter_mm, margin_mm) -> VoxelObstacles:
     affine = np.diag([VOXEL_MM, VOXEL_MM, VOXEL_MM, 1.0])
     affine[:3, 3] = GRID_ORIGIN_MM
+    occ = _occupancy(seed).copy()
     return VoxelObstacles(
         occ, affine, needle_diameter_mm=needle_diameter_mm, safety_margin_mm=margin_mm
     )
@@ -64,7 +79,7 @@ def _problem(seed: int, model: str, margin_mm: float) -> tuple[SteerableProblem,
     goal = np.array([rng.uniform(-8, 8), rng.uniform(-8, 8), rng.uniform(50, 60)])
     kw = {}
     if model == "voxel_centres":
-        kw["voxel_obstacles"] = _voxels(spheres, 1.0, margin_mm)
+        kw["voxel_obstacles"] = _voxels(seed, 1.0, margin_mm)
     problem = SteerableProblem(
         scene,
         goal,
@@ -333,15 +348,11 @@ def test_every_straight_plan_passes_its_check():
         scene = Scene(
             [
                 Structure("skin", Role.ENTRY_SURFACE, Sphere([0, 0, 0], 100.0)),
-                Structure(
-                    "vessel", Role.OBSTACLE, Capsule(mid - 30 * axis, mid + 30 * axis, 4.0)
-                ),
+                Structure("vessel", Role.OBSTACLE, Capsule(mid - 30 * axis, mid + 30 * axis, 4.0)),
             ]
         )
         gamma = float(rng.uniform(0, 1))
-        problem = StraightProblem(
-            scene, target, "skin", StraightNeedle(1.0, 150.0), gamma_mm=gamma
-        )
+        problem = StraightProblem(scene, target, "skin", StraightNeedle(1.0, 150.0), gamma_mm=gamma)
         plan = plan_needles(problem, target[None], resolution_deg=3.0)
         if not plan.solved:
             continue

@@ -2,6 +2,7 @@
 dropped, and one collision model per problem giving the same answer on every route."""
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -412,51 +413,74 @@ def test_the_reached_set_kinds_agree(opening):
 
 def _random_path(rng, r_min, step=0.02, length=120.0):
     """Points of a random path from the origin along +z: curvature vector normal to the
-    tangent, at most 1 / r_min (often the maximum), until the heading passes 90 deg."""
-    x, t = np.zeros(3), np.array([0.0, 0.0, 1.0])
-    pts = [x.copy()]
-    kvec = np.zeros(3)
+    tangent, at most 1 / r_min (often the maximum), until the heading passes 90 deg.
+
+    The vectors are kept as three floats each (a step is a handful of arithmetic on them,
+    which numpy's small arrays would spend most of their time setting up)."""
+    x0 = x1 = x2 = 0.0
+    t0, t1, t2 = 0.0, 0.0, 1.0
+    pts = [(x0, x1, x2)]
+    k0 = k1 = k2 = kappa = 0.0
     for n in range(int(length / step)):
         if n % int(rng.integers(50, 1500)) == 0:  # a new arc: spin and curvature
-            kvec = rng.normal(size=3)
+            k0, k1, k2 = rng.normal(size=3).tolist()
             kappa = min(rng.choice([1.0, rng.uniform()]), 1.0) / r_min
-        k = kvec - (kvec @ t) * t
-        k *= kappa / max(np.linalg.norm(k), 1e-12)
-        t_new = t + step * k
-        t_new /= np.linalg.norm(t_new)
-        if t_new[2] < 0.0:
+        # the curvature vector: kvec's part normal to the tangent, of length kappa
+        dot = k0 * t0 + k1 * t1 + k2 * t2
+        a0, a1, a2 = k0 - dot * t0, k1 - dot * t1, k2 - dot * t2
+        s = kappa / max(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2), 1e-12)
+        u0, u1, u2 = t0 + step * (a0 * s), t1 + step * (a1 * s), t2 + step * (a2 * s)
+        norm = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+        u0, u1, u2 = u0 / norm, u1 / norm, u2 / norm
+        if u2 < 0.0:
             break
-        x = x + step * 0.5 * (t + t_new)
-        t = t_new
-        pts.append(x.copy())
+        x0, x1, x2 = (
+            x0 + step * 0.5 * (t0 + u0),
+            x1 + step * 0.5 * (t1 + u1),
+            x2 + step * 0.5 * (t2 + u2),
+        )
+        t0, t1, t2 = u0, u1, u2
+        pts.append((x0, x1, x2))
     return np.array(pts)
 
 
-@pytest.mark.parametrize("subdivide", [1, 2])
-def test_every_point_of_a_valid_path_lies_in_the_region(subdivide):
-    # subdivide 2: the finer proof's cells, half a voxel wide, whose half-diagonal h the
-    # region is grown by
-    from needlekit.anatomy.voxel_connectivity import _in_region, _region
-
+@pytest.fixture(scope="module")
+def region_paths():
+    """``(r_min, points, goal, offset)`` of the 90 random paths both cell sizes of
+    :func:`test_every_point_of_a_valid_path_lies_in_the_region` walk (the same draws for
+    either: made once); ``offset`` is in units of the grid's spacing."""
     rng = np.random.default_rng(7)
-    spacing = np.array([0.55, 0.55, 0.7]) / subdivide
-    h = 0.5 * float(np.linalg.norm(spacing))
-    d = np.array([0.0, 0.0, 1.0])
+    out = []
     for r_min in (20.0, 50.0, 100.0):
         for n in range(30):
             pts = _random_path(rng, r_min, length=120.0 if n % 2 else rng.uniform(20.0, 150.0))
             end = pts[-1] + rng.uniform(-0.5, 0.5, 3)  # a goal within tau of the end
-            # every part of the region at once: Schur's bound for this goal (where it
-            # applies), the cones, the torus and the turn-then-straight bound
-            geo = _region(d, r_min, 90.0, 150.0, 1.0, h, 0.25 * 0.5**2, float(np.linalg.norm(end)))
-            offset = rng.uniform(-0.5, 0.5, 3) * spacing  # where the grid's centres sit
-            cells = np.rint((pts - offset) / spacing) * spacing + offset
-            assert np.all(np.linalg.norm(cells - pts, axis=1) <= h + 1e-12)
-            inside = [_in_region(c[0], c[1], c[2], np.zeros(3), d, end, geo) for c in cells]
-            assert all(inside), (r_min, int(np.argmin(inside)))
-            # and the points themselves keep r_min from the torus's circle of centres
-            a, b = pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])
-            assert np.all(np.hypot(a, b - r_min) >= r_min - 1e-6)
+            out.append((r_min, pts, end, rng.uniform(-0.5, 0.5, 3)))
+    return out
+
+
+@pytest.mark.parametrize("subdivide", [1, 2])
+def test_every_point_of_a_valid_path_lies_in_the_region(subdivide, region_paths):
+    # subdivide 2: the finer proof's cells, half a voxel wide, whose half-diagonal h the
+    # region is grown by
+    from needlekit.anatomy.voxel_connectivity import _in_region, _region
+
+    spacing = np.array([0.55, 0.55, 0.7]) / subdivide
+    h = 0.5 * float(np.linalg.norm(spacing))
+    d = np.array([0.0, 0.0, 1.0])
+    assert len(region_paths) == 90  # 30 paths for each r_min of 20, 50 and 100 mm
+    for r_min, pts, end, unit_offset in region_paths:
+        # every part of the region at once: Schur's bound for this goal (where it
+        # applies), the cones, the torus and the turn-then-straight bound
+        geo = _region(d, r_min, 90.0, 150.0, 1.0, h, 0.25 * 0.5**2, float(np.linalg.norm(end)))
+        offset = unit_offset * spacing  # where the grid's centres sit
+        cells = np.rint((pts - offset) / spacing) * spacing + offset
+        assert np.all(np.linalg.norm(cells - pts, axis=1) <= h + 1e-12)
+        inside = [_in_region(c[0], c[1], c[2], np.zeros(3), d, end, geo) for c in cells]
+        assert all(inside), (r_min, int(np.argmin(inside)))
+        # and the points themselves keep r_min from the torus's circle of centres
+        a, b = pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])
+        assert np.all(np.hypot(a, b - r_min) >= r_min - 1e-6)
 
 
 @pytest.mark.parametrize(("r_min", "l_max"), [(35.0, 100.0), (50.0, 150.0), (100.0, 150.0)])

@@ -286,12 +286,10 @@ def test_a_multi_needle_plan_is_one_line_per_needle_and_its_execution_too(tmp_pa
 
 
 @pytest.mark.slow
-def test_a_real_plan_and_execution_of_the_toy_lung(tmp_path):
-    """`needlekit plan` then `needlekit execute` (2 trials), the scene against both files."""
-    plan_path, ex = tmp_path / "plan.json", tmp_path / "ex"
-    assert main(["plan", str(TOY), "--out", str(plan_path)]) == 0
-    assert main(["execute", "--truth", "kinematic", str(TOY), str(plan_path), "--trials", "2", "--seed", "0",
-                 "--out", str(ex)]) == 0  # fmt: skip
+def test_a_real_plan_and_execution_of_the_toy_lung(toy_execution, tmp_path):
+    """`needlekit plan` then `needlekit execute` (2 trials; tests/conftest.py's
+    ``toy_execution``, both exiting 0), the scene against both files."""
+    plan_path, ex = toy_execution / "plan.json", toy_execution / "ex"
     out = tmp_path / "case.mrb"
     assert main(["slicer", str(TOY), str(plan_path), "--execution", str(ex / "execute.json"),
                  "--max-cells", "32", "--spacing-mm", "1", "--out", str(out)]) == 0  # fmt: skip
@@ -330,7 +328,6 @@ def test_the_liver_phantoms_three_needles_planned_and_inserted(tmp_path, liver_p
             assert np.max(np.abs(got[1] - n["tip_mm"])) < TOL_MM
     scene = load_scenario(scenario).scene
     assert {s.name for s in scene.structures} <= set(sc.nodes)
-
 
 
 @pytest.mark.realdata
