@@ -1123,7 +1123,7 @@ ROWS = [
     ),
     (
         ["puncture", "--qp-solver", "nope"],
-        "error: qp_solver: unknown QP solver 'nope'; available: daqp, quadprog",
+        "error: --qp-solver: unknown QP solver 'nope'; available: daqp, quadprog",
     ),
     (
         ["puncture", "--workers", "0"],
@@ -1172,7 +1172,11 @@ ROWS = [
     ),
     (
         ["bench", "steerable", "--planners", "nope"],
-        "error: planner: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+        "error: --planners: unknown planner 'nope'; available: rcs_star, rcs, rrt, liu_cfrw",
+    ),
+    (
+        ["bench", "steerable", "--planners", "liu_cfrw"],
+        "error: --planners: 'liu_cfrw' plans straight needles; steerable planners: rcs_star, rcs, rrt",
     ),
     (
         ["bench", "nope"],

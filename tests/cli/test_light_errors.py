@@ -165,6 +165,7 @@ CASES = {
         ["cfrw", "{d}/malformed.yaml"],
         ["cfrw", TOY],
         ["cfrw", MULTI, "--target", "0"],
+        ["cfrw", MULTI, "--target", "99"],
         ["multi", "{d}/invalid.yaml"],
         ["multi", TOY],
         ["multi", MULTI, "--planner", "nope"],
@@ -172,6 +173,7 @@ CASES = {
         ["approach", "{d}/invalid.yaml"],
         ["approach", TOY],
         ["approach", MULTI, "--report", "/proc/a.html"],
+        ["approach", MULTI, "--target", "99"],
     ],
     "markups": [
         ["markups", "{d}/missing.json", "--out", "{d}/x.mrk.json"],
@@ -231,7 +233,11 @@ CASES = {
         ["puncture", "--trials", "0"],
         ["puncture", "--adaptation-delay-ms", "0.5"],
         ["puncture", "--out", "/proc/puncture"],
+        ["puncture", "--qp-solver", "nope"],
         ["bench", "control", "--out", "/proc/x.json"],
+        ["bench", "steerable", "--planners", "nope"],
+        ["bench", "control", "--qp-solver", "nope"],
+        ["bench", "steerable", "--planners", "liu_cfrw"],
         ["bench", "fields", "--out", "{d}/pose.txt/x.json"],
     ],
     "cache": [

@@ -282,7 +282,7 @@ def test_the_commands_refuse_an_unknown_solver_in_one_line(capsys, tmp_path):
                  ["bench", "control", "--qp-solver", "osqp"]):  # fmt: skip
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert err == ["error: qp_solver: unknown QP solver 'osqp'; available: daqp, quadprog"]
+        assert err == ["error: --qp-solver: unknown QP solver 'osqp'; available: daqp, quadprog"]
 
 
 def test_the_docs_example_of_adding_a_solver_runs(capsys):

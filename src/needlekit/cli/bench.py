@@ -69,6 +69,9 @@ def _fields(args: argparse.Namespace) -> dict:
 
 
 def _control(args: argparse.Namespace) -> dict:
+    from needlekit.control.qp_registry import check_qp_solver
+
+    check_qp_solver(args.qp_solver, "--qp-solver")  # by name, before the heavy imports
     from needlekit.benchmarks.control import run_control_benchmark
 
     return run_control_benchmark(
@@ -80,6 +83,13 @@ def _control(args: argparse.Namespace) -> dict:
 
 
 def _steerable(args: argparse.Namespace) -> dict:
+    from needlekit.planning.registry import check_planner_options
+
+    for name in args.planners:  # by name, before any patient is read
+        try:
+            check_planner_options(name, family="steerable")
+        except InvalidInputError as exc:
+            raise InvalidInputError("--planners", exc.reason) from None
     from tqdm import tqdm
 
     from needlekit.benchmarks.steerable import run_steerable_benchmark

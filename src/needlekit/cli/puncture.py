@@ -70,6 +70,9 @@ def _cmd_puncture(args: argparse.Namespace) -> int:
             raise InvalidInputError(
                 name, f"expected a whole number >= 0, got {getattr(args, name)}"
             )
+    from needlekit.control.qp_registry import check_qp_solver
+
+    check_qp_solver(args.qp_solver, "--qp-solver")  # by name, before the heavy imports
     from tqdm import tqdm
 
     from needlekit.batch import open_executor

@@ -32,6 +32,14 @@ def _document(args: argparse.Namespace) -> dict:
     return doc
 
 
+def _check_target(args: argparse.Namespace, doc: dict) -> None:
+    """``--target`` against the straight block's list of targets, before anything is built
+    (targets chosen by coverage are counted once chosen: the caller checks those)."""
+    listed = doc["straight"].get("targets")
+    if isinstance(listed, list) and not 1 <= args.target <= len(listed):
+        raise InvalidInputError("--target", f"expected 1 to {len(listed)}, got {args.target}")
+
+
 def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
     doc = _document(args) if doc is None else doc
     from needlekit.scenario.loading import load_scenario
@@ -43,6 +51,7 @@ def _multi_problem(args: argparse.Namespace, doc: dict | None = None):
 
 def _cmd_cfrw(args: argparse.Namespace) -> int:
     doc = _document(args)
+    _check_target(args, doc)
     import numpy as np
 
     from needlekit.io.files import write_json
@@ -232,6 +241,7 @@ def _cmd_approach(args: argparse.Namespace) -> int:
     import time
 
     doc = _document(args)
+    _check_target(args, doc)
     import numpy as np
 
     from needlekit.io.files import staged_outputs, write_json

@@ -32,6 +32,7 @@ __all__ = [
     "BUILTIN_QP_SOLVERS",
     "DEFAULT_QP_SOLVER",
     "ENTRY_POINT_GROUP",
+    "check_qp_solver",
     "get_qp_solver",
     "qp_solver_names",
     "register_qp_solver",
@@ -137,6 +138,33 @@ def qp_solver_names() -> list[str]:
     return list(_REGISTRY)
 
 
+def check_qp_solver(name: str, field: str = "qp_solver") -> None:
+    """Refuse a QP solver name that is not registered, without building the solver or
+    importing its package.
+
+    Parameters
+    ----------
+    name : str
+    field : str
+        Named in the error (a command line gives its flag).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InvalidInputError
+        An unknown name.
+    """
+    if name not in _REGISTRY:
+        _load_entry_points()
+    if name not in _REGISTRY:
+        raise InvalidInputError(
+            field, f"unknown QP solver {name!r}; available: {', '.join(qp_solver_names())}"
+        )
+
+
 def get_qp_solver(solver: str | QPSolver | None = None) -> QPSolver:
     """A QP solver by name (built once per name), or the object itself.
 
@@ -167,13 +195,8 @@ def get_qp_solver(solver: str | QPSolver | None = None) -> QPSolver:
     hit = _INSTANCES.get(solver)
     if hit is not None:
         return hit
-    if solver not in _REGISTRY:
-        _load_entry_points()
-    factory = _REGISTRY.get(solver)
-    if factory is None:
-        raise InvalidInputError(
-            "qp_solver", f"unknown QP solver {solver!r}; available: {', '.join(qp_solver_names())}"
-        )
+    check_qp_solver(solver)
+    factory = _REGISTRY[solver]
     if isinstance(factory, str):
         module, cls = factory.split(":")
         factory = getattr(importlib.import_module(module), cls)
