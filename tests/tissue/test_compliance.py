@@ -131,6 +131,26 @@ def test_to_rest_inverts_the_deformation(lung_compliance):
     assert np.allclose(tissue.displacement_field(TRACKED), tissue.tracked_displacement_mm, atol=1e-12)
 
 
+def test_a_point_at_a_time_answers_as_the_search_does(lung_compliance):
+    # a tip's points one at a time (remembered tetrahedra, then the search when none holds
+    # it) against the same points in one batch (the search for each): the same bits, on a
+    # walk that crosses cells, revisits them and lands on vertices and faces
+    tissue = DeformingTissue(lung_compliance)
+    rng = np.random.default_rng(11)
+    tissue.apply(CORRIDOR, rng.normal(0, 0.02, (len(CORRIDOR), 3)), breathing=[0.5, 0.0, -2.0])
+    mesh = lung_compliance.mesh
+    walk = CORRIDOR[0] + np.cumsum(rng.normal(0, 0.4, (300, 3)), axis=0)
+    walk = np.clip(walk, mesh.nodes_mm.min(axis=0) + 0.5, mesh.nodes_mm.max(axis=0) - 0.5)
+    on_mesh = np.concatenate([mesh.nodes_mm[mesh.tets[7]], mesh.nodes_mm[mesh.tets[7, :3]].mean(axis=0)[None]])
+    pts = np.concatenate([walk, walk[::-7], on_mesh])
+    for loads in (True, False):
+        one = np.concatenate([tissue.displacement_field(p[None], loads) for p in pts])
+        assert np.array_equal(one, tissue.displacement_field(pts, loads))
+    d = np.array([0.0, 1.0, -3.0])
+    one = np.concatenate([tissue.breathing_field(p[None], d) for p in pts])
+    assert np.array_equal(one, tissue.breathing_field(pts, d))
+
+
 def test_precompute_cached_cold_then_warm(tmp_path):
     args = (_box(), AFFINE, "lung", CORRIDOR, TRACKED, LABELS)
     cold = precompute(*args, cell_mm=2.75, cache_dir=tmp_path)

@@ -22,12 +22,19 @@ are the needle's *current* loads, not increments).
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from needlekit.errors import InvalidInputError
 from needlekit.tissue.compliance import Compliance, locate
 
 __all__ = ["DeformingTissue"]
+
+_HINTS = 4  # tetrahedra remembered for the next single-point lookup
+#: Smallest barycentric weight with which a remembered tetrahedron answers alone: well
+#: inside it, where no rounding can make another tetrahedron's smallest weight larger.
+_HINT_MARGIN = 1e-9
 
 
 def _array(v, name: str, shape_tail: tuple) -> np.ndarray:
@@ -73,6 +80,7 @@ class DeformingTissue:
         self._f = np.zeros((self.m, 3))
         self._d = np.zeros(3)
         self._tree = cKDTree(c.mesh.nodes_mm[c.mesh.tets].mean(axis=1))
+        self._cells: OrderedDict = OrderedDict()  # tetrahedron -> (x0, J^T, H rows, G rows)
         try:
             self._target = c.tracked_labels.index("target")
         except ValueError:
@@ -223,13 +231,46 @@ class DeformingTissue:
 
     def _field_at(self, points: np.ndarray, loads: bool = True, d=None) -> np.ndarray:
         c = self.compliance
+        d = self._d if d is None else d
+        if len(points) == 1:
+            w, hb, gb = self._cell_of(points[0])
+            u = hb @ d
+            if loads:
+                u = u + gb @ self._f.ravel()
+            return np.einsum("ka,kac->kc", w[None], u.reshape(1, 4, 3))
         tet, w, _ = locate(c.mesh, points, self._tree)
         nodes = c.mesh.tets[tet]  # (k, 4)
         dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1)
-        u = c.H[dofs] @ (self._d if d is None else d)
+        u = c.H[dofs] @ d
         if loads:
             u = u + c.G[dofs] @ self._f.ravel()
         return np.einsum("ka,kac->kc", w, u.reshape(len(points), 4, 3))
+
+    def _cell_of(self, p: np.ndarray):
+        """A single point's weights in its tetrahedron and the tetrahedron's rows of ``H``
+        and ``G``. A tip's next point (and each step of :meth:`to_rest`) is most often in
+        one of the last few points' tetrahedra: one whose weights are all above
+        ``_HINT_MARGIN`` answers alone. In a mesh whose tetrahedra do not overlap, a point
+        strictly inside one lies outside every other, so :func:`locate`'s search would
+        choose the same one, with the same weights (the same 3x3 solve)."""
+        cells = self._cells
+        for t, (x0, jt, hb, gb) in cells.items():
+            lam = np.linalg.solve(jt, p - x0)
+            w = np.concatenate([1.0 - lam.sum(keepdims=True), lam])
+            if w.min() > _HINT_MARGIN:
+                cells.move_to_end(t, last=False)
+                return w, hb, gb
+        c = self.compliance
+        tet, w, _ = locate(c.mesh, p[None], self._tree)
+        t = int(tet[0])
+        if t not in cells:
+            x = c.mesh.nodes_mm[c.mesh.tets[t]]  # (4, 3)
+            dofs = (3 * c.mesh.tets[t][:, None] + np.arange(3)).reshape(-1)
+            cells[t] = (x[0], (x[1:] - x[0]).T, c.H[dofs], c.G[dofs])
+        cells.move_to_end(t, last=False)
+        if len(cells) > _HINTS:
+            cells.popitem()  # the least recently used
+        return w[0], cells[t][2], cells[t][3]
 
     def displacement_field(self, points_mm, loads: bool = True) -> np.ndarray:
         """The displacement (mm) at material points given at rest (interpolated in their
