@@ -60,3 +60,48 @@ def test_foundation_kernel_matches_reference():
     assert np.array_equal(foundation_kernel(s, gap, support_end, k, factors), want)
     assert np.array_equal(foundation_kernel(s, gap, support_end, k, np.zeros(0)),
                           np.where(held, k, 0.0))  # fmt: skip
+
+
+def test_node_positions_kernel_is_the_reference_to_the_bit():
+    from needlekit.mechanics.shaft import node_positions, node_positions_reference
+
+    rng = np.random.default_rng(4)
+    cases = [(10.0, 45.3, (44.8, 40.3), 1.0), (0.0, 12.0, (11.5,), 1.0), (5.0, 0.0, (), 0.7),
+             (10.0, 0.01, (9.0, 10.005), 1.0), (3.0, 7.0, (13.0 - 1e-10, 5.0, 20.0), 0.5),
+             (2.5, 20.0, (12.5, 12.5), 1.0)]  # fmt: skip
+    for _ in range(400):  # breaks on nodes, near nodes, near the tip, outside the rod
+        gap, depth, h = rng.choice([0.0, rng.uniform(0, 20)]), rng.uniform(0, 80), rng.uniform(0.2, 2)
+        tip = gap + depth
+        breaks = [tip - rng.choice([0.0, 1e-10, rng.uniform(0, 3) * h]),
+                  gap + h * rng.integers(0, 40) + rng.choice([0.0, rng.normal(0, 0.3 * h)]),
+                  rng.uniform(-5, tip + 5)]  # fmt: skip
+        cases.append((gap, depth, tuple(breaks[: rng.integers(0, 4)]), h))
+    for gap, depth, breaks, h in cases:
+        got, want = node_positions(gap, depth, breaks, h), node_positions_reference(gap, depth, breaks, h)
+        assert got.dtype == want.dtype and np.array_equal(got, want), (gap, depth, breaks, h)
+
+
+def test_reference_kernel_is_the_numpy_reference_to_the_bit():
+    from needlekit.mechanics.shaft import _reference, _reference_numpy, node_positions
+
+    sim = _bent_needle()
+    for h in (0.3, 0.7, 1.0):
+        s = node_positions(sim.gap_mm, sim.inserted_mm, (sim.gap_mm + 30.0, sim.gap_mm + 44.1), h)
+        for a, b in zip(_reference(sim.channel, sim.guide, s, sim.gap_mm),
+                        _reference_numpy(sim.channel, sim.guide, s, sim.gap_mm), strict=True):  # fmt: skip
+            assert np.array_equal(a, b)
+
+
+def test_offsets_kernel_is_the_numpy_reference_to_the_bit():
+    from needlekit.mechanics._kernels import offsets_kernel
+    from needlekit.mechanics.shaft import _offsets_numpy, _reference, node_positions
+
+    sim = _bent_needle()
+    tip = sim.gap_mm + sim.inserted_mm
+    s = node_positions(sim.gap_mm, sim.inserted_mm, (tip - 0.8, tip - 3.0), 0.7)
+    pos, tan, ex, ey = _reference(sim.channel, sim.guide, s, sim.gap_mm)
+    for curv, length in (((0.0, 0.0), 0.0), ((0.01, -0.02), 3.0), ((0.05, 0.0), tip + 5.0)):
+        fast = offsets_kernel(s, pos, tan, ex, ey, *curv, length, tip - length)
+        slow = _offsets_numpy(s, pos, tan, ex, ey, curv, length, tip - length)
+        assert all(np.array_equal(a, b) for a, b in zip(fast, slow, strict=True))
+        assert length == 0.0 or np.any(slow[1][:, 3] != _offsets_numpy(s, pos, tan, ex, ey, (0, 0), 0.0, tip)[1][:, 3])

@@ -2,7 +2,8 @@
 
 Each kernel does in one compiled loop what a numpy reference does in many small array
 operations (:func:`needlekit.mechanics.shaft.solve_linear_reference`,
-:meth:`needlekit.mechanics.channel.Channel.sample_reference`); tests hold each kernel to
+:meth:`needlekit.mechanics.channel.Channel.sample_reference`,
+:func:`needlekit.mechanics.shaft.node_positions_reference`); tests hold each kernel to
 its reference. Compiled with ``cache=True``.
 """
 
@@ -13,7 +14,14 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["foundation_kernel", "rod_solve_kernel", "sample_channel_kernel"]
+__all__ = [
+    "foundation_kernel",
+    "node_positions_kernel",
+    "offsets_kernel",
+    "reference_kernel",
+    "rod_solve_kernel",
+    "sample_channel_kernel",
+]
 
 
 @numba.njit(cache=True)
@@ -33,6 +41,61 @@ def foundation_kernel(s, gap, support_end, k, k_by_mm):  # pragma: no cover - co
                 f = k_by_mm[min(max(i, 0), m - 1)]
             out[e] = k * f
     return out
+
+
+@numba.njit(cache=True)
+def node_positions_kernel(gap, depth, breaks, h, min_fraction):  # pragma: no cover - compiled
+    """:func:`needlekit.mechanics.shaft.node_positions_reference` in one loop, the same
+    floating-point operations in the same order (the same bits)."""
+    tip = gap + depth
+    n_gap = max(1, math.ceil(gap / h - 1e-9)) if gap > 0 else 0
+    m_in = max(1, math.ceil(depth / h)) - 1  # inner nodes gap + h i, i = 1 .. m_in
+    must = np.empty(1 + breaks.size)
+    must[0] = tip
+    n_must = 1
+    for b in breaks:
+        if gap < b < tip - 1e-9:
+            must[n_must] = b
+            n_must += 1
+    cand = np.empty(n_gap + 1 + m_in + n_must)
+    n = 0
+    if n_gap:  # numpy's linspace(0, gap, n_gap + 1): i * step + 0, its last exactly gap
+        step = gap / n_gap
+        for i in range(n_gap + 1):
+            cand[n] = (i / n_gap * gap if step == 0.0 else i * step) + 0.0
+            n += 1
+        cand[n - 1] = gap
+    else:
+        cand[n] = 0.0
+        n += 1
+    tol = 0.3 * h
+    for i in range(1, m_in + 1):
+        x = gap + h * i
+        ok = x < tip
+        for j in range(n_must):
+            ok = ok and abs(x - must[j]) >= tol
+        if ok:
+            cand[n] = x
+            n += 1
+    for j in range(n_must):
+        cand[n] = must[j]
+        n += 1
+    srt = np.sort(cand[:n])
+    s = np.empty(n)  # unique, below the tip
+    m = 0
+    for x in srt:
+        if x < tip and (m == 0 or x != s[m - 1]):
+            s[m] = x
+            m += 1
+    min_len = min_fraction * h
+    out = np.empty(m + 1)
+    k = 0
+    for i in range(m):
+        if i == 0 or (s[i] - s[i - 1] >= min_len and tip - s[i] >= min_len):
+            out[k] = s[i]
+            k += 1
+    out[k] = tip
+    return out[: k + 1]
 
 
 @numba.njit(cache=True)
@@ -202,3 +265,69 @@ def sample_channel_kernel(depth, pos, tan, ex, q):  # pragma: no cover - compile
         for c in range(3):
             out_e[r, c] /= ne
     return out_p, out_t, out_e
+
+
+@numba.njit(cache=True)
+def reference_kernel(s, gap, g_pos, g_tan, g_ex, depth, pos, tan, ex):  # pragma: no cover - compiled
+    """The shaft's reference at nodes ``s`` (``needlekit.mechanics.shaft._reference``,
+    the same operations): the guide's line up to ``gap``, the channel (at least two
+    points, :func:`sample_channel_kernel`) beyond; and ``e_y = t x e_x``."""
+    n = s.size
+    out_p, out_t, out_x = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    m = 0
+    for i in range(n):
+        if s[i] <= gap:
+            for c in range(3):
+                out_p[i, c] = g_pos[c] + s[i] * g_tan[c]
+                out_t[i, c] = g_tan[c]
+                out_x[i, c] = g_ex[c]
+        else:
+            m += 1
+    if m:
+        q = np.empty(m)
+        rows = np.empty(m, dtype=np.int64)
+        j = 0
+        for i in range(n):
+            if s[i] > gap:
+                q[j] = s[i] - gap
+                rows[j] = i
+                j += 1
+        cp, ct, cx = sample_channel_kernel(depth, pos, tan, ex, q)
+        for j in range(m):
+            for c in range(3):
+                out_p[rows[j], c] = cp[j, c]
+                out_t[rows[j], c] = ct[j, c]
+                out_x[rows[j], c] = cx[j, c]
+    ey = np.empty((n, 3))
+    for i in range(n):
+        t, x = out_t[i], out_x[i]
+        ey[i, 0] = t[1] * x[2] - t[2] * x[1]
+        ey[i, 1] = t[2] * x[0] - t[0] * x[2]
+        ey[i, 2] = t[0] * x[1] - t[1] * x[0]
+    return out_p, out_t, out_x, ey
+
+
+@numba.njit(cache=True)
+def offsets_kernel(s, pos, tan, ex, ey, cx, cy, rest_length, bend_start):  # pragma: no cover - compiled
+    """Element lengths and each element's reference end offsets in its first node's frame,
+    less a pre-bent tip's rest shape (``needlekit.mechanics.shaft._offsets_numpy``, the
+    same operations)."""
+    e = s.size - 1
+    lengths = np.empty(e)
+    ref = np.zeros((e, 4, 2))
+    start = max(bend_start, 0.0)
+    for i in range(e):
+        lengths[i] = s[i + 1] - s[i]
+        c0, c1, c2 = pos[i + 1, 0] - pos[i, 0], pos[i + 1, 1] - pos[i, 1], pos[i + 1, 2] - pos[i, 2]
+        t0, t1, t2 = tan[i + 1, 0], tan[i + 1, 1], tan[i + 1, 2]
+        ref[i, 2, 0] = c0 * ex[i, 0] + c1 * ex[i, 1] + c2 * ex[i, 2]
+        ref[i, 3, 0] = t0 * ex[i, 0] + t1 * ex[i, 1] + t2 * ex[i, 2]
+        ref[i, 2, 1] = c0 * ey[i, 0] + c1 * ey[i, 1] + c2 * ey[i, 2]
+        ref[i, 3, 1] = t0 * ey[i, 0] + t1 * ey[i, 1] + t2 * ey[i, 2]
+        if rest_length > 0.0 and 0.5 * (s[i + 1] + s[i]) > start:
+            li = lengths[i]
+            ref[i, 2, 0] -= 0.5 * cx * (li * li)
+            ref[i, 3, 0] -= cx * li
+            ref[i, 2, 1] -= 0.5 * cy * (li * li)
+            ref[i, 3, 1] -= cy * li
+    return lengths, ref

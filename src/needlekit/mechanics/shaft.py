@@ -32,7 +32,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from needlekit.errors import InvalidInputError
-from needlekit.mechanics._kernels import foundation_kernel, rod_solve_kernel
+from needlekit.mechanics._kernels import (
+    foundation_kernel,
+    node_positions_kernel,
+    offsets_kernel,
+    reference_kernel,
+    rod_solve_kernel,
+)
 from needlekit.mechanics.channel import Channel
 from needlekit.mechanics.rod import (
     assemble_upper_band,
@@ -45,6 +51,7 @@ __all__ = [
     "MIN_ELEMENT_FRACTION",
     "ShaftSolution",
     "node_positions",
+    "node_positions_reference",
     "solve_linear_reference",
     "solve_shaft",
 ]
@@ -114,6 +121,24 @@ def node_positions(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
         one side of each break, no element is shorter than ``MIN_ELEMENT_FRACTION h_mm``
         (closer breaks are merged) unless the rod itself is.
     """
+    b = np.asarray(breaks_mm, dtype=np.float64).reshape(-1)
+    return node_positions_kernel(float(gap_mm), float(depth_mm), b, float(h_mm), MIN_ELEMENT_FRACTION)
+
+
+def node_positions_reference(gap_mm: float, depth_mm: float, breaks_mm, h_mm: float):
+    """:func:`node_positions` in numpy: the reference of the compiled kernel (the same
+    parameters and result).
+
+    Parameters
+    ----------
+    gap_mm, depth_mm : float
+    breaks_mm : sequence of float
+    h_mm : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
     tip = gap_mm + depth_mm
     n_gap = max(1, math.ceil(gap_mm / h_mm - 1e-9)) if gap_mm > 0 else 0
     parts = [np.linspace(0.0, gap_mm, n_gap + 1)] if n_gap else [np.zeros(1)]
@@ -178,7 +203,17 @@ def solve_linear_reference(lengths, ei, k_e, ref, fx: float, fy: float):
 
 
 def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
-    """Reference points, tangents and frames at the nodes."""
+    """Reference points, tangents and frames at the nodes (compiled once the channel has
+    two points: :func:`~needlekit.mechanics._kernels.reference_kernel`, the same bits)."""
+    if channel.n > 1:
+        g = [np.ascontiguousarray(v, dtype=np.float64) for v in guide]
+        return reference_kernel(s, float(gap), g[0], g[1], g[2], channel.depth_mm,
+                                channel.points_mm, channel.tangents, channel.normals_x)  # fmt: skip
+    return _reference_numpy(channel, guide, s, gap)
+
+
+def _reference_numpy(channel: Channel, guide, s: np.ndarray, gap: float):
+    """:func:`_reference` in numpy (its reference, and a channel of one point)."""
     g_pos, g_tan, g_ex = guide
     n = s.size
     pos = np.empty((n, 3))
@@ -196,6 +231,27 @@ def _reference(channel: Channel, guide, s: np.ndarray, gap: float):
     ey[:, 1] = tan[:, 2] * ex[:, 0] - tan[:, 0] * ex[:, 2]
     ey[:, 2] = tan[:, 0] * ex[:, 1] - tan[:, 1] * ex[:, 0]
     return pos, tan, ex, ey
+
+
+def _offsets_numpy(s, pos, tan, ex, ey, rest_curvature_xy, rest_length_mm, bend_start):
+    """Element lengths and the reference's end offsets in each element's first-node frame,
+    both planes, less a pre-bent tip's stress-free shape (its Hermite offsets ``c l^2 / 2``
+    and ``c l``): the numpy reference of
+    :func:`~needlekit.mechanics._kernels.offsets_kernel`."""
+    lengths = np.diff(s)
+    mid = 0.5 * (s[1:] + s[:-1])
+    chord = pos[1:] - pos[:-1]
+    ref = np.zeros((lengths.size, 4, 2))
+    ref[:, 2, 0] = np.sum(chord * ex[:-1], axis=1)
+    ref[:, 3, 0] = np.sum(tan[1:] * ex[:-1], axis=1)
+    ref[:, 2, 1] = np.sum(chord * ey[:-1], axis=1)
+    ref[:, 3, 1] = np.sum(tan[1:] * ey[:-1], axis=1)
+    if rest_length_mm > 0.0:
+        bent = mid > max(bend_start, 0.0)
+        for p, c in enumerate(rest_curvature_xy):
+            ref[bent, 2, p] -= 0.5 * c * lengths[bent] ** 2
+            ref[bent, 3, p] -= c * lengths[bent]
+    return lengths, ref
 
 
 def solve_shaft(
@@ -256,27 +312,14 @@ def solve_shaft(
     bend_start = tip - rest_length_mm
     s = node_positions(gap_mm, depth_mm, (support_end, bend_start), h_mm)
     pos, tan, ex, ey = _reference(channel, guide, s, gap_mm)
-    lengths = np.diff(s)
-    mid = 0.5 * (s[1:] + s[:-1])
     factors = _NO_FACTORS if k_by_mm is None else np.ascontiguousarray(k_by_mm, dtype=np.float64)
     k_e = foundation_kernel(s, float(gap_mm), float(support_end), float(k), factors)
-
-    # the reference's end offsets in each element's first-node frame, both planes
-    chord = pos[1:] - pos[:-1]
-    ref = np.zeros((lengths.size, 4, 2))
-    ref[:, 2, 0] = np.sum(chord * ex[:-1], axis=1)
-    ref[:, 3, 0] = np.sum(tan[1:] * ex[:-1], axis=1)
-    ref[:, 2, 1] = np.sum(chord * ey[:-1], axis=1)
-    ref[:, 3, 1] = np.sum(tan[1:] * ey[:-1], axis=1)
-    if rest_length_mm > 0.0:
-        # a pre-bent tip: the stress-free shape's Hermite offsets, c l^2 / 2 and c l
-        bent = mid > max(bend_start, 0.0)
-        for p, c in enumerate(rest_curvature_xy):
-            ref[bent, 2, p] -= 0.5 * c * lengths[bent] ** 2
-            ref[bent, 3, p] -= c * lengths[bent]
     if reference:
+        lengths, ref = _offsets_numpy(s, pos, tan, ex, ey, rest_curvature_xy, rest_length_mm, bend_start)
         sol, nodal = solve_linear_reference(lengths, ei, k_e, ref, *tip_force_xy)
     else:
+        cx, cy = (float(c) for c in rest_curvature_xy)
+        lengths, ref = offsets_kernel(s, pos, tan, ex, ey, cx, cy, float(rest_length_mm), float(bend_start))
         sol, nodal, ok = rod_solve_kernel(
             lengths, float(ei), k_e, ref, float(tip_force_xy[0]), float(tip_force_xy[1])
         )
