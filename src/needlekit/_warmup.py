@@ -24,15 +24,16 @@ __all__ = ["warm_up_kernels"]
 def warm_up_kernels(jobs: int | None = None) -> float:
     """Plan once with every steerable planner on two tiny problems (the ``field`` model
     over analytic shapes and a voxel grid, and the ``voxel_centres`` model), two straight
-    needles, run the puncture controller's steps and adaptation (:func:`_warm_up_control`)
-    and build and read anatomy: the phantoms, a mesh, masks (:func:`_warm_up_anatomy`).
+    needles, run the puncture controller's steps and adaptation (:func:`_warm_up_control`),
+    insert a needle by its mechanics (:func:`_warm_up_mechanics`) and build and read
+    anatomy: the phantoms, a mesh, masks (:func:`_warm_up_anatomy`).
 
     Parameters
     ----------
     jobs : int, optional
         Processes to share the work (default: 2 where the machine has two cores or more).
-        Four parts (anatomy, steerable planners, controller, straight planner) go to
-        them, longest first; numba's cache on disk is where they leave the kernels.
+        Five parts (anatomy, steerable planners, controller, straight planner, mechanics)
+        go to them, longest first; numba's cache on disk is where they leave the kernels.
 
     Returns
     -------
@@ -45,7 +46,8 @@ def warm_up_kernels(jobs: int | None = None) -> float:
     # longest first: on two processes the anatomy (about 34 s cold) runs beside the
     # steerable planners (20 s) and then the controller (17 s), the straight planner
     # (11 s) after it
-    groups = (_warm_up_anatomy, _warm_up_steerable, _warm_up_control, _warm_up_straight_vessel)
+    groups = (_warm_up_anatomy, _warm_up_steerable, _warm_up_control, _warm_up_straight_vessel,
+              _warm_up_mechanics)  # fmt: skip
     if jobs <= 1:
         for group in groups:
             group()
@@ -149,6 +151,20 @@ def _warm_up_straight_vessel() -> None:
     from needlekit.anatomy.voxel import VoxelSDF
 
     _warm_up_straight(VoxelSDF.from_mask(*_vessel_grid()))
+
+
+def _warm_up_mechanics() -> None:
+    """The rod's kernels (node positions, reference, offsets, foundation, the banded solve,
+    the channel's sampling), with the argument types a physical truth passes: a pre-bent
+    needle in an inhomogeneous tissue, turned and inserted."""
+    from needlekit.mechanics.insertion import MechanicalNeedle
+    from needlekit.mechanics.materials import NeedleSpec, TissueSpec
+
+    needle = NeedleSpec(0.5, 0.0, 75e3, 0.5).with_prebend(15.0, 3.0)
+    sim = MechanicalNeedle(np.eye(4), needle, TissueSpec(0.1, 0.3), inhomogeneity=0.1,
+                           rng=np.random.default_rng(0))  # fmt: skip
+    sim.step(0.4, sim.kappa_max_per_mm, 6.0, 1.0)
+    sim.step(1.0, 0.0, 2.0, 1.0)
 
 
 def _warm_up_control() -> None:
