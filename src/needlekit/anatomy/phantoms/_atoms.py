@@ -3,6 +3,7 @@ numpy references, and baking a phantom's structures onto voxel grids."""
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections.abc import Mapping
@@ -179,6 +180,19 @@ class AtomField(DistanceField):
 
     def __repr__(self) -> str:
         return f"AtomField({len(self)} atoms, op={self.op!r})"
+
+    def content_key(self) -> tuple:
+        """A key of the field's contents: equal for two fields only when they give the
+        same distances (the same atoms in the same order, the same operation).
+
+        Returns
+        -------
+        tuple
+            Hashable: the operation and a SHA-256 of the atoms' kinds and parameters.
+        """
+        digest = hashlib.sha256(np.ascontiguousarray(self.kinds).view(np.uint8))
+        digest.update(np.ascontiguousarray(self.params).view(np.uint8))
+        return ("AtomField", self.op, self.params.shape, digest.digest())
 
     @property
     def atoms(self) -> list:

@@ -141,6 +141,18 @@ class EllipticCylinderSkin(DistanceField):
         self.u_range_rad = np.asarray(u_range_rad, dtype=np.float64).copy()
         self.v_range_mm = np.asarray(v_range_mm, dtype=np.float64).copy()
 
+    def content_key(self) -> tuple:
+        """A key of the field's contents: equal for two skins only when their axes, semi-axes
+        and entry patches are equal, bit for bit.
+
+        Returns
+        -------
+        tuple
+            Hashable: the four parameters' bytes.
+        """
+        parts = (self.center_xy_mm, self.semi_axes_mm, self.u_range_rad, self.v_range_mm)
+        return ("EllipticCylinderSkin", *(np.asarray(p, dtype=np.float64).tobytes() for p in parts))
+
     def _signed_distance(self, points: np.ndarray) -> np.ndarray:
         return ellipse_signed_distance(
             points[:, 0] - self.center_xy_mm[0],
