@@ -1,7 +1,10 @@
 """Certified lower bounds on the clearance of a needle segment (mm).
 
-Sphere tracing of any 1-Lipschitz signed distance (:func:`segment_clearance_bound`), the
-tangent-line bound of a convex obstacle (:func:`convex_segment_bound`), a placed needle's
+Sphere tracing of any 1-Lipschitz signed distance (:func:`segment_clearance_bound`, its
+runs of near steps sampled several at a time;
+:func:`segment_clearance_bound_reference`, one sample a step, is the plain trace it is
+held to, bit for bit), the tangent-line bound of a convex obstacle
+(:func:`convex_segment_bound`), a placed needle's
 tube and head (:func:`obstacle_segment_bound`), and the smallest over a problem's
 obstacles (:func:`clearance_bound`); the argument for each is in
 :mod:`needlekit.planning.straight.cfrw`.
@@ -9,6 +12,9 @@ obstacles (:func:`clearance_bound`); the argument for each is in
 
 from __future__ import annotations
 
+import math
+
+import numba
 import numpy as np
 
 from needlekit.anatomy.fields import DistanceField
@@ -23,6 +29,7 @@ __all__ = [
     "convex_segment_bound",
     "obstacle_segment_bound",
     "segment_clearance_bound",
+    "segment_clearance_bound_reference",
 ]
 
 
@@ -44,6 +51,14 @@ CONVEX_TOL_MM: float = 1e-3
 #: in 43).
 CONVEX_MAX_ITER: int = 60
 
+#: Most samples of one segment that :func:`segment_clearance_bound` asks the field for in
+#: one round (a run of near steps; more only saves calls once a run is this long).
+TRACE_MAX_AHEAD: int = 64
+
+#: Most samples (segments x samples ahead) in one round: bounds the round's arrays to a
+#: few tens of MB when many segments trace at once.
+TRACE_MAX_SAMPLES: int = 1 << 20
+
 
 def segment_clearance_bound(
     field: DistanceField,
@@ -55,6 +70,146 @@ def segment_clearance_bound(
     step_mm: float = NEAR_STEP_MM,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Certified lower bound of a field's distance along segments (module notes).
+
+    The samples and the arithmetic are those of
+    :func:`segment_clearance_bound_reference`, bit for bit: the sphere tracing of every
+    segment at once. A run of near steps (each ``step_mm`` long) has its positions known
+    before the field is asked, so a segment inside one takes several samples a round (as
+    many as its distance's trend promises, at most twice the last round's and
+    :data:`TRACE_MAX_AHEAD`) and keeps those the trace takes: the field is asked once a
+    round, for every segment's samples. The field must answer each point on its own (its
+    value of a point does not depend on the other points asked with it) and in float64,
+    as every field of needlekit does.
+
+    Parameters
+    ----------
+    field : DistanceField
+    origins, directions : ndarray, shape (n, 3)
+        Segment starts and unit directions (world, mm).
+    lengths : ndarray, shape (n,)
+        Segment lengths (mm, >= 0).
+    cap_mm : float
+        Bounds above this are reported as this.
+    step_mm : float
+        Largest step where the distance is below the cap (> 0).
+
+    Returns
+    -------
+    bound : ndarray, shape (n,)
+        ``min(cap, lower bound of the distance over the segment) - error_bound``.
+    at_mm : ndarray, shape (n,)
+        Arc length of the sample with the smallest distance.
+    """
+    o = np.asarray(origins, dtype=float).reshape(-1, 3)
+    u = np.asarray(directions, dtype=float).reshape(-1, 3)
+    L = np.ascontiguousarray(np.asarray(lengths, dtype=float).reshape(-1))
+    n = len(o)
+    cap, step = float(cap_mm), float(step_mm)
+    # per segment: bound, best, at, t, d_prev, t_prev (the trace's state, as the reference's)
+    state = np.zeros((6, n))
+    state[0], state[1], state[4] = cap, np.inf, np.nan
+    ahead = np.ones(n, dtype=np.int64)  # samples to take in the next round
+    most = TRACE_MAX_AHEAD if step > 0 else 1
+    active = np.arange(n)
+    while active.size:
+        limit = max(TRACE_MAX_SAMPLES // active.size, 1)
+        size = int(np.minimum(ahead[active], limit).sum())
+        pos, row = np.empty(size), np.empty(size, np.int64)
+        start = np.empty(active.size + 1, np.int64)
+        size = _plan_round(active, state[3], ahead, L, step, limit, pos, row, start)
+        seg = active[row[:size]]
+        d = field.capped_distance(o[seg] + pos[:size, None] * u[seg], cap_mm)
+        done = np.zeros(active.size, dtype=np.bool_)
+        _take_round(
+            active, start, pos, np.asarray(d, dtype=float), L, cap, step, most, state, ahead, done
+        )
+        active = active[~done]
+    return np.minimum(state[0], cap_mm) - float(field.error_bound_mm), state[2].copy()
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _plan_round(k, t, ahead, L, step, limit, pos, row, start):  # pragma: no cover - compiled
+    """Positions of this round's samples: from each segment's ``t``, ``min(t + step, L)``
+    again and again (the trace's near steps) up to its ``ahead`` or the end; returns how
+    many (rows of segment ``k[i]``: ``pos[start[i]:start[i + 1]]``)."""
+    m = 0
+    for i in range(k.size):
+        s = k[i]
+        start[i] = m
+        c = t[s]
+        for j in range(min(ahead[s], limit)):
+            if j > 0:
+                if not c < L[s]:  # the end was sampled: nothing further
+                    break
+                v = c + step
+                c = v if (v < L[s] or v != v) else L[s]
+            pos[m] = c
+            row[m] = i
+            m += 1
+    start[k.size] = m
+    return m
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _take_round(
+    k, start, pos, d, L, cap, step, most, state, ahead, done
+):  # pragma: no cover - compiled
+    """The reference's update for each sample, in order, while the trace takes them (a
+    sample after a near step, not past the end); the next round's ``ahead``."""
+    bound, best, at, t, d_prev, t_prev = state[0], state[1], state[2], state[3], state[4], state[5]
+    for i in range(k.size):
+        s = k[i]
+        taken = 0
+        near = False
+        d_before = t_before = np.nan
+        for q in range(start[i], start[i + 1]):
+            tq, dq = pos[q], d[q]
+            if math.isfinite(d_prev[s]):
+                iv = 0.5 * (d_prev[s] + dq - (tq - t_prev[s]))
+            else:
+                iv = dq
+            if iv < bound[s] or iv != iv:  # np.minimum: NaN wins
+                bound[s] = iv
+            if dq < best[s]:
+                best[s] = dq
+                at[s] = tq
+            d_before, t_before = d_prev[s], t_prev[s]
+            d_prev[s], t_prev[s] = dq, tq
+            taken += 1
+            x = dq - cap
+            st = x if (x > step or x != x) else step  # np.maximum: NaN wins
+            v = tq + st
+            t[s] = v if (v < L[s] or v != v) else L[s]
+            near = st == step
+            if tq >= L[s]:
+                done[i] = True
+                break
+            if not near:  # a far step: the samples planned after it are not the trace's
+                break
+        ahead[s] = 1
+        if near and not done[i]:
+            # a run of near steps lasts while the distance stays within step of the cap:
+            # its trend over the last two samples says how long (at most twice as long)
+            g = min(2 * taken, most)
+            rise = (d_prev[s] - d_before) / (t_prev[s] - t_before) * step
+            if rise > 0.0:
+                left = 0.75 * (cap + step - d_prev[s]) / rise
+                if left < g:
+                    g = int(left)
+            ahead[s] = max(g, 1)
+
+
+def segment_clearance_bound_reference(
+    field: DistanceField,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    cap_mm: float,
+    step_mm: float = NEAR_STEP_MM,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`segment_clearance_bound` one sample of every segment at a time: the plain
+    sphere tracing it is held to (one call to the field per step).
 
     Parameters
     ----------
