@@ -407,7 +407,7 @@ def _coverage_section(outcome) -> TableSection:
 
 def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
                       heights_mm=LIU_HEIGHTS_MM, head=None, max_cells: int = 80,
-                      coverage=None) -> list:  # fmt: skip
+                      coverage=None, layers=None) -> list:  # fmt: skip
     """The report's sections, in page order (for :func:`write_report_html`).
 
     Parameters
@@ -428,6 +428,10 @@ def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
     coverage : AblationOutcome, optional
         The ablation coverage of a plan whose targets were chosen for it (a table of it
         follows the summary).
+    layers : sequence of (mapping of float to list of ndarray, shape (n_i, 2)) or None, optional
+        Per needle, layers of its map already computed (``cfrw_layers_figure``'s
+        ``layers``: polylines in Sigma, mm), so that a page drawing a map twice refines it
+        once.
 
     Returns
     -------
@@ -470,7 +474,10 @@ def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
     if coverage is not None:
         sections.insert(1, _coverage_section(coverage))
     hs = _heights(heights_mm)
-    for r, m in zip(plan.needles, maps, strict=True):
+    known = [None] * len(maps) if layers is None else list(layers)
+    if len(known) != len(maps):
+        raise InvalidInputError("layers", f"expected one entry per needle ({len(maps)}), got {len(known)}")
+    for r, m, done in zip(plan.needles, maps, known, strict=True):
         if m is None:
             continue
         placed = [q for q in plan.needles if q.order <= r.order]
@@ -483,7 +490,7 @@ def straight_sections(plan: MultiNeedlePlan, maps, scene, *, zones=None,
         )
         if paper:
             caption += f" As the paper's {paper}."
-        fig = cfrw_layers_figure(m, hs, placed, title=f"CFRW of needle {r.order}")
+        fig = cfrw_layers_figure(m, hs, placed, layers=done, title=f"CFRW of needle {r.order}")
         sections.append(FigureSection(f"CFRW of needle {r.order}", fig, caption))
     for r, m in zip(plan.needles, maps, strict=True):
         if m is None:

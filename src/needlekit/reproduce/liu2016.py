@@ -171,6 +171,19 @@ def _needle_rows(plan, world_T_sigma, check) -> list[dict]:
     return rows
 
 
+def _same_map(a, b) -> bool:
+    """Whether two CFRW maps are of one problem's anatomy with no further obstacles and
+    hold the same grid, directions, entries and verdicts, bit for bit: their layers, refined
+    on that anatomy, are then the same."""
+    if a is b:
+        return True
+    if a.problem.extra_obstacles or b.problem.extra_obstacles or a.problem.scene is not b.problem.scene:
+        return False
+    names = ("theta_rad", "phi_rad", "directions", "entry_mm", "length_mm", "clearance_mm",
+             "normal_angle_deg", "blocked")  # fmt: skip
+    return all(np.array_equal(getattr(a, n), getattr(b, n), equal_nan=True) for n in names)
+
+
 def _plan(multi, options, resolution_deg):
     opts = dict(options, resolution_deg=resolution_deg)
     return get_planner("liu_cfrw", opts).solve(multi, Termination(3600.0))
@@ -291,8 +304,9 @@ def _deviations(res: float) -> list[str]:
     ]
 
 
-def _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
-    """The page's own sections (the map, Figs 11 and 12, the two plans), then ``straight``."""
+def _sections(m1, layer1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
+    """The page's own sections (the map, Figs 11 and 12, the two plans), then ``straight``
+    (``layer1``: needle 1's layers already refined, by height)."""
     from needlekit.report.straight_figures import LIU_HEIGHTS_MM, cfrw_layers_figure
 
     return [
@@ -303,7 +317,7 @@ def _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight) -> list:
         ),
         FigureSection(
             "Fig. 11: the boundaries of needle 1's CFRW",
-            cfrw_layers_figure(m1, LIU_HEIGHTS_MM, [], title="CFRW of needle 1"),
+            cfrw_layers_figure(m1, LIU_HEIGHTS_MM, [], layers=layer1, title="CFRW of needle 1"),
             "As the paper's Fig. 11: (a) the CFRW in the plane z = 150 mm of Sigma; (b) its "
             "boundaries at z = 150, 160, 170 mm.",
         ),
@@ -352,6 +366,7 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     from needlekit.planning.straight.cfrw import cfrw_map
     from needlekit.planning.straight.deformation import NeedleDragDeformation
     from needlekit.planning.straight.verify import verify_multi
+    from needlekit.report.straight_figures import LIU_HEIGHTS_MM
     from needlekit.report.straight_report import plan_maps, straight_sections
     from needlekit.scenario.loading import load_scenario
 
@@ -397,9 +412,14 @@ def run(out_dir: str | os.PathLike, *, quick: bool = False, executor=None, progr
     comparisons = _comparisons(
         fig12, m1, counts, res, gamma, rigid, rigid_check, moved, moved_check, moved_rows
     )
-    maps = plan_maps(multi.problem, rigid, resolution_deg=res)
-    straight = straight_sections(rigid, maps, multi.problem.scene)
-    sections = _sections(m1, counts, res, fig12, rigid_rows, moved_rows, straight)
+    # the maps the plan chose its needles on (recomputed only for a plan that keeps none);
+    # needle 1's layer refined once for both its figures when its map is needle 1's CFRW
+    maps = list(rigid.maps) if len(rigid.maps) == len(rigid.needles) else plan_maps(
+        multi.problem, rigid, resolution_deg=res)  # fmt: skip
+    layer1 = {LIU_HEIGHTS_MM[0]: m1.layer(LIU_HEIGHTS_MM[0])}
+    layers = [layer1 if _same_map(maps[0], m1) else None] + [None] * (len(maps) - 1)
+    straight = straight_sections(rigid, maps, multi.problem.scene, layers=layers)
+    sections = _sections(m1, layer1, counts, res, fig12, rigid_rows, moved_rows, straight)
     commands = [
         "needlekit multi liu2016/scenario.yaml --out multi.json --report multi.html "
         f"--resolution-deg {res:g}",
