@@ -227,8 +227,7 @@ def field_content_key(field: DistanceField) -> tuple | None:
     if kind is BoundedField:
         return _parts_key("BoundedField", [field.field, field.bound])
     if kind is TransformedField:
-        return _parts_key("TransformedField", [field.local], _value_key(field._rot),
-                          _value_key(field._trans))  # fmt: skip
+        return _parts_key("TransformedField", [field.local], _value_key(field.world_T_local))
     return None
 
 
