@@ -260,3 +260,23 @@ def test_the_options_reach_the_planner_settings():
     args = _build_parser().parse_args(argv)
     settings = _settings(args, {})
     assert settings.options["rrt"]["seed"] == 4 and "seed" not in settings.options["rcs"]
+
+
+def test_main_builds_the_parser_once_and_hands_each_call_its_own_defaults(monkeypatch):
+    import needlekit.cli as cli
+    from needlekit.cli._parser import _build_parser as build
+
+    built = []
+
+    def counting():
+        built.append(1)
+        return build()
+
+    monkeypatch.setattr(cli, "_build_parser", counting)
+    argv = ["study", "execute-lungs", "--out", "o"]
+    _, first = cli._parse(argv)
+    first.patients.append(99)  # a command that changes its arguments
+    _, second = cli._parse(argv)
+    assert len(built) == 1
+    assert first.patients == [1, 2, 3, 4, 5, 99] and second.patients == [1, 2, 3, 4, 5]
+    assert build().parse_args(argv).patients == [1, 2, 3, 4, 5]

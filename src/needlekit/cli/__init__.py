@@ -28,6 +28,8 @@ numba compiles) is delivered again (:mod:`needlekit.cli._interrupts`), so it is 
 
 from __future__ import annotations
 
+import argparse
+import copy
 import logging
 import os
 import signal
@@ -153,6 +155,27 @@ def _interrupted_before_any_result() -> int:
     return EXIT_INTERRUPTED
 
 
+#: The parser, built once per builder (a test may put another builder in its place): building
+#: it registers every command and flag, about 30 ms, which a program calling ``main`` many
+#: times (a study script, the test suite: thousands of calls) would pay each time.
+_PARSERS: dict = {}
+
+
+def _parse(argv: Sequence[str] | None) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """The parser and ``argv`` parsed by it. A value the parser holds as its default (a
+    list, say) is copied into the namespace, so a command that changes its arguments
+    changes nothing the next call reads."""
+    build = _build_parser  # looked up at each call: a replaced builder is honoured
+    parser = _PARSERS.get(build)
+    if parser is None:
+        parser = _PARSERS[build] = build()
+    args = parser.parse_args(argv)
+    for key, value in vars(args).items():
+        if isinstance(value, (list, dict, set)):
+            setattr(args, key, copy.deepcopy(value))
+    return parser, args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status.
 
@@ -169,8 +192,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         when interrupted.
     """
     try:  # a Ctrl-C while the flags are read: the same one line as during the work
-        parser = _build_parser()
-        args = parser.parse_args(argv)
+        parser, args = _parse(argv)
     except KeyboardInterrupt:
         return _interrupted_before_any_result()
     if args.command is None:
