@@ -1,9 +1,11 @@
 """Shared by the tests of ``tests/cli``: Ctrl-C sent to a long command at seeded moments.
 
 ``interrupt_check(name, args, out, moments)`` runs ``needlekit ARGS`` to completion (its
-complete outputs in ``out``: the "earlier run"; twice when the first filled a cache), then
-again with the same arguments, and sends it a SIGINT at ``moments`` seeded moments: once the process (and its workers) have
-used a seeded fraction of the CPU time the whole run took. Whatever it was doing then
+complete outputs in ``out``: the "earlier run"; twice when the first filled a cache; a
+module whose fixture already made that run, with the same arguments and ``out``, passes
+its CPU instead), then again with the same arguments, and sends it a SIGINT at
+``moments`` seeded moments: once the process (and its workers) have used a seeded fraction
+of the CPU time the whole run took. Whatever it was doing then
 (importing, loading the scene, inside a numba kernel, in a worker pool, writing), the
 outcome must be the same: exit status 130, exactly one line on stderr and no traceback, no
 worker left, the earlier complete outputs byte-identical and nothing else new but a
@@ -178,10 +180,9 @@ def _caches() -> dict[str, int]:
     return found
 
 
-def check_interrupts(name: str, args: list[str], out: Path, moments: int) -> None:
-    """Run ``needlekit ARGS`` to its end (writing in ``out``; again when that run filled a
-    cache), then interrupt it at ``moments`` moments seeded by ``name`` and check each
-    outcome (the module's text)."""
+def complete_run(args: list[str]) -> float:
+    """Run ``needlekit ARGS`` to its end (the earlier outputs; again when that run filled a
+    cache): the CPU seconds of a warm run, whose fractions the moments are."""
     argv = [sys.executable, "-m", "needlekit.cli", *args]
     # the moments are fractions of a warm run, before its result is decided: a run that
     # filled a cache (compiled kernels, byte code, the prepared anatomy) the later runs find
@@ -190,6 +191,19 @@ def check_interrupts(name: str, args: list[str], out: Path, moments: int) -> Non
     total_cpu_s, compiled = _complete_run(argv)
     if compiled or _caches() != before:
         total_cpu_s = min(total_cpu_s, _complete_run(argv)[0])
+    return total_cpu_s
+
+
+def check_interrupts(
+    name: str, args: list[str], out: Path, moments: int, total_cpu_s: float | None = None
+) -> None:
+    """Run ``needlekit ARGS`` to its end (writing in ``out``: :func:`complete_run`), then
+    interrupt it at ``moments`` moments seeded by ``name`` and check each outcome (the
+    module's text). ``total_cpu_s``: that complete run already made, by the caller, with
+    the same arguments (its outputs in ``out``, its :func:`complete_run` CPU)."""
+    argv = [sys.executable, "-m", "needlekit.cli", *args]
+    if total_cpu_s is None:
+        total_cpu_s = complete_run(args)
     earlier = _files(out)
     assert earlier, "the complete run wrote nothing"
     rng = np.random.default_rng(zlib.crc32(name.encode()))
@@ -218,5 +232,13 @@ def check_interrupts(name: str, args: list[str], out: Path, moments: int) -> Non
 
 @pytest.fixture
 def interrupt_check():
-    """``interrupt_check(name, args, out, moments)``: see the module's text."""
+    """``interrupt_check(name, args, out, moments[, total_cpu_s])``: see the module's text
+    and :func:`check_interrupts`."""
     return check_interrupts
+
+
+@pytest.fixture(scope="session")
+def interrupt_complete_run():
+    """``interrupt_complete_run(args)``: :func:`complete_run`, for a complete run a module
+    shares (its CPU then given to ``interrupt_check``)."""
+    return complete_run

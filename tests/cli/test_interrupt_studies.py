@@ -16,9 +16,11 @@ from __future__ import annotations
 import pytest
 
 #: Per study: its arguments ({d}: its output folder; the Med-RAD folder is added) and how
-#: many moments it is interrupted at (about two minutes in all on 2 cores). Feng's lung
+#: many moments it is interrupted at (about a minute in all on 2 cores). Feng's lung
 #: (5) with 24 directions reaches both targets (exit 0; 8 do not); liver 1 has
-#: one case; lung 4 meets the execution targets with two trials.
+#: one case; lung 4 meets the execution targets with two trials. execute-lungs's seeded
+#: moment (0.338) falls in lung 4's pilot trials (the closed loop), where a second (0.37)
+#: fell too.
 STUDIES = {
     "feng-lungs-workers": (
         "study feng-lungs --directions 24 --max-iterations 40 --workers 2 --out {d}",
@@ -27,7 +29,7 @@ STUDIES = {
     "livers": ("study livers --livers 1 --gamma 1.5 --resolution-deg 3 --out {d}/livers.json", 3),
     "execute-lungs": (
         "study execute-lungs --truth kinematic --patients 4 --trials 2 --pilot-trials 2 --out {d}",
-        2,
+        1,
     ),
 }
 
