@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 
 __all__ = [
+    "INTERRUPT_FORMS",
     "Interrupted",
     "InvalidInputError",
     "NeedlekitError",
@@ -100,17 +101,26 @@ class Interrupted(Exception):
         self.partial = partial
 
 
+#: The exception types a Ctrl-C can arrive as (:func:`is_interrupt` tells which are one):
+#: ``except INTERRUPT_FORMS as exc: if not is_interrupt(exc): raise``.
+INTERRUPT_FORMS = (KeyboardInterrupt, SystemError, ImportError)
+
+
 def is_interrupt(exc: BaseException | None) -> bool:
-    """Whether ``exc`` is Ctrl-C: a ``KeyboardInterrupt``, or the ``SystemError`` a
-    compiled (numba) function turns one into.
+    """Whether ``exc`` is Ctrl-C: a ``KeyboardInterrupt``, the ``SystemError`` a
+    compiled (numba) function turns one into, or the ``ImportError`` an extension module
+    turns one into while it is imported.
 
     Python runs the SIGINT handler at the next bytecode it executes. When that bytecode
     belongs to a helper a numba kernel calls back (``_numba_unpickle``), the kernel returns
     with the ``KeyboardInterrupt`` pending and the interpreter reports ``SystemError:
     CPUDispatcher(...) returned a result with an exception set``, caused (through one
-    ``SystemError`` per compiled frame) by the ``KeyboardInterrupt``. Every place that
-    keeps work on Ctrl-C, or records a task's failure and goes on, asks this instead of
-    matching ``KeyboardInterrupt`` alone.
+    ``SystemError`` per compiled frame) by the ``KeyboardInterrupt``. An extension module
+    whose initialisation is interrupted (numba's, while a command is still importing it)
+    fails its import: ``ImportError: numba._devicearray failed to import``, raised while
+    the ``KeyboardInterrupt`` is handled. Every place that keeps work on Ctrl-C, or records
+    a task's failure and goes on, asks this instead of matching ``KeyboardInterrupt``
+    alone.
 
     Parameters
     ----------
@@ -130,12 +140,20 @@ def is_interrupt(exc: BaseException | None) -> bool:
     ... except SystemError as exc:
     ...     is_interrupt(exc), is_interrupt(SystemError("other"))
     (True, False)
+    >>> try:
+    ...     try:
+    ...         raise KeyboardInterrupt
+    ...     except KeyboardInterrupt:
+    ...         raise ImportError("numba._devicearray failed to import")
+    ... except ImportError as exc:
+    ...     is_interrupt(exc), is_interrupt(ImportError("no module named x"))
+    (True, False)
     """
     seen: set[int] = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
             return True
-        if not isinstance(exc, SystemError):
+        if not isinstance(exc, INTERRUPT_FORMS[1:]):
             return False
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__

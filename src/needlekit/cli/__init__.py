@@ -44,7 +44,7 @@ from needlekit.cli._flags import check_dashboard
 from needlekit.cli._interrupts import interrupts_not_lost
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
-from needlekit.errors import Interrupted, NeedlekitError, is_interrupt
+from needlekit.errors import INTERRUPT_FORMS, Interrupted, NeedlekitError, is_interrupt
 from needlekit.plausibility import flag_warnings, warn
 
 __all__ = ["main"]
@@ -193,7 +193,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     try:  # a Ctrl-C while the flags are read: the same one line as during the work
         parser, args = _parse(argv)
-    except KeyboardInterrupt:
+    except INTERRUPT_FORMS as exc:
+        if not is_interrupt(exc):
+            raise
         return _interrupted_before_any_result()
     if args.command is None:
         parser.print_help()
@@ -241,7 +243,7 @@ def _checked_run(command: str, args, *, program: bool) -> int:
         _interrupt_handled()
         print(f"interrupted: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except (KeyboardInterrupt, SystemError) as exc:  # SystemError: inside a numba kernel
+    except INTERRUPT_FORMS as exc:  # SystemError: inside a numba kernel
         if not is_interrupt(exc):
             raise
         return _interrupted_before_any_result()

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from needlekit.batch import SerialExecutor, as_completed_indexed
-from needlekit.errors import Interrupted, is_interrupt
+from needlekit.errors import INTERRUPT_FORMS, Interrupted, is_interrupt
 from needlekit.io.partial import write_partial
 
 __all__ = ["collect_trials"]
@@ -70,7 +70,7 @@ def collect_trials(
             done[todo[i]] = result
             if progress is not None:
                 progress(result)
-    except (KeyboardInterrupt, SystemError) as exc:  # keep what is done, and say so
+    except INTERRUPT_FORMS as exc:  # keep what is done, and say so
         if not is_interrupt(exc):  # Ctrl-C, also inside a compiled kernel
             raise
         kept = [done[k] for k in trials if k in done]

@@ -42,7 +42,7 @@ import numpy as np
 import yaml
 
 from needlekit import __version__
-from needlekit.errors import Interrupted, InvalidInputError, is_interrupt
+from needlekit.errors import INTERRUPT_FORMS, Interrupted, InvalidInputError, is_interrupt
 from needlekit.execute.physical_setup import physical_settings
 from needlekit.execute.replan import noise_margin_mm
 from needlekit.execute.trials import (
@@ -434,7 +434,7 @@ def run_execute_lungs(
             cases.append(_run_case(st, decided, resume=carried))
             under_way = None
             write_partial(path, {**head, "cases": cases})
-    except (Interrupted, KeyboardInterrupt, SystemError) as exc:
+    except (Interrupted, *INTERRUPT_FORMS) as exc:
         if not isinstance(exc, Interrupted) and not is_interrupt(exc):
             raise
         # written here, whenever Ctrl-C came (before the first lung was planned too): the

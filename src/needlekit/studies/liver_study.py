@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needlekit.errors import Interrupted, InvalidInputError, is_interrupt
+from needlekit.errors import INTERRUPT_FORMS, Interrupted, InvalidInputError, is_interrupt
 from needlekit.io.files import write_json
 from needlekit.io.medrad_paths import chosen_patients, patient_folder
 from needlekit.io.partial import read_partial, write_partial
@@ -300,7 +300,7 @@ def run_liver_study(
                 rows.append(row)
                 if progress is not None:
                     progress(row)
-    except (KeyboardInterrupt, SystemError) as exc:  # keep what is done, and say so
+    except INTERRUPT_FORMS as exc:  # keep what is done, and say so
         if not is_interrupt(exc):  # Ctrl-C, also inside a compiled kernel
             raise
         written = write_partial(out, {**head, "rows": rows})

@@ -25,7 +25,7 @@ import numpy as np
 
 from needlekit.batch import worker_builds, worker_name
 from needlekit.constants import DEFAULT_TIME_LIMIT_S
-from needlekit.errors import Interrupted, InvalidInputError, is_interrupt
+from needlekit.errors import INTERRUPT_FORMS, Interrupted, InvalidInputError, is_interrupt
 from needlekit.geometry.se3 import pose_from_direction
 from needlekit.planning.steerable.problem import SteerableProblem
 from needlekit.planning.steerable.search import geometric_refusal
@@ -325,7 +325,7 @@ def sweep_many(
             finally:
                 for fut in pending:
                     fut.cancel()
-    except (KeyboardInterrupt, SystemError) as exc:  # Ctrl-C, also inside a compiled kernel
+    except INTERRUPT_FORMS as exc:  # Ctrl-C, also inside a compiled kernel
         if not is_interrupt(exc):
             raise
         n = sum(r is not None for rs in results for r in rs)
