@@ -113,6 +113,7 @@ def lung_like_sphere():
 def test_kernels_match_numpy_reference_and_scipy(seed):
     rng = np.random.default_rng(seed)
     vals = rng.normal(size=(7, 9, 11)).astype(np.float32)
+    vals.flags.writeable = False  # as VoxelSDF holds its grid: the kernels' one signature
     affine = oblique_affine((0.7, 0.5, 1.2), seed)
     inv = np.linalg.inv(affine)
     u = rng.uniform(-2.0, np.array(vals.shape) + 1.0, (3000, 3))  # inside and outside
@@ -582,6 +583,7 @@ def test_few_point_lookups_run_the_kernels_source_bit_for_bit():
     for t in range(200):
         shape = tuple(int(v) for v in rng.integers(2, 9, size=3))
         vals = rng.normal(size=shape).astype(np.float32 if t % 2 else np.float64)
+        vals.flags.writeable = not t % 2  # float32 read-only, as VoxelSDF holds its grid
         a = np.diag(np.r_[rng.uniform(0.3, 2, 3), 1.0])
         a[:3, 3] = rng.normal(size=3)
         rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
