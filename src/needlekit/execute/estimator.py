@@ -45,6 +45,9 @@ from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.geometry.arcs import arc_end_unchecked
 from needlekit.geometry.so3 import hat_unchecked, so3_exp_unchecked, so3_log_unchecked
 
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
 __all__ = ["TipEstimator", "estimator_arguments", "kalman_estimator"]
 
 #: How much of the past the filter keeps to place a late sample (s).
@@ -173,8 +176,10 @@ class TipEstimator:
         spread = kappa * n.radius_sigma_mm / self.r_min_mm * ds * self.bias_scale
         x = new[:3, 0]
         Q = np.zeros((6, 6))
-        Q[:3, :3] = np.eye(3) * ((n.deflection_sigma * ds * self.bias_scale) ** 2 + shift_sigma**2)
-        Q[3:, 3:] = np.eye(3) * q_rot + np.outer(x, x) * spread**2
+        # np.eye(3) and np.outer's products, without making the identity or raveling anew
+        # each step: the same values
+        Q[:3, :3] = _EYE3 * ((n.deflection_sigma * ds * self.bias_scale) ** 2 + shift_sigma**2)
+        Q[3:, 3:] = _EYE3 * q_rot + (x[:, None] * x[None, :]) * spread**2
         return Q
 
     def predict(

@@ -29,6 +29,22 @@ import numpy as np
 from needlekit.errors import InvalidInputError
 from needlekit.tissue.compliance import Compliance, locate
 
+try:  # np.linalg.solve's own kernel (LAPACK gesv), without its per-call error-state set-up
+    from numpy.linalg._umath_linalg import solve1 as _gesv1
+except ImportError:  # pragma: no cover - another numpy's layout
+    _gesv1 = None
+
+
+def _solve3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` for one 3x3 system, bit for bit: the same kernel called
+    directly (a sixth of the time); a system it cannot solve (not finite: singular) goes
+    to ``np.linalg.solve``, which raises as it did."""
+    if _gesv1 is not None:
+        x = _gesv1(a, b, signature="dd->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.solve(a, b)
+
 __all__ = ["DeformingTissue"]
 
 _HINTS = 4  # tetrahedra remembered for the next single-point lookup
@@ -78,6 +94,7 @@ class DeformingTissue:
         self._B = np.ascontiguousarray(c.B)
         self._u = np.zeros((self.m + self.p, 3))
         self._f = np.zeros((self.m, 3))
+        self._Cf = self._C @ self._f.ravel()
         self._d = np.zeros(3)
         self._tree = cKDTree(c.mesh.nodes_mm[c.mesh.tets].mean(axis=1))
         self._cells: OrderedDict = OrderedDict()  # tetrahedron -> (x0, J^T, H rows, G rows)
@@ -152,7 +169,8 @@ class DeformingTissue:
         d = np.zeros(3) if breathing is None else _vector(breathing, "breathing")
         self._f = self.corridor_forces(points_mm, forces_N)
         self._d = d
-        self._u = (self._C @ self._f.ravel() + self._B @ d).reshape(-1, 3)
+        self._Cf = self._C @ self._f.ravel()  # kept: breathing alone changes B d only
+        self._u = (self._Cf + self._B @ d).reshape(-1, 3)
         return self._u
 
     # -- reading the state ---------------------------------------------------------------
@@ -255,8 +273,10 @@ class DeformingTissue:
         choose the same one, with the same weights (the same 3x3 solve)."""
         cells = self._cells
         for t, (x0, jt, hb, gb) in cells.items():
-            lam = np.linalg.solve(jt, p - x0)
-            w = np.concatenate([1.0 - lam.sum(keepdims=True), lam])
+            lam = _solve3(jt, p - x0)
+            w = np.empty(4)
+            w[0] = 1.0 - lam.sum()
+            w[1:] = lam
             if w.min() > _HINT_MARGIN:
                 cells.move_to_end(t, last=False)
                 return w, hb, gb
@@ -321,7 +341,7 @@ class DeformingTissue:
         None
         """
         self._d = _vector(breathing, "breathing")
-        self._u = (self._C @ self._f.ravel() + self._B @ self._d).reshape(-1, 3)
+        self._u = (self._Cf + self._B @ self._d).reshape(-1, 3)
 
     def to_rest(self, points_world, tol_mm: float = 1e-6, max_iter: int = 50,
                 loads: bool = True) -> np.ndarray:  # fmt: skip
@@ -345,7 +365,7 @@ class DeformingTissue:
         rest = x - self._field_at(x, loads)
         for _ in range(max_iter):
             new = x - self._field_at(rest, loads)
-            step = float(np.max(np.abs(new - rest))) if len(x) else 0.0
+            step = float(np.abs(new - rest).max()) if len(x) else 0.0
             rest = new
             if step <= tol_mm:
                 break
