@@ -305,10 +305,16 @@ def _broadcast_arc_batch(world_T_tip, spin_rad, kappa_per_mm, length_mm):
         raise InvalidInputError(
             "spin_rad", f"{spin.shape[0]} arcs do not match a batch of {poses.shape[0]} poses"
         )
-    spin, kappa, length = (
-        np.ascontiguousarray(np.broadcast_to(a, (n,))) for a in (spin, kappa, length)
-    )
+    spin, kappa, length = (_batch(a, n) for a in (spin, kappa, length))
     return poses, spin, kappa, length, single_arc and single_pose
+
+
+def _batch(a: np.ndarray, n: int) -> np.ndarray:
+    """``a`` broadcast to ``(n,)`` as a new writable C-contiguous float64 array, whether or
+    not it had to be broadcast (a view of a batch of ``n`` would be read-only, a broadcast
+    copy is not): the kernels see one argument type, the one :func:`arc_points_unchecked`
+    gives them, and are compiled once, not once for each."""
+    return np.array(np.broadcast_to(a, (n,)), dtype=np.float64, order="C")
 
 
 def propagate_arcs(world_T_tip, spin_rad, kappa_per_mm, length_mm):
