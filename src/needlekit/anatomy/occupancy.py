@@ -306,7 +306,8 @@ class VoxelObstacles:
         ex = (
             np.zeros(3)
             if exclude_near is None
-            else np.asarray(exclude_near, dtype=np.float64).reshape(3)
+            # contiguous: a pose's column (``pose[:3, 3]``) would compile the kernel again
+            else np.ascontiguousarray(exclude_near, dtype=np.float64).reshape(3)
         )
         r = 0.0 if exclude_near is None else float(exclusion_mm)
         out = np.empty(p.shape[0], dtype=np.bool_)
