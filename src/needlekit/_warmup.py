@@ -156,7 +156,8 @@ def _warm_up_straight_vessel() -> None:
 def _warm_up_mechanics() -> None:
     """The rod's kernels (node positions, reference, offsets, foundation, the banded solve,
     the channel's sampling), with the argument types a physical truth passes: a pre-bent
-    needle in an inhomogeneous tissue, turned and inserted."""
+    needle in an inhomogeneous tissue, turned and inserted; and the closed loop's sensor
+    guard and tip filter."""
     from needlekit.mechanics.insertion import MechanicalNeedle
     from needlekit.mechanics.materials import NeedleSpec, TissueSpec
 
@@ -165,6 +166,13 @@ def _warm_up_mechanics() -> None:
                            rng=np.random.default_rng(0))  # fmt: skip
     sim.step(0.4, sim.kappa_max_per_mm, 6.0, 1.0)
     sim.step(1.0, 0.0, 2.0, 1.0)
+    # the closed loop's own kernels: the sensor guard's screen of a sample and the tip
+    # filter's gain (a first `execute` would compile them inside its first trial)
+    from needlekit.execute.estimator import _gain
+    from needlekit.execute.guard import is_pose
+
+    is_pose(np.eye(4))
+    _gain(2.0 * np.eye(6), np.eye(6), np.zeros(6))
 
 
 def _warm_up_control() -> None:
