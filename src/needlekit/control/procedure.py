@@ -192,7 +192,8 @@ def _angle_deg(u, v) -> float:
 
 def _rotation_deg(pose: np.ndarray, rotation: np.ndarray) -> float:
     # math's acos and degrees on the one number: numpy's clip, arccos and degrees took 3 %
-    # of a trial (the same bits, as math and numpy call the same libm and constant)
+    # of a trial. A logged figure, not a decision: libm's acos is within an ulp of numpy's
+    # (whose SIMD loop rounds differently on AVX-512 machines)
     cos = float((np.trace(pose[:3, :3].T @ rotation) - 1.0) / 2.0)
     return math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
 

@@ -207,7 +207,9 @@ def so3_log_unchecked(r: np.ndarray) -> np.ndarray:
     cos_t = min(max((r[0, 0] + r[1, 1] + r[2, 2] - 1.0) * 0.5, -1.0), 1.0)
     s0, s1, s2 = 0.5 * (r[2, 1] - r[1, 2]), 0.5 * (r[0, 2] - r[2, 0]), 0.5 * (r[1, 0] - r[0, 1])
     sin_t = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-    theta = math.atan2(sin_t, cos_t)
+    # numpy's arctan2, not math's: on AVX-512 machines numpy's SIMD loop rounds about one
+    # result in ten differently from libm's (called on one number it runs the same loop)
+    theta = float(np.arctan2(sin_t, cos_t))
     if theta < SMALL_ANGLE_RAD:
         f = 1.0 + theta * theta / 6.0
     elif cos_t < -0.5:  # near pi: the symmetric part's branch of the batch
@@ -346,10 +348,11 @@ def angle_between(u, v) -> np.ndarray:
     b = np.asarray(v, dtype=np.float64)
     if a.shape == (3,) and b.shape == (3,):
         # one pair (a control tick's angle): the same products and sums in the same order
-        # as the batch line below, so the same bits, without np.cross's axis handling
+        # as the batch line below, and numpy's own arctan2 (math's rounds differently on
+        # AVX-512 machines), so the same bits, without np.cross's axis handling
         # (measured: 30x faster per call, a sixth of a multi trial's time before)
         a0, a1, a2 = a.tolist()
         b0, b1, b2 = b.tolist()
         x, y, z = _cross_parts(a0, a1, a2, b0, b1, b2)
-        return np.float64(math.atan2(math.sqrt(x * x + y * y + z * z), a0 * b0 + a1 * b1 + a2 * b2))
+        return np.arctan2(math.sqrt(x * x + y * y + z * z), a0 * b0 + a1 * b1 + a2 * b2)
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
