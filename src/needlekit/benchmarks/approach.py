@@ -61,9 +61,12 @@ def _vtk_polydata(meshes):
     f = np.concatenate(faces)
     points = vtk.vtkPoints()
     points.SetData(numpy_to_vtk(v, deep=True))
-    cells = np.hstack([np.full((len(f), 1), 3, dtype=np.int64), f]).ravel()
+    # VTK 9's layout: each triangle's start in the connectivity, then the vertex ids
+    # (SetCells' legacy count-prefixed layout is deprecated from VTK 9.6)
+    offsets = np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64)
     polys = vtk.vtkCellArray()
-    polys.SetCells(len(f), numpy_to_vtkIdTypeArray(cells, deep=True))
+    polys.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True),
+                  numpy_to_vtkIdTypeArray(np.ascontiguousarray(f.ravel()), deep=True))  # fmt: skip
     poly = vtk.vtkPolyData()
     poly.SetPoints(points)
     poly.SetPolys(polys)
