@@ -158,3 +158,28 @@ def test_a_finished_run_removes_the_partial_record_it_carried_on_from(tmp_path):
     write_partial(tmp_path / "sweep.json", {"done": [1]}, key_file=tmp_path / "key")
     write_text(tmp_path / "sweep.json", "complete, outside a block")  # the same rule
     assert not (tmp_path / "sweep.partial.json").exists()
+
+
+def test_a_run_that_finishes_with_a_failing_verdict_leaves_no_partial_record_of_its_own(tmp_path):
+    # a study writes its partial record between cases, then its complete record: exit 1
+    # (its goal does not hold) keeps earlier outputs, but the partial record this very run
+    # wrote is stale, and an earlier run's stays
+    from needlekit.io.partial import write_partial
+
+    key = tmp_path / "key"
+    with staged_outputs() as outputs:
+        write_partial(tmp_path / "lungs.json", {"cases": [1]}, key_file=key)
+        write_partial(tmp_path / "lungs.json", {"cases": [1, 2]}, key_file=key)
+        write_text(tmp_path / "lungs.json", "complete, the goal not held")
+        outputs.keep_earlier()
+    assert sorted(_tree(tmp_path)) == ["key", "lungs.json"]
+    write_partial(tmp_path / "other.json", {"cases": [1]}, key_file=key)  # an earlier run's
+    write_text(tmp_path / "other.json", "complete")  # (outside a block: removes it)
+    write_partial(tmp_path / "other.json", {"cases": [1]}, key_file=key)
+    earlier = (tmp_path / "other.partial.json").read_text()
+    with staged_outputs() as outputs:
+        write_partial(tmp_path / "other.json", {"cases": [1, 2]}, key_file=key)
+        write_text(tmp_path / "other.json", "complete again, the goal not held")
+        outputs.keep_earlier()
+    assert (tmp_path / "other.partial.json").read_text() == earlier
+    assert (tmp_path / "other.failed.json").exists()

@@ -171,7 +171,8 @@ class Outputs:
     - the block ends normally after :meth:`keep_earlier` (a verdict that fails: a plan
       infeasible, a study whose checks fail): a file that does not exist yet goes into
       place, one that exists is left as it was and this run's version is written beside
-      it (``X.failed.json``);
+      it (``X.failed.json``); the partial records the block itself wrote on the way to a
+      complete file it wrote (a study's, between its cases) are dropped either way;
     - the block raises :class:`~needlekit.errors.Interrupted`: the partial records
       (``atomic_write(..., partial=True)``) go into place, and the complete files of
       the work finished (a study's finished case) where no file exists yet; a file that
@@ -226,6 +227,13 @@ class Outputs:
                     tmp.unlink(missing_ok=True)
                     del self.pending[dest]
         complete = [d for d, (_, partial) in self.pending.items() if not partial]
+        if not interrupted:  # the run finished: the partial records it wrote on the way
+            # to a complete file are stale, whatever its verdict (an earlier run's stay
+            # when the verdict fails: nothing earlier changes)
+            for dest in complete:
+                done = self.pending.pop(Path(os.path.abspath(beside(dest, "partial"))), None)
+                if done is not None:
+                    done[0].unlink(missing_ok=True)
         moved: list[tuple[Path, Path | None]] = []
         try:
             for dest, (tmp, partial) in list(self.pending.items()):
