@@ -9,6 +9,7 @@ line.
 from __future__ import annotations
 
 import difflib
+import sys
 
 __all__ = [
     "INTERRUPT_FORMS",
@@ -118,7 +119,8 @@ def is_interrupt(exc: BaseException | None) -> bool:
     ``SystemError`` per compiled frame) by the ``KeyboardInterrupt``. An extension module
     whose initialisation is interrupted (numba's, while a command is still importing it)
     fails its import: ``ImportError: numba._devicearray failed to import``, raised while
-    the ``KeyboardInterrupt`` is handled. Every place that keeps work on Ctrl-C, or records
+    the ``KeyboardInterrupt`` is handled, or after the module printed it (``PyErr_Print``:
+    the chain is cut, the interrupt kept as ``sys.last_value``). Every place that keeps work on Ctrl-C, or records
     a task's failure and goes on, asks this instead of matching ``KeyboardInterrupt``
     alone.
 
@@ -156,6 +158,12 @@ def is_interrupt(exc: BaseException | None) -> bool:
         if not isinstance(exc, INTERRUPT_FORMS[1:]):
             return False
         seen.add(id(exc))
+        if exc.__cause__ is None and exc.__context__ is None:
+            # the chain cut: an extension module's initialisation that printed the
+            # KeyboardInterrupt (``PyErr_Print``, which clears it and keeps it as
+            # ``sys.last_value``) before raising its own error, as numba's
+            # ``_dispatcher`` does when importing ``_devicearray`` is interrupted
+            return isinstance(getattr(sys, "last_value", None), KeyboardInterrupt)
         exc = exc.__cause__ or exc.__context__
     return False
 

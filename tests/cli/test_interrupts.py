@@ -423,3 +423,31 @@ def test_an_import_cut_short_by_ctrl_c_ends_in_the_one_line(monkeypatch, capsys)
     monkeypatch.setattr(cli, "check_paths", import_failed)
     with pytest.raises(ImportError):
         cli.main(["plan", str(TOY)])
+
+
+def test_an_import_whose_module_printed_the_ctrl_c_ends_in_the_one_line(monkeypatch, capsys):
+    # numba's _dispatcher, interrupted while it imports _devicearray, prints the
+    # KeyboardInterrupt itself (PyErr_Print: through sys.excepthook, kept as
+    # sys.last_value) and raises an ImportError with no chain (seen at a seeded moment of
+    # `plan`: a traceback and exit 1). PyRun_SimpleString prints the same way.
+    import ctypes
+
+    import needlekit.cli as cli
+
+    def module_printed_it(command, args):
+        assert ctypes.pythonapi.PyRun_SimpleString(b"raise KeyboardInterrupt") == -1
+        raise ImportError("numba._devicearray failed to import")
+
+    monkeypatch.setattr(cli, "_run", module_printed_it)
+    try:
+        assert cli.main(["plan", str(TOY)]) == 130
+        out, err = capsys.readouterr()
+        assert out == ""
+        assert err.splitlines() == ["interrupted: stopped before any result; no output was changed"]
+    finally:  # the interrupt kept by PyErr_Print: none for the tests after this one
+        for name in ("last_type", "last_value", "last_traceback", "last_exc"):
+            if hasattr(sys, name):
+                delattr(sys, name)  # (not monkeypatch's: it would put them back)
+    from needlekit.errors import is_interrupt
+
+    assert not is_interrupt(ImportError("numba._devicearray failed to import"))

@@ -13,6 +13,11 @@ milliseconds later, by :func:`_thread.interrupt_main` (the main thread is then b
 ordinary code, where the interrupt propagates as usual; a new landing in a callback
 repeats the cycle). The command's own handling of Ctrl-C (its one line, exit 130, its
 partial record) then applies, wherever the first signal landed.
+
+An extension module whose initialisation meets the interrupt may print it itself
+(``PyErr_Print``, through :func:`sys.excepthook`) and raise an ``ImportError`` of its own:
+while the block runs, the hook prints no ``KeyboardInterrupt``, and
+:func:`~needlekit.errors.is_interrupt` knows that ``ImportError`` for what it is.
 """
 
 from __future__ import annotations
@@ -61,11 +66,22 @@ def interrupts_not_lost() -> Iterator[None]:
             return
         previous(unraisable)
 
-    sys.unraisablehook = hook
+    printing = sys.excepthook
+
+    def quiet(kind, value, tb) -> None:
+        # an extension module's initialisation that ``PyErr_Print``-s the interrupt it met
+        # (numba's ``_dispatcher``) would print its traceback: the command's own one line
+        # says it (``is_interrupt`` reads the interrupt back from ``sys.last_value``)
+        if not isinstance(value, KeyboardInterrupt):
+            printing(kind, value, tb)
+
+    if isinstance(getattr(sys, "last_value", None), KeyboardInterrupt):
+        del sys.last_value  # an earlier command's, in this process: not this one's
+    sys.unraisablehook, sys.excepthook = hook, quiet
     try:
         yield
     finally:
-        sys.unraisablehook = previous
+        sys.unraisablehook, sys.excepthook = previous, printing
 
 
 def _interrupt_main_soon() -> None:
