@@ -17,12 +17,17 @@ partial record) then applies, wherever the first signal landed.
 An extension module whose initialisation meets the interrupt may print it itself
 (``PyErr_Print``, through :func:`sys.excepthook`) and raise an ``ImportError`` of its own:
 while the block runs, the hook prints no ``KeyboardInterrupt``, and
-:func:`~needlekit.errors.is_interrupt` knows that ``ImportError`` for what it is.
+:func:`~needlekit.errors.is_interrupt` knows that ``ImportError`` for what it is. And an
+object the interrupt left half made (its ``__init__`` cut before it set what its
+``__del__`` reads: llvmlite's string buffer) fails in its finaliser: once a SIGINT has
+arrived in the block, such failures are the interrupt's wake and are not printed (the
+program's own end does the same: ``needlekit.cli._quiet_finalisers``).
 """
 
 from __future__ import annotations
 
 import _thread
+import signal
 import sys
 import threading
 import time
@@ -59,10 +64,18 @@ def interrupts_not_lost() -> Iterator[None]:
         yield
         return
     previous = sys.unraisablehook
+    seen: list[int] = []  # the SIGINTs that arrived while the block ran
+    handler = signal.getsignal(signal.SIGINT)
+
+    def on_sigint(signum, frame) -> None:
+        seen.append(signum)
+        signal.default_int_handler(signum, frame)  # raises KeyboardInterrupt
 
     def hook(unraisable) -> None:
         if is_interrupt(unraisable.exc_value):
             threading.Thread(target=_interrupt_main_soon, daemon=True).start()
+            return
+        if seen:  # a finaliser of an object the interrupt left half made: its wake
             return
         previous(unraisable)
 
@@ -78,10 +91,15 @@ def interrupts_not_lost() -> Iterator[None]:
     if isinstance(getattr(sys, "last_value", None), KeyboardInterrupt):
         del sys.last_value  # an earlier command's, in this process: not this one's
     sys.unraisablehook, sys.excepthook = hook, quiet
+    ours = handler is signal.default_int_handler
+    if ours:
+        signal.signal(signal.SIGINT, on_sigint)
     try:
         yield
     finally:
         sys.unraisablehook, sys.excepthook = previous, printing
+        if ours and signal.getsignal(signal.SIGINT) is on_sigint:
+            signal.signal(signal.SIGINT, handler)
 
 
 def _interrupt_main_soon() -> None:
