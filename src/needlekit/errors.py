@@ -120,9 +120,9 @@ def is_interrupt(exc: BaseException | None) -> bool:
     whose initialisation is interrupted (numba's, while a command is still importing it)
     fails its import: ``ImportError: numba._devicearray failed to import``, raised while
     the ``KeyboardInterrupt`` is handled, or after the module printed it (``PyErr_Print``:
-    the chain is cut, the interrupt kept as ``sys.last_value``). Every place that keeps work on Ctrl-C, or records
-    a task's failure and goes on, asks this instead of matching ``KeyboardInterrupt``
-    alone.
+    the chain is cut, the interrupt kept as ``sys.last_value``). Every place that keeps
+    work on Ctrl-C, or records a task's failure and goes on, asks this instead of matching
+    ``KeyboardInterrupt`` alone.
 
     Parameters
     ----------
