@@ -41,7 +41,7 @@ from contextlib import contextmanager
 
 from needlekit.cli._common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 from needlekit.cli._flags import check_dashboard
-from needlekit.cli._interrupts import interrupts_not_lost
+from needlekit.cli._interrupts import interrupts_not_lost, quiet_finalisers
 from needlekit.cli._parser import _build_parser, walk_commands
 from needlekit.cli._paths import check_paths
 from needlekit.errors import INTERRUPT_FORMS, Interrupted, NeedlekitError, is_interrupt
@@ -148,20 +148,6 @@ def _interrupt_handled() -> None:
     exec("None")
 
 
-def _quiet_finalisers(program: bool) -> None:
-    """After Ctrl-C the program ends: an object the interrupt left half made (llvmlite's
-    string buffer, its ``__init__`` cut before it set what its ``__del__`` reads) fails in
-    its finaliser when the interrupt's frames are let go or the interpreter shuts down,
-    and Python would print that as "Exception ignored in ...". The command's one line is
-    all it prints (a ``main`` called by a program that goes on keeps its hook)."""
-    if program:
-        sys.unraisablehook = _drop_unraisable
-
-
-def _drop_unraisable(unraisable) -> None:
-    """The unraisable hook of a program ending on Ctrl-C: nothing printed."""
-
-
 def _interrupted_before_any_result() -> int:
     """A Ctrl-C before any result was decided: one line, exit 130."""
     _interrupt_handled()
@@ -255,13 +241,13 @@ def _checked_run(command: str, args, *, program: bool) -> int:
         return EXIT_USAGE
     except Interrupted as exc:  # the partial result is written: the message says where
         _interrupt_handled()
-        _quiet_finalisers(program)
+        quiet_finalisers(program)
         print(f"interrupted: {exc}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except INTERRUPT_FORMS as exc:  # SystemError: inside a numba kernel
         if not is_interrupt(exc):
             raise
-        _quiet_finalisers(program)
+        quiet_finalisers(program)
         return _interrupted_before_any_result()
     except BrokenExecutor as exc:  # a worker process died (killed, out of memory)
         why = str(exc).split(".")[0] or type(exc).__name__

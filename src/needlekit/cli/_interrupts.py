@@ -21,7 +21,7 @@ while the block runs, the hook prints no ``KeyboardInterrupt``, and
 object the interrupt left half made (its ``__init__`` cut before it set what its
 ``__del__`` reads: llvmlite's string buffer) fails in its finaliser: once a SIGINT has
 arrived in the block, such failures are the interrupt's wake and are not printed (the
-program's own end does the same: ``needlekit.cli._quiet_finalisers``).
+program's own end does the same: :func:`quiet_finalisers`).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def interrupts_not_lost() -> Iterator[None]:
             threading.Thread(target=_interrupt_main_soon, daemon=True).start()
             return
         if seen:  # a finaliser of an object the interrupt left half made: its wake
-            return
+            return _drop(unraisable)
         previous(unraisable)
 
     printing = sys.excepthook
@@ -100,6 +100,30 @@ def interrupts_not_lost() -> Iterator[None]:
         sys.unraisablehook, sys.excepthook = previous, printing
         if ours and signal.getsignal(signal.SIGINT) is on_sigint:
             signal.signal(signal.SIGINT, handler)
+
+
+def quiet_finalisers(program: bool) -> None:
+    """After Ctrl-C the program ends: an object the interrupt left half made (llvmlite's
+    string buffer, its ``__init__`` cut before it set what its ``__del__`` reads) fails in
+    its finaliser when the interrupt's frames are let go or the interpreter shuts down,
+    and Python would print that as "Exception ignored in ...". The command's one line is
+    all it prints (a ``main`` called by a program that goes on keeps its hook).
+
+    Parameters
+    ----------
+    program : bool
+        ``main`` runs as the program (its process ends with the command).
+
+    Returns
+    -------
+    None
+    """
+    if program:
+        sys.unraisablehook = _drop
+
+
+def _drop(unraisable) -> None:
+    """An unraisable report in the wake of Ctrl-C: nothing printed."""
 
 
 def _interrupt_main_soon() -> None:

@@ -231,7 +231,7 @@ class Outputs:
             # to a complete file are stale, whatever its verdict (an earlier run's stay
             # when the verdict fails: nothing earlier changes)
             for dest in complete:
-                done = self.pending.pop(Path(os.path.abspath(beside(dest, "partial"))), None)
+                done = self.pending.pop(beside(dest, "partial"), None)  # keys: absolute
                 if done is not None:
                     done[0].unlink(missing_ok=True)
         moved: list[tuple[Path, Path | None]] = []
