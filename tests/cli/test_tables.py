@@ -27,7 +27,7 @@ TOY = Path(__file__).resolve().parents[2] / "examples" / "toy.yaml"
 UNIT = re.compile(r"(\bmm\b|_mm\b|\bdeg\b|_deg\b|\brad\b|\bs\b|_s\b|\bms\b|\bml\b|_ml\b|%|/mm)",
                   re.IGNORECASE)  # fmt: skip
 #: Numeric columns without a unit: counts, indices, unit-vector components, ratios.
-UNITLESS = {"crossed", "re-plans", "target", "dir_x", "dir_y", "dir_z", "feng", "not direct",
+UNITLESS = {"crossed", "stopped", "re-plans", "target", "dir_x", "dir_y", "dir_z", "feng", "not direct",
             "needles", "solved", "scans"}  # fmt: skip
 
 
@@ -191,7 +191,8 @@ def test_the_physical_execute_lungs_table(monkeypatch, tmp_path):
             {"patient": 4, "status": "done", "start": 1, "margin_mm": 1.5, "holds": True,
              "open_loop": {**loop, "mean_error_mm": 2.6}, "closed_loop": loop,
              "sensing": {"em": {**loop, "scans": None, "target_moved_mm": 1.5},
-                         "checkpoints": {**loop, "scans": 4.5, "target_moved_mm": 1.6}}},
+                         "checkpoints": {**loop, "scans": 4.5, "target_moved_mm": 1.6,
+                                         "stopped_near_obstacle": 1}}},
             {"patient": 2, "status": "infeasible"},
         ],
         "holds": False, "wall_s": 1.0,
@@ -204,7 +205,9 @@ def test_the_physical_execute_lungs_table(monkeypatch, tmp_path):
     assert headers[3:5] == ["sensing", "closed loop mm"]
     assert rows[0][:5] == ["lung 4", "start 1, 1.5 mm", "2.60 +- 0.30, 1.50, 1.80", "em",
                            "0.90 +- 0.30, 1.50, 1.80"]  # fmt: skip
-    assert rows[1][3:7] == ["checkpoints", "0.90 +- 0.30, 1.50, 1.80", "0", "4.5"]
+    assert headers[5:7] == ["crossed", "stopped"]
+    assert rows[0][5:7] == ["0", "0"]  # a record written before the stop counts none
+    assert rows[1][3:8] == ["checkpoints", "0.90 +- 0.30, 1.50, 1.80", "0", "1", "4.5"]
     assert rows[2][:2] == ["lung 2", "infeasible"]
 
 

@@ -39,8 +39,8 @@ from needlekit.benchmarks.execute_physics import (
 from needlekit.benchmarks.record import machine_info
 from needlekit.benchmarks.timing import step_statistics
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
-from needlekit.execute.run import LoopHooks, execute_plan
-from needlekit.execute.trials import warm_up_replanner
+from needlekit.execute.run import ExecutionSettings, LoopHooks, execute_plan
+from needlekit.execute.trials import proximity_stop, warm_up_replanner
 from needlekit.geometry.so3 import so3_exp
 from needlekit.planning.steerable.plan import SteerablePlan
 from needlekit.planning.steerable.rcs import solve_rcs
@@ -135,7 +135,8 @@ def run_execute_benchmark(
     rows, warm, cold, ticks, phys = [], [], [], [], []
     for patient in patients:
         doc = lung_scenario_document(patient, margin_mm, medrad_dir)
-        sc, problem = ScenarioSource.of_document(doc, ".", name=f"lung{patient}.yaml").load()
+        source = ScenarioSource.of_document(doc, ".", name=f"lung{patient}.yaml")
+        sc, problem = source.load()
         res = solve_rcs(problem, time_limit_s=5.0)
         row: dict[str, Any] = {
             "name": f"lung{patient}",
@@ -154,9 +155,12 @@ def run_execute_benchmark(
         r_min = 1.0 / problem.kappa_max_per_mm
         for k in range(trials):
             rep = Replanner(problem)
+            # the stop near obstacles is part of the timed step, as in `execute`
             execute_plan(res.plan, problem.goal_mm, r_min, closed_loop=True,
                          seed=np.random.SeedSequence(seed, spawn_key=(patient, k)),
-                         replanner=rep, hooks=LoopHooks(tick_times=times))  # fmt: skip
+                         replanner=rep, hooks=LoopHooks(tick_times=times),
+                         stop=proximity_stop(problem, source.without_margin(),
+                                             ExecutionSettings()))  # fmt: skip
         row["feedback_step_us"] = step_statistics(times)
         if physics:
             row["physics"] = physics_row(sc, res.plan, problem.goal_mm, r_min, seed)

@@ -172,7 +172,8 @@ def execute_failures(s: dict) -> list[str]:
     loop under any breathing policy: ignore, gate or track, or any sensing policy run side
     by side), a trial that crashed, an
     insertion aborted on a sensor fault (``--on-fault abort``, or a hold longer than
-    ``--hold-timeout-s``).
+    ``--hold-timeout-s``), an insertion stopped with its estimated tip near an obstacle
+    (``--stop-clearance-mm``).
 
     Parameters
     ----------
@@ -194,6 +195,11 @@ def execute_failures(s: dict) -> list[str]:
         if r.get("aborted"):
             out.append(f"{name}: {r['aborted']} of {r['runs']} insertions aborted on a sensor "
                        "fault (execute.json: faults)")  # fmt: skip
+    for name, r in runs.items():
+        if r.get("stopped_near_obstacle"):
+            out.append(f"{name}: {r['stopped_near_obstacle']} of {r['runs']} insertions stopped "
+                       "short: the estimated tip came too close to an obstacle (execute.json: "
+                       "stopped_near_obstacle)")  # fmt: skip
     if s["crashed"]:
         out.append(f"{len(s['crashed'])} of {s['trials']} trials crashed")
     return out

@@ -22,6 +22,7 @@ from needlekit.cli._common import (
 )
 from needlekit.cli._paths import add_input, add_output
 from needlekit.cli._verdicts import execute_failures, summary_table
+from needlekit.constants import STOP_CLEARANCE_MM
 from needlekit.errors import InvalidInputError
 
 #: What ``needlekit execute`` writes in its --out folder.
@@ -153,6 +154,7 @@ def execute_options(args: argparse.Namespace, r_min_mm: float):
     settings = ExecutionSettings(
         insertion_speed_mm_s=args.speed_mm_s, noise=noise, guard=_guard(args),
         faults=None if args.faults is None else PROFILES[args.faults],
+        stop_clearance_mm=None if args.no_proximity_stop else args.stop_clearance_mm,
         **({"models": args.models} if getattr(args, "models", None) is not None else {}),
     )  # fmt: skip
     if hasattr(args, "replanner"):
@@ -471,6 +473,11 @@ def add_noise_flags(p) -> None:
                       help="re-plan without the rest of the plan as RCS*'s first best")  # fmt: skip
     loop.add_argument("--cross-track-mm", type=_positive_mm, default=0.5,
                       help="re-plan when the estimate is this far off the plan (default 0.5)")  # fmt: skip
+    loop.add_argument("--stop-clearance-mm", type=_non_negative_mm, default=STOP_CLEARANCE_MM,
+                      help="stop inserting once the estimated tip is this close to an obstacle, "
+                      "at most half the plan's margin (default %(default)s)")  # fmt: skip
+    loop.add_argument("--no-proximity-stop", action="store_true",
+                      help="never stop on the estimated tip's clearance")  # fmt: skip
     loop.add_argument("--replan-time-limit-s", type=_positive, default=0.025,
                       help="RCS*'s budget per re-plan (default 0.025)")  # fmt: skip
     loop.add_argument("--replan-iterations", type=_positive_int, metavar="N",
@@ -512,8 +519,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(orientation noise, curvature spread, tissue push), open loop and closed loop on the "
         "same draws, and write DIR/execute.json. Exit 1 when a run crossed an obstacle (open "
         "loop, closed loop, or the closed loop under any --breathing policy: ignore, gate or "
-        "track, or any --sensing policy run side by side), a trial crashed, or an insertion was aborted on a sensor fault (--on-fault "
-        "abort, or a hold longer than --hold-timeout-s); each reason is printed on a line "
+        "track, or any --sensing policy run side by side), a trial crashed, an insertion was aborted on a sensor fault (--on-fault "
+        "abort, or a hold longer than --hold-timeout-s), or one was stopped with its estimated tip near an obstacle "
+        "(--stop-clearance-mm); each reason is printed on a line "
         "'exit 1: ...'. A straight multi plan (multi.json) is inserted by the simulated Panda "
         "under Tang et al.'s controller, needle after needle, the placed needles kept off by "
         "VFIs; exit 1 when a needle touched a placed one, left its constraints, or a trial "

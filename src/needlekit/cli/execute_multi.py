@@ -15,7 +15,7 @@ from needlekit.errors import InvalidInputError
 STEERABLE_ONLY = (
     "orientation_noise_rad", "radius_sd_mm", "deflection_sd", "speed_mm_s", "breathing",
     "breathing_amplitude_mm", "breathing_period_s", "breathing_shape", "breathing_direction",
-    "no_replan", "no_warm_start", "cross_track_mm", "replan_time_limit_s", "replan_iterations",
+    "no_replan", "no_warm_start", "cross_track_mm", "stop_clearance_mm", "no_proximity_stop", "replan_time_limit_s", "replan_iterations",
     "replan_delay_ms", "igtl", "tip_from_igtl", "igtl_realtime", "igtl_wait_s", "faults",
     "on_fault", "hold_timeout_s", "safety_margin_mm", "sensor", "estimator",
     "feedback", "replanner", "sensing", "checkpoint_every_mm", "scan_s", "confirm_scans",

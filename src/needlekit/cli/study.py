@@ -289,19 +289,20 @@ def _say_physical_lungs(record: dict, out) -> int:
     rows = []
     for c in record["cases"]:
         if c["status"] != "done":
-            rows.append([f"lung {c['patient']}", c["status"], *[None] * 7])
+            rows.append([f"lung {c['patient']}", c["status"], *[None] * 8])
             continue
         for i, (name, b) in enumerate(c.get("sensing", {"em": c["closed_loop"]}).items()):
             rows.append([
                 f"lung {c['patient']}" if i == 0 else "",
                 f"start {c['start']}, {c['margin_mm']:.1f} mm" if i == 0 else "",
                 err(c["open_loop"]) if i == 0 else "", name, err(b), b["violated"],
+                b.get("stopped_near_obstacle", 0),
                 "-" if b.get("scans") is None else f"{b['scans']:.1f}",
                 "-" if b.get("target_moved_mm") is None else f"{b['target_moved_mm']:.2f}",
                 ("yes" if c["holds"] else "NO") if i == 0 else "",
             ])  # fmt: skip
-    heads = ["case", "plan", "open loop mm", "sensing", "closed loop mm", "crossed", "scans",
-             "target moved mm", "goal holds"]  # fmt: skip
+    heads = ["case", "plan", "open loop mm", "sensing", "closed loop mm", "crossed", "stopped",
+             "scans", "target moved mm", "goal holds"]  # fmt: skip
     print(_fmt_table(heads, rows, why=dict.fromkeys(heads[2:], "the case did not run (status)")))
     print("(errors: mean +- SD, p95, max)")
     print(

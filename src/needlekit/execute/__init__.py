@@ -29,6 +29,8 @@ replan
 guard, faults, breathing, igtl_link
     The sensor guard every sample passes, injected faults, the anatomy breathing, the
     live link to 3D Slicer.
+proximity
+    The closed loop's stop when the estimated tip comes too close to an obstacle.
 trials, trial_runs, record, summary
     The trials of ``needlekit execute``: the runner, the executor loop (Ctrl-C,
     ``--resume``), each trial's record and status, the study's summary.

@@ -10,7 +10,9 @@ when the trial ran open loop only), judged on the true tip, never the estimate:
                           target, its path crossed no obstacle (certified without the margin)
                           and it was not aborted
 ``approximate``           no obstacle crossed and not aborted, but the tip ended farther from
-                          the target than the tolerance (``final_error_mm`` says how far)
+                          the target than the tolerance (``final_error_mm`` says how far),
+                          among them the insertions stopped with the estimated tip near an
+                          obstacle (``stopped_near_obstacle``)
 ``infeasible``            the executed path crossed an obstacle, or a point of it could not be
                           checked (``violated``): not a valid path
 ``timeout``               the sensor guard aborted the insertion (``--on-fault abort``, or a
@@ -31,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from needlekit.anatomy.collision import ClearanceCertificate
 from needlekit.errors import InvalidInputError
 from needlekit.records import Status, enum_of, field_of, is_number
 
@@ -44,7 +47,8 @@ _ALWAYS = ("final_error_mm", "min_clearance_mm", "sampled_clearance_mm", "violat
 #: The closed loop's sensor guard (first in the record), and what only some runs have.
 _GUARD = ("faults", "rejected", "accepted", "holds", "held_s", "aborted", "procedure_s",
           "faults_injected")  # fmt: skip
-_AFTER = ("replans_refused", "warm_start_kept", "shaft_loads", "points_rest_mm")
+_AFTER = ("replans_refused", "warm_start_kept", "shaft_loads", "points_rest_mm",
+          "stopped_near_obstacle")  # fmt: skip
 #: What a run under a sensing policy records of the target
 #: (:meth:`needlekit.execute.target_sensing.TargetSensing.record`).
 _TARGET = ("sensing", "target_displacement_mm", "target_displacement_max_mm",
@@ -60,6 +64,8 @@ class LoopRecord:
     run that re-planned, ``shaft_loads`` those of a truth that reports them,
     ``points_rest_mm`` those of a truth that maps its tissue back to rest (``to_rest``;
     ``points_mm`` is then the path in the world and the clearance is judged on this one),
+    ``stopped_near_obstacle`` those of a closed loop stopped with its estimated tip near an
+    obstacle (:mod:`needlekit.execute.proximity`),
     and the target's fields (``sensing`` to ``scan_tip_reseeded``) those of a closed loop
     under a sensing policy other than ``em`` or with a truth that carries the target."""
 
@@ -89,6 +95,7 @@ class LoopRecord:
     warm_start_kept: int | None = None
     shaft_loads: dict | None = None
     points_rest_mm: tuple | None = None
+    stopped_near_obstacle: dict | None = None
     sensing: str | None = None
     target_displacement_mm: float | None = None
     target_displacement_max_mm: float | None = None
@@ -170,6 +177,7 @@ class LoopRecord:
             shaft_loads=f(data, "shaft_loads", where, "dict", optional=True),
             points_rest_mm=None if data.get("points_rest_mm") is None
             else _points(data, "points_rest_mm", where),
+            stopped_near_obstacle=_stop(data, where),
             sensing=f(data, "sensing", where, "str", optional=True),
             target_displacement_mm=_opt_number(data, "target_displacement_mm", where),
             target_displacement_max_mm=_opt_number(data, "target_displacement_max_mm", where),
@@ -308,6 +316,52 @@ def trial_status(run: LoopRecord | None, tolerance_mm: float, error: str | None 
     return Status.SOLVED if run.final_error_mm <= tolerance_mm else Status.APPROXIMATE
 
 
+#: Samples per piece in :func:`certify_in_pieces` (about 4 mm of a path recorded every
+#: 0.25 mm).
+PIECE_SAMPLES = 16
+
+
+def certify_in_pieces(checker, points: np.ndarray, piece: int = PIECE_SAMPLES):
+    """A recorded path's clearance certificate, each piece of it (``piece`` samples, the
+    pieces sharing their ends) certified with its own largest gap rather than the whole
+    path's: each piece is a sampled path as :meth:`~needlekit.anatomy.collision.
+    CollisionChecker.certify` takes one, so the smallest bound over the pieces bounds the
+    whole path, and a stretch where the samples lie farther apart (a tissue stretched at
+    rest, say) widens only its own bound.
+
+    Parameters
+    ----------
+    checker : CollisionChecker
+    points : ndarray, shape (n, 3), float64
+    piece : int
+
+    Returns
+    -------
+    ClearanceCertificate
+        The smallest sampled and certified clearances over the pieces, the first piece's
+        violation, the colliding samples summed (a shared end counted in both pieces).
+    """
+    n = len(points)
+    certs = []
+    for i in range(0, max(n - 1, 1), piece - 1):
+        chunk = np.ascontiguousarray(points[i : i + piece])
+        gap = float(np.linalg.norm(np.diff(chunk, axis=0), axis=1).max()) if len(chunk) > 1 else 0.0
+        certs.append(checker.certify(chunk, max(gap, 1e-6)))
+    return ClearanceCertificate(
+        colliding_samples=sum(c.colliding_samples for c in certs),
+        sampled_clearance_mm=_least(c.sampled_clearance_mm for c in certs),
+        certified_clearance_mm=_least(c.certified_clearance_mm for c in certs),
+        violation=next((c.violation for c in certs if c.violation is not None), None),
+    )
+
+
+def _least(values) -> float:
+    """The smallest value, NaN if any is NaN (a piece not checked leaves the path not
+    checked)."""
+    values = [float(v) for v in values]
+    return math.nan if any(math.isnan(v) for v in values) else min(values)
+
+
 def path_record(run, judge) -> LoopRecord:
     """One run's figures, its path judged against the anatomy without the margin.
 
@@ -324,8 +378,7 @@ def path_record(run, judge) -> LoopRecord:
     pts = np.ascontiguousarray(run.points_mm, dtype=np.float64)
     rest = getattr(run, "points_rest_mm", None)
     judged = pts if rest is None else np.ascontiguousarray(rest, dtype=np.float64)
-    gap = float(np.linalg.norm(np.diff(judged, axis=0), axis=1).max()) if len(judged) > 1 else 0.0
-    cert = judge.collision_checker(max(gap, 1e-6)).certify(judged, max(gap, 1e-6))
+    cert = certify_in_pieces(judge.collision_checker(), judged)
     guard: dict[str, Any] = {}
     if run.guard is not None:  # closed loop: its faults, holds and rejected samples
         guard = {**run.guard, "procedure_s": float(run.procedure_s)}
@@ -354,9 +407,32 @@ def path_record(run, judge) -> LoopRecord:
         ),
         shaft_loads=run.shaft_loads,
         points_rest_mm=None if rest is None else tuple(map(tuple, np.round(judged, 4).tolist())),
+        stopped_near_obstacle=getattr(run, "stopped_near_obstacle", None),
         **guard,
         **_target(getattr(run, "target", None)),
     )  # fmt: skip
+
+
+#: The fields of ``stopped_near_obstacle`` (:class:`~needlekit.execute.run.ExecutionRun`).
+_STOP_FIELDS = ("inserted_mm", "estimated_clearance_mm", "stop_mm")
+
+
+def _stop(data: dict, where: str) -> dict | None:
+    """``stopped_near_obstacle``: None, or its three numbers (the clearance may be -inf
+    written as null: outside the image)."""
+    stop = field_of(data, "stopped_near_obstacle", where, "dict", optional=True)
+    if stop is None:
+        return None
+    if sorted(stop) != sorted(_STOP_FIELDS):
+        raise InvalidInputError(f"{where}: stopped_near_obstacle",
+                                f"expected the fields {', '.join(_STOP_FIELDS)}")  # fmt: skip
+    for k in _STOP_FIELDS:
+        v = stop[k]
+        if not (v is None and k == "estimated_clearance_mm") and not (
+            is_number(v) and math.isfinite(v)
+        ):
+            raise InvalidInputError(f"{where}: stopped_near_obstacle: {k}", "expected a finite number")
+    return dict(stop)
 
 
 def _target(target: dict | None) -> dict:

@@ -47,6 +47,7 @@ from needlekit.execute.guard import GuardSpec, SensorGuard
 from needlekit.execute.needle_sim import ExecutionNoise
 from needlekit.execute.physical import MechanicsSettings
 from needlekit.execute.plugins import ESTIMATORS, FEEDBACK_LAWS, SENSORS, TRUTHS, Models, Setup
+from needlekit.execute.proximity import STOP_CLEARANCE_MM, ProximityStop
 from needlekit.execute.replan import Replanner
 from needlekit.execute.target_sensing import SensingPolicy, TargetSensing, retarget_reference
 from needlekit.planning.steerable.plan import SteerablePlan
@@ -105,6 +106,10 @@ class ExecutionSettings:
     sensing : SensingPolicy
         Closed loop, what sees the target (:mod:`needlekit.execute.target_sensing`):
         ``em`` (nothing: the plan's target, assumed still), ``checkpoints`` or ``tracking``.
+    stop_clearance_mm : float or None
+        Closed loop, stop inserting once the estimated tip's certified clearance (the
+        anatomy without the margin) is below this, or half the plan's margin if that is
+        less (:mod:`needlekit.execute.proximity`); None: never stop.
     """
 
     insertion_speed_mm_s: float = 2.0
@@ -121,6 +126,7 @@ class ExecutionSettings:
     model: Calibration | None = None
     tissue: object | None = None
     sensing: SensingPolicy = field(default_factory=SensingPolicy)
+    stop_clearance_mm: float | None = STOP_CLEARANCE_MM
 
     def __post_init__(self) -> None:
         for name in ("insertion_speed_mm_s", "dt_s", "lookahead_mm", "record_mm"):
@@ -130,6 +136,11 @@ class ExecutionSettings:
         v = self.overrun_mm
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise InvalidInputError("overrun_mm", f"expected a finite number >= 0, got {v!r}")
+        v = self.stop_clearance_mm
+        if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise InvalidInputError(
+                "stop_clearance_mm", f"expected a finite number >= 0 or None, got {v!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -174,6 +185,11 @@ class ExecutionRun:
     target : dict or None
         Closed loop under a sensing policy other than ``em``, or with a truth that carries
         the target: :meth:`TargetSensing.record <needlekit.execute.target_sensing.TargetSensing.record>`.
+    stopped_near_obstacle : dict or None
+        Closed loop with a :class:`~needlekit.execute.proximity.ProximityStop`, when it
+        stopped the insertion: ``inserted_mm``, ``estimated_clearance_mm`` (the estimated
+        tip's certified clearance there; null where it has none, outside the image) and
+        ``stop_mm``.
     """
 
     closed_loop: bool
@@ -192,6 +208,7 @@ class ExecutionRun:
     shaft_loads: dict | None = None
     points_rest_mm: np.ndarray | None = None
     target: dict | None = None
+    stopped_near_obstacle: dict | None = None
 
 
 @dataclass
@@ -213,7 +230,8 @@ class LoopHooks:
         ``inserted_mm``, ``goal_distance_mm`` (estimated), ``replans``, ``phase``
         (``"inserting"``, ``"gated"`` while a gate holds the needle, ``"held"`` while the
         sensor guard holds it, ``"scanning"`` while a checkpoint's scan holds it, ``"done"``,
-        or ``"aborted"`` when the guard gave up).
+        ``"aborted"`` when the guard gave up, or ``"stopped"`` when the estimated tip came
+        too close to an obstacle).
     observe_every_s : float
     breathing : needlekit.execute.breathing.Policy or None
         The anatomy breathing, and the policy the robot inserts with: the recorded path
@@ -249,6 +267,7 @@ def execute_plan(
     settings: ExecutionSettings | None = None,
     replanner: Replanner | None = None,
     hooks: LoopHooks | None = None,
+    stop: ProximityStop | None = None,
 ) -> ExecutionRun:
     """Insert along ``plan`` in simulated tissue (see the module notes).
 
@@ -267,6 +286,10 @@ def execute_plan(
         Closed loop, re-plan from the estimated tip when it drifts from the plan.
     hooks : LoopHooks, optional
         Closed loop: step timings, another sensor, an observer, breathing.
+    stop : ProximityStop, optional
+        Closed loop, stop inserting once the estimated tip is this close to an obstacle
+        (:mod:`needlekit.execute.proximity`; :func:`~needlekit.execute.trials.run_execute_trial`
+        gives one from ``settings.stop_clearance_mm``).
 
     Returns
     -------
@@ -301,6 +324,7 @@ def execute_plan(
         path,
         replanner,
         hooks or LoopHooks(),
+        stop,
     )
 
 
@@ -404,7 +428,7 @@ def _sensor_and_guard(plan, s, setup, seeds, hooks):
     return sensor, guard, schedule
 
 
-def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
+def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks, stop):
     s = setup.settings
     sensor, guard, schedule = _sensor_and_guard(plan, s, setup, seeds, hooks)
     tick_times, observe, seen = hooks.tick_times, hooks.observe, -math.inf
@@ -424,6 +448,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
     clock = time.perf_counter
     cross: list[float] = []
     events: list[tuple] = []
+    stopped = None
     policy = hooks.breathing
     t_max = TIME_CAP_FACTOR * limit / s.insertion_speed_mm_s
     breathe = None if policy is None else getattr(needle, "breathe", None)
@@ -505,6 +530,11 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
                     pending = ((res.plan, PlanReference.of_plan(res.plan, goal)), t + took,
                                float(needle.inserted_mm), goal)  # fmt: skip
                 c0 += clock() - c1  # the search is not the feedback step
+        if stop is not None and (clear := stop.breached(pose[:3, 3])) is not None:
+            stopped = {"inserted_mm": float(needle.inserted_mm),
+                       "estimated_clearance_mm": clear if math.isfinite(clear) else None,
+                       "stop_mm": stop.stop_mm}  # fmt: skip
+            break
         spin, kappa = law(pose, ref, index)
         step = min(ds, float(ahead[2]))  # the last step ends level with the goal
         c1 = clock()
@@ -530,7 +560,8 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
     path.end(0.0 if policy is None else policy.trace.actual(t))
     if observe is not None:
         observe(t, needle.pose, est.pose, ref.points_mm,
-                _state(needle, est.pose, goal, replanner, "aborted" if guard.aborted else "done"))  # fmt: skip
+                _state(needle, est.pose, goal, replanner,
+                       "aborted" if guard.aborted else "stopped" if stopped else "done"))  # fmt: skip
     est_err = float(np.linalg.norm(needle.pose[:3, 3] - est.pose[:3, 3]))
     adopted, lat = (0, ()) if replanner is None else (replanner.adopted, replanner.latencies_s)
     injected = () if schedule is None else tuple(schedule.to_list())
@@ -538,7 +569,7 @@ def _closed_loop(plan, goal, setup, needle, seeds, path, replanner, hooks):
                         needle.inserted_mm, est_err, guard.accepted, adopted, tuple(lat),
                         np.array(cross), tuple(events), t, guard.record(), injected,
                         _loads(needle), path.rest_array(),
-                        None if sensing is None else sensing.record())  # fmt: skip
+                        None if sensing is None else sensing.record(), stopped)  # fmt: skip
 
 
 def _target_seed(ss: np.random.SeedSequence) -> np.random.SeedSequence:

@@ -97,6 +97,7 @@ def _fault_summary(runs: list[dict]) -> dict:
         "holds": sum(r["holds"] for r in runs),
         "held_s": _stats(r["held_s"] for r in runs),
         "aborted": sum(bool(r["aborted"]) for r in runs),
+        "stopped_near_obstacle": sum(bool(r.get("stopped_near_obstacle")) for r in runs),
         "fault_events": {
             f"{k}/{a}": sum(e["kind"] == k and e["action"] == a for e in events)
             for k, a in sorted({(e["kind"], e["action"]) for e in events})

@@ -38,6 +38,7 @@ from needlekit.batch import worker_cached
 from needlekit.errors import InvalidInputError, raise_if_interrupt
 from needlekit.execute.breathing import POLICIES, Breathing, Policy
 from needlekit.execute.plugins import model_record
+from needlekit.execute.proximity import ProximityStop, stop_distance_mm
 from needlekit.execute.record import TrialRecord, path_record, trial_status
 from needlekit.execute.replan import Replanner, ReplanPolicy, first_mm
 from needlekit.execute.run import TIME_CAP_FACTOR, ExecutionSettings, LoopHooks, execute_plan
@@ -172,7 +173,9 @@ def run_execute_trial(
         )
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=closed, seed=seed,
                            settings=options.settings, replanner=rep,
-                           hooks=hooks if closed else None)  # fmt: skip
+                           hooks=hooks if closed else None,
+                           stop=proximity_stop(problem, judge, options.settings) if closed
+                           else None)  # fmt: skip
         extra = {} if rep is None else {"replans_refused": rep.refused,
                                         "warm_start_kept": rep.warm_kept}  # fmt: skip
         out[name] = replace(path_record(run, judge), **extra)
@@ -189,6 +192,29 @@ def run_execute_trial(
         open_loop=out.get("open_loop"), closed_loop=out.get("closed_loop"), breathing=breathing,
         sensing=sensing,
     )  # fmt: skip
+
+
+def proximity_stop(problem, judge, settings: ExecutionSettings) -> ProximityStop | None:
+    """A closed loop's stop near obstacles (:mod:`needlekit.execute.proximity`): the
+    judge's checker, the stop distance from ``settings.stop_clearance_mm`` and the plan's
+    margin (``problem.safety_margin_mm``); None when the setting is None.
+
+    Parameters
+    ----------
+    problem : SteerableProblem
+        The plan's problem, its margin included.
+    judge : SteerableProblem
+        The same anatomy without the margin.
+    settings : ExecutionSettings
+
+    Returns
+    -------
+    ProximityStop or None
+    """
+    if settings.stop_clearance_mm is None:
+        return None
+    stop = stop_distance_mm(settings.stop_clearance_mm, problem.safety_margin_mm)
+    return ProximityStop(judge.collision_checker(settings.record_mm), stop, settings.record_mm)
 
 
 def model_problem(problem, settings):
@@ -219,7 +245,8 @@ def _sensing_runs(problem, judge, plan, seed, options: ExecuteOptions, first) ->
                if options.replan else None)  # fmt: skip
         settings = replace(s, sensing=replace(s.sensing, name=name))
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=True, seed=seed,
-                           settings=settings, replanner=rep)  # fmt: skip
+                           settings=settings, replanner=rep,
+                           stop=proximity_stop(problem, judge, s))  # fmt: skip
         extra = {} if rep is None else {"replans_refused": rep.refused,
                                         "warm_start_kept": rep.warm_kept}  # fmt: skip
         out[name] = replace(path_record(run, judge), **extra)
@@ -243,7 +270,8 @@ def _breathing_runs(problem, judge, plan, seed, options: ExecuteOptions) -> dict
         )
         run = execute_plan(plan, problem.goal_mm, r_min, closed_loop=True, seed=seed,
                            settings=s, replanner=rep,
-                           hooks=LoopHooks(breathing=Policy(name, trace)))  # fmt: skip
+                           hooks=LoopHooks(breathing=Policy(name, trace)),
+                           stop=proximity_stop(problem, judge, s))  # fmt: skip
         out[name] = replace(path_record(run, judge), procedure_s=float(run.procedure_s))
     return out
 

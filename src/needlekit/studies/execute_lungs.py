@@ -340,6 +340,7 @@ def _brief(loop: dict) -> dict:
         "max_error_mm": e.get("max"),
         "within_1mm": loop["within_1mm"],
         "violated": loop["violated"],
+        "stopped_near_obstacle": loop.get("stopped_near_obstacle", 0),
         "min_clearance_mm": loop["min_clearance_mm"].get("min"),
         "replans_mean": loop["replans"].get("mean"),
         "replan_latency_p95_ms": loop["replan_latency_ms"].get("p95"),
