@@ -31,6 +31,8 @@ guard, faults, breathing, igtl_link
     live link to 3D Slicer.
 proximity
     The closed loop's stop when the estimated tip comes too close to an obstacle.
+tip_path
+    The true tip's path as an insertion records it, in the world and at rest.
 trials, trial_runs, record, summary
     The trials of ``needlekit execute``: the runner, the executor loop (Ctrl-C,
     ``--resume``), each trial's record and status, the study's summary.
