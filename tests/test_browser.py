@@ -9,7 +9,9 @@ runs that other tests make anyway are checked there, beside the run, not made a 
 time: the Feng lungs study (tests/studies/test_feng_lungs.py), the lecture's reproduction
 (tests/reproduce/test_lecture.py), the moving-obstacle example and its ``report`` page
 (tests/planning/test_dynamic.py), a ``puncture`` study and its ``report`` page
-(tests/control/test_puncture_study.py).
+(tests/control/test_puncture_study.py). A page whose every figure is a figure of an opened
+page (the ``report`` of a ``goals`` or ``multi`` record, each record of a report of
+several) is checked to be so, not opened again.
 """
 
 from pathlib import Path
@@ -163,11 +165,38 @@ def _scale_record() -> dict:
     return record | {"results": summary_lines(record)}
 
 
-@pytest.mark.parametrize(
-    "kind",
-    ["scene", "goals", "sweep", "multi", "approach", "scenes"]
-    + [f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "parts", "scale")],
-)
+#: Pages not opened in the browser, because every figure of theirs is, call for call, a
+#: figure of a page that is (``test_the_pages_not_opened_draw_only_figures_an_opened_one_draws``
+#: checks it): ``report`` redraws a ``goals`` or ``multi`` record as the command drew it,
+#: and a report of several records (``report-parts``) holds each one's figures in turn.
+#: Opening them took 25 s of the suite and proved nothing the opened pages do not.
+DRAWN_ELSEWHERE = ("report-plan", "report-goals", "report-sweep", "report-multi")
+#: Every page kind the fixture makes.
+KINDS = ["scene", "goals", "sweep", "multi", "approach", "scenes"] + [
+    f"report-{k}" for k in ("plan", "goals", "sweep", "cfrw", "multi", "parts", "scale")
+]
+
+
+def _figures(page: Path) -> list[str]:
+    """Each ``Plotly.newPlot`` call of the page (its data, layout and config), its element
+    id replaced: two pages with equal lists run the same plotly calls."""
+    import re
+
+    text = page.read_text(encoding="utf-8")
+    calls = re.finditer(r'Plotly\.newPlot\(\s*"([0-9a-f-]+)",(.*?)\)\s*\};', text, re.S)
+    return [m.group(2).replace(m.group(1), "ID") for m in calls]
+
+
+def test_the_pages_not_opened_draw_only_figures_an_opened_one_draws(reports):
+    f = {kind: _figures(Path(reports[kind])) for kind in KINDS}
+    assert all(f[k] for k in f), [k for k in f if not f[k]]
+    assert f["report-goals"] == f["goals"] and f["report-multi"] == f["multi"]
+    assert f["report-parts"] == f["report-plan"] + f["report-sweep"] + f["report-multi"]
+    opened = {call for kind in KINDS if kind not in DRAWN_ELSEWHERE for call in f[kind]}
+    assert all(call in opened for kind in DRAWN_ELSEWHERE for call in f[kind])
+
+
+@pytest.mark.parametrize("kind", [k for k in KINDS if k not in DRAWN_ELSEWHERE])
 def test_every_report_renders_its_3d_views_without_console_warnings(
     rendered, reports, kind, tmp_path
 ):
