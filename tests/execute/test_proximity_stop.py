@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from needlekit.anatomy.collision import ClearanceCertificate
-from needlekit.cli import main
 from needlekit.cli._verdicts import execute_failures
 from needlekit.errors import InvalidInputError
 from needlekit.execute.proximity import STOP_CLEARANCE_MM, ProximityStop, stop_distance_mm
@@ -90,10 +89,9 @@ def test_the_stop_distance_is_at_most_half_the_plans_margin():
 
 
 @pytest.fixture(scope="module")
-def toy_plan(tmp_path_factory):
-    path = tmp_path_factory.mktemp("stop") / "plan.json"
-    assert main(["plan", str(TOY), "--out", str(path)]) == 0
-    return path
+def toy_plan(toy_execution):
+    """The toy's plan the session made once (tests/conftest.py ``toy_execution``)."""
+    return toy_execution / "plan.json"
 
 
 def test_the_closed_loop_stops_short_of_a_wall_across_its_plan(toy_plan):

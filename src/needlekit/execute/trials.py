@@ -214,7 +214,8 @@ def proximity_stop(problem, judge, settings: ExecutionSettings) -> ProximityStop
     if settings.stop_clearance_mm is None:
         return None
     stop = stop_distance_mm(settings.stop_clearance_mm, problem.safety_margin_mm)
-    return ProximityStop(judge.collision_checker(settings.record_mm), stop, settings.record_mm)
+    # the checker path_record judges the run with; the spacing is the recorded path's
+    return ProximityStop(judge.collision_checker(), stop, settings.record_mm)
 
 
 def model_problem(problem, settings):
