@@ -171,3 +171,19 @@ def test_each_piece_is_certified_with_its_own_gap():
     assert certify_in_pieces(wall, even).certified_clearance_mm == pytest.approx(
         wall.certify(even, 0.25).certified_clearance_mm
     )
+
+
+def test_every_closed_loop_the_package_runs_is_given_its_stop():
+    """Each call of ``execute_plan`` in needlekit passes ``stop=``: a closed loop added
+    without one would insert blind to the obstacles its estimate nears."""
+    import ast
+
+    src = Path(__file__).resolve().parents[2] / "src" / "needlekit"
+    calls = []
+    for path in sorted(src.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "execute_plan":
+                calls.append((path.relative_to(src).as_posix(), node.lineno,
+                              {k.arg for k in node.keywords}))  # fmt: skip
+    assert len(calls) >= 4, calls  # the trials' three runs and the benchmark's
+    assert [c[:2] for c in calls if "stop" not in c[2]] == []
